@@ -1,0 +1,126 @@
+"""Pinhole camera in OpenCV axes (x right, y down, z forward) and the one OpenGL<->OpenCV conversion.
+
+Pixel centres are at integer coordinates: pixel (u, v) = (column, row) covers [u-0.5, u+0.5].
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+# The single place where OpenGL camera axes (x right, y up, z backward; MuJoCo, pyrender) meet
+# OpenCV's (x right, y down, z forward). Both matrices are their own inverse.
+GL_FROM_CV = np.diag([1.0, -1.0, -1.0, 1.0])
+CV_FROM_GL = GL_FROM_CV
+
+
+def world_from_cam_cv_from_gl(world_from_cam_gl: np.ndarray) -> np.ndarray:
+    """Camera pose in OpenCV axes from the same camera's pose in OpenGL axes, (..., 4, 4)."""
+    return np.asarray(world_from_cam_gl, dtype=np.float64) @ GL_FROM_CV
+
+
+def world_from_cam_gl_from_cv(world_from_cam_cv: np.ndarray) -> np.ndarray:
+    """Camera pose in OpenGL axes from the same camera's pose in OpenCV axes, (..., 4, 4)."""
+    return np.asarray(world_from_cam_cv, dtype=np.float64) @ CV_FROM_GL
+
+
+@dataclasses.dataclass(frozen=True)
+class PinholeCamera:
+    """An undistorted pinhole camera.
+
+    Attributes are in pixels; ``width`` x ``height`` is the image size.
+    """
+
+    width: int
+    """Image width in pixels (number of columns)."""
+    height: int
+    """Image height in pixels (number of rows)."""
+    fx: float
+    """Focal length along x, pixels."""
+    fy: float
+    """Focal length along y, pixels."""
+    cx: float
+    """Principal point column, pixels (pixel centres at integers)."""
+    cy: float
+    """Principal point row, pixels."""
+
+    def __post_init__(self) -> None:
+        if self.width <= 0 or self.height <= 0:
+            raise ValueError(f"camera size must be positive, got {self.width}x{self.height}")
+        if not (self.fx > 0 and self.fy > 0):
+            raise ValueError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+
+    @classmethod
+    def from_k(cls, k: np.ndarray, width: int, height: int) -> "PinholeCamera":
+        k = np.asarray(k, dtype=np.float64)
+        return cls(int(width), int(height), float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2]))
+
+    @classmethod
+    def from_fov_y(cls, width: int, height: int, fov_y_deg: float) -> "PinholeCamera":
+        """Square pixels, principal point at the image centre ((W-1)/2, (H-1)/2)."""
+        f = 0.5 * height / np.tan(np.deg2rad(fov_y_deg) / 2.0)
+        return cls(width, height, f, f, (width - 1) / 2.0, (height - 1) / 2.0)
+
+    @property
+    def k(self) -> np.ndarray:
+        """3x3 intrinsic matrix, float64."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def fov_y_deg(self) -> float:
+        return float(np.rad2deg(2.0 * np.arctan(0.5 * self.height / self.fy)))
+
+    def scaled(self, width: int, height: int) -> "PinholeCamera":
+        """The same camera resampled to ``width`` x ``height`` (pixel-centre convention kept)."""
+        sx, sy = width / self.width, height / self.height
+        return PinholeCamera(
+            width, height, self.fx * sx, self.fy * sy,
+            (self.cx + 0.5) * sx - 0.5, (self.cy + 0.5) * sy - 0.5,
+        )
+
+    def pixel_grid(self) -> np.ndarray:
+        """(H, W, 2) float64 array of (u, v) pixel centres."""
+        u, v = np.meshgrid(np.arange(self.width, dtype=np.float64), np.arange(self.height, dtype=np.float64))
+        return np.stack([u, v], axis=-1)
+
+    def project(self, p_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Project points (..., 3) in camera frame (OpenCV axes, metres).
+
+        Returns ``(uv, depth_z)``: pixels (..., 2) and depth along the optical axis (...,).
+        Points with z <= 0 give non-finite uv; check depth_z > 0.
+        """
+        p = np.asarray(p_cam, dtype=np.float64)
+        z = p[..., 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = self.fx * p[..., 0] / z + self.cx
+            v = self.fy * p[..., 1] / z + self.cy
+        return np.stack([u, v], axis=-1), z
+
+    def unproject(self, uv: np.ndarray, depth_z: np.ndarray) -> np.ndarray:
+        """Points (..., 3) in camera frame from pixels (..., 2) and depth along the optical axis (...,)."""
+        uv = np.asarray(uv, dtype=np.float64)
+        z = np.asarray(depth_z, dtype=np.float64)
+        x = (uv[..., 0] - self.cx) / self.fx * z
+        y = (uv[..., 1] - self.cy) / self.fy * z
+        return np.stack([x, y, z], axis=-1)
+
+    def ray_depth_from_z(self, depth_z: np.ndarray) -> np.ndarray:
+        """``depth_ray`` (distance to the camera centre) from ``depth_z``, both (H, W)."""
+        g = self.pixel_grid()
+        x = (g[..., 0] - self.cx) / self.fx
+        y = (g[..., 1] - self.cy) / self.fy
+        return np.asarray(depth_z) * np.sqrt(1.0 + x * x + y * y)
+
+    def z_from_ray_depth(self, depth_ray: np.ndarray) -> np.ndarray:
+        """``depth_z`` from ``depth_ray``, both (H, W)."""
+        g = self.pixel_grid()
+        x = (g[..., 0] - self.cx) / self.fx
+        y = (g[..., 1] - self.cy) / self.fy
+        return np.asarray(depth_ray) / np.sqrt(1.0 + x * x + y * y)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "PinholeCamera":
+        return cls(int(d["width"]), int(d["height"]), float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]))

@@ -1,0 +1,159 @@
+"""Our sequence format (written by the simulator, read here). The full spec is in README.md.
+
+Layout of one sequence folder::
+
+    sequence.json        header: format, version, num_frames, rate_hz, camera (PinholeCamera dict),
+                         stereo_baseline_m (or null), scene, trajectory, seed, backend, config,
+                         has {rgb_right, depth, flow, mask}, complete (false while being written)
+    rgb/NNNNNN.png       uint8 HxWx3 RGB, left camera
+    rgb_right/NNNNNN.png uint8 HxWx3 RGB, right camera at +baseline along the camera x axis (optional)
+    depth/NNNNNN.npy     float32 HxW depth_z in metres, 0 = no surface
+    flow/NNNNNN.npy      float32 HxWx2 (du, dv) pixels from frame NNNNNN to NNNNNN+1 (none for the last)
+    mask/NNNNNN.png      uint16 HxW instance ids, 0 = static scene
+    frames/NNNNNN.json   per-frame record {index, timestamp_s, world_from_cam, ...}; written LAST for a
+                         frame, so its presence means the frame is complete
+    poses.txt            KITTI layout (12 numbers per line), world_from_cam, OpenCV axes; written at the end
+    times.txt            one timestamp per line, seconds; written at the end
+
+Every file is written atomically (temp file + rename), so a killed writer never leaves a file that
+looks complete; ``OursWriter(resume=True)`` skips frames whose record exists.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from core import atomic
+from core.camera import PinholeCamera
+from core.errors import InputError
+from core.sequence import Sequence
+from core.trajectory import Trajectory
+
+FORMAT = "deepslam-sequence"
+VERSION = 1
+
+
+def _name(i: int) -> str:
+    return f"{i:06d}"
+
+
+class OursWriter:
+    """Writes one sequence folder frame by frame.
+
+    Args:
+        root: output folder (created).
+        header: everything for sequence.json except ``format``, ``version`` and ``complete``; must
+            contain ``num_frames``, ``rate_hz`` and ``camera`` (a PinholeCamera dict).
+        resume: continue an interrupted sequence; its header must match ``header``.
+    """
+
+    def __init__(self, root: str | Path, header: dict, resume: bool = False):
+        self.root = Path(root)
+        self.header = {"format": FORMAT, "version": VERSION, **header, "complete": False}
+        self.header.setdefault("has", {"rgb_right": False, "depth": True, "flow": True, "mask": True})
+        json_path = self.root / "sequence.json"
+        if resume and json_path.is_file():
+            old = json.loads(json_path.read_text())
+            old.pop("complete", None)
+            new = json.loads(json.dumps({k: v for k, v in self.header.items() if k != "complete"},
+                                        default=atomic._json_default))
+            if old != new:
+                diff = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
+                raise InputError(json_path, f"cannot resume: settings differ from the interrupted run ({', '.join(diff)})")
+        atomic.write_json(json_path, self.header)
+
+    def done(self, i: int) -> bool:
+        return (self.root / "frames" / f"{_name(i)}.json").is_file()
+
+    def write_frame(self, i: int, timestamp_s: float, world_from_cam: np.ndarray, rgb: np.ndarray,
+                    depth: np.ndarray | None = None, flow: np.ndarray | None = None,
+                    mask: np.ndarray | None = None, rgb_right: np.ndarray | None = None,
+                    extra: dict | None = None) -> None:
+        """Write frame i's files, then its record (which marks it complete).
+
+        Args: rgb uint8 (H,W,3); depth float32 (H,W) depth_z m; flow float32 (H,W,2) px to frame i+1;
+        mask uint16 (H,W); world_from_cam (4,4) float64 OpenCV axes; extra: JSON-able per-frame data.
+        """
+        n = _name(i)
+        atomic.write_png(self.root / "rgb" / f"{n}.png", np.asarray(rgb, np.uint8))
+        if rgb_right is not None:
+            atomic.write_png(self.root / "rgb_right" / f"{n}.png", np.asarray(rgb_right, np.uint8))
+        if depth is not None:
+            atomic.write_npy(self.root / "depth" / f"{n}.npy", np.asarray(depth, np.float32))
+        if flow is not None:
+            atomic.write_npy(self.root / "flow" / f"{n}.npy", np.asarray(flow, np.float32))
+        if mask is not None:
+            atomic.write_png(self.root / "mask" / f"{n}.png", np.asarray(mask, np.uint16))
+        record = {"index": i, "timestamp_s": float(timestamp_s),
+                  "world_from_cam": np.asarray(world_from_cam, np.float64).tolist(), **(extra or {})}
+        atomic.write_json(self.root / "frames" / f"{n}.json", record)
+
+    def finish(self) -> None:
+        """Write poses.txt and times.txt from the frame records and mark the sequence complete."""
+        n = int(self.header["num_frames"])
+        missing = [i for i in range(n) if not self.done(i)]
+        if missing:
+            raise RuntimeError(f"{self.root}: frames {missing[:5]}... not written")
+        recs = [json.loads((self.root / "frames" / f"{_name(i)}.json").read_text()) for i in range(n)]
+        poses = np.array([r["world_from_cam"] for r in recs])[:, :3, :].reshape(n, 12)
+        atomic.write_text(self.root / "poses.txt", "".join(" ".join(f"{x:.12e}" for x in row) + "\n" for row in poses))
+        atomic.write_text(self.root / "times.txt", "".join(f"{r['timestamp_s']:.9f}\n" for r in recs))
+        self.header["complete"] = True
+        atomic.write_json(self.root / "sequence.json", self.header)
+
+
+def read_ours(root: str | Path) -> Sequence:
+    root = Path(root)
+    json_path = root / "sequence.json"
+    try:
+        header = json.loads(json_path.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise InputError(json_path, f"cannot read sequence header ({e})") from None
+    if header.get("format") != FORMAT:
+        raise InputError(json_path, f"not a {FORMAT} header (format = {header.get('format')!r})")
+    if not header.get("complete"):
+        raise InputError(root, "sequence is incomplete (an interrupted render? rerun it with --resume)")
+    try:
+        n = int(header["num_frames"])
+        camera = PinholeCamera.from_dict(header["camera"])
+    except (KeyError, TypeError, ValueError) as e:
+        raise InputError(json_path, f"bad header field ({e})") from None
+    has = header.get("has", {})
+    names = [_name(i) for i in range(n)]
+    poses = _read_kitti_poses(root / "poses.txt", n)
+    times = _read_times(root / "times.txt", n)
+    return Sequence(
+        name=root.name, kind="ours", root=root, camera=camera, timestamps_s=times,
+        image_paths=[root / "rgb" / f"{s}.png" for s in names],
+        right_paths=[root / "rgb_right" / f"{s}.png" for s in names] if has.get("rgb_right") else None,
+        baseline_m=header.get("stereo_baseline_m"),
+        gt=Trajectory(poses, times),
+        depth_paths=[root / "depth" / f"{s}.npy" for s in names] if has.get("depth") else None,
+        flow_paths=([root / "flow" / f"{s}.npy" for s in names[:-1]] + [None]) if has.get("flow") else None,
+        mask_paths=[root / "mask" / f"{s}.png" for s in names] if has.get("mask") else None,
+        meta=header,
+    )
+
+
+def _read_kitti_poses(path: Path, n: int) -> np.ndarray:
+    try:
+        rows = np.loadtxt(path, ndmin=2)
+    except (OSError, ValueError) as e:
+        raise InputError(path, f"cannot read poses ({e})") from None
+    if rows.shape != (n, 12) or not np.isfinite(rows).all():
+        raise InputError(path, f"expected {n} finite rows of 12 numbers, got shape {rows.shape}")
+    out = np.tile(np.eye(4), (n, 1, 1))
+    out[:, :3, :] = rows.reshape(n, 3, 4)
+    return out
+
+
+def _read_times(path: Path, n: int) -> np.ndarray:
+    try:
+        t = np.loadtxt(path, ndmin=1)
+    except (OSError, ValueError) as e:
+        raise InputError(path, f"cannot read times ({e})") from None
+    if t.shape != (n,):
+        raise InputError(path, f"expected {n} timestamps, got {t.shape[0]}")
+    return t.astype(np.float64)

@@ -1,0 +1,195 @@
+"""One Sequence type for KITTI odometry, EuRoC ASL and our own format; images load lazily.
+
+A :class:`Sequence` holds paths and metadata only, so thousands of frames never sit in memory.
+Use :func:`open_sequence` to read any of the three layouts.
+"""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+
+from core.camera import PinholeCamera
+from core.errors import InputError
+from core.trajectory import Trajectory
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Read a PNG/JPEG as uint8 (H, W) grey or (H, W, 3) RGB, or uint16 (H, W) for 16-bit PNGs.
+
+    Raises InputError for a missing, empty or truncated file (a decoder that stops early is an error,
+    not a partly grey image).
+    """
+    import cv2
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "image file is missing")
+    data = path.read_bytes()
+    if not data:
+        raise InputError(path, "image file is empty")
+    if data[:8] == b"\x89PNG\r\n\x1a\n" and b"IEND" not in data[-64:]:
+        raise InputError(path, "PNG is truncated (no IEND chunk)")
+    if data[:2] == b"\xff\xd8" and data.rstrip(b"\0")[-2:] != b"\xff\xd9":
+        raise InputError(path, "JPEG is truncated (no end-of-image marker)")
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise InputError(path, "cannot decode image")
+    if img.ndim == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB if img.shape[2] == 4 else cv2.COLOR_BGR2RGB)
+    return img
+
+
+def read_npy(path: str | Path, dtype: np.dtype, ndim: int) -> np.ndarray:
+    """Read a .npy written by this project, checking dtype and rank; InputError when it is bad."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "file is missing")
+    try:
+        arr = np.load(path, allow_pickle=False)
+    except Exception as e:  # numpy raises ValueError/OSError/EOFError for truncated files
+        raise InputError(path, f"cannot read .npy ({type(e).__name__}: {e})") from None
+    if arr.ndim != ndim:
+        raise InputError(path, f"expected a {ndim}-D array, got shape {arr.shape}")
+    return arr.astype(dtype, copy=False)
+
+
+@dataclasses.dataclass(frozen=True)
+class Frame:
+    """One frame of a sequence; its arrays load when asked for."""
+
+    sequence: "Sequence"
+    index: int
+    """0-based frame index."""
+    timestamp_s: float
+    """Seconds (float64), in the sequence's clock."""
+
+    @property
+    def world_from_cam(self) -> np.ndarray | None:
+        """(4, 4) float64 ground-truth pose of the (left) camera, OpenCV axes, or None."""
+        return None if self.sequence.gt is None else self.sequence.gt.world_from_cam[self.index]
+
+    def image(self) -> np.ndarray:
+        return self.sequence.image(self.index)
+
+    def image_right(self) -> np.ndarray:
+        return self.sequence.image_right(self.index)
+
+    def depth(self) -> np.ndarray | None:
+        return self.sequence.depth(self.index)
+
+    def flow(self) -> np.ndarray | None:
+        return self.sequence.flow(self.index)
+
+    def mask(self) -> np.ndarray | None:
+        return self.sequence.mask(self.index)
+
+
+@dataclasses.dataclass(eq=False)
+class Sequence:
+    """A sequence of (stereo) frames with a rectified pinhole camera and optional ground truth.
+
+    Attributes:
+        name: human-readable name ("kitti/06", "euroc/V1_01_easy", or the folder name).
+        kind: "kitti", "euroc" or "ours".
+        root: the folder it was read from.
+        camera: intrinsics of the images as served by :meth:`image` (rectified, undistorted).
+        timestamps_s: (N,) float64 seconds.
+        image_paths: N paths of the left (cam0) images.
+        right_paths: N paths of the right images, or None.
+        baseline_m: stereo baseline in metres (right camera at +baseline along x), or None.
+        gt: ground-truth world_from_cam of the left camera at the frame times, or None.
+        depth_paths / flow_paths / mask_paths: per-frame paths where the data has them (flow: None
+            for the last frame), else None.
+        postprocess: function (image, side) -> image applied after loading (EuRoC undistortion and
+            rectification); side is "left" or "right".
+    """
+
+    name: str
+    kind: str
+    root: Path
+    camera: PinholeCamera
+    timestamps_s: np.ndarray
+    image_paths: list[Path]
+    right_paths: list[Path] | None = None
+    baseline_m: float | None = None
+    gt: Trajectory | None = None
+    depth_paths: list[Path] | None = None
+    flow_paths: list[Path | None] | None = None
+    mask_paths: list[Path] | None = None
+    postprocess: Callable[[np.ndarray, str], np.ndarray] | None = None
+    meta: dict = dataclasses.field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.image_paths)
+
+    def __iter__(self) -> Iterator[Frame]:
+        for i in range(len(self)):
+            yield self.frame(i)
+
+    def frame(self, i: int) -> Frame:
+        return Frame(self, i, float(self.timestamps_s[i]))
+
+    def image(self, i: int) -> np.ndarray:
+        """Left image i: uint8 (H, W) grey or (H, W, 3) RGB, rectified."""
+        img = read_image(self.image_paths[i])
+        return self.postprocess(img, "left") if self.postprocess else img
+
+    def image_right(self, i: int) -> np.ndarray:
+        if self.right_paths is None:
+            raise InputError(self.root, "sequence has no right images")
+        img = read_image(self.right_paths[i])
+        return self.postprocess(img, "right") if self.postprocess else img
+
+    def depth(self, i: int) -> np.ndarray | None:
+        """(H, W) float32 depth_z in metres, 0 where unknown; None when the sequence has no depth."""
+        if self.depth_paths is None:
+            return None
+        d = read_npy(self.depth_paths[i], np.float32, 2)
+        return d
+
+    def flow(self, i: int) -> np.ndarray | None:
+        """(H, W, 2) float32 flow (du, dv) px from frame i to i+1; None where absent (last frame)."""
+        if self.flow_paths is None or self.flow_paths[i] is None:
+            return None
+        return read_npy(self.flow_paths[i], np.float32, 3)
+
+    def mask(self, i: int) -> np.ndarray | None:
+        """(H, W) uint16 instance ids, 0 = static scene; None when absent."""
+        if self.mask_paths is None:
+            return None
+        return read_image(self.mask_paths[i]).astype(np.uint16, copy=False)
+
+    @property
+    def has_depth(self) -> bool:
+        return self.depth_paths is not None
+
+    @property
+    def has_stereo(self) -> bool:
+        return self.right_paths is not None and self.baseline_m is not None
+
+
+def open_sequence(path: str | Path) -> Sequence:
+    """Open a KITTI odometry sequence folder (``.../sequences/NN``), an EuRoC ASL folder (holding
+    ``mav0``, or ``mav0`` itself) or a folder in our format (holding ``sequence.json``)."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(path, "sequence folder does not exist")
+    if not path.is_dir():
+        raise InputError(path, "not a folder")
+    if (path / "sequence.json").is_file():
+        from core.ours import read_ours
+
+        return read_ours(path)
+    if (path / "mav0").is_dir() or path.name == "mav0":
+        from core.euroc import read_euroc
+
+        return read_euroc(path)
+    if (path / "image_0").is_dir() or (path / "image_2").is_dir() or (path / "calib.txt").is_file():
+        from core.kitti import read_kitti
+
+        return read_kitti(path)
+    raise InputError(path, "not a KITTI sequence (image_0/, calib.txt), EuRoC folder (mav0/) "
+                     "or deepslam sequence (sequence.json)")

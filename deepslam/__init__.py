@@ -1,0 +1,1 @@
+"""The deepslam command line. Thin: every subcommand lives in deepslam/commands/<name>.py."""

@@ -1,0 +1,5 @@
+import sys
+
+from deepslam.cli import main
+
+sys.exit(main())

@@ -1,0 +1,42 @@
+"""``deepslam info DIR``: what a sequence folder holds (KITTI, EuRoC or ours), checked frame by frame."""
+from __future__ import annotations
+
+import argparse
+import json
+
+NAME = "info"
+HELP = "describe a sequence folder (KITTI, EuRoC or deepslam format) and check that its files read"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("sequence", help="sequence folder: KITTI sequences/NN, EuRoC (holding mav0/), or ours")
+    p.add_argument("--check", action="store_true", help="decode every image (finds missing/truncated files)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from core.sequence import open_sequence
+
+    seq = open_sequence(args.sequence)
+    if args.check:
+        for i in tqdm(range(len(seq)), desc="checking", unit="frame", disable=args.json):
+            seq.image(i)
+            if seq.right_paths is not None:
+                seq.image_right(i)
+            if seq.has_depth:
+                seq.depth(i)
+    info = {
+        "name": seq.name, "kind": seq.kind, "frames": len(seq), "camera": seq.camera.to_dict(),
+        "baseline_m": seq.baseline_m, "has_ground_truth": seq.gt is not None,
+        "duration_s": float(seq.timestamps_s[-1] - seq.timestamps_s[0]),
+        "path_length_m": None if seq.gt is None else seq.gt.path_length_m(),
+        "has_depth": seq.has_depth, "has_flow": seq.flow_paths is not None, "has_mask": seq.mask_paths is not None,
+    }
+    if args.json:
+        print(json.dumps(info))
+    else:
+        for k, v in info.items():
+            print(f"{k:>17}: {v}")
+    return 0
