@@ -15,13 +15,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
+    from core.progress import progress
     from core.sequence import open_sequence
 
     seq = open_sequence(args.sequence)
     if args.check:
-        for i in tqdm(range(len(seq)), desc="checking", unit="frame", disable=args.json):
+        for i in progress(range(len(seq)), desc="checking", unit="frame", disable=True if args.json else None):
             seq.image(i)
             if seq.right_paths is not None:
                 seq.image_right(i)
