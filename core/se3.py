@@ -96,10 +96,11 @@ def to_euler6(a_from_b: np.ndarray) -> np.ndarray:
 
 
 def rotation_angle(a_from_b: np.ndarray) -> np.ndarray:
-    """Rotation angle (..., ) in radians, in [0, pi], robust near 0 and pi."""
+    """Rotation angle (..., ) in radians, in [0, pi]; atan2 form, accurate near 0 and pi."""
     r = np.asarray(a_from_b, dtype=np.float64)[..., :3, :3]
-    cos = np.clip((np.trace(r, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
-    return np.arccos(cos)
+    cos = (np.trace(r, axis1=-2, axis2=-1) - 1.0) / 2.0
+    vee = np.stack([r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]], axis=-1)
+    return np.arctan2(np.linalg.norm(vee, axis=-1) / 2.0, cos)
 
 
 def orthonormality_error(rotation: np.ndarray) -> np.ndarray:

@@ -1,0 +1,124 @@
+"""``deepslam eval``: score an estimated trajectory against ground truth (ATE, RPE, KITTI t_err/r_err).
+
+Alignment (``--align``, default ``se3``, as evo's ``-a``): ATE is the RMSE of the position error after
+a least-squares rigid (se3) or similarity (sim3, for monocular scale) alignment of the estimate onto
+the ground truth, or none. The KITTI figures follow the devkit, which aligns nothing: they compare
+relative motions over 100..800 m segments, which a rigid alignment does not change, so with ``none``
+or ``se3`` they equal the official numbers; with ``sim3`` they are computed after the scale fix.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+
+NAME = "eval"
+HELP = "score an estimated trajectory against ground truth: ATE, RPE, KITTI t_err/r_err"
+
+_FORMATS = ("kitti", "tum", "euroc")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.description = (HELP + ". Formats are detected from the content (KITTI: 12 columns; TUM: t x y z qx qy qz "
+                     "qw; EuRoC: ASL csv with ns timestamps); trajectories with timestamps on both sides are "
+                     "associated by time, otherwise matched by index. Default alignment se3 (evo's -a); the KITTI "
+                     "t_err/r_err (shown when the ground truth is longer than 100 m) use relative segments as "
+                     "the devkit does, so se3 alignment leaves them equal to the official figures.")
+    p.add_argument("--gt", required=True, metavar="FILE", help="ground-truth trajectory (.xz/.gz accepted)")
+    p.add_argument("--est", required=True, metavar="FILE", help="estimated trajectory")
+    p.add_argument("--format", choices=_FORMATS, default=None, help="format of both files (default: detect)")
+    p.add_argument("--gt-format", choices=_FORMATS, default=None, help="format of --gt (overrides --format)")
+    p.add_argument("--est-format", choices=_FORMATS, default=None, help="format of --est (overrides --format)")
+    p.add_argument("--align", choices=("none", "se3", "sim3"), default="se3",
+                   help="alignment of the estimate before ATE/RPE (default: se3)")
+    p.add_argument("--rpe-delta", type=int, default=1, metavar="N", help="RPE frame delta (default: 1)")
+    p.add_argument("--max-diff", type=float, default=0.01, metavar="S",
+                   help="largest timestamp difference for association, seconds (default: 0.01)")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    p.add_argument("--plot", default=None, metavar="PNG", help="write a top-down plot of both trajectories")
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from core import metrics, plots
+    from core.errors import InputError
+    from core.trajio import read_trajectory_and_format
+
+    if not (args.max_diff > 0 and math.isfinite(args.max_diff)):
+        raise InputError(None, f"--max-diff must be a positive number of seconds, got {args.max_diff}")
+    if args.rpe_delta < 1:
+        raise InputError(None, f"--rpe-delta must be at least 1 frame, got {args.rpe_delta}")
+    gt_path, est_path = Path(args.gt), Path(args.est)
+    gt, gt_fmt = read_trajectory_and_format(gt_path, args.gt_format or args.format)
+    est, est_fmt = read_trajectory_and_format(est_path, args.est_format or args.format)
+    res = metrics.evaluate(gt, est, align=args.align, rpe_delta=args.rpe_delta, max_diff_s=args.max_diff,
+                           gt_path=gt_path, est_path=est_path)
+    res.update({"gt": str(gt_path), "est": str(est_path), "gt_format": gt_fmt, "est_format": est_fmt})
+
+    if args.plot:
+        g = res["_gt_poses"][:, :3, 3]
+        e = res["_est_aligned_poses"][:, :3, 3]
+        try:
+            plots.plot_trajectories_topdown(args.plot, {f"ground truth ({gt_path.name})": g,
+                                                        f"estimate ({est_path.name}, {args.align})": e},
+                                            title=f"ATE {res['ate_m']:.3f} m")
+        except OSError as err:
+            raise InputError(args.plot, f"cannot write the plot ({err.strerror or err})") from None
+        res["plot"] = str(args.plot)
+
+    public = {k: _clean(v) for k, v in res.items() if not k.startswith("_")}
+    if args.json:
+        sys.stdout.write(json.dumps(public, sort_keys=True) + "\n")
+    else:
+        sys.stdout.write(format_table(public))
+    return 0
+
+
+def _clean(v):
+    """JSON-safe: NaN/inf -> None, recursively."""
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {k: _clean(x) for k, x in v.items()}
+    if isinstance(v, list):
+        return [_clean(x) for x in v]
+    return v
+
+
+def format_table(r: dict) -> str:
+    """A readable table of the dict :func:`run` prints with --json."""
+    def num(x, fmt):
+        return "n/a" if x is None else format(x, fmt)
+
+    lines = [
+        f"ground truth  {r['gt']}  ({r['gt_format']}, {r['n_gt']} poses)",
+        f"estimate      {r['est']}  ({r['est_format']}, {r['n_est']} poses)",
+        f"matched       {r['n_matched']} poses by {r['matched_by']}"
+        + (f" (max diff {r['max_diff_s']:g} s)" if r.get("max_diff_s") else "")
+        + f"; ground truth length {r['gt_length_m']:.1f} m",
+        f"alignment     {r['align']}" + (f" (scale {r['scale']:.4f})" if r["align"] == "sim3" else ""),
+        "",
+        f"{'metric':<28}{'value':>12}  unit",
+        f"{'ATE rmse':<28}{num(r['ate_m'], '.4f'):>12}  m",
+        f"{'ATE mean / median / max':<28}{num(r['ate_mean_m'], '.4f'):>12}  / {num(r['ate_median_m'], '.4f')}"
+        f" / {num(r['ate_max_m'], '.4f')} m",
+        f"{'RPE trans rmse (d=' + str(r['rpe_delta']) + ')':<28}{num(r['rpe_t_m'], '.4f'):>12}  m",
+        f"{'RPE rot rmse (d=' + str(r['rpe_delta']) + ')':<28}{num(r['rpe_r_deg'], '.4f'):>12}  deg",
+    ]
+    if "kitti_t_err_pct" in r:
+        lines += [
+            f"{'KITTI t_err':<28}{num(r['kitti_t_err_pct'], '.4f'):>12}  %",
+            f"{'KITTI r_err':<28}{num(r['kitti_r_err_deg_per_100m'], '.4f'):>12}  deg/100 m",
+            "",
+            f"{'length [m]':>10}{'segments':>10}{'t_err [%]':>12}{'r_err [deg/100m]':>18}",
+        ]
+        for row in r.get("kitti_per_length", []):
+            lines.append(f"{row['length_m']:>10.0f}{row['n_segments']:>10d}{num(row['t_err_pct'], '.4f'):>12}"
+                         f"{num(row['r_err_deg_per_100m'], '.4f'):>18}")
+    else:
+        lines.append(f"(KITTI t_err/r_err: ground truth is {r['gt_length_m']:.1f} m, not longer than 100 m)")
+    if r.get("plot"):
+        lines += ["", f"plot          {r['plot']}"]
+    return "\n".join(lines) + "\n"
