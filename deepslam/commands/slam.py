@@ -1,0 +1,211 @@
+"""``deepslam slam``: flow -> odometry -> relocalization -> pose graph on a KITTI, EuRoC or our sequence.
+
+Writes the SLAM trajectory (``--out``), the odometry-only trajectory beside it (``<stem>_vo<suffix>``)
+and a JSON record (``<stem>.json``: parameters, configuration, loops, timings and, with ground truth,
+the metrics of both). Models: ``--model-cons`` / ``--model-loops`` take a model file or a shipped name
+(``kitti``, ``euroc``, ``kitti:loops``); without them the shipped models for the sequence's camera
+kind are used.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+NAME = "slam"
+HELP = "run SLAM (learned odometry + BoVW loop closure + gtsam pose graph) on a sequence"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--sequence", required=True, metavar="DIR", help="KITTI sequences/NN, EuRoC folder or ours")
+    p.add_argument("--model-cons", default=None, metavar="M",
+                   help="NN_cons model file or shipped name (default: the shipped model for the camera kind)")
+    p.add_argument("--model-loops", default=None, metavar="M",
+                   help="NN_loops model file or shipped name (default: the shipped loops model)")
+    p.add_argument("--params", default=None, metavar="JSON", help="C_s, C_r, T_loop from `deepslam tune-slam`")
+    p.add_argument("--out", required=True, metavar="FILE", help="trajectory to write")
+    p.add_argument("--format", choices=("kitti", "tum", "euroc"), default="kitti",
+                   help="trajectory format (default: kitti)")
+    p.add_argument("--plot", default=None, metavar="PNG", help="top-down plot of VO, SLAM and ground truth")
+    p.add_argument("--flow", default="dis", help="optical flow estimator for the models (default: dis)")
+    p.add_argument("--vocabulary", default=None, metavar="NPZ",
+                   help="BoW vocabulary (default: train one on the sequence's keyframes)")
+    p.add_argument("--save-vocabulary", default=None, metavar="NPZ", help="write the vocabulary used")
+    p.add_argument("--keyframe-stride", type=int, default=1, metavar="K", help="relocalize every K-th frame")
+    p.add_argument("--no-loops", action="store_true", help="odometry only (no loop closure)")
+    p.add_argument("--robust", choices=("none", "huber", "cauchy"), default="cauchy",
+                   help="robust kernel on loop edges (default: cauchy)")
+    p.add_argument("--align", choices=("none", "se3", "sim3"), default="se3",
+                   help="alignment before ATE/RPE (default: se3)")
+    p.add_argument("--json", action="store_true", help="print the record as one JSON object")
+    # hidden: ground-truth odometry with noise, for tests and benchmarks
+    p.add_argument("--odometry", choices=("model", "gt-noisy"), default="model", help=argparse.SUPPRESS)
+    p.add_argument("--gt-noise", default="0.002,0.02", help=argparse.SUPPRESS)
+    p.add_argument("--gt-drift", type=float, default=0.002, help=argparse.SUPPRESS)
+    p.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
+
+
+def make_odometry(args, seq):
+    """(odo_cons, odo_loops) from the arguments (shared with tune-slam)."""
+    from core.errors import InputError
+
+    if args.odometry == "gt-noisy":
+        from slam.odometry import GroundTruthOdometry, NoiseConfig
+
+        if seq.gt is None:
+            raise InputError(args.sequence, "--odometry gt-noisy needs a sequence with ground truth")
+        try:
+            rot, trans = (float(x) for x in args.gt_noise.split(","))
+        except ValueError:
+            raise InputError(None, f"--gt-noise must be 'ROT_STD,T_STD', got {args.gt_noise!r}") from None
+        std = (rot, rot, rot, trans, trans, trans)
+        cons = GroundTruthOdometry(NoiseConfig(std6=std, bias6=(0, args.gt_drift, 0, 0, 0, 0), seed=args.seed),
+                                   name="gt-noisy-cons")
+        loops = GroundTruthOdometry(NoiseConfig(std6=std, seed=args.seed + 1), name="gt-noisy-loops")
+        return cons, loops
+    try:
+        from vo import flow_estimators, models
+    except ImportError as e:
+        raise InputError(None, f"the learned odometry (package vo) is not available: {e}") from None
+    if not hasattr(models, "resolve"):
+        raise InputError(None, "vo.models.resolve is missing: the learned odometry is not installed yet")
+    flow = flow_estimators.make(args.flow)
+    cons = models.resolve(args.model_cons, seq, "cons").as_odometry(flow)
+    loops = None
+    if not args.no_loops:
+        loops_spec = args.model_loops
+        loops = models.resolve(loops_spec, seq, "loops").as_odometry(flow)
+    return cons, loops
+
+
+def run(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from core import atomic, metrics, plots
+    from core.errors import InputError
+    from core.sequence import open_sequence
+    from core.trajio import write_trajectory
+    from slam.pipeline import PipelineConfig, SlamParams, run_slam
+    from slam.posegraph import PoseGraphConfig
+    from slam.reloc import Vocabulary
+
+    if args.keyframe_stride < 1:
+        raise InputError(None, f"--keyframe-stride must be at least 1, got {args.keyframe_stride}")
+    out = Path(args.out)
+    if out.is_dir():
+        raise InputError(out, "--out is a folder, expected a file name")
+    seq = open_sequence(args.sequence)
+    if args.format != "kitti" and seq.timestamps_s is None:
+        raise InputError(args.sequence, f"the {args.format} format needs timestamps and the sequence has none")
+    params = SlamParams.load(args.params) if args.params else SlamParams()
+    vocab = Vocabulary.load(args.vocabulary) if args.vocabulary else None
+    odo_cons, odo_loops = make_odometry(args, seq)
+    if args.no_loops:
+        odo_loops = None
+    config = PipelineConfig(graph=PoseGraphConfig(robust=args.robust), keyframe_stride=args.keyframe_stride,
+                            loops=not args.no_loops, seed=args.seed)
+    res = run_slam(seq, odo_cons, odo_loops, params, config, vocabulary=vocab, show_progress=not args.json)
+
+    stem = out.with_suffix("")
+    vo_path = out.with_name(f"{stem.name}_vo{out.suffix}")
+    record_path = out.with_name(f"{stem.name}.json")
+    write_trajectory(out, res.slam, args.format)
+    write_trajectory(vo_path, res.vo, args.format)
+    record = {
+        "sequence": str(args.sequence), "frames": len(seq), "trajectory": str(out), "trajectory_vo": str(vo_path),
+        "format": args.format, "odometry_cons": odo_cons.name, "odometry_loops": getattr(odo_loops, "name", None),
+        "params": res.params.to_dict(),
+        "config": {**config.to_dict(), "reloc": dataclasses.asdict(res.reloc) if res.reloc else None},
+        "loops": res.loops.pairs.tolist(), "n_loops": len(res.loops),
+        "loops_kept_by_pose_graph": None if res.loop_inliers is None else res.loop_inliers.tolist(),
+        "n_candidates": len(res.candidates),
+        "n_verified_ok": int(sum(c.verification.accepted for c in res.candidates)),
+        "timings": res.timings, "graph_error": list(res.graph_error),
+    }
+    if seq.gt is not None:
+        for name, traj in (("vo", res.vo), ("slam", res.slam)):
+            ev = metrics.evaluate(seq.gt, traj, align=args.align)
+            record[f"metrics_{name}"] = {k: v for k, v in ev.items() if not k.startswith("_")}
+            if name == "slam":
+                gt_aligned = ev["_gt_poses"]
+                slam_aligned = ev["_est_aligned_poses"]
+            else:
+                vo_aligned = ev["_est_aligned_poses"]
+    if args.plot:
+        series = {}
+        if seq.gt is not None:
+            series["ground truth"] = gt_aligned[:, :3, 3]
+            series[f"VO ({args.align})"] = vo_aligned[:, :3, 3]
+            series[f"SLAM ({args.align})"] = slam_aligned[:, :3, 3]
+            title = (f"{seq.name}: ATE VO {record['metrics_vo']['ate_m']:.3f} m, "
+                     f"SLAM {record['metrics_slam']['ate_m']:.3f} m, {len(res.loops)} loops")
+        else:
+            series["SLAM"] = res.slam.positions
+            series["VO"] = res.vo.positions
+            title = f"{seq.name}: {len(res.loops)} loops"
+        try:
+            plots.plot_trajectories_topdown(args.plot, series, title=title)
+        except OSError as e:
+            raise InputError(args.plot, f"cannot write the plot ({e.strerror or e})") from None
+        record["plot"] = str(args.plot)
+    if args.save_vocabulary:
+        _save_vocab(args, res, seq, vocab)
+        record["vocabulary"] = str(args.save_vocabulary)
+    atomic.write_json(record_path, _clean(record))
+    if args.json:
+        sys.stdout.write(json.dumps(_clean(record), sort_keys=True) + "\n")
+    else:
+        sys.stdout.write(format_report(record))
+    return 0
+
+
+def _save_vocab(args, res, seq, vocab) -> None:
+    from core.errors import InputError
+
+    v = vocab if vocab is not None else res.vocabulary
+    if v is None:
+        raise InputError(None, "--save-vocabulary: no vocabulary was used (loop closure is off)")
+    v.save(args.save_vocabulary, meta={"trained_on": str(args.sequence)})
+
+
+def _clean(v):
+    import numpy as np
+
+    if isinstance(v, dict):
+        return {str(k): _clean(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_clean(x) for x in v]
+    if isinstance(v, np.generic):
+        v = v.item()
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
+def format_report(r: dict) -> str:
+    t = r["timings"]
+    lines = [f"sequence      {r['sequence']} ({r['frames']} frames)",
+             f"odometry      cons {r['odometry_cons']}, loops {r['odometry_loops']}",
+             f"parameters    C_s {r['params']['c_s']:g}, C_r {r['params']['c_r']:g}, T_loop {r['params']['t_loop']}",
+             f"loops         {r['n_loops']} edges, {sum(r['loops_kept_by_pose_graph'] or [])} kept by the pose graph "
+             f"({r['n_verified_ok']} of {r['n_candidates']} candidates passed verification)",
+             f"speed         {t['fps']:.2f} frames/s ({t['total_s']:.2f} s; optimisation {t['optimize_s']:.3f} s)",
+             f"wrote         {r['trajectory']}, {r['trajectory_vo']}"]
+    if "metrics_slam" in r:
+        mv, ms = r["metrics_vo"], r["metrics_slam"]
+
+        def num(x, f=".4f"):
+            return "n/a" if x is None else format(x, f)
+        lines += ["", f"{'metric':<24}{'VO':>12}{'SLAM':>12}  unit",
+                  f"{'ATE rmse':<24}{num(mv['ate_m']):>12}{num(ms['ate_m']):>12}  m",
+                  f"{'RPE trans rmse (d=1)':<24}{num(mv['rpe_t_m']):>12}{num(ms['rpe_t_m']):>12}  m",
+                  f"{'RPE rot rmse (d=1)':<24}{num(mv['rpe_r_deg']):>12}{num(ms['rpe_r_deg']):>12}  deg"]
+        if "kitti_t_err_pct" in ms:
+            lines += [f"{'KITTI t_err':<24}{num(mv.get('kitti_t_err_pct')):>12}{num(ms['kitti_t_err_pct']):>12}  %",
+                      f"{'KITTI r_err':<24}{num(mv.get('kitti_r_err_deg_per_100m')):>12}"
+                      f"{num(ms['kitti_r_err_deg_per_100m']):>12}  deg/100 m"]
+    if r.get("plot"):
+        lines.append(f"plot          {r['plot']}")
+    return "\n".join(lines) + "\n"

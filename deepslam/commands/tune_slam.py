@@ -1,0 +1,104 @@
+"""``deepslam tune-slam``: search C_s, C_r and T_loop on validation sequences, ranked by ATE.
+
+The odometry, features and loop verifications of each sequence are computed once; every parameter
+set then costs one pose-graph solve per sequence (plus one loop search per distinct T_loop). The best
+parameters go to ``--out`` as JSON (with the whole search table), which ``deepslam slam --params``
+reads.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+NAME = "tune-slam"
+HELP = "search the SLAM hyperparameters C_s, C_r, T_loop on validation sequences (ranked by ATE)"
+# slam.tune.SearchSpace's defaults (kept literal so that building the parser imports nothing heavy;
+# tests/slam/test_cli_slam.py checks they agree)
+DEFAULT_C_S = "0.1,0.3,1,3,10"
+DEFAULT_C_R = "0.1,1,10,100"
+DEFAULT_T_LOOP = "20,50,100,200"
+
+
+def _floats(text: str) -> tuple[float, ...]:
+    try:
+        vals = tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+    if not vals or min(vals) <= 0:
+        raise argparse.ArgumentTypeError(f"expected positive numbers, got {text!r}")
+    return vals
+
+
+def _ints(text: str) -> tuple[int, ...]:
+    try:
+        vals = tuple(int(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
+    if not vals or min(vals) < 1:
+        raise argparse.ArgumentTypeError(f"expected integers >= 1, got {text!r}")
+    return vals
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--sequence", required=True, nargs="+", metavar="DIR", help="validation sequences with ground truth")
+    p.add_argument("--model-cons", default=None, metavar="M", help="NN_cons model (default: shipped)")
+    p.add_argument("--model-loops", default=None, metavar="M", help="NN_loops model (default: shipped)")
+    p.add_argument("--out", required=True, metavar="JSON", help="parameter file to write")
+    p.add_argument("--method", choices=("grid", "coordinate"), default="grid", help="search method (default: grid)")
+    p.add_argument("--score", choices=("ate", "ate_ratio"), default="ate",
+                   help="mean ATE over sequences, or mean ATE / VO ATE (default: ate)")
+    p.add_argument("--c-s", type=_floats, default=None, metavar="LIST",
+                   help=f"C_s values (default: {DEFAULT_C_S})")
+    p.add_argument("--c-r", type=_floats, default=None, metavar="LIST",
+                   help=f"C_r values (default: {DEFAULT_C_R})")
+    p.add_argument("--t-loop", type=_ints, default=None, metavar="LIST",
+                   help=f"T_loop values, frames (default: {DEFAULT_T_LOOP})")
+    p.add_argument("--flow", default="dis", help="optical flow estimator for the models (default: dis)")
+    p.add_argument("--keyframe-stride", type=int, default=1, metavar="K", help="relocalize every K-th frame")
+    p.add_argument("--robust", choices=("none", "huber", "cauchy"), default="cauchy", help="robust kernel on loops")
+    p.add_argument("--vocabulary", default=None, metavar="NPZ", help="BoW vocabulary (default: train per sequence)")
+    p.add_argument("--odometry", choices=("model", "gt-noisy"), default="model", help=argparse.SUPPRESS)
+    p.add_argument("--gt-noise", default="0.002,0.02", help=argparse.SUPPRESS)
+    p.add_argument("--gt-drift", type=float, default=0.002, help=argparse.SUPPRESS)
+    p.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
+
+
+def run(args: argparse.Namespace) -> int:
+    from core.errors import InputError
+    from core.sequence import open_sequence
+    from deepslam.commands.slam import make_odometry
+    from slam.pipeline import PipelineConfig, prepare
+    from slam.posegraph import PoseGraphConfig
+    from slam.reloc import Vocabulary
+    from slam.tune import SearchSpace, problem_from_prepared, tune
+
+    if args.keyframe_stride < 1:
+        raise InputError(None, f"--keyframe-stride must be at least 1, got {args.keyframe_stride}")
+    args.no_loops = False
+    space = SearchSpace(c_s=args.c_s or _floats(DEFAULT_C_S), c_r=args.c_r or _floats(DEFAULT_C_R),
+                        t_loop=args.t_loop or _ints(DEFAULT_T_LOOP))
+    vocab = Vocabulary.load(args.vocabulary) if args.vocabulary else None
+    graph = PoseGraphConfig(robust=args.robust)
+    config = PipelineConfig(graph=graph, keyframe_stride=args.keyframe_stride, seed=args.seed)
+    problems = []
+    for path in args.sequence:
+        seq = open_sequence(path)
+        if seq.gt is None:
+            raise InputError(path, "a validation sequence needs ground truth")
+        odo_cons, odo_loops = make_odometry(args, seq)
+        prep = prepare(seq, odo_cons, odo_loops, config, vocab)
+        problems.append(problem_from_prepared(prep, graph, name=str(path)))
+    res = tune(problems, space, args.method, args.score, show_progress=True)
+    extra = {"tuned_on": [str(s) for s in args.sequence], "vo_ate_m": {p.name: p.vo_ate_m for p in problems},
+             "robust": args.robust, "keyframe_stride": args.keyframe_stride, **res.to_dict()}
+    res.best.save(args.out, extra)
+    rows = sorted(res.rows, key=lambda r: r["score"])
+    out = [f"{'C_s':>8}{'C_r':>8}{'T_loop':>8}{'score':>12}"]
+    for r in rows[:10]:
+        out.append(f"{r['c_s']:>8g}{r['c_r']:>8g}{r['t_loop']:>8d}{r['score']:>12.4f}")
+    out.append(f"best: C_s {res.best.c_s:g}, C_r {res.best.c_r:g}, T_loop {res.best.t_loop} "
+               f"({res.score} {res.best_score:.4f}; VO ATE "
+               + ", ".join(f"{p.vo_ate_m:.4f}" for p in problems)
+               + f" m) after {res.evaluations} solves by {res.method} search; wrote {args.out}")
+    sys.stdout.write("\n".join(out) + "\n")
+    return 0

@@ -1,0 +1,90 @@
+"""`deepslam slam` and `deepslam tune-slam` end to end on a small synthetic revisit sequence."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from core.trajio import read_trajectory
+from deepslam.cli import main
+from slam.synthetic import write_loop_sequence
+
+
+@pytest.fixture(scope="module")
+def seq_dir(tmp_path_factory):
+    root = tmp_path_factory.mktemp("cli_loopseq")
+    write_loop_sequence(root, n_frames=60, laps=2.0, lap_offset_m=0.2, seed=2)
+    return root
+
+
+def test_slam_cli_writes_trajectories_record_and_plot(seq_dir, tmp_path, capsys):
+    out = tmp_path / "run" / "traj.txt"
+    # revisits are 30 frames apart (the default T_loop, 50, would admit none)
+    (tmp_path / "p20.json").write_text(json.dumps({"format": "deepslam-slam-params-v1", "c_s": 1.0, "c_r": 1.0,
+                                                    "t_loop": 20}))
+    rc = main(["slam", "--sequence", str(seq_dir), "--odometry", "gt-noisy", "--out", str(out),
+               "--params", str(tmp_path / "p20.json"),
+               "--plot", str(tmp_path / "p.png"), "--save-vocabulary", str(tmp_path / "voc.npz")])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "ATE rmse" in text and "loops" in text
+    slam = read_trajectory(out, "kitti")
+    vo = read_trajectory(tmp_path / "run" / "traj_vo.txt", "kitti")
+    assert len(slam) == len(vo) == 60
+    rec = json.loads((tmp_path / "run" / "traj.json").read_text())
+    assert rec["n_loops"] > 10
+    assert rec["metrics_slam"]["ate_m"] < 0.5 * rec["metrics_vo"]["ate_m"]
+    assert (tmp_path / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # the saved vocabulary and a params file are read back; TUM output carries timestamps
+    (tmp_path / "p.json").write_text(json.dumps({"format": "deepslam-slam-params-v1", "c_s": 2.0, "c_r": 5.0,
+                                                  "t_loop": 10}))
+    rc = main(["slam", "--sequence", str(seq_dir), "--odometry", "gt-noisy", "--out", str(tmp_path / "t.tum"),
+               "--format", "tum", "--vocabulary", str(tmp_path / "voc.npz"), "--params", str(tmp_path / "p.json"),
+               "--json"])
+    assert rc == 0
+    rec2 = json.loads(capsys.readouterr().out)
+    assert rec2["params"]["t_loop"] == 10 and rec2["params"]["c_r"] == 5.0
+    assert read_trajectory(tmp_path / "t.tum").timestamps_s is not None
+
+
+def test_slam_cli_bad_input_is_one_line_exit_2(seq_dir, tmp_path, capsys):
+    rc = main(["slam", "--sequence", str(tmp_path / "nope"), "--odometry", "gt-noisy", "--out", str(tmp_path / "t.txt")])
+    assert rc == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "does not exist" in err[0]
+    (tmp_path / "bad.json").write_text("{not json")
+    rc = main(["slam", "--sequence", str(seq_dir), "--odometry", "gt-noisy", "--out", str(tmp_path / "t.txt"),
+               "--params", str(tmp_path / "bad.json")])
+    assert rc == 2
+    assert "bad.json" in capsys.readouterr().err
+    assert not (tmp_path / "t.txt").exists()
+    rc = main(["slam", "--sequence", str(seq_dir), "--model-cons", str(tmp_path / "missing.pt"),
+               "--out", str(tmp_path / "t.txt")])
+    assert rc == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_tune_slam_cli_writes_params_the_slam_cli_reads(seq_dir, tmp_path, capsys):
+    out = tmp_path / "params.json"
+    rc = main(["tune-slam", "--sequence", str(seq_dir), "--odometry", "gt-noisy", "--out", str(out),
+               "--c-s", "1", "--c-r", "1,10", "--t-loop", "10,40", "--method", "coordinate"])
+    assert rc == 0
+    assert "best:" in capsys.readouterr().out
+    rec = json.loads(out.read_text())
+    assert rec["format"] == "deepslam-slam-params-v1" and rec["search"]
+    # revisits are 30 frames apart: T_loop 40 admits no loop, so 10 must win
+    assert rec["t_loop"] == 10
+    with pytest.raises(SystemExit) as exc:  # argparse's usage error
+        main(["tune-slam", "--sequence", str(seq_dir), "--odometry", "gt-noisy", "--out", str(out), "--c-s", "x"])
+    assert exc.value.code == 2
+    assert "--c-s" in capsys.readouterr().err
+
+
+def test_tune_cli_defaults_match_the_search_space():
+    from deepslam.commands import tune_slam
+    from slam.tune import SearchSpace
+
+    d = SearchSpace()
+    assert tune_slam._floats(tune_slam.DEFAULT_C_S) == d.c_s
+    assert tune_slam._floats(tune_slam.DEFAULT_C_R) == d.c_r
+    assert tune_slam._ints(tune_slam.DEFAULT_T_LOOP) == d.t_loop
