@@ -26,6 +26,7 @@ from core.camera import PinholeCamera
 from core.errors import InputError
 from core.sequence import Sequence
 from core.trajectory import Trajectory
+from core.trajio import ns_to_s
 
 
 def read_sensor_yaml(path: Path) -> dict:
@@ -126,7 +127,7 @@ def read_euroc(root: str | Path, gt_path: str | Path | None = None, rectify: boo
     for f in files0:
         if not f.is_file():
             raise InputError(f, "image file is missing")
-    times = ns.astype(np.float64) * 1e-9
+    times = ns_to_s(ns)
     size = (cam0["width"], cam0["height"])
 
     right_paths = None

@@ -57,6 +57,12 @@ _DESCRIBE = {
 }
 
 
+def ns_to_s(ns) -> np.ndarray:
+    """Integer nanoseconds -> float64 seconds, the one conversion used by every reader (so that
+    times from a data.csv and from a ground-truth csv compare exactly)."""
+    return np.array([int(t) / 1e9 for t in ns], dtype=np.float64)
+
+
 def read_text(path: str | Path) -> str:
     """The text of ``path``, decompressing .xz (lzma) and .gz transparently (by magic bytes).
 
@@ -194,7 +200,7 @@ def read_trajectory_and_format(path: str | Path, fmt: str | None = None) -> tupl
         pos = rows[:, 1:4]
         quat_xyzw = rows[:, 4:8]
     else:
-        times = np.array([t / 1e9 for t in ns], dtype=np.float64)
+        times = ns_to_s(ns)
         pos = rows[:, 1:4]
         quat_xyzw = rows[:, [5, 6, 7, 4]]
     norm = np.linalg.norm(quat_xyzw, axis=1)

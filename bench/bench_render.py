@@ -1,0 +1,136 @@
+"""Simulator speed: 640x480 RGB + depth + ground-truth flow per frame, on each backend, against the
+bare renderer calls that produce the same images, measured in the same run on the same scene.
+
+Harness: ``Simulator.frame(i, right=False)`` (state update, colour pass, segmentation/depth
+pass(es), depth linearisation, id decoding, mask, exact flow). Baseline: for MuJoCo, the three
+``mujoco.Renderer.render()`` calls a user needs for the same images (RGB, depth, segmentation), on
+the same model and state; for pyrender, the two ``pyrender.OffscreenRenderer.render()`` calls (RGB
+with ``FLAT``, segmentation with depth) on the same scene. Overhead = harness time / baseline time - 1. The three variants (bare, harness with flow, without)
+run in turn on every frame and each is summarised by its median time per frame, so that load from
+other processes on a shared machine hits all of them alike.
+Targets: >= 10 frames/s with flow; overhead <= 20 %.
+"""
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
+
+
+def _sim(backend: str, frames: int):
+    from scenes import SceneConfig
+    from sim import RenderConfig, SimConfig, Simulator, TrajectoryConfig
+
+    cfg = SimConfig(SceneConfig(name="street", seed=0, moving_objects=3, deform_amplitude_m=0.2),
+                    TrajectoryConfig(frames=frames + 100), RenderConfig(backend=backend, width=640, height=480, stereo_baseline_m=0))
+    return Simulator(cfg)
+
+
+def _interleaved(fns: dict, indices) -> dict:
+    """Median seconds per call of each function, the functions called in turn on every frame (so
+    that load from other processes on a shared machine hits all of them alike)."""
+    for fn in fns.values():
+        fn(indices[0])  # warm-up (first upload of textures and meshes)
+    times = {k: [] for k in fns}
+    for n, i in enumerate(indices[1:]):
+        keys = list(fns)
+        keys = keys[n % len(keys):] + keys[:n % len(keys)]
+        for k in keys:
+            t0 = time.perf_counter()
+            fns[k](i)
+            times[k].append(time.perf_counter() - t0)
+    return {k: float(np.median(v)) for k, v in times.items()}
+
+
+def _bare_mujoco(sim):
+    import mujoco
+
+    be = sim.backend
+    r = mujoco.Renderer(be.model, sim.camera.height, sim.camera.width)
+    cam = be._cams["left"]
+
+    def frame(i):
+        be.set_state(sim.state(i))
+        r.disable_depth_rendering()
+        r.disable_segmentation_rendering()
+        r.update_scene(be.data, cam)
+        r.render()
+        r.enable_depth_rendering()
+        r.update_scene(be.data, cam)
+        r.render()
+        r.enable_segmentation_rendering()
+        r.update_scene(be.data, cam)
+        r.render()
+
+    return frame, r.close
+
+
+def _bare_pyrender(sim):
+    import pyrender
+
+    from core.camera import world_from_cam_gl_from_cv
+
+    be = sim.backend
+
+    def frame(i):
+        s = sim.state(i)
+        be.set_state(s)
+        be.pscene.set_pose(be._cam_node, world_from_cam_gl_from_cv(s.world_from_cam))
+        be._renderer.render(be.pscene, flags=pyrender.RenderFlags.FLAT)
+        be._renderer.render(be.pscene, flags=pyrender.RenderFlags.SEG, seg_node_map=be._seg_map)
+
+    # the backend reads its framebuffers with its own lean read-back; the bare calls get pyrender's
+    pr = be._renderer._renderer
+    pr_read, pr_viewport = type(pr)._read_main_framebuffer, type(pr)._configure_forward_pass_viewport
+
+    def bare(i):
+        ours = pr._read_main_framebuffer, pr._configure_forward_pass_viewport
+        pr._read_main_framebuffer = pr_read.__get__(pr)
+        pr._configure_forward_pass_viewport = pr_viewport.__get__(pr)
+        try:
+            frame(i)
+        finally:
+            pr._read_main_framebuffer, pr._configure_forward_pass_viewport = ours
+
+    return bare, lambda: None
+
+
+def run(quick: bool) -> list[dict]:
+    n = 10 if quick else 60
+    indices = list(range(40, 40 + n + 1))
+    rows = []
+    for backend, bare in (("mujoco", _bare_mujoco), ("pyrender", _bare_pyrender)):
+        sim = _sim(backend, 40 + n + 1)
+        bare_fn, bare_close = bare(sim)
+        try:
+            t = _interleaved({"bare": bare_fn, "flow": lambda i: sim.frame(i, right=False, flow=True),
+                              "noflow": lambda i: sim.frame(i, right=False, flow=False)}, indices)
+        finally:
+            bare_close()
+            sim.close()
+        t_bare, t_flow, t_noflow = t["bare"], t["flow"], t["noflow"]
+        what = "3x mujoco.Renderer.render() (rgb, depth, seg)" if backend == "mujoco" else \
+            "2x pyrender.OffscreenRenderer.render() (FLAT rgb, SEG + depth)"
+        fps = 1.0 / t_flow
+        rows.append({"name": f"{backend} 640x480 rgb+depth+flow", "value": round(fps, 2), "unit": "frames/s",
+                     "baseline": f"bare {what}", "baseline_value": round(1.0 / t_bare, 2), "ratio": round(fps * t_bare, 3),
+                     "target": ">= 10 frames/s", "met": bool(fps >= 10.0)})
+        overhead = 100.0 * (t_flow / t_bare - 1.0)
+        rows.append({"name": f"{backend} harness overhead (with flow)", "value": round(overhead, 1), "unit": "%",
+                     "baseline": f"bare {what}", "baseline_value": round(1000 * t_bare, 2), "ratio": round(t_flow / t_bare, 3),
+                     "target": "<= 20 %", "met": bool(overhead <= 20.0)})
+        rows.append({"name": f"{backend} flow computation per frame", "value": round(1000 * (t_flow - t_noflow), 2), "unit": "ms",
+                     "baseline": "frame without flow", "baseline_value": round(1000 * t_noflow, 2),
+                     "ratio": round(t_flow / t_noflow, 3), "target": None, "met": None})
+    return rows
+
+
+if __name__ == "__main__":
+    import json
+    import sys
+
+    print(json.dumps(run(quick="--quick" in sys.argv), indent=1))

@@ -1,0 +1,115 @@
+"""Frozen configuration dataclasses of the simulator, one per stage (scene, trajectory, render)."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from core.camera import PinholeCamera
+from core.errors import InputError
+from scenes import SceneConfig
+
+TRAJECTORY_KINDS = ("auto", "car", "drone")
+BACKENDS = ("mujoco", "pyrender")
+FORMATS = ("ours", "kitti", "euroc")
+MAX_SIDE_PX = 4096
+
+
+@dataclasses.dataclass(frozen=True)
+class TrajectoryConfig:
+    """The scripted camera motion."""
+
+    kind: str = "auto"
+    """"car" (planar, 1.65 m above the road, street only), "drone" (6DoF) or "auto" (street: car, room: drone)."""
+    frames: int = 300
+    """Number of frames to render."""
+    rate_hz: float | None = None
+    """Frame rate in Hz (None: 10 for car, 20 for drone)."""
+    seed: int | None = None
+    """Seed of the trajectory's random choices (speeds, waypoints); None: the scene's seed."""
+
+    def resolved_kind(self, scene_name: str) -> str:
+        if self.kind != "auto":
+            return self.kind
+        return "car" if scene_name == "street" else "drone"
+
+    def validate(self) -> "TrajectoryConfig":
+        if self.kind not in TRAJECTORY_KINDS:
+            raise InputError(None, f"unknown trajectory {self.kind!r} (choose from {', '.join(TRAJECTORY_KINDS)})")
+        if not isinstance(self.frames, int) or self.frames < 1 or self.frames > 1_000_000:
+            raise InputError(None, f"frames must be an integer in 1..1000000, got {self.frames}")
+        if self.rate_hz is not None and not (np.isfinite(self.rate_hz) and 0.1 <= self.rate_hz <= 1000):
+            raise InputError(None, f"rate must be in [0.1, 1000] Hz, got {self.rate_hz}")
+        if self.seed is not None and (not isinstance(self.seed, int) or self.seed < 0):
+            raise InputError(None, f"trajectory seed must be a non-negative integer, got {self.seed}")
+        return self
+
+
+@dataclasses.dataclass(frozen=True)
+class RenderConfig:
+    """How to render."""
+
+    backend: str = "mujoco"
+    """"mujoco" (mujoco.Renderer's GL pipeline) or "pyrender" (pyrender2's OffscreenRenderer)."""
+    width: int | None = None
+    """Image width in pixels (None: the scene camera's, or from height keeping its aspect ratio)."""
+    height: int | None = None
+    """Image height in pixels (None: the scene camera's, or from width keeping its aspect ratio)."""
+    stereo_baseline_m: float | None = None
+    """Right camera at +baseline along the camera x axis, metres (None: the scene's default; 0: mono)."""
+    flow: bool = True
+    """Compute the forward ground-truth optical flow."""
+
+    def validate(self) -> "RenderConfig":
+        if self.backend not in BACKENDS:
+            raise InputError(None, f"unknown backend {self.backend!r} (choose from {', '.join(BACKENDS)})")
+        for name, v in (("width", self.width), ("height", self.height)):
+            if v is not None and (not isinstance(v, int) or v < 1 or v > MAX_SIDE_PX):
+                raise InputError(None, f"{name} must be an integer in 1..{MAX_SIDE_PX}, got {v}")
+        if self.stereo_baseline_m is not None and not (np.isfinite(self.stereo_baseline_m) and 0 <= self.stereo_baseline_m <= 10):
+            raise InputError(None, f"stereo baseline must be in [0, 10] m, got {self.stereo_baseline_m}")
+        return self
+
+
+@dataclasses.dataclass(frozen=True)
+class SimConfig:
+    """Everything that determines a rendered sequence (same config, same bytes)."""
+
+    scene: SceneConfig = SceneConfig()
+    """What to render."""
+    trajectory: TrajectoryConfig = TrajectoryConfig()
+    """Along which camera path."""
+    render: RenderConfig = RenderConfig()
+    """With which renderer, image size and stereo baseline."""
+
+    def validate(self) -> "SimConfig":
+        self.scene.validate()
+        self.trajectory.validate()
+        self.render.validate()
+        kind = self.trajectory.resolved_kind(self.scene.name)
+        if kind == "car" and self.scene.name != "street":
+            raise InputError(None, f"trajectory 'car' needs roads: use it with scene 'street', not {self.scene.name!r}")
+        return self
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @staticmethod
+    def from_dict(d: dict) -> "SimConfig":
+        return SimConfig(SceneConfig(**d["scene"]), TrajectoryConfig(**d["trajectory"]), RenderConfig(**d["render"]))
+
+
+def camera_for(default: PinholeCamera, width: int | None, height: int | None) -> PinholeCamera:
+    """The scene camera at another image size, with square pixels and the principal point at the
+    centre, as MuJoCo renders it: the vertical field of view is kept (``fy`` scales with the height),
+    ``fx = fy``, ``cx = (W - 1) / 2``, ``cy = (H - 1) / 2``. A missing side follows the default's aspect
+    ratio. With the default's aspect ratio this equals ``default.scaled(width, height)`` up to the
+    rounding of the size."""
+    if width is None and height is None:
+        return default
+    if width is None:
+        width = max(1, int(round(height * default.width / default.height)))
+    if height is None:
+        height = max(1, int(round(width * default.height / default.width)))
+    f = default.fy * height / default.height
+    return PinholeCamera(int(width), int(height), f, f, (width - 1) / 2.0, (height - 1) / 2.0)

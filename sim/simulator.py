@@ -1,0 +1,174 @@
+"""The in-memory simulator: a scene, a camera motion and a render backend; frames on demand."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from core import se3
+from core.camera import PinholeCamera
+from core.trajectory import Trajectory
+from scenes import SceneConfig, build_scene
+from scenes.spec import Scene
+from sim.config import SimConfig, camera_for
+from sim.flow import FlowComputer
+from sim.trajectories import make_motion
+from sim.world import WorldState, separate_movers, world_state
+
+
+@dataclasses.dataclass(eq=False)
+class SimFrame:
+    """One rendered frame with perfect ground truth.
+
+    Attributes:
+        index: frame number (0-based).
+        timestamp_s: ``index / rate_hz`` seconds.
+        camera: intrinsics of every image here (pixel centres at integers).
+        world_from_cam: (4, 4) float64 pose of the left camera, OpenCV axes (x right, y down, z
+            forward), world frame z up, metres.
+        rgb: (H, W, 3) uint8 left image.
+        depth_z: (H, W) float32 metres along the optical axis, 0 where nothing is hit (sky).
+        flow: (H, W, 2) float32 (du, dv) pixels from this frame to frame index + 1 (forward flow of
+            each pixel's surface point; rotation-only flow of the point at infinity where
+            depth_z = 0; NaN where the point is behind the camera at index + 1), or None.
+        mask: (H, W) uint16 instance id of the dynamic surface seen in each pixel, 0 = static scene
+            or nothing (moving objects and, with deformation, flags have ids >= 1).
+        body: (H, W) int32 index into ``Simulator.scene.bodies`` of the surface seen, -1 = nothing.
+        rgb_right: (H, W, 3) uint8 right image (camera at +baseline along x), or None.
+        depth_right: (H, W) float32 depth_z of the right image, or None (only when asked for).
+        baseline_m: the stereo baseline, or None.
+        instance_poses: {instance id: (4, 4) world_from_body at this frame} of the rigid movers.
+    """
+
+    index: int
+    timestamp_s: float
+    camera: PinholeCamera
+    world_from_cam: np.ndarray
+    rgb: np.ndarray
+    depth_z: np.ndarray
+    flow: np.ndarray | None
+    mask: np.ndarray
+    body: np.ndarray
+    rgb_right: np.ndarray | None = None
+    depth_right: np.ndarray | None = None
+    baseline_m: float | None = None
+    instance_poses: dict = dataclasses.field(default_factory=dict)
+
+    @property
+    def world_from_cam_right(self) -> np.ndarray | None:
+        """(4, 4) pose of the right camera, or None."""
+        if not self.baseline_m:
+            return None
+        return self.world_from_cam @ se3.from_rt(np.eye(3), [self.baseline_m, 0.0, 0.0])
+
+
+def make_backend(name: str, scene: Scene, camera: PinholeCamera, baseline_m: float | None):
+    if name == "mujoco":
+        from sim.render_mujoco import MujocoBackend
+
+        return MujocoBackend(scene, camera, baseline_m)
+    if name == "pyrender":
+        from sim.render_pyrender import PyrenderBackend
+
+        return PyrenderBackend(scene, camera, baseline_m)
+    raise ValueError(f"unknown backend {name!r}")
+
+
+class Simulator:
+    """Renders frames of a scene along a scripted camera motion, with exact ground truth.
+
+    Args:
+        config: what to render (validated; bad values raise core.errors.InputError).
+        scene: use this scene instead of building ``config.scene`` (tests, custom scenes).
+        motion: use this camera motion (anything with ``world_from_cam(t)`` and ``rate_hz``)
+            instead of the trajectory of ``config.trajectory``.
+
+    Use as a context manager (or call :meth:`close`) to free the GL context.
+    """
+
+    def __init__(self, config: SimConfig | None = None, *, scene: Scene | None = None, motion=None):
+        config = config or SimConfig()
+        if scene is None:
+            config = config.validate()
+        else:
+            config.trajectory.validate()
+            config.render.validate()
+        self.config = config
+        base = scene if scene is not None else build_scene(config.scene)
+        tcfg = config.trajectory
+        tseed = tcfg.seed if tcfg.seed is not None else (config.scene.seed if scene is None else base.seed)
+        if motion is None:
+            motion = make_motion(base, tcfg.resolved_kind(base.name), np.random.default_rng([tseed, 1]), tcfg.rate_hz)
+        self.motion = motion
+        self.rate_hz = float(motion.rate_hz)
+        self.num_frames = int(tcfg.frames)
+        self.timestamps_s = np.arange(self.num_frames, dtype=np.float64) / self.rate_hz
+        duration = (self.num_frames + 1) / self.rate_hz
+        self.scene = separate_movers(base, motion, duration, np.random.default_rng([tseed, 2]))
+        rcfg = config.render
+        self.camera = camera_for(self.scene.camera, rcfg.width, rcfg.height)
+        b = self.scene.stereo_baseline_m if rcfg.stereo_baseline_m is None else rcfg.stereo_baseline_m
+        self.baseline_m = float(b) if b else None
+        self.backend_name = rcfg.backend
+        self.resolved_config = dataclasses.replace(
+            config,
+            scene=(dataclasses.replace(config.scene, texture_px_per_m=config.scene.px_per_m) if scene is None
+                   else scene.config if isinstance(scene.config, SceneConfig) else config.scene),
+            trajectory=dataclasses.replace(tcfg, kind=getattr(motion, "name", tcfg.kind), rate_hz=self.rate_hz, seed=tseed),
+            render=dataclasses.replace(rcfg, width=self.camera.width, height=self.camera.height,
+                                       stereo_baseline_m=float(self.baseline_m or 0.0)))
+        """The config with every default filled in (image size, baseline, rate, trajectory kind and seed)."""
+        self.backend = make_backend(rcfg.backend, self.scene, self.camera, self.baseline_m)
+        self._flow = FlowComputer(self.camera)
+        self._inst = np.zeros(len(self.scene.bodies) + 1, np.uint16)  # body index + 1 -> instance id
+        for i, body in enumerate(self.scene.bodies):
+            self._inst[i + 1] = body.instance_id
+
+    # ------------------------------------------------------------------------------------------
+
+    def time(self, i: int) -> float:
+        return float(i) / self.rate_hz
+
+    def state(self, i: int) -> WorldState:
+        """The world at frame i (any i >= 0, also beyond num_frames)."""
+        return world_state(self.scene, self.motion, self.time(i))
+
+    @property
+    def trajectory(self) -> Trajectory:
+        """Ground-truth world_from_cam of the left camera at the frame times (OpenCV axes)."""
+        return Trajectory(self.motion.world_from_cam(self.timestamps_s), self.timestamps_s.copy())
+
+    def frame(self, i: int, *, right: bool | None = None, flow: bool | None = None, depth_right: bool = False) -> SimFrame:
+        """Render frame i (0 <= i; frames past ``num_frames`` are allowed too).
+
+        Args:
+            right: render the right image (default: when the baseline is set).
+            flow: compute the flow to frame i+1 (default: ``config.render.flow``).
+            depth_right: also render the right camera's depth.
+        """
+        if i < 0:
+            raise IndexError(f"frame {i} < 0")
+        right = bool(self.baseline_m) if right is None else right
+        flow = self.config.render.flow if flow is None else flow
+        s0 = self.state(i)
+        self.backend.set_state(s0)
+        left = self.backend.render("left", colour=True, depth=True)
+        r = self.backend.render("right", colour=True, depth=depth_right) if right else {}
+        fl = None
+        if flow:
+            fl = self._flow.flow(self.scene, left["depth_z"], left["body"], s0, self.state(i + 1))
+        mask = self._inst[left["body"] + 1]
+        poses = {b.instance_id: s0.world_from_body[k] for k, b in enumerate(self.scene.bodies) if b.kind == "rigid"}
+        return SimFrame(i, self.time(i), self.camera, s0.world_from_cam, left["rgb"], left["depth_z"], fl, mask,
+                        left["body"], r.get("rgb"), r.get("depth_z"), self.baseline_m if right else None, poses)
+
+    def close(self) -> None:
+        if getattr(self, "backend", None) is not None:
+            self.backend.close()
+            self.backend = None
+
+    def __enter__(self) -> "Simulator":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

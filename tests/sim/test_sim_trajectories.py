@@ -1,0 +1,87 @@
+"""Scripted camera motions: limits, smoothness, loop closure, determinism."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from core import se3
+from scenes import SceneConfig, build_scene
+from sim.trajectories import make_motion
+
+DT = 0.01
+
+
+def _sample(name, kind, seed, seconds):
+    scene = build_scene(SceneConfig(name=name, seed=seed, texture_px_per_m=2))
+    motion = make_motion(scene, kind, np.random.default_rng([seed, 1]))
+    t = np.arange(0.0, seconds, DT)
+    return motion, motion.world_from_cam(t)
+
+
+def _kinematics(poses):
+    pos = poses[:, :3, 3]
+    vel = np.diff(pos, axis=0) / DT
+    acc = np.diff(pos, 2, axis=0) / DT ** 2
+    rate = se3.rotation_angle(se3.relative(poses[:-1], poses[1:])) / DT
+    return pos, vel, acc, rate
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_car_is_planar_smooth_realistic_and_closes_a_loop_in_300_frames(seed):
+    motion, poses = _sample("street", "car", seed, 40.0)
+    assert motion.rate_hz == 10.0
+    pos, vel, acc, rate = _kinematics(poses)
+    np.testing.assert_allclose(pos[:, 2], 1.65, atol=1e-12)            # camera 1.65 m above the road
+    np.testing.assert_allclose(poses[:, 2, 2], 0.0, atol=1e-12)         # optical axis horizontal
+    np.testing.assert_allclose(poses[:, 2, 0], 0.0, atol=1e-12)         # no roll: x axis horizontal
+    speed = np.linalg.norm(vel, axis=1)
+    assert speed[0] < 1e-3 and speed.max() <= 15.0 and speed.max() > 10.0
+    assert rate.max() < 0.8                                              # yaw rate, rad/s
+    # continuous acceleration: no jumps between 10 ms samples (a jump of 1 m/s^2 would show)
+    assert np.abs(np.diff(acc, axis=0)).max() < 0.3
+    # forward motion only: the velocity points along the optical axis
+    fwd = poses[:-1, :3, 2]
+    moving = speed > 0.5
+    assert np.all(np.einsum("ij,ij->i", vel[moving], fwd[moving]) / speed[moving] > 0.999)
+    # back at the start (same place, same heading) within 300 frames at 10 Hz
+    d = np.linalg.norm(pos - pos[0], axis=1)
+    far = np.argmax(d > 50)
+    back = far + np.argmin(d[far:int(29.9 / DT)])
+    assert d[back] < 1.0 and back * DT < 29.9
+    assert np.degrees(se3.rotation_angle(se3.relative(poses[0], poses[back]))) < 5
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_drone_is_6dof_within_limits_smooth_and_revisits(seed):
+    motion, poses = _sample("room", "drone", seed, 30.0)
+    assert motion.rate_hz == 20.0
+    pos, vel, acc, rate = _kinematics(poses)
+    speed = np.linalg.norm(vel, axis=1)
+    assert speed.max() <= 2.0 and rate.max() <= 1.0
+    assert speed[0] < 1e-3
+    assert np.abs(np.diff(acc, axis=0)).max() < 0.1
+    euler = se3.to_euler6(poses)[:, :3]
+    assert np.ptp(pos[:, 2]) > 0.3 and np.ptp(euler[:, 0]) > 0.05 and np.ptp(euler[:, 1]) > 0.05  # 6DoF
+    # periodic after the start-up ramp: every pose comes back one period later, within 15 s
+    t1 = 5.0
+    p_a = motion.world_from_cam(np.array([t1]))[0]
+    p_b = motion.world_from_cam(np.array([t1 + motion.period_s]))[0]
+    np.testing.assert_allclose(p_a, p_b, atol=1e-9)
+    assert motion.period_s < 14.0
+    # stays in the free ring of the hall
+    r = np.linalg.norm(pos[:, :2], axis=1)
+    assert r.min() >= 1.5 - 1e-9 and r.max() <= 2.2 + 1e-9
+
+
+def test_motions_are_deterministic_and_seed_dependent():
+    _, a = _sample("street", "car", 3, 5.0)
+    _, b = _sample("street", "car", 3, 5.0)
+    _, c = _sample("street", "car", 4, 5.0)
+    assert np.array_equal(a, b)
+    assert not np.allclose(a[-1], c[-1])
+
+
+def test_street_drone_flies_above_the_route():
+    motion, poses = _sample("street", "drone", 0, 20.0)
+    pos, vel, acc, rate = _kinematics(poses)
+    assert pos[:, 2].min() > 3.0 and np.linalg.norm(vel, axis=1).max() <= 2.0 and rate.max() <= 1.0
