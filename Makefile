@@ -7,6 +7,8 @@ export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= egl
 # Keep two cores busy but not oversubscribed.
 export OMP_NUM_THREADS ?= 2
+# Shared cores: let idle OpenMP threads sleep instead of spinning.
+export OMP_WAIT_POLICY ?= PASSIVE
 
 .PHONY: setup demo test bench clean
 

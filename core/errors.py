@@ -23,6 +23,11 @@ class InputError(Exception):
         self.line = line
         super().__init__(self.message())
 
+    def __reduce__(self):
+        # Rebuild from the constructor's arguments, so the error crosses process boundaries
+        # (multiprocessing, Ray) intact.
+        return (InputError, (self.path, self.what, self.line))
+
     def message(self) -> str:
         if self.path is None:
             return self.what

@@ -266,3 +266,22 @@ def test_unknown_folder(tmp_path, capsys):
     assert main(["info", str(tmp_path)]) == 2
     assert "not a KITTI sequence" in capsys.readouterr().err
     assert main(["info", str(tmp_path / "nope")]) == 2
+
+
+def test_input_error_survives_pickling():
+    import pickle
+
+    e = pickle.loads(pickle.dumps(InputError("a/b.txt", "bad row", 3)))
+    assert isinstance(e, InputError) and e.message() == "a/b.txt:3: bad row"
+
+
+def test_atomic_files_get_normal_permissions(tmp_path):
+    import os
+
+    from core import atomic
+
+    atomic.write_text(tmp_path / "x.txt", "hi")
+    umask = os.umask(0)
+    os.umask(umask)
+    assert (tmp_path / "x.txt").stat().st_mode & 0o777 == 0o666 & ~umask
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]

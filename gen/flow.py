@@ -1,0 +1,357 @@
+"""Optical flow synthesized from one depth map and a camera motion (the paper's four steps), batched in torch.
+
+For every pixel (u, v) of frame 0 with depth ``depth_z`` the point ``p_cam0 = depth_z K^-1 (u, v, 1)`` is
+moved by ``cam1_from_cam0`` and projected into frame 1; the flow is where it lands minus (u, v):
+``flow[b, v, u] = (u1 - u, v1 - v)`` in pixels (OpenCV axes, pixel centres at integers).
+
+How it is computed (fast path, exact algebra, float32): with inverse depth ``w = 1 / depth_z``,
+``depth_z1 / depth_z * (u1, v1, 1) = K R K^-1 (u, v, 1) + w K t``, so the three homogeneous coordinates
+(nu, nv, d) are affine in (u, v, 1, w) with 12 coefficients per sample ``M = [K R K^-1 | K t]``
+computed once in float64. The two image rows of M are re-centred and scaled so that
+``nu / d = 2 (u1 - cx_img) / W`` (and v), which turns "in front of the camera and inside the image"
+into the single homogeneous test ``max(|nu|, |nv|) < d`` (no division; ``d`` is clamped to at most
+``2^100 w``, which is <= 0 where the depth is not a positive finite number, and NaN fails every
+comparison). The flow is then
+``(W / 2) nu (1 / d) + cx_img - u`` with d zeroed where not valid, so those pixels come out inf/NaN
+and one ``nan_to_num`` sets them to 0. Every step is an element-wise torch op (no index arithmetic, no
+gather) run over chunks of a quarter million pixels so that the temporaries stay in cache, with
+reused scratch buffers; degenerate input never needs a branch and never raises.
+
+Validity (``valid``): false where the depth is not a positive finite number (0, negative, NaN, inf), where
+the moved point is not in front of camera 1 (depth_z1 <= 0), where it lands outside the image area
+(u1 outside (-0.5, W - 0.5) or v1 outside (-0.5, H - 0.5)), and, with ``zbuffer=True``, where it is
+hidden in frame 1 by a nearer moved point of the same depth map (see :func:`synthesize`). ``flow`` is 0
+wherever ``valid`` is false (never NaN).
+
+Bit-exactness: all ops are element-wise, so results do not depend on the chunking; they are the same
+for the same torch build and thread count (:mod:`gen.shards` runs single-threaded for byte-identical
+shards). The plain NumPy reference is :mod:`gen.flow_reference`; the two agree to ~1e-4 px.
+"""
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+import numpy as np
+import torch
+
+from core.camera import PinholeCamera
+
+CHUNK_PIXELS = 1 << 18
+"""Pixels per chunk of the fast path (262,144: 1 MB per float32 temporary, so they stay in cache)."""
+
+_INV_SCALE = 2.0 ** 100
+_INV_SCALE_RECIP = 2.0 ** -100
+
+DEFAULT_OCCLUSION_REL_TOL = 0.02
+"""Relative part of the z-buffer margin: a moved point is hidden when a point nearer by more than
+``tol * depth_z1`` + its own depth change to the next pixel lands on its pixel (see
+:func:`visible_after_motion`)."""
+
+
+# ------------------------------------------------------------------------------------------------ inputs
+
+def intrinsics_array(camera: Any, batch: int, width: int, height: int) -> np.ndarray:
+    """(B, 4) float64 ``fx, fy, cx, cy`` (pixels) from a PinholeCamera or a (4,)/(B, 4) array/tensor.
+
+    A PinholeCamera must have the depth map's size; raw intrinsics are taken to be at that size.
+    """
+    if isinstance(camera, PinholeCamera):
+        if (camera.width, camera.height) != (width, height):
+            raise ValueError(f"camera is {camera.width}x{camera.height} but the depth maps are {width}x{height}; "
+                             "use camera.scaled(width, height)")
+        k = np.array([[camera.fx, camera.fy, camera.cx, camera.cy]], dtype=np.float64)
+    else:
+        if isinstance(camera, torch.Tensor):
+            camera = camera.detach().cpu().double().numpy()
+        k = np.asarray(camera, dtype=np.float64)
+        if k.shape == (4,):
+            k = k[None]
+        if k.ndim != 2 or k.shape[1] != 4:
+            raise ValueError(f"intrinsics must be a PinholeCamera, (4,) or (B, 4) fx, fy, cx, cy; got shape {k.shape}")
+    if k.shape[0] == 1:
+        k = np.repeat(k, batch, axis=0)
+    if k.shape[0] != batch:
+        raise ValueError(f"{k.shape[0]} intrinsics for a batch of {batch}")
+    if not (np.isfinite(k).all() and (k[:, :2] > 0).all()):
+        raise ValueError("intrinsics must be finite with positive focal lengths")
+    return k
+
+
+def _motions(cam1_from_cam0: Any, batch: int) -> np.ndarray:
+    if isinstance(cam1_from_cam0, torch.Tensor):
+        cam1_from_cam0 = cam1_from_cam0.detach().cpu().double().numpy()
+    t = np.asarray(cam1_from_cam0, dtype=np.float64)
+    if t.shape == (4, 4):
+        t = np.broadcast_to(t, (batch, 4, 4))
+    if t.shape != (batch, 4, 4):
+        raise ValueError(f"cam1_from_cam0 must be (4, 4) or ({batch}, 4, 4), got {t.shape}")
+    return t
+
+
+def _depth_tensor(depth_z: Any) -> tuple[torch.Tensor, bool]:
+    """(B, H, W) float32 contiguous tensor and whether the input was a single (H, W) map."""
+    if isinstance(depth_z, np.ndarray):
+        depth_z = torch.from_numpy(np.ascontiguousarray(depth_z, dtype=np.float32))
+    elif not isinstance(depth_z, torch.Tensor):
+        raise TypeError(f"depth_z must be a torch.Tensor or numpy array, got {type(depth_z).__name__}")
+    single = depth_z.ndim == 2
+    if single:
+        depth_z = depth_z[None]
+    if depth_z.ndim != 3:
+        raise ValueError(f"depth_z must be (B, H, W) or (H, W), got {tuple(depth_z.shape)}")
+    return depth_z.to(torch.float32).contiguous(), single
+
+
+def projection_coefficients(k: np.ndarray, cam1_from_cam0: np.ndarray) -> np.ndarray:
+    """(B, 3, 4) float64 ``M = [K R K^-1 | K t]``: rows give (nu, nv, d) = ``depth_z1 / depth_z`` times
+    (u1, v1, 1) as ``M @ (u, v, 1, 1 / depth_z)``."""
+    b = len(k)
+    kmat = np.zeros((b, 3, 3))
+    kmat[:, 0, 0], kmat[:, 1, 1], kmat[:, 0, 2], kmat[:, 1, 2], kmat[:, 2, 2] = k[:, 0], k[:, 1], k[:, 2], k[:, 3], 1.0
+    kinv = np.zeros((b, 3, 3))
+    kinv[:, 0, 0], kinv[:, 1, 1] = 1.0 / k[:, 0], 1.0 / k[:, 1]
+    kinv[:, 0, 2], kinv[:, 1, 2], kinv[:, 2, 2] = -k[:, 2] / k[:, 0], -k[:, 3] / k[:, 1], 1.0
+    m = np.empty((b, 3, 4))
+    m[:, :, :3] = kmat @ cam1_from_cam0[:, :3, :3] @ kinv
+    m[:, :, 3] = np.einsum("bij,bj->bi", kmat, cam1_from_cam0[:, :3, 3])
+    return m
+
+
+# --------------------------------------------------------------------------------------------- workspace
+
+class _Workspace(threading.local):
+    """Per-thread scratch buffers, reused between calls (fresh multi-MB allocations cost page faults)."""
+
+    def __init__(self):
+        self.buffers: dict[tuple, dict[str, torch.Tensor]] = {}
+
+    def get(self, device: torch.device, n: int, h: int, w: int) -> dict[str, torch.Tensor]:
+        key = (str(device), n, h, w)
+        if key not in self.buffers:
+            if len(self.buffers) > 8:
+                self.buffers.clear()
+            f32 = dict(dtype=torch.float32, device=device)
+            self.buffers[key] = {"p": torch.empty(n, 3, h, w, **f32), "w": torch.empty(n, h, w, **f32),
+                                 "b": torch.empty(n, h, w, **f32), "t": torch.empty(n, h, w, **f32),
+                                 "ab": torch.empty(n, 2, h, w, **f32)}
+        return self.buffers[key]
+
+
+_WS = _Workspace()
+
+
+# ------------------------------------------------------------------------------------------------- API
+
+def synthesize(depth_z: Any, camera: Any, cam1_from_cam0: Any, zbuffer: bool = False, *,
+               occlusion_rel_tol: float = DEFAULT_OCCLUSION_REL_TOL,
+               out: tuple[torch.Tensor, torch.Tensor] | None = None,
+               return_depth1: bool = False):
+    """Flow that the motion ``cam1_from_cam0`` causes on a static scene seen with ``depth_z`` in frame 0.
+
+    Args:
+        depth_z: (B, H, W) (or (H, W)) float32 torch tensor (any device) or numpy array: depth along the
+            optical axis of camera 0, metres. 0, negative, NaN and inf mean "no depth".
+        camera: a :class:`core.camera.PinholeCamera` of size W x H, or intrinsics ``fx, fy, cx, cy``
+            (pixels, at this resolution) as a (4,) or (B, 4) array/tensor (per-sample cameras).
+        cam1_from_cam0: (B, 4, 4) or (4, 4) rigid transforms (torch or numpy, float64 preferred; metres,
+            OpenCV axes) mapping points of camera 0 into camera 1.
+        zbuffer: also mark pixels hidden in frame 1 by a nearer moved point as invalid: the moved points'
+            depths are splatted into frame 1 (each over its own moved footprint) with
+            ``scatter_reduce(amin)``, and a point is hidden when the minimum at its nearest pixel is
+            nearer than its own depth by more than a margin (:func:`visible_after_motion`). Much
+            slower (index arithmetic and scatters over every pixel: tens of times the plain synthesis).
+        occlusion_rel_tol: see :data:`DEFAULT_OCCLUSION_REL_TOL`.
+        out: optional ``(flow_chw, valid)`` buffers to write into and reuse across calls: (B, 2, H, W)
+            float32 and (B, H, W) bool, contiguous, on the depth's device. A fresh 30 MB result costs
+            about as much to allocate (page faults) as it costs to compute, so loops should pass this.
+        return_depth1: also return (B, H, W) float32 ``depth_z1``, the moved point's depth in camera 1
+            (0 where not valid).
+
+    Returns:
+        ``(flow, valid)`` (and ``depth_z1`` when asked): flow (B, H, W, 2) float32 pixels, ``flow[b, v, u]
+        = (du, dv)``, 0 where not valid; valid (B, H, W) bool. ``flow`` is a permuted view of
+        channels-first storage: ``flow.permute(0, 3, 1, 2)`` is the contiguous (B, 2, H, W) tensor a network
+        wants, at no cost; call ``.contiguous()`` for an interleaved copy. An (H, W) input gives (H, W, 2)
+        and (H, W). Not differentiable (runs under ``torch.no_grad``).
+    """
+    z, single = _depth_tensor(depth_z)
+    bsz, h, w = z.shape
+    device = z.device
+    k = intrinsics_array(camera, bsz, w, h)
+    m = projection_coefficients(k, _motions(cam1_from_cam0, bsz))
+    # Re-centre/scale the image rows so that they give s = 2 (u1 - cx_img) / W (and v) directly.
+    cu, cv = (w - 1) / 2.0, (h - 1) / 2.0
+    mn = m.copy()
+    mn[:, 0] = (m[:, 0] - cu * m[:, 2]) * (2.0 / w)
+    mn[:, 1] = (m[:, 1] - cv * m[:, 2]) * (2.0 / h)
+    us, vs = np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)
+    f32 = dict(dtype=torch.float32, device=device)
+    row = torch.as_tensor(mn[:, :, 0, None] * us, **f32).unsqueeze(2)                     # (B, 3, 1, W)
+    col = torch.as_tensor(mn[:, :, 1, None] * vs + mn[:, :, 2, None], **f32).unsqueeze(3)  # (B, 3, H, 1)
+    # The translation column meets w = 1 / depth_z scaled by 2^100 (exact: a power of two), so that a
+    # single clamp d <= 2^100 w rejects depth_z <= 0 and depth_z = inf (2^100 w <= 0) while leaving
+    # every sane depth alone (2^100 w > 1e24 > d for depth_z < 1e6 m); depth_z below 4e-9 m gives inf.
+    e4 = torch.as_tensor(mn[:, :, 3] * _INV_SCALE_RECIP, **f32).view(bsz, 3, 1, 1)
+    scale = torch.tensor(_INV_SCALE, **f32)
+    gu = torch.as_tensor(cu - us, **f32).view(1, 1, w)
+    gv = torch.as_tensor(cv - vs, **f32).view(1, h, 1)
+
+    if out is None:
+        flow_chw = torch.empty(bsz, 2, h, w, **f32)
+        valid = torch.empty(bsz, h, w, dtype=torch.bool, device=device)
+    else:
+        flow_chw, valid = out
+        if (tuple(flow_chw.shape) != (bsz, 2, h, w) or flow_chw.dtype != torch.float32
+                or tuple(valid.shape) != (bsz, h, w) or valid.dtype != torch.bool
+                or not flow_chw.is_contiguous() or not valid.is_contiguous()
+                or flow_chw.device != device or valid.device != device):
+            raise ValueError(f"out must be ((B, 2, H, W) float32, (B, H, W) bool) contiguous on {device} "
+                             f"for B, H, W = {bsz}, {h}, {w}")
+    need_z1 = zbuffer or return_depth1
+    depth1 = torch.empty(bsz, h, w, **f32) if need_z1 else None
+
+    chunk = max(1, min(bsz, CHUNK_PIXELS // (h * w)))
+    ws = _WS.get(device, chunk, h, w)
+    with torch.no_grad():
+        for s in range(0, bsz, chunk):
+            n = min(chunk, bsz - s)
+            sl = slice(s, s + n)
+            inv = ws["w"][:n]
+            tt = ws["t"][:n]
+            bb = ws["b"][:n]
+            ab = ws["ab"][:n]
+            p = ws["p"][:n]
+            torch.div(scale, z[sl], out=inv)                       # 2^100 w = 2^100 / depth_z
+            torch.add(row[sl], col[sl], out=p)                     # M[:, :, :3] @ (u, v, 1)
+            p.addcmul_(e4[sl], inv.unsqueeze(1))                   # + (2^-100 M[:, :, 3]) (2^100 w)
+            d = p[:, 2]                                            # depth_z1 / depth_z
+            if need_z1:
+                torch.mul(d, z[sl], out=depth1[sl])
+            d.clamp_(max=inv)                                      # depth_z <= 0 or inf: d <= 0 (NaN stays)
+            torch.abs(p[:, :2], out=ab)                            # |nu|, |nv|
+            torch.maximum(ab[:, 0], ab[:, 1], out=bb)              # NaN propagates
+            torch.lt(bb, d, out=tt)                                # |s_u|, |s_v| < 1 and d > 0: 1.0, else 0.0
+            valid[sl].copy_(tt)
+            d.mul_(tt).reciprocal_()                               # 1 / d; not valid -> inf (or NaN)
+            torch.addcmul(gu, p[:, 0], d, value=w / 2.0, out=ab[:, 0])  # u1 - u = (nu / d) W/2 + (cx_img - u)
+            torch.addcmul(gv, p[:, 1], d, value=h / 2.0, out=ab[:, 1])
+            torch.nan_to_num(ab, 0.0, 0.0, 0.0, out=flow_chw[sl])  # inf / NaN where not valid -> 0; one write
+        if zbuffer:
+            visible = visible_after_motion(flow_chw, valid, depth1, occlusion_rel_tol)
+            hidden = valid & ~visible
+            valid.copy_(visible)
+            flow_chw.masked_fill_(hidden.unsqueeze(1), 0.0)
+        if depth1 is not None:
+            depth1.masked_fill_(~valid, 0.0)
+
+    flow = flow_chw.permute(0, 2, 3, 1)
+    if single:
+        flow, valid = flow[0], valid[0]
+        depth1 = None if depth1 is None else depth1[0]
+    return (flow, valid, depth1) if return_depth1 else (flow, valid)
+
+
+def _min_one_sided_abs_diff(a: torch.Tensor, dim: int) -> torch.Tensor:
+    """Per pixel, the smaller of |forward| and |backward| difference of ``a`` (NaN = not valid) along
+    ``dim``; 1 where neither neighbour is valid. The smaller side is the within-surface one at a depth
+    edge, so an edge next door does not inflate it."""
+    n = a.shape[dim]
+    if n < 2:
+        return torch.ones_like(a)
+    inf = float("inf")
+    diff = (a.narrow(dim, 1, n - 1) - a.narrow(dim, 0, n - 1)).abs_().nan_to_num_(inf, inf, inf)
+    out = torch.empty_like(a)
+    out.narrow(dim, 0, 1).copy_(diff.narrow(dim, 0, 1))
+    out.narrow(dim, n - 1, 1).copy_(diff.narrow(dim, n - 2, 1))
+    if n > 2:
+        torch.minimum(diff.narrow(dim, 1, n - 2), diff.narrow(dim, 0, n - 2), out=out.narrow(dim, 1, n - 2))
+    return out.nan_to_num_(1.0, 1.0, 1.0)
+
+
+def visible_after_motion(flow_chw: torch.Tensor, valid: torch.Tensor, depth_z1: torch.Tensor,
+                         occlusion_rel_tol: float = DEFAULT_OCCLUSION_REL_TOL) -> torch.Tensor:
+    """z-buffer test in frame 1 for the moved points of each depth map.
+
+    Args:
+        flow_chw: (B, 2, H, W) float32 flow in pixels (channels first).
+        valid: (B, H, W) bool, points that land inside frame 1 in front of the camera.
+        depth_z1: (B, H, W) float32 depth of each moved point in camera 1, metres.
+        occlusion_rel_tol: relative part of the depth margin (see below).
+
+    Returns:
+        (B, H, W) bool: True where the point is valid and not hidden.
+
+    Each valid point splats its depth (``scatter_reduce`` amin) onto its nearest pixel and onto every
+    other pixel centre of the 3x3 block around it that lies inside the bounding box of its own moved
+    footprint: the unit square of the source pixel maps (to first order)
+    to a parallelogram with edges d(x1, y1)/du and d(x1, y1)/dv, whose box has half-widths
+    ``0.5 (|dx1/du| + |dx1/dv|)`` and ``0.5 (|dy1/du| + |dy1/dv|)``, clamped to [0.5, 1.5] px (half a
+    pixel for a rigid shift, so a foreground edge never hides the background pixel beside it; more
+    where the motion magnifies a surface, so that it leaves no holes for farther points to show
+    through). A point is hidden when the minimum at its nearest pixel is nearer than its own depth by
+    more than ``tol * depth_z1 + |d depth_z1/du| + |d depth_z1/dv|``: the second part is the depth change
+    to the neighbouring source pixels, which may land on the same target pixel when the surface
+    shrinks in the new view (a road seen at a grazing angle) without hiding anything. Derivatives are
+    the smaller one-sided differences (:func:`_min_one_sided_abs_diff`).
+    """
+    bsz, _, h, w = flow_chw.shape
+    dev = flow_chw.device
+    if not bool(valid.any()):
+        return torch.zeros_like(valid)
+    uu = torch.arange(w, dtype=torch.float32, device=dev).view(1, 1, w)
+    vv = torch.arange(h, dtype=torch.float32, device=dev).view(1, h, 1)
+    nan = torch.tensor(float("nan"), device=dev)
+    x1 = torch.where(valid, flow_chw[:, 0] + uu, nan)
+    y1 = torch.where(valid, flow_chw[:, 1] + vv, nan)
+    zz = torch.where(valid, depth_z1, nan)
+    rx = (0.5 * (_min_one_sided_abs_diff(x1, 2) + _min_one_sided_abs_diff(x1, 1))).clamp_(0.5, 1.5)
+    ry = (0.5 * (_min_one_sided_abs_diff(y1, 2) + _min_one_sided_abs_diff(y1, 1))).clamp_(0.5, 1.5)
+    slack = _min_one_sided_abs_diff(zz, 2).add_(_min_one_sided_abs_diff(zz, 1)).add_(zz, alpha=occlusion_rel_tol)
+    xn, yn = torch.round(x1), torch.round(y1)
+    dx, dy = x1 - xn, y1 - yn                                 # in [-0.5, 0.5] (NaN where not valid)
+    xn = xn.nan_to_num_(0.0).long().clamp_(0, w - 1)
+    yn = yn.nan_to_num_(0.0).long().clamp_(0, h - 1)
+    dummy = bsz * h * w                                       # invalid points splat into an extra cell
+    base = torch.arange(bsz, device=dev).view(bsz, 1, 1) * (h * w)
+    centre = torch.where(valid, base + yn * w + xn, dummy)
+    zbuf = torch.full((dummy + 1,), float("inf"), dtype=torch.float32, device=dev)
+    zbuf.scatter_reduce_(0, centre.reshape(-1), zz.reshape(-1), reduce="amin")  # nearest pixel
+    # Neighbours in the 3x3 block that lie inside the point's footprint box (|k - d| <= r).
+    in_x = {1: (1 - dx <= rx) & (xn + 1 < w), -1: (1 + dx <= rx) & (xn > 0)}
+    in_y = {1: (1 - dy <= ry) & (yn + 1 < h), -1: (1 + dy <= ry) & (yn > 0)}
+    for kx in (-1, 0, 1):
+        for ky in (-1, 0, 1):
+            if kx == 0 and ky == 0:
+                continue
+            m = in_x[kx] if ky == 0 else in_y[ky] if kx == 0 else in_x[kx] & in_y[ky]
+            if bool(m.any()):  # NaN comparisons are False: only valid points
+                zbuf.scatter_reduce_(0, torch.where(m, centre + (ky * w + kx), dummy).reshape(-1),
+                                     zz.reshape(-1), reduce="amin")
+    return valid & (zz - zbuf[centre] <= slack)
+
+
+def normalize_flow(flow: Any, width: int, height: int, channel_axis: int = -1):
+    """The paper's normalised flow: (du / W, dv / H). Works on numpy arrays and torch tensors.
+
+    Args:
+        flow: flow in pixels with the (du, dv) pair on ``channel_axis`` (-1 for (..., H, W, 2),
+            1 or -3 for (B, 2, H, W)).
+        width, height: the image size the flow was measured at, pixels.
+    """
+    scale_shape = [1] * flow.ndim
+    scale_shape[channel_axis] = 2
+    scale = np.array([1.0 / width, 1.0 / height], dtype=np.float32).reshape(scale_shape)
+    if isinstance(flow, torch.Tensor):
+        return flow * torch.as_tensor(scale, device=flow.device, dtype=flow.dtype)
+    return np.asarray(flow) * scale.astype(np.asarray(flow).dtype)
+
+
+def denormalize_flow(flow_norm: Any, width: int, height: int, channel_axis: int = -1):
+    """Inverse of :func:`normalize_flow`: pixels from (du / W, dv / H)."""
+    scale_shape = [1] * flow_norm.ndim
+    scale_shape[channel_axis] = 2
+    scale = np.array([width, height], dtype=np.float32).reshape(scale_shape)
+    if isinstance(flow_norm, torch.Tensor):
+        return flow_norm * torch.as_tensor(scale, device=flow_norm.device, dtype=flow_norm.dtype)
+    return np.asarray(flow_norm) * scale.astype(np.asarray(flow_norm).dtype)

@@ -1,0 +1,427 @@
+"""The paper's motion model: an independent Student-t per degree of freedom of the relative camera motion.
+
+Each DoF of the paper's vector ``(euler_x, euler_y, euler_z, t_x, t_y, t_z)`` (radians, metres; R = Rz Ry Rx)
+of ``cam_{i+k}_from_cam_i`` (the motion that maps points of frame i into frame i+k, stride k) over
+ground-truth trajectories gets a Student-t (``df``, ``loc``, ``scale``) fitted by maximum likelihood
+(``scipy.stats.t.fit``, then refined for the truncation below: :func:`fit_student_t`). Sampling
+draws the six independently with a ``numpy.random.Generator`` (the draws of
+``scipy.stats.t.rvs(random_state=rng)``), truncated to the range the data covered (``lo``, ``hi``)
+by redrawing: the fitted tails are heavy (KITTI's yaw gets df < 1) and would otherwise give absurd
+rotations now and then.
+
+The *loop* distribution models the motion between frames far apart in time that are close in space
+(pairs (i, j) with |i - j| > ``min_gap_frames``, camera centres closer than ``max_distance_m`` and a
+relative rotation below ``max_angle_deg`` so that the two views overlap), both orders (i->j and j->i):
+what a flow network sees at a loop closure.
+
+JSON file (``deepslam fit-motion`` writes it, :meth:`MotionModel.load` validates it)::
+
+    {"format": "deepslam-motion", "version": 1,
+     "dof_names": ["euler_x", ..., "t_z"], "units": ["rad", "rad", "rad", "m", "m", "m"],
+     "stride": 1, "sources": ["00.txt", ...],
+     "consecutive": {"num_motions": N, "dofs": {"euler_x": {"df": .., "loc": .., "scale": .., "lo": .., "hi": ..}, ...}},
+     "loop": null or {"num_motions": M, "min_gap_frames": .., "max_distance_m": .., "max_angle_deg": .., "dofs": {...}}}
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from core import atomic, se3
+from core.errors import InputError
+from core.trajectory import Trajectory
+
+FORMAT = "deepslam-motion"
+VERSION = 1
+DOF_NAMES = ("euler_x", "euler_y", "euler_z", "t_x", "t_y", "t_z")
+DOF_UNITS = ("rad", "rad", "rad", "m", "m", "m")
+MIN_MOTIONS = 20
+"""Fewest motions a Student-t is fitted to."""
+
+
+@dataclasses.dataclass(frozen=True)
+class StudentT:
+    """One fitted Student-t and the range samples are truncated to."""
+
+    df: float
+    """Degrees of freedom (> 0)."""
+    loc: float
+    """Location (rad or m)."""
+    scale: float
+    """Scale (> 0, rad or m)."""
+    lo: float
+    """Smallest value sampled (the data's minimum)."""
+    hi: float
+    """Largest value sampled (the data's maximum)."""
+
+    def _mass(self) -> float:
+        from scipy import stats
+
+        return float(stats.t.cdf(self.hi, self.df, self.loc, self.scale) - stats.t.cdf(self.lo, self.df, self.loc, self.scale))
+
+    def pdf(self, x: np.ndarray) -> np.ndarray:
+        """Density of the t truncated to [lo, hi] (what :meth:`sample` draws from)."""
+        from scipy import stats
+
+        x = np.asarray(x, dtype=np.float64)
+        inside = (x >= self.lo) & (x <= self.hi)
+        return np.where(inside, stats.t.pdf(x, self.df, self.loc, self.scale) / self._mass(), 0.0)
+
+    def cdf(self, x: np.ndarray) -> np.ndarray:
+        """Distribution function of the t truncated to [lo, hi]."""
+        from scipy import stats
+
+        x = np.clip(np.asarray(x, dtype=np.float64), self.lo, self.hi)
+        c0 = stats.t.cdf(self.lo, self.df, self.loc, self.scale)
+        return (stats.t.cdf(x, self.df, self.loc, self.scale) - c0) / self._mass()
+
+    def sample(self, n: int, rng: np.random.Generator, max_rounds: int = 64) -> np.ndarray:
+        """(n,) float64 draws in [lo, hi] (out-of-range draws are redrawn; clipped after ``max_rounds``).
+
+        Each draw is ``loc + scale * rng.standard_t(df)``: exactly what ``scipy.stats.t.rvs(df, loc, scale,
+        random_state=rng)`` returns, without its per-call overhead (this runs once per training sample).
+        """
+        out = self.loc + self.scale * rng.standard_t(self.df, size=n)
+        for _ in range(max_rounds):
+            bad = np.flatnonzero((out < self.lo) | (out > self.hi))
+            if bad.size == 0:
+                break
+            out[bad] = self.loc + self.scale * rng.standard_t(self.df, size=bad.size)
+        return np.clip(out, self.lo, self.hi)
+
+
+@dataclasses.dataclass(frozen=True)
+class SixDof:
+    """Independent Student-t distributions of the six DoF (paper order) and the data they came from."""
+
+    dofs: tuple[StudentT, ...]
+    """Six distributions in :data:`DOF_NAMES` order."""
+    num_motions: int
+    """Number of relative motions fitted."""
+
+    def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """(n, 6) float64 paper vectors (rad, m); DoFs drawn in order, each with ``rng``."""
+        return np.stack([d.sample(n, rng) for d in self.dofs], axis=-1)
+
+    def to_dict(self) -> dict:
+        return {"num_motions": self.num_motions,
+                "dofs": {name: dataclasses.asdict(d) for name, d in zip(DOF_NAMES, self.dofs)}}
+
+
+@dataclasses.dataclass(frozen=True)
+class LoopConfig:
+    """Which frame pairs count as loops."""
+
+    min_gap_frames: int = 100
+    """Pairs must be more than this many frames apart."""
+    max_distance_m: float = 5.0
+    """... with camera centres closer than this (metres)."""
+    max_angle_deg: float = 30.0
+    """... and a relative rotation below this (degrees), so that the views overlap."""
+    max_pairs: int = 50_000
+    """At most this many motions are fitted (a seeded subsample beyond)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class MotionModel:
+    """Student-t motion model for consecutive motions at one stride, plus an optional loop model."""
+
+    stride: int
+    """Frame stride k of the fitted consecutive motions cam_{i+k}_from_cam_i."""
+    consecutive: SixDof
+    """The consecutive-motion distributions."""
+    loop: SixDof | None = None
+    """The loop-motion distributions, or None."""
+    loop_config: LoopConfig | None = None
+    """How loop pairs were chosen (None without a loop model)."""
+    sources: tuple[str, ...] = ()
+    """File names of the trajectories fitted (for the record)."""
+
+    # -------------------------------------------------------------------------------- sampling
+    def sample(self, n: int, rng: np.random.Generator, loop_fraction: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Draw n motions.
+
+        Args:
+            n: number of motions.
+            rng: the generator (consumed in a fixed order: loop choice, then consecutive, then loop draws).
+            loop_fraction: probability that a motion comes from the loop model (needs one).
+
+        Returns:
+            (vec6 (n, 6) float64 paper vectors of cam1_from_cam0, is_loop (n,) bool).
+        """
+        if loop_fraction > 0 and self.loop is None:
+            raise ValueError("loop_fraction > 0 but the motion model has no loop distribution (fit with --loops)")
+        is_loop = rng.random(n) < loop_fraction if loop_fraction > 0 else np.zeros(n, dtype=bool)
+        vec = self.consecutive.sample(n, rng)
+        if is_loop.any():
+            vec[is_loop] = self.loop.sample(int(is_loop.sum()), rng)
+        return vec, is_loop
+
+    def sample_transforms(self, n: int, rng: np.random.Generator, loop_fraction: float = 0.0):
+        """(cam1_from_cam0 (n, 4, 4) float64, vec6 (n, 6), is_loop (n,)) from :meth:`sample`."""
+        vec, is_loop = self.sample(n, rng, loop_fraction)
+        return se3.from_euler6(vec), vec, is_loop
+
+    # ------------------------------------------------------------------------------------- I/O
+    def to_dict(self) -> dict:
+        loop = None
+        if self.loop is not None:
+            loop = {**self.loop.to_dict(), **{k: v for k, v in dataclasses.asdict(self.loop_config).items()}}
+        return {"format": FORMAT, "version": VERSION, "dof_names": list(DOF_NAMES), "units": list(DOF_UNITS),
+                "stride": self.stride, "sources": list(self.sources),
+                "consecutive": self.consecutive.to_dict(), "loop": loop}
+
+    def save(self, path: str | Path) -> Path:
+        atomic.write_json(path, self.to_dict())
+        return Path(path)
+
+    @classmethod
+    def from_dict(cls, d: dict, path: str | Path | None = None) -> "MotionModel":
+        """Validate and build; any fault raises InputError naming ``path`` and the field."""
+        def bad(what: str):
+            return InputError(path, f"malformed motion model: {what}")
+
+        if not isinstance(d, dict):
+            raise bad("top level is not a JSON object")
+        if d.get("format") != FORMAT:
+            raise bad(f"format is {d.get('format')!r}, expected {FORMAT!r}")
+        if d.get("version") != VERSION:
+            raise bad(f"version is {d.get('version')!r}, expected {VERSION}")
+        stride = d.get("stride")
+        if not isinstance(stride, int) or isinstance(stride, bool) or stride < 1:
+            raise bad(f"stride must be an integer >= 1, got {stride!r}")
+        if "consecutive" not in d:
+            raise bad("missing key 'consecutive'")
+        consecutive = _six_from_dict(d["consecutive"], "consecutive", bad)
+        loop, loop_cfg = None, None
+        if d.get("loop") is not None:
+            loop = _six_from_dict(d["loop"], "loop", bad)
+            try:
+                loop_cfg = LoopConfig(**{f.name: d["loop"][f.name] for f in dataclasses.fields(LoopConfig)})
+            except KeyError as e:
+                raise bad(f"loop: missing key {e.args[0]!r}") from None
+        sources = d.get("sources", [])
+        if not isinstance(sources, list) or not all(isinstance(s, str) for s in sources):
+            raise bad("sources must be a list of strings")
+        return cls(stride, consecutive, loop, loop_cfg, tuple(sources))
+
+    @classmethod
+    def load(cls, path: str | Path) -> "MotionModel":
+        path = Path(path)
+        if not path.is_file():
+            raise InputError(path, "motion model file is missing")
+        try:
+            d = json.loads(path.read_text())
+        except (OSError, UnicodeDecodeError) as e:
+            raise InputError(path, f"cannot read motion model ({e})") from None
+        except json.JSONDecodeError as e:
+            raise InputError(path, f"malformed motion model: not JSON ({e.msg})", line=e.lineno) from None
+        return cls.from_dict(d, path)
+
+
+def _six_from_dict(d, where: str, bad) -> SixDof:
+    if not isinstance(d, dict):
+        raise bad(f"{where} is not an object")
+    if "dofs" not in d or not isinstance(d["dofs"], dict):
+        raise bad(f"{where}: missing key 'dofs'")
+    n = d.get("num_motions")
+    if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+        raise bad(f"{where}.num_motions must be a positive integer, got {n!r}")
+    dofs = []
+    for name in DOF_NAMES:
+        if name not in d["dofs"]:
+            raise bad(f"{where}.dofs: missing key {name!r}")
+        entry = d["dofs"][name]
+        if not isinstance(entry, dict):
+            raise bad(f"{where}.dofs.{name} is not an object")
+        vals = {}
+        for key in ("df", "loc", "scale", "lo", "hi"):
+            if key not in entry:
+                raise bad(f"{where}.dofs.{name}: missing key {key!r}")
+            v = entry[key]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise bad(f"{where}.dofs.{name}.{key} must be a finite number, got {v!r}")
+            vals[key] = float(v)
+        if vals["df"] <= 0:
+            raise bad(f"{where}.dofs.{name}.df must be > 0, got {vals['df']}")
+        if vals["scale"] <= 0:
+            raise bad(f"{where}.dofs.{name}.scale must be > 0, got {vals['scale']}")
+        if not vals["lo"] < vals["hi"]:
+            raise bad(f"{where}.dofs.{name}: lo must be below hi, got {vals['lo']} >= {vals['hi']}")
+        dofs.append(StudentT(**vals))
+    return SixDof(tuple(dofs), n)
+
+
+# ------------------------------------------------------------------------------------------- fitting
+
+def relative_vectors(trajectories: Sequence[Trajectory], stride: int = 1) -> np.ndarray:
+    """(N, 6) float64 paper vectors of cam_{i+stride}_from_cam_i over all trajectories."""
+    out = [se3.to_euler6(t.relative_motions(stride)) for t in trajectories if len(t) > stride]
+    return np.concatenate(out, axis=0) if out else np.zeros((0, 6))
+
+
+def loop_motions(trajectory: Trajectory, config: LoopConfig = LoopConfig()) -> np.ndarray:
+    """(M, 4, 4) ``cam_j_from_cam_i`` for loop pairs of one trajectory (both orders), see module doc."""
+    from scipy.spatial import cKDTree
+
+    pos = trajectory.positions
+    pairs = cKDTree(pos).query_pairs(config.max_distance_m, output_type="ndarray")
+    if len(pairs) == 0:
+        return np.zeros((0, 4, 4))
+    pairs = pairs[np.abs(pairs[:, 0] - pairs[:, 1]) > config.min_gap_frames]
+    pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+    if len(pairs) == 0:
+        return np.zeros((0, 4, 4))
+    both = np.concatenate([pairs, pairs[:, ::-1]], axis=0)
+    i, j = both[:, 0], both[:, 1]
+    # cam_j_from_cam_i = inverse(world_from_cam_j) @ world_from_cam_i
+    rel = se3.relative(trajectory.world_from_cam[j], trajectory.world_from_cam[i])
+    keep = np.degrees(se3.rotation_angle(rel)) < config.max_angle_deg
+    return rel[keep]
+
+
+def fit_student_t(x: np.ndarray) -> StudentT:
+    """Student-t of 1-D data, truncated to the data's range [min, max].
+
+    ``scipy.stats.t.fit`` gives the maximum-likelihood (df, loc, scale) of the plain t; since samples
+    are drawn from the t truncated to [lo, hi] (see :meth:`StudentT.sample`), the estimate is then
+    refined to maximise the likelihood of the TRUNCATED t (``log pdf - log(cdf(hi) - cdf(lo))``,
+    L-BFGS-B from the plain fit). For light tails both agree; for KITTI's yaw (df ~ 0.7 plain) the
+    plain fit puts ~10 % of its mass beyond the data and its truncated samples come out too narrow,
+    while the refined one reproduces the data's quantiles.
+    """
+    from scipy import optimize, stats
+
+    x = np.asarray(x, dtype=np.float64)
+    x = x[np.isfinite(x)]
+    if len(x) < MIN_MOTIONS:
+        raise ValueError(f"need at least {MIN_MOTIONS} values to fit, got {len(x)}")
+    if np.ptp(x) == 0:
+        raise ValueError("all values are equal: nothing to fit")
+    lo, hi = float(x.min()), float(x.max())
+    df0, loc0, scale0 = (float(v) for v in stats.t.fit(x))
+    df0 = float(np.clip(df0, 0.05, 1e8))
+
+    def unpack(p):
+        return float(np.clip(np.exp(p[0]), 0.05, 1e8)), loc0 + p[1] * scale0, scale0 * float(np.exp(p[2]))
+
+    def nll(p) -> float:
+        df, loc, scale = unpack(p)
+        mass = stats.t.cdf(hi, df, loc, scale) - stats.t.cdf(lo, df, loc, scale)
+        if not mass > 0:
+            return 1e300
+        return float(-(stats.t.logpdf(x, df, loc, scale).mean() - np.log(mass)))
+
+    start = np.array([np.log(df0), 0.0, 0.0])
+    res = optimize.minimize(nll, start, method="L-BFGS-B")
+    p = res.x if np.all(np.isfinite(res.x)) and res.fun <= nll(start) else start
+    df, loc, scale = unpack(p)
+    return StudentT(df, float(loc), float(scale), lo, hi)
+
+
+def fit_six(vectors: np.ndarray) -> SixDof:
+    """Fit each column of (N, 6) paper vectors."""
+    return SixDof(tuple(fit_student_t(vectors[:, k]) for k in range(6)), int(len(vectors)))
+
+
+def fit_motion(trajectories: Sequence[Trajectory], stride: int = 1, loops: bool = False,
+               loop_config: LoopConfig = LoopConfig(), sources: Sequence[str] = (),
+               seed: int = 0) -> tuple[MotionModel, np.ndarray, np.ndarray | None]:
+    """Fit the consecutive (and optionally loop) model to ground-truth trajectories.
+
+    Args:
+        trajectories: world_from_cam trajectories (OpenCV axes, metres).
+        stride: frame stride k.
+        loops: also fit the loop distribution.
+        loop_config: which pairs are loops.
+        sources: names recorded in the model.
+        seed: seeds the subsample of loop pairs when there are more than ``loop_config.max_pairs``.
+
+    Returns:
+        (model, consecutive vectors (N, 6), loop vectors (M, 6) or None): the data, for plots and checks.
+
+    Raises:
+        ValueError when there are too few motions (or no loop pair when ``loops``).
+    """
+    vec = relative_vectors(trajectories, stride)
+    if len(vec) < MIN_MOTIONS:
+        raise ValueError(f"only {len(vec)} relative motions at stride {stride}; need at least {MIN_MOTIONS}")
+    consecutive = fit_six(vec)
+    loop, loop_vec = None, None
+    if loops:
+        rel = [loop_motions(t, loop_config) for t in trajectories]
+        rel = np.concatenate(rel, axis=0) if rel else np.zeros((0, 4, 4))
+        if len(rel) < MIN_MOTIONS:
+            raise ValueError(f"only {len(rel)} loop motions (pairs more than {loop_config.min_gap_frames} frames "
+                             f"apart within {loop_config.max_distance_m} m and {loop_config.max_angle_deg} deg); "
+                             f"need at least {MIN_MOTIONS}")
+        if len(rel) > loop_config.max_pairs:
+            pick = np.sort(np.random.default_rng(seed).choice(len(rel), loop_config.max_pairs, replace=False))
+            rel = rel[pick]
+        loop_vec = se3.to_euler6(rel)
+        loop = fit_six(loop_vec)
+    model = MotionModel(stride, consecutive, loop, loop_config if loops else None, tuple(sources))
+    return model, vec, loop_vec
+
+
+def ks_statistics(model: SixDof, data: np.ndarray) -> np.ndarray:
+    """(6,) one-sample Kolmogorov-Smirnov statistic of each DoF of ``data`` (N, 6) against its (truncated) fit."""
+    from scipy import stats
+
+    return np.array([stats.kstest(data[:, k], model.dofs[k].cdf).statistic for k in range(6)])
+
+
+# -------------------------------------------------------------------------------------------- plotting
+
+def plot_motion_fit(path_png: str | Path, data: np.ndarray, model: SixDof, title: str = "",
+                    loop_data: np.ndarray | None = None, loop_model: SixDof | None = None) -> Path:
+    """The paper's Figure 3: a histogram per DoF with the fitted Student-t density, as a PNG.
+
+    Args:
+        path_png: output file (written atomically).
+        data: (N, 6) paper vectors the model was fitted to.
+        model: the fitted distributions.
+        title: figure title.
+        loop_data, loop_model: a second row of six panels for the loop distribution.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    rows = [(data, model, "consecutive")]
+    if loop_data is not None and loop_model is not None:
+        rows.append((loop_data, loop_model, "loop"))
+    fig = Figure(figsize=(13, 6.5 * len(rows)), dpi=100)
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(2 * len(rows), 3, squeeze=False)
+    for r, (vec, six, label) in enumerate(rows):
+        for k in range(6):
+            ax = axes[2 * r + k // 3, k % 3]
+            x = vec[:, k]
+            lo, hi = np.quantile(x, [0.005, 0.995])
+            pad = 0.1 * (hi - lo) if hi > lo else 1e-3
+            lo, hi = lo - pad, hi + pad
+            inside = x[(x >= lo) & (x <= hi)]
+            bins = 80
+            # Density of ALL the data (the tails beyond the plotted range keep their share), so the
+            # bars and the fitted density are on the same scale.
+            ax.hist(inside, bins=bins, range=(lo, hi), weights=np.full(len(inside), bins / (len(x) * (hi - lo))),
+                    color="#8fb3d9", edgecolor="none", label=f"data (N={len(x)})")
+            grid = np.linspace(lo, hi, 400)
+            d = six.dofs[k]
+            ax.plot(grid, d.pdf(grid), color="#c0392b", lw=1.6,
+                    label=f"Student-t df={d.df:.2g}\nloc={d.loc:.3g} scale={d.scale:.3g}")
+            ax.set_title(f"{label}: {DOF_NAMES[k]} [{DOF_UNITS[k]}]", fontsize=10)
+            ax.legend(fontsize=7, loc="upper right")
+            ax.tick_params(labelsize=7)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    path_png = Path(path_png)
+    with atomic.atomic_path(path_png) as tmp:
+        fig.savefig(tmp, format="png")
+    return path_png

@@ -1,0 +1,173 @@
+"""Student-t motion model: fit on KITTI ground truth, samples vs data, JSON, loops, the CLI."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from core import se3
+from core.errors import InputError
+from core.trajectory import Trajectory
+from deepslam.cli import main
+from gen.motion import (DOF_NAMES, LoopConfig, MotionModel, StudentT, fit_motion, fit_student_t, ks_statistics,
+                        loop_motions, relative_vectors)
+
+
+@pytest.fixture(scope="module")
+def kitti_fit(shared_data):
+    """Consecutive motions of all of KITTI 00-10; loops of 00 and 05 (the sequences that revisit)."""
+    from core.trajio import read_trajectory
+
+    trajs = [read_trajectory(shared_data / "kitti" / "poses" / f"{k:02d}.txt") for k in range(11)]
+    model, vec, _ = fit_motion(trajs, 1)
+    loop_model, _, loop_vec = fit_motion([trajs[0], trajs[5]], 1, loops=True)
+    model = MotionModel(1, model.consecutive, loop_model.loop, loop_model.loop_config, ("kitti",))
+    return model, vec, loop_vec, trajs
+
+
+def test_fit_on_kitti_samples_match_the_data(kitti_fit):
+    model, vec, _, _ = kitti_fit
+    assert vec.shape == (23190, 6)  # 4541 + 1101 + ... + 1201 poses, minus one per sequence
+    # Forward motion: points move backwards in the camera (t_z of cam1_from_cam0 < 0), about 1 m/frame.
+    assert -1.2 < model.consecutive.dofs[5].loc < -0.7
+    samples = model.consecutive.sample(20_000, np.random.default_rng(0))
+    for k, name in enumerate(DOF_NAMES):
+        ks = stats.ks_2samp(vec[:, k], samples[:, k]).statistic
+        assert ks < 0.06, (name, ks)
+        q_data = np.quantile(vec[:, k], [0.05, 0.25, 0.5, 0.75, 0.95])
+        q_samp = np.quantile(samples[:, k], [0.05, 0.25, 0.5, 0.75, 0.95])
+        spread = q_data[-1] - q_data[0]
+        # Worst case: t_z's 5 % quantile (-1.71 m sampled vs -1.50 m in the data): KITTI 01's highway
+        # speeds make a second mode that one Student-t cannot follow.
+        assert np.all(np.abs(q_samp - q_data) < 0.2 * spread), (name, q_data, q_samp)
+        assert samples[:, k].min() >= model.consecutive.dofs[k].lo and samples[:, k].max() <= model.consecutive.dofs[k].hi
+    # One-sample KS of the data against the fitted densities is small too.
+    assert np.all(ks_statistics(model.consecutive, vec) < 0.05)
+
+
+def test_a_wrong_model_fails_the_same_check(kitti_fit):
+    """The check above can fail: samples of a model fitted to stride 5 do not match stride-1 data."""
+    model, vec, _, trajs = kitti_fit
+    model5, _, _ = fit_motion(trajs[3:5], 5)
+    samples = model5.consecutive.sample(20_000, np.random.default_rng(0))
+    assert stats.ks_2samp(vec[:, 5], samples[:, 5]).statistic > 0.3
+
+
+def test_loop_distribution_on_kitti(kitti_fit):
+    model, _, loop_vec, trajs = kitti_fit
+    assert model.loop is not None and loop_vec is not None and len(loop_vec) > 10_000
+    cfg = model.loop_config
+    assert np.all(np.linalg.norm(loop_vec[:, 3:], axis=1) < cfg.max_distance_m)
+    rel = se3.from_euler6(loop_vec)
+    assert np.all(np.degrees(se3.rotation_angle(rel)) < cfg.max_angle_deg)
+    # Both orders are present: translations are symmetric about zero.
+    assert abs(np.median(loop_vec[:, 5])) < 0.5
+    vec, is_loop = model.sample(2000, np.random.default_rng(1), loop_fraction=0.25)
+    assert 0.2 < is_loop.mean() < 0.3
+    assert np.abs(vec[is_loop, 5]).mean() > 3 * np.abs(vec[~is_loop, 5] - vec[~is_loop, 5].mean()).mean()
+
+
+def test_loop_motions_known_answer():
+    """A square path driven twice: frame i and i + 40 are the same pose -> identity loop motions."""
+    n = 80
+    t = np.arange(n) % 40
+    pos = np.stack([np.cos(2 * np.pi * t / 40) * 20, np.zeros(n), np.sin(2 * np.pi * t / 40) * 20], axis=1)
+    yaw = -2 * np.pi * t / 40
+    rot = np.stack([se3.from_euler6([0, y, 0, 0, 0, 0])[:3, :3] for y in yaw])
+    traj = Trajectory(se3.from_rt(rot, pos))
+    rel = loop_motions(traj, LoopConfig(min_gap_frames=30, max_distance_m=1.0, max_angle_deg=10))
+    assert len(rel) == 2 * 40
+    np.testing.assert_allclose(rel, np.broadcast_to(np.eye(4), rel.shape), atol=1e-9)
+    assert len(loop_motions(traj, LoopConfig(min_gap_frames=50, max_distance_m=1.0))) == 0
+
+
+def test_relative_vectors_and_fit_student_t_known_answer():
+    rng = np.random.default_rng(2)
+    x = stats.t.rvs(4.0, 0.5, 0.2, size=20_000, random_state=rng)
+    d = fit_student_t(x)
+    assert d.df == pytest.approx(4.0, rel=0.15) and d.loc == pytest.approx(0.5, abs=0.01)
+    assert d.scale == pytest.approx(0.2, rel=0.05) and d.lo == x.min() and d.hi == x.max()
+    poses = se3.from_euler6(np.cumsum(np.tile([0, 0.01, 0, 0, 0, 1.0], (5, 1)), axis=0))
+    vec = relative_vectors([Trajectory(poses)], 2)
+    assert vec.shape == (3, 6)
+    np.testing.assert_allclose(se3.from_euler6(vec), se3.relative(poses[2:], poses[:-2]), atol=1e-12)
+    with pytest.raises(ValueError):
+        fit_student_t(np.ones(100))
+
+
+def test_sampling_is_scipy_rvs_and_deterministic():
+    d = StudentT(2.5, 0.1, 0.3, -1e9, 1e9)
+    a = d.sample(500, np.random.default_rng(5))
+    b = stats.t.rvs(2.5, 0.1, 0.3, size=500, random_state=np.random.default_rng(5))
+    np.testing.assert_array_equal(a, b)
+    narrow = StudentT(1.0, 0.0, 1.0, -0.5, 0.5)
+    s = narrow.sample(5000, np.random.default_rng(6))
+    assert s.min() >= -0.5 and s.max() <= 0.5
+
+
+def test_json_round_trip(kitti_fit, tmp_path):
+    model = kitti_fit[0]
+    path = model.save(tmp_path / "m.json")
+    back = MotionModel.load(path)
+    assert back == model
+    v1, l1 = model.sample(10, np.random.default_rng(3), 0.5)
+    v2, l2 = back.sample(10, np.random.default_rng(3), 0.5)
+    np.testing.assert_array_equal(v1, v2)
+    np.testing.assert_array_equal(l1, l2)
+
+
+@pytest.mark.parametrize("edit,what", [
+    (lambda d: d.pop("consecutive"), "missing key 'consecutive'"),
+    (lambda d: d["consecutive"]["dofs"].pop("t_z"), "missing key 't_z'"),
+    (lambda d: d["consecutive"]["dofs"]["t_x"].pop("scale"), "missing key 'scale'"),
+    (lambda d: d["consecutive"]["dofs"]["t_x"].__setitem__("scale", -0.1), "scale must be > 0"),
+    (lambda d: d["consecutive"]["dofs"]["t_x"].__setitem__("df", 0), "df must be > 0"),
+    (lambda d: d["consecutive"]["dofs"]["euler_y"].__setitem__("loc", math.nan), "finite number"),
+    (lambda d: d["consecutive"]["dofs"]["euler_y"].__setitem__("loc", "0.1"), "finite number"),
+    (lambda d: d["consecutive"]["dofs"]["euler_y"].__setitem__("lo", 5.0), "lo must be below hi"),
+    (lambda d: d.__setitem__("stride", 0), "stride"),
+    (lambda d: d.__setitem__("format", "something"), "format"),
+    (lambda d: d["loop"].pop("max_distance_m"), "missing key 'max_distance_m'"),
+])
+def test_malformed_json_names_the_file(kitti_fit, tmp_path, edit, what):
+    d = kitti_fit[0].to_dict()
+    edit(d)
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(d))  # json writes NaN as a bare NaN literal, which json.loads accepts
+    with pytest.raises(InputError) as e:
+        MotionModel.load(path)
+    assert str(path) in str(e.value) and what in str(e.value)
+
+
+def test_not_json_and_missing_file(tmp_path):
+    bad = tmp_path / "x.json"
+    bad.write_text('{"format": "deepslam-motion",\n  oops}')
+    with pytest.raises(InputError, match=r"x.json:2: malformed motion model: not JSON"):
+        MotionModel.load(bad)
+    with pytest.raises(InputError, match="missing"):
+        MotionModel.load(tmp_path / "absent.json")
+
+
+def test_cli_fit_motion(shared_data, tmp_path, capsys):
+    poses = [str(shared_data / "kitti" / "poses" / f"{k:02d}.txt") for k in (4, 6)]
+    out = tmp_path / "motion.json"
+    png = tmp_path / "fig3.png"
+    assert main(["fit-motion", "--poses", *poses, "--stride", "2", "--out", str(out), "--loops",
+                 "--plot", str(png), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    model = MotionModel.load(out)
+    assert model.stride == 2 and model.loop is not None and model.sources == ("04.txt", "06.txt")
+    assert summary["num_motions"] == (271 - 2) + (1101 - 2)
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
+    # Bad input: one line, exit 2.
+    bad = tmp_path / "bad.txt"
+    bad.write_text("1 0 0 0 0 1 0 0 0 0 1\n")
+    assert main(["fit-motion", "--poses", str(bad), "--out", str(tmp_path / "m2.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "bad.txt" in err[0]
+    assert main(["fit-motion", "--poses", poses[0], "--loops", "--loop-gap", "5000", "--out", str(tmp_path / "m3.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "loop motions" in err[0]
