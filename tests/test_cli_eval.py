@@ -1,4 +1,4 @@
-"""``deepslam eval`` and ``python -m deepslam.demo``: output, JSON, plots, and bad input (exit 2, one line)."""
+"""``deepslam eval`` and ``python -m deepslam.demo_reference``: output, JSON, plots, and bad input (exit 2, one line)."""
 from __future__ import annotations
 
 import json
@@ -152,14 +152,14 @@ def test_eval_on_kitti_00_orb(shared_data, capsys):
     assert [row["length_m"] for row in r["kitti_per_length"]] == [100.0 * k for k in range(1, 9)]
 
 
-def test_demo_writes_report(shared_data, tmp_path, capsys):
-    from deepslam import demo
+def test_reference_report(shared_data, tmp_path, capsys):
+    from deepslam import demo_reference as demo
 
     assert demo.main(["--data", str(shared_data), "--out", str(tmp_path / "demo")]) == 0
     out = capsys.readouterr().out
     assert "KITTI 00 ORB-SLAM2" in out and "0.700" in out
-    assert out.strip().splitlines()[-1] == f"report: {tmp_path / 'demo' / 'report.md'}"
-    report = (tmp_path / "demo" / "report.md").read_text()
+    assert out.strip().splitlines()[-1] == f"report: {tmp_path / 'demo' / 'reference.md'}"
+    report = (tmp_path / "demo" / "reference.md").read_text()
     assert "| KITTI 00 ORB-SLAM2 | se3 | 4541 |" in report
     for png in ("kitti00_topdown.png", "kitti00_per_length.png", "euroc_v102_topdown.png"):
         assert (tmp_path / "demo" / png).read_bytes()[:4] == b"\x89PNG"
