@@ -1,0 +1,124 @@
+"""``deepslam stress``: where the rigid-scene assumption breaks (moving objects, their size, deformation).
+
+Sweeps the number and size of moving objects and the flags' deformation amplitude in simulation; for
+every setting renders a short sequence and measures the synthesized-vs-true flow error on dynamic and
+static pixels, the VO error (learned odometry on ground-truth and on DIS flow) and the SLAM error.
+Writes ``stress.md`` (table + conclusion), ``stress.json``, ``config.json`` and four PNG plots of the
+errors against the fraction of dynamic pixels into ``--out``. See :mod:`deepslam.stress`.
+"""
+from __future__ import annotations
+
+import argparse
+
+NAME = "stress"
+HELP = ("stress study: sweep moving objects (count, size) and deformation in simulation; flow, VO and SLAM "
+        "errors against the fraction of dynamic pixels")
+
+QUICK = {"frames": 100, "objects": (0, 8), "object_sizes": (2.0,), "deform_amplitudes_m": (0.3,)}
+"""What ``--quick`` changes (only where the option is not given)."""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", default="out/stress", metavar="DIR", help="output folder (default: out/stress)")
+    p.add_argument("--scene", default="street", help="street (car, KITTI-like camera; default) or room (drone, EuRoC-like)")
+    p.add_argument("--frames", type=int, default=None, metavar="N", help="frames per setting (default 300; --quick 100)")
+    p.add_argument("--width", type=int, default=320, metavar="W", help="image width in pixels (default 320)")
+    p.add_argument("--objects", default=None, metavar="LIST",
+                   help="numbers of moving objects, comma-separated (default 0,2,8,32; --quick 0,8)")
+    p.add_argument("--object-size", default=None, metavar="LIST",
+                   help="scale factors of the moving objects, comma-separated (default 0.5,1,2; --quick 2)")
+    p.add_argument("--size-objects", type=int, default=8, metavar="K",
+                   help="number of moving objects in the size sweep (default 8)")
+    p.add_argument("--deform", default=None, metavar="LIST",
+                   help="flag deformation amplitudes in metres, comma-separated (default 0,0.15,0.3; --quick 0.3)")
+    p.add_argument("--combined", action="store_true", help="add a setting with the most of everything")
+    p.add_argument("--seed", type=int, default=0, metavar="S", help="scene and trajectory seed (default 0)")
+    p.add_argument("--backend", default="mujoco", help="renderer: mujoco (default) or pyrender")
+    p.add_argument("--odometry", default="model",
+                   help="model (learned NN_cons/NN_loops; falls back to rigid-fit, noted, when none is available) "
+                        "or rigid-fit (least-squares rigid motion from flow + depth over all pixels)")
+    p.add_argument("--model-cons", default=None, metavar="M", help="NN_cons model file or shipped name (default: shipped)")
+    p.add_argument("--model-loops", default=None, metavar="M", help="NN_loops model file or shipped name (default: shipped)")
+    p.add_argument("--dis-preset", default="medium", help="DIS optical flow preset: ultrafast, fast, medium (default)")
+    p.add_argument("--params", default=None, metavar="JSON", help="SLAM C_s, C_r, T_loop from `deepslam tune-slam`")
+    p.add_argument("--no-loops", action="store_true", help="SLAM without loop closure")
+    p.add_argument("--quick", action="store_true", help="a small sweep (about a minute): 100 frames, 4 settings")
+    p.add_argument("--resume", action="store_true", help="reuse the per-setting results already in --out")
+    p.add_argument("--threads", type=int, default=1, metavar="N",
+                   help="CPU threads for torch, OpenCV and OpenBLAS (default 1: fastest on a busy 2-core machine)")
+    p.add_argument("--keep-sequences", action="store_true", help="keep the rendered sequences under DIR/sequences")
+
+
+def parse_list(text: str, kind, what: str) -> tuple:
+    """Comma-separated numbers -> tuple; InputError on an empty list or a bad number."""
+    from core.errors import InputError
+
+    items = [t.strip() for t in str(text).split(",")]
+    if not any(items):
+        raise InputError(None, f"--{what}: the list is empty")
+    out = []
+    for t in items:
+        if not t:
+            raise InputError(None, f"--{what}: empty item in {text!r}")
+        try:
+            out.append(kind(t))
+        except ValueError:
+            raise InputError(None, f"--{what}: {t!r} is not {'an integer' if kind is int else 'a number'}") from None
+    return tuple(out)
+
+
+def config_from_args(args: argparse.Namespace):
+    """The :class:`deepslam.stress.StressConfig` of the command line (validated)."""
+    from deepslam.stress import StressConfig
+
+    base = StressConfig()
+    quick = QUICK if args.quick else {}
+    kw = {
+        "scene": args.scene, "width": args.width, "seed": args.seed, "backend": args.backend,
+        "odometry": args.odometry, "model_cons": args.model_cons, "model_loops": args.model_loops,
+        "dis_preset": args.dis_preset, "slam_params": args.params, "loops": not args.no_loops,
+        "keep_sequences": args.keep_sequences, "combined": args.combined, "threads": args.threads,
+        "size_objects": args.size_objects,
+        "frames": args.frames if args.frames is not None else quick.get("frames", base.frames),
+        "objects": (parse_list(args.objects, int, "objects") if args.objects is not None
+                    else quick.get("objects", base.objects)),
+        "object_sizes": (parse_list(args.object_size, float, "object-size") if args.object_size is not None
+                         else quick.get("object_sizes", base.object_sizes)),
+        "deform_amplitudes_m": (parse_list(args.deform, float, "deform") if args.deform is not None
+                                else quick.get("deform_amplitudes_m", base.deform_amplitudes_m)),
+    }
+    return StressConfig(**kw).validate()
+
+
+def run(args: argparse.Namespace) -> int:
+    import os
+    import sys
+    import time
+    from pathlib import Path
+
+    if "numpy" not in sys.modules and args.threads >= 1:
+        # OpenBLAS reads its thread count once, when numpy loads: BoVW matching (float32 matrix products
+        # of 400 x 400 descriptors) ran 6x faster with one thread than with two on a busy 2-core machine
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", str(args.threads))
+
+    from deepslam.stress import run_stress
+
+    config = config_from_args(args)
+    t0 = time.perf_counter()
+    report = run_stress(config, args.out, resume=args.resume)
+    out = Path(args.out)
+    rows = report["rows"]
+    print(f"{len(rows)} settings in {time.perf_counter() - t0:.0f} s; odometry: {report['odometry_description']}")
+    if report.get("odometry_note"):
+        print(f"note: {report['odometry_note']}")
+    print(f"{'setting':<16}{'dyn %':>7}{'EPE dyn px':>12}{'VO ATE gt':>11}{'VO ATE dis':>11}{'SLAM ATE gt':>12}"
+          f"{'SLAM ATE dis':>13}")
+
+    def num(v, f=".3g"):
+        return "n/a" if v is None else format(v, f)
+    for r in rows:
+        print(f"{r['setting']:<16}{r['dynamic_pct']:>7.2f}{num(r['epe_dynamic_px']):>12}{num(r.get('vo_ate_gt_m')):>11}"
+              f"{num(r.get('vo_ate_dis_m')):>11}{num(r.get('slam_ate_gt_m')):>12}{num(r.get('slam_ate_dis_m')):>13}")
+    print(report["conclusion"]["text"])
+    print(f"wrote {out / 'stress.md'}, {out / 'stress.json'}, {out / 'config.json'} and the plots {out}/stress_*.png")
+    return 0
