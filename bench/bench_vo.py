@@ -1,0 +1,135 @@
+"""Visual odometry speed: training throughput fp32 vs bf16 (and channels-last), inference frames/s.
+
+Rows (each against its baseline measured in the same run):
+
+- training samples/s of the paper's network (96 x 320) and of the ``cpu`` preset (48 x 160, 32 filters,
+  256 units): bf16 autocast + channels-last vs plain fp32; channels-last vs contiguous in fp32.
+- inference frames/s at 96 x 320 with the paper's network, batched (the :class:`vo.infer.VOPredictor`
+  defaults: batch 64, bf16 where the CPU has it, channels-last) vs one frame per call in fp32 (the
+  straightforward per-frame loop); target >= 200 frames/s on 2 cores.
+- synthetic training data (single frames + motion model -> flow at 2x and pooled) samples/s at
+  96 x 320, to show whether training is bound by the data or by the network.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import torch
+
+from vo.net import PAPER, FlowPoseNet, NetConfig, pose_loss
+
+CPU_PRESET = NetConfig(48, 160, filters=32, hidden_units=256, flow_scale=10.0)
+
+
+def _row(name, value, unit, baseline=None, baseline_value=None, target=None, met=None) -> dict:
+    ratio = None if not baseline_value else value / baseline_value
+    return {"name": name, "value": round(float(value), 3), "unit": unit, "baseline": baseline,
+            "baseline_value": None if baseline_value is None else round(float(baseline_value), 3),
+            "ratio": None if ratio is None else round(ratio, 3), "target": target, "met": met}
+
+
+def train_throughput(cfg: NetConfig, bf16: bool, channels_last: bool, batch: int, steps: int) -> float:
+    """Samples/s of Adam(amsgrad) steps on random flows (forward, loss, backward, step)."""
+    torch.manual_seed(0)
+    model = FlowPoseNet(cfg)
+    if channels_last:
+        model.set_channels_last(True)
+    opt = torch.optim.Adam(model.motion_parameters(), lr=1e-4, amsgrad=True)
+    x = torch.randn(batch, 2, cfg.input_height, cfg.input_width) * 3
+    k = torch.tensor([[cfg.input_width, cfg.input_width, cfg.input_width / 2, cfg.input_height / 2]]).repeat(batch, 1)
+    y = torch.randn(batch, 6) * 0.1
+
+    def step():
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+            mean, _ = model(x, k)
+        loss = pose_loss(mean, y)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+
+    step()  # warm-up (oneDNN primitive creation)
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        step()
+    return batch * steps / (time.perf_counter() - t0)
+
+
+def inference_fps(cfg: NetConfig, batched: bool, frames: int) -> float:
+    """Frames/s of VOPredictor.predict on random flows: batched (defaults) or one frame per call, fp32."""
+    from vo.infer import VOPredictor
+
+    torch.manual_seed(0)
+    if batched:
+        pred = VOPredictor(FlowPoseNet(cfg))
+    else:
+        pred = VOPredictor(FlowPoseNet(cfg), bf16=False, channels_last=False, batch_size=1)
+    flow = np.random.default_rng(0).normal(0, 3, (frames, 2, cfg.input_height, cfg.input_width)).astype(np.float32)
+    k = np.tile(np.float32([cfg.input_width, cfg.input_width, cfg.input_width / 2, cfg.input_height / 2]), (frames, 1))
+    if batched:
+        pred.predict(flow[:pred.batch_size], k[:pred.batch_size])
+        t0 = time.perf_counter()
+        pred.predict(flow, k)
+    else:
+        pred.predict(flow[:1], k[:1])
+        t0 = time.perf_counter()
+        for i in range(frames):
+            pred.predict(flow[i:i + 1], k[i:i + 1])
+    return frames / (time.perf_counter() - t0)
+
+
+def synthetic_data_throughput(samples: int) -> float:
+    """Samples/s of vo.data.SyntheticSource at 96 x 320 (synthesis at 192 x 640, pooled), batch 128."""
+    from core.camera import PinholeCamera
+    from vo import data
+
+    cam = PinholeCamera(1241, 376, 718.856, 718.856, 607.1928, 185.2157).scaled(640, 192)
+    depth = data.plane_depth(cam, np.array([0.0, 1.0, 0.0]), 1.65)
+    depth[depth > 80] = 0
+    frames = data.Frames(np.stack([depth] * 8), np.zeros(8, dtype=np.int64), [cam], ["ground"] * 8)
+    src = data.SyntheticSource(frames, data.toy_motion_sampler(), samples, seed=0, synth_factor=2)
+    next(src.batches(99, 128))
+    t0 = time.perf_counter()
+    n = sum(len(b["target"]) for b in src.batches(0, 128))
+    return n / (time.perf_counter() - t0)
+
+
+def _best(fns: dict, rounds: int) -> dict:
+    """Best (highest) of ``rounds`` interleaved runs of each measurement: on a machine shared with
+    other jobs the best run is the one least disturbed, and interleaving gives each the same chances."""
+    best = {k: 0.0 for k in fns}
+    for _ in range(rounds):
+        for k, fn in fns.items():
+            best[k] = max(best[k], fn())
+    return best
+
+
+def run(quick: bool) -> list[dict]:
+    rows = []
+    threads = torch.get_num_threads()
+    steps = 2 if quick else 4
+    rounds = 2 if quick else 3
+    for label, cfg, batch in (("paper 96x320", PAPER, 32 if quick else 64), ("cpu preset 48x160", CPU_PRESET, 128)):
+        m = _best({
+            "fp32": lambda: train_throughput(cfg, bf16=False, channels_last=False, batch=batch, steps=steps),
+            "fp32_cl": lambda: train_throughput(cfg, bf16=False, channels_last=True, batch=batch, steps=steps),
+            "bf16_cl": lambda: train_throughput(cfg, bf16=True, channels_last=True, batch=batch, steps=steps),
+            "bf16": lambda: train_throughput(cfg, bf16=True, channels_last=False, batch=batch, steps=steps),
+        }, rounds)
+        rows.append(_row(f"train {label} bf16+channels_last (batch {batch}, {threads} threads, best of {rounds})",
+                         m["bf16_cl"], "samples/s", "fp32 contiguous", m["fp32"]))
+        rows.append(_row(f"train {label} bf16 contiguous", m["bf16"], "samples/s", "fp32 contiguous", m["fp32"]))
+        rows.append(_row(f"train {label} fp32 channels_last", m["fp32_cl"], "samples/s", "fp32 contiguous", m["fp32"]))
+    n = 128 if quick else 512
+    m = _best({"batched": lambda: inference_fps(PAPER, True, n),
+               "single": lambda: inference_fps(PAPER, False, 32 if quick else 128)}, rounds)
+    rows.append(_row(f"inference paper 96x320 batched ({threads} threads, best of {rounds})", m["batched"], "frames/s",
+                     "one frame per call, fp32", m["single"], ">= 200 frames/s", m["batched"] >= 200))
+    rows.append(_row("synthetic data 96x320 (synthesized at 192x640, pooled), batch 128",
+                     _best({"d": lambda: synthetic_data_throughput(256 if quick else 1024)}, rounds)["d"], "samples/s"))
+    return rows
+
+
+if __name__ == "__main__":
+    for r in run(quick=True):
+        print(r)

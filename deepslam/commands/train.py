@@ -1,0 +1,224 @@
+"""``deepslam train``: train the flow -> 6DoF network (synthetic from single frames, or supervised).
+
+Synthetic (the paper's method, no ground-truth poses of the training sequences): single frames with
+depth (rendered, or from stereo) + a motion model (gen.motion JSON; several = a mixture, e.g. strides
+1, 2, 3, or NN_loops' loop distribution) -> flow synthesized on the fly. Supervised: flow between real
+frame pairs (DIS or ground-truth flow) + ground-truth relative poses.
+
+Writes into ``--out``: config.json (resolved settings and data), checkpoint.pt (every epoch,
+atomically), history.json, model.pt (the result), summary.json, loss.png. ``--resume`` continues an
+interrupted run from checkpoint.pt.
+"""
+from __future__ import annotations
+
+import argparse
+
+NAME = "train"
+HELP = "train the flow->6DoF network: --mode synthetic (single frames + depth + motion model) or supervised"
+
+NET_PRESETS = {
+    "paper": {},
+    "cpu": {"input_height": 48, "input_width": 160, "filters": 32, "hidden_units": 256, "flow_scale": 10.0},
+    "tiny": {"input_height": 24, "input_width": 80, "filters": 16, "hidden_units": 64, "flow_scale": 10.0},
+}
+"""Network presets: ``paper`` = the paper's (96 x 320, 64 filters, 500 units); ``cpu`` trains in
+minutes on two cores; ``tiny`` is for tests and smoke runs."""
+
+
+def _ints(text: str) -> tuple[int, ...]:
+    try:
+        return tuple(int(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--mode", choices=("synthetic", "supervised"), required=True)
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    g = p.add_argument_group("data (synthetic)")
+    g.add_argument("--frames", nargs="+", default=[], metavar="DIR",
+                   help="sequences whose single frames (with depth) are the training images")
+    g.add_argument("--depth", choices=("auto", "rendered", "stereo"), default="auto",
+                   help="depth of the frames: rendered maps, from stereo (gen.stereo), or auto")
+    g.add_argument("--frame-step", type=int, default=1, help="use every N-th frame")
+    g.add_argument("--max-frames", type=int, default=0, help="at most this many frames per sequence (0 = all)")
+    g.add_argument("--motion", action="append", default=[], metavar="FILE[:loops][@WEIGHT]",
+                   help="gen.motion JSON (deepslam fit-motion); ':loops' samples its loop distribution (NN_loops); "
+                        "repeat for a mixture (strides 1, 2, 3...), optional @weight")
+    g.add_argument("--missing-depth", choices=("infinity", "invalid"), default="infinity",
+                   help="pixels without depth: points at infinity (rotation-only flow; sky) or flow 0")
+    g.add_argument("--samples-per-epoch", type=int, default=20000)
+    g.add_argument("--holdout-samples", type=int, default=0,
+                   help="fixed held-out samples from the held-out frames (0 = holdout fraction x samples per epoch)")
+    g.add_argument("--synth-factor", type=int, default=2, help="synthesize flow at this multiple of the network "
+                   "resolution and average it down")
+    g.add_argument("--toy", type=int, default=0, metavar="N",
+                   help="instead of frames: N toy samples (flow of random motions over a ground plane)")
+    g = p.add_argument_group("data (supervised)")
+    g.add_argument("--sequence", nargs="+", default=[], metavar="DIR", help="sequences with ground-truth poses")
+    g.add_argument("--strides", type=_ints, default=(1,), help="frame gaps of the pairs, e.g. 1,2,3 (a mixture)")
+    g.add_argument("--pairs", choices=("consecutive", "loops"), default="consecutive",
+                   help="consecutive pairs (NN_cons) or loop pairs far apart in time (NN_loops)")
+    g.add_argument("--max-pairs", type=int, default=0, help="at most this many pairs per sequence (0 = all)")
+    g.add_argument("--flow", default="dis", help="flow estimator: dis or gt")
+    g.add_argument("--dis-preset", default="medium", choices=("ultrafast", "fast", "medium"))
+    g = p.add_argument_group("network")
+    g.add_argument("--net", choices=sorted(NET_PRESETS), default="paper", help="preset, refined by the options below")
+    g.add_argument("--height", type=int, help="input rows")
+    g.add_argument("--width", type=int, help="input columns")
+    g.add_argument("--filters", type=int)
+    g.add_argument("--kernels", type=_ints)
+    g.add_argument("--conv-strides", type=_ints)
+    g.add_argument("--hidden", type=int, help="units per fully connected layer")
+    g.add_argument("--hidden-layers", type=int)
+    g.add_argument("--coord-channels", action="store_true", help="add (u-cx)/fx, (v-cy)/fy input channels")
+    g.add_argument("--flow-scale", type=float, help="multiplier after flow / (W, H) (1 = the paper)")
+    g = p.add_argument_group("recipe")
+    g.add_argument("--batch", type=int, default=128)
+    g.add_argument("--lr-min", type=float, default=1e-4)
+    g.add_argument("--lr-max", type=float, default=1e-3)
+    g.add_argument("--half-cycle-steps", type=int, default=0, help="CyclicLR step_size_up (0 = one epoch)")
+    g.add_argument("--patience", type=int, default=10, help="epochs without improvement before halving the LR bounds")
+    g.add_argument("--lr-stop", type=float, default=1e-5)
+    g.add_argument("--max-epochs", type=int, default=1000)
+    g.add_argument("--max-minutes", type=float, default=0.0)
+    g.add_argument("--rot-weight", type=float, default=50.0)
+    g.add_argument("--holdout", type=float, default=0.1, help="held-out fraction (validation + NLL stage)")
+    g.add_argument("--nll-epochs", type=int, default=20)
+    g.add_argument("--nll-lr", type=float, default=1e-3)
+    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--bf16", choices=("auto", "on", "off"), default="auto", help="bf16 autocast (auto: native bf16 CPUs)")
+    g.add_argument("--channels-last", choices=("on", "off"), default="on")
+    g.add_argument("--threads", type=int, default=0, help="torch threads (0 = default)")
+    g.add_argument("--half-weights", action="store_true", help="store model.pt's weights as float16")
+
+
+def net_config(args):
+    from vo.net import NetConfig
+
+    d = dict(NET_PRESETS[args.net])
+    for arg, field in (("height", "input_height"), ("width", "input_width"), ("filters", "filters"),
+                       ("kernels", "kernels"), ("conv_strides", "strides"), ("hidden", "hidden_units"),
+                       ("hidden_layers", "hidden_layers"), ("flow_scale", "flow_scale")):
+        v = getattr(args, arg, None)
+        if v is not None:
+            d[field] = v
+    if args.coord_channels:
+        d["coord_channels"] = True
+    try:
+        return NetConfig(**d)
+    except ValueError as e:
+        from core.errors import InputError
+
+        raise InputError(None, f"bad network settings: {e}") from None
+
+
+def _load_motion(spec: str):
+    """(sampler, weight, description) from FILE[:loops][@WEIGHT]."""
+    import hashlib
+    from pathlib import Path
+
+    from core.errors import InputError
+    from gen.motion import MotionModel
+    from vo.data import motion_sampler
+
+    rest, _, w = spec.rpartition("@") if "@" in spec else (spec, "", "")
+    try:
+        weight = float(w) if w else 1.0
+    except ValueError:
+        raise InputError(None, f"bad motion weight in {spec!r}") from None
+    loops = rest.endswith(":loops")
+    path = Path(rest[: -len(":loops")] if loops else rest.removesuffix(":cons"))
+    model = MotionModel.load(path)
+    try:
+        sampler = motion_sampler(model, loops)
+    except InputError as e:
+        raise InputError(path, e.what) from None
+    return sampler, weight, {"file": str(path), "distribution": "loops" if loops else "consecutive",
+                             "stride": model.stride, "weight": weight,
+                             "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
+
+
+def run(args: argparse.Namespace) -> int:
+    import sys
+
+    import numpy as np
+
+    from core.errors import InputError
+    from core.sequence import open_sequence
+    from vo import data
+    from vo.infer import cpu_has_native_bf16
+    from vo.train import TrainConfig, TrainingDiverged, train
+
+    net = net_config(args)
+    bf16 = cpu_has_native_bf16() if args.bf16 == "auto" else args.bf16 == "on"
+    cfg = TrainConfig(net=net, batch_size=args.batch, lr_min=args.lr_min, lr_max=args.lr_max,
+                      lr_half_cycle_steps=args.half_cycle_steps, patience_epochs=args.patience, lr_stop=args.lr_stop,
+                      max_epochs=args.max_epochs, max_minutes=args.max_minutes, rot_weight=args.rot_weight,
+                      holdout_fraction=args.holdout, nll_epochs=args.nll_epochs, nll_lr=args.nll_lr, seed=args.seed,
+                      bf16=bf16, channels_last=args.channels_last == "on", threads=args.threads)
+    if not 0 < args.holdout < 1:
+        raise InputError(None, f"--holdout must be in (0, 1), got {args.holdout}")
+    progress = not args.quiet
+    h, w = net.input_height, net.input_width
+    meta: dict = {"mode": args.mode}
+    if args.mode == "synthetic":
+        if args.toy:
+            from core.camera import PinholeCamera
+
+            cam = PinholeCamera(1241, 376, 718.856, 718.856, 607.1928, 185.2157).scaled(w, h)
+            s = data.toy_plane_samples(args.toy, cam, np.random.default_rng(args.seed))
+            train_src, hold_src = data.TensorSamples(s["flow"], s["intrinsics"], s["target"], seed=args.seed).split(args.holdout, args.seed)
+            meta["data"] = {"toy_samples": args.toy, "camera": cam.to_dict()}
+        else:
+            if not args.frames:
+                raise InputError(None, "synthetic mode needs --frames DIR... (or --toy N)")
+            if not args.motion:
+                raise InputError(None, "synthetic mode needs --motion FILE (a gen.motion JSON; repeat for a mixture)")
+            motions = [_load_motion(m) for m in args.motion]
+            sampler = data.MotionMixture([m[0] for m in motions], [m[1] for m in motions])
+            f = max(1, args.synth_factor)
+            seqs = [open_sequence(d) for d in args.frames]
+            frames = data.load_frames(seqs, w * f, h * f, args.frame_step, args.depth, args.max_frames, progress)
+            train_frames, hold_frames = frames.split(args.holdout, args.seed)
+            train_src = data.SyntheticSource(train_frames, sampler, args.samples_per_epoch, args.seed, f, args.missing_depth)
+            n_hold = args.holdout_samples or max(args.batch, int(round(args.holdout * args.samples_per_epoch)))
+            hold_src = data.SyntheticSource(hold_frames, sampler, n_hold, args.seed + 1, f,
+                                            args.missing_depth).materialize(n_hold, args.seed + 1)
+            meta["data"] = {"frames": [str(s.root) for s in seqs], "depth": args.depth, "frame_step": args.frame_step,
+                            "n_frames": len(frames), "n_train_frames": len(train_frames), "n_holdout_frames": len(hold_frames),
+                            "motion": [m[2] for m in motions], "samples_per_epoch": args.samples_per_epoch,
+                            "holdout_samples": n_hold, "synth_factor": f, "missing_depth": args.missing_depth}
+    else:
+        if not args.sequence:
+            raise InputError(None, "supervised mode needs --sequence DIR...")
+        from vo import flow_estimators
+
+        est = flow_estimators.make(args.flow, **({"preset": args.dis_preset} if args.flow == "dis" else {}))
+        spec = data.PairSpec(strides=tuple(args.strides), kind=args.pairs, max_pairs=args.max_pairs)
+        parts, counts = [], {}
+        for d in args.sequence:
+            seq = open_sequence(d)
+            if seq.gt is None:
+                raise InputError(seq.root, "supervised training needs ground-truth poses; this sequence has none")
+            pairs = data.frame_pairs(seq.gt.world_from_cam, spec)
+            counts[str(seq.root)] = int(len(pairs))
+            if len(pairs):
+                parts.append(data.supervised_samples(seq, pairs, est, w, h, progress))
+        if not parts:
+            raise InputError(None, "no frame pairs to train on (sequences too short for the strides, or no loops)")
+        s = data.concat_samples(parts)
+        train_src, hold_src = data.TensorSamples(s["flow"], s["intrinsics"], s["target"], seed=args.seed).split(args.holdout, args.seed)
+        meta["data"] = {"sequences": counts, "pairs": spec.kind, "strides": list(spec.strides), "flow": est.name,
+                        "n_pairs": int(sum(counts.values()))}
+    meta["argv"] = sys.argv[1:]
+    try:
+        res = train(cfg, train_src, hold_src, args.out, resume=args.resume, progress=progress, meta=meta,
+                    half_weights=args.half_weights)
+    except TrainingDiverged as e:
+        print(f"deepslam train: error: {e}", file=sys.stderr)
+        return 2
+    print(f"model: {res.model_path}")
+    return 0

@@ -1,0 +1,102 @@
+"""``deepslam vo``: learned visual odometry on a sequence (KITTI, EuRoC or ours) -> trajectory file.
+
+Writes, beside ``--out``: ``<stem>.motions.csv`` (the relative motions with their predicted std),
+``<stem>.config.json`` (the resolved settings) and, when the sequence has ground truth,
+``<stem>.metrics.json`` and ``<stem>.png`` (top-down plot against the ground truth).
+"""
+from __future__ import annotations
+
+import argparse
+
+NAME = "vo"
+HELP = "learned visual odometry: flow between frames -> network -> chained trajectory (+ CSV of motions with std)"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--sequence", required=True, help="sequence folder: KITTI sequences/NN, EuRoC (holding mav0/), or ours")
+    p.add_argument("--model", default=None,
+                   help="model file (model.pt / checkpoint.pt), or a shipped one: kitti, euroc, kitti:loops, "
+                        "euroc:loops (default: the shipped NN_cons for the sequence's camera kind)")
+    p.add_argument("--out", required=True, help="trajectory file to write")
+    p.add_argument("--format", choices=("kitti", "tum"), default=None,
+                   help="trajectory format (default: kitti for KITTI sequences, tum otherwise)")
+    p.add_argument("--flow", default="dis", help="flow estimator: dis (OpenCV DIS, default) or gt (the sequence's "
+                   "ground-truth flow, our format)")
+    p.add_argument("--dis-preset", default="medium", choices=("ultrafast", "fast", "medium"), help="DIS preset (default medium)")
+    p.add_argument("--stride", type=int, default=1, help="frame gap k: predict cam_{t+k}_from_cam_t for t = 0, k, 2k, ...")
+    p.add_argument("--start", type=int, default=0, help="first frame")
+    p.add_argument("--end", type=int, default=None, help="one past the last frame (default: all)")
+    p.add_argument("--batch", type=int, default=64, help="flows per forward pass")
+    p.add_argument("--bf16", choices=("auto", "on", "off"), default="auto",
+                   help="bfloat16 inference (auto: when the CPU computes bf16 natively)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    import numpy as np
+
+    from core import atomic, se3, trajio
+    from core.errors import InputError
+    from core.sequence import open_sequence
+    from core.trajectory import Trajectory
+    from vo import flow_estimators, models
+    from vo.infer import chain_euler6
+
+    seq = open_sequence(args.sequence)
+    if args.stride < 1:
+        raise InputError(None, f"--stride must be >= 1, got {args.stride}")
+    end = len(seq) if args.end is None else min(args.end, len(seq))
+    if not 0 <= args.start < end:
+        raise InputError(None, f"empty frame range [{args.start}, {end}) of a {len(seq)}-frame sequence")
+    frames = np.arange(args.start, end, args.stride)
+    if len(frames) < 2:
+        raise InputError(args.sequence, f"needs at least two frames at stride {args.stride} in [{args.start}, {end})")
+    opts = {"preset": args.dis_preset} if args.flow == "dis" else {}
+    estimator = flow_estimators.make(args.flow, **opts)
+    bf16 = None if args.bf16 == "auto" else args.bf16 == "on"
+    predictor = models.resolve(args.model, seq, batch_size=args.batch, bf16=bf16)
+    fmt = args.format or ("kitti" if seq.kind == "kitti" else "tum")
+
+    pairs = np.stack([frames[:-1], frames[1:]], axis=1)
+    mean6, std6 = predictor.predict_pairs(seq, pairs, estimator, progress=not args.quiet)
+    world_from_cam = chain_euler6(mean6)
+    est = Trajectory(world_from_cam, seq.timestamps_s[frames])
+
+    out = Path(args.out)
+    trajio.write_trajectory(out, est, fmt)
+    stem = out.with_suffix("")
+    header = "i,j,t_i_s,t_j_s,ex_rad,ey_rad,ez_rad,tx_m,ty_m,tz_m,std_ex_rad,std_ey_rad,std_ez_rad,std_tx_m,std_ty_m,std_tz_m"
+    lines = [header]
+    for (i, j), m, s in zip(pairs, mean6, std6):
+        lines.append(",".join([str(int(i)), str(int(j)), repr(float(seq.timestamps_s[i])), repr(float(seq.timestamps_s[j])),
+                               *(repr(float(x)) for x in m), *(repr(float(x)) for x in s)]))
+    atomic.write_text(Path(f"{stem}.motions.csv"), "\n".join(lines) + "\n")
+    config = {"sequence": str(seq.root), "sequence_kind": seq.kind, "frames": [int(frames[0]), int(frames[-1])],
+              "stride": args.stride, "model": args.model or f"shipped:{models.kind_for_sequence(seq)}_cons",
+              "model_name": predictor.name, "model_net": predictor.model.cfg.to_dict(),
+              "flow": getattr(estimator, "name", args.flow), "format": fmt, "bf16": predictor.bf16,
+              "batch": args.batch, "out": str(out)}
+    atomic.write_json(Path(f"{stem}.config.json"), config)
+    print(f"wrote {out} ({len(frames)} poses, {fmt}) and {stem}.motions.csv")
+
+    if seq.gt is not None:
+        from core import metrics, plots
+
+        gt_rel = se3.inverse(seq.gt.world_from_cam[frames[0]]) @ seq.gt.world_from_cam[frames]
+        gt = Trajectory(gt_rel, seq.timestamps_s[frames])
+        res = metrics.evaluate(gt, est, align="se3")
+        res_none = metrics.evaluate(gt, est, align="none")
+        report = {k: v for k, v in res.items() if not k.startswith("_")}
+        report["ate_unaligned_m"] = res_none["ate_m"]
+        atomic.write_json(Path(f"{stem}.metrics.json"), report)
+        plots.plot_trajectories_topdown(Path(f"{stem}.png"), {"ground truth": gt.positions, predictor.name: est.positions},
+                                        title=f"{seq.name}: {predictor.name} ({config['flow']})")
+        line = (f"ATE {res['ate_m']:.3f} m (se3-aligned; {res_none['ate_m']:.3f} m unaligned), "
+                f"RPE {res['rpe_t_m']:.3f} m / {res['rpe_r_deg']:.3f} deg per {args.stride} frame(s)")
+        if "kitti_t_err_pct" in res:
+            line += f", KITTI t_err {res['kitti_t_err_pct']:.2f} %, r_err {res['kitti_r_err_deg_per_100m']:.2f} deg/100 m"
+        print(line)
+        print(f"wrote {stem}.metrics.json and {stem}.png")
+    return 0

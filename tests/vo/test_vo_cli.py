@@ -1,0 +1,127 @@
+"""``deepslam vo`` end to end on a tiny rendered sequence, with a tiny model trained here on toy flows."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from core import se3, trajio
+from core.sequence import open_sequence
+from vo import data, models
+from vo.infer import VOPredictor, chain, chain_euler6
+from vo.net import NetConfig
+from vo.train import TrainConfig, train
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def street_model(plane_sequence, tmp_path_factory) -> Path:
+    """A tiny model trained on ground-plane flows seen by the test sequence's camera."""
+    seq = open_sequence(plane_sequence)
+    cam = seq.camera.scaled(80, 24)
+    sampler = data.toy_motion_sampler(rot_std_rad=0.02, trans_std_m=0.05, forward_m=(0.3, 1.2))
+    s = data.toy_plane_samples(800, cam, np.random.default_rng(0), sampler)
+    tr, ho = data.TensorSamples(s["flow"], s["intrinsics"], s["target"], seed=0).split(0.1, 0)
+    cfg = TrainConfig(net=NetConfig(24, 80, filters=16, hidden_units=64, flow_scale=10.0), batch_size=16, lr_max=3e-3,
+                      max_epochs=8, nll_epochs=3, bf16=False, channels_last=False, threads=1)
+    return train(cfg, tr, ho, tmp_path_factory.mktemp("model"), progress=False).model_path
+
+
+def _vo(*args):
+    from deepslam.cli import main
+
+    return main(["vo", *map(str, args)])
+
+
+def test_vo_cli_writes_trajectory_motions_and_metrics(plane_sequence, street_model, tmp_path, capsys):
+    out = tmp_path / "traj.txt"
+    assert _vo("--sequence", plane_sequence, "--model", street_model, "--out", out, "--flow", "gt", "--quiet") == 0
+    text = capsys.readouterr().out
+    assert "ATE" in text and "RPE" in text
+    seq = open_sequence(plane_sequence)
+    est = trajio.read_trajectory(out, "tum")
+    assert len(est) == len(seq) == 12
+    np.testing.assert_allclose(est.timestamps_s, seq.timestamps_s)
+    np.testing.assert_allclose(est.world_from_cam[0], np.eye(4), atol=1e-12)
+    rows = (tmp_path / "traj.motions.csv").read_text().splitlines()
+    assert rows[0].startswith("i,j,t_i_s,t_j_s,ex_rad") and len(rows) == 12
+    vals = np.array([[float(x) for x in r.split(",")] for r in rows[1:]])
+    np.testing.assert_array_equal(vals[:, :2], np.stack([np.arange(11), np.arange(1, 12)], 1))
+    assert (vals[:, 10:] > 0).all()
+    # the trajectory is the chain of the CSV's motions
+    np.testing.assert_allclose(chain_euler6(vals[:, 4:10])[:, :3, 3], est.positions, atol=1e-6)
+    # and it follows the ground truth: 11 x 0.8 m forward
+    gt_len = seq.gt.path_length_m()
+    assert abs(est.path_length_m() - gt_len) < 0.25 * gt_len
+    metrics = json.loads((tmp_path / "traj.metrics.json").read_text())
+    assert metrics["ate_m"] < 0.15 * gt_len
+    assert (tmp_path / "traj.png").is_file() and (tmp_path / "traj.config.json").is_file()
+
+
+def test_vo_cli_dis_stride_and_kitti_format(plane_sequence, street_model, tmp_path):
+    out = tmp_path / "traj.kitti"
+    assert _vo("--sequence", plane_sequence, "--model", street_model, "--out", out, "--flow", "dis",
+               "--format", "kitti", "--stride", "2", "--quiet") == 0
+    est = trajio.read_trajectory(out, "kitti")
+    assert len(est) == 6  # frames 0, 2, ..., 10
+    assert len((tmp_path / "traj.motions.csv").read_text().splitlines()) == 6
+    cfg = json.loads((tmp_path / "traj.config.json").read_text())
+    assert cfg["stride"] == 2 and cfg["flow"] == "dis-medium"
+
+
+def test_predict_pairs_matches_per_pair_predictions(plane_sequence, street_model):
+    from vo import flow_estimators
+
+    seq = open_sequence(plane_sequence)
+    pred = VOPredictor.from_file(street_model, bf16=False)
+    pairs = [(0, 1), (3, 5), (2, 3)]
+    mean, std = pred.predict_pairs(seq, pairs, flow_estimators.make("gt"), progress=False)
+    for k, (i, j) in enumerate(pairs):
+        f, intr = pred.prepare(flow_estimators.make("gt").pair_flow(seq, i, j), seq.camera)
+        m1, s1 = pred.predict(f[None], intr[None])
+        np.testing.assert_allclose(m1[0], mean[k], rtol=1e-5, atol=1e-7)
+    odo = pred.as_odometry(flow_estimators.make("gt"), progress=False)
+    m2, _ = odo.predict(seq, pairs)
+    np.testing.assert_array_equal(m2, mean)
+
+
+def test_chain_inverts_relative_motions():
+    rng = np.random.default_rng(0)
+    world_from_cam = se3.from_euler6(np.cumsum(rng.normal(0, 0.1, (6, 6)), axis=0))
+    world_from_cam = se3.inverse(world_from_cam[0]) @ world_from_cam
+    rel = se3.relative(world_from_cam[1:], world_from_cam[:-1])  # cam_{k+1}_from_cam_k
+    np.testing.assert_allclose(chain(rel), world_from_cam, atol=1e-12)
+
+
+def test_bad_input_is_one_line_and_status_2(tmp_path, plane_sequence):
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    r = subprocess.run([sys.executable, "-m", "deepslam", "vo", "--sequence", str(tmp_path / "nope"), "--out",
+                        str(tmp_path / "t.txt")], cwd=REPO, env=env, capture_output=True, text=True)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert _vo("--sequence", plane_sequence, "--model", tmp_path / "missing.pt", "--out", tmp_path / "t.txt") == 2
+    (tmp_path / "junk.pt").write_bytes(b"not a model")
+    assert _vo("--sequence", plane_sequence, "--model", tmp_path / "junk.pt", "--out", tmp_path / "t.txt") == 2
+    assert not (tmp_path / "t.txt").exists()
+
+
+def test_shipped_model_names(monkeypatch, tmp_path, plane_sequence):
+    from core.errors import InputError
+
+    monkeypatch.setattr(models, "models_dir", lambda: tmp_path)  # an empty models folder
+    with pytest.raises(InputError, match="missing"):
+        models.load_shipped("euroc", "loops")
+    assert _vo("--sequence", plane_sequence, "--out", tmp_path / "t.txt", "--quiet") == 2
+    seq = open_sequence(plane_sequence)
+    assert models.kind_for_sequence(seq) == "kitti"  # scene "test-street-plane"
+
+    assert models.shipped_path("kitti", "cons").name == "kitti_cons.pt"
+    with pytest.raises(InputError):
+        models.shipped_path("tum", "cons")
+    with pytest.raises(InputError):
+        models.shipped_path("kitti", "sometimes")

@@ -1,0 +1,195 @@
+"""Training data: synthetic flow (gen's algebra, points leaving the image kept, sky at infinity),
+deterministic batches, supervised pairs, and both training modes through the command line."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from core import se3
+from core.camera import PinholeCamera
+from core.sequence import open_sequence
+from vo import data
+
+CAM = PinholeCamera(160, 48, 120.0, 120.0, 79.5, 20.0)
+
+
+def _ground_depth(cam: PinholeCamera, height_m: float = 1.6) -> np.ndarray:
+    d = data.plane_depth(cam, np.array([0.0, 1.0, 0.0]), height_m)
+    d[d > 100] = 0.0
+    return d
+
+
+def _k(cam, n):
+    return np.tile([cam.fx, cam.fy, cam.cx, cam.cy], (n, 1))
+
+
+def test_synthesize_flow_matches_gen_and_the_numpy_reference():
+    from gen.flow import synthesize
+
+    rng = np.random.default_rng(0)
+    vec = np.column_stack([rng.normal(0, 0.01, (4, 3)), rng.normal(0, 0.1, (4, 2)), -rng.uniform(0.2, 1.0, 4)])
+    motions = se3.from_euler6(vec)
+    depth = np.stack([_ground_depth(CAM, h) for h in (1.4, 1.6, 1.8, 2.0)])
+    ours, ours_valid = data.synthesize_flow(torch.from_numpy(depth), _k(CAM, 4), motions, "invalid")
+    gflow, gvalid = synthesize(torch.from_numpy(depth), CAM, motions)
+    gvalid = gvalid.numpy()
+    assert gvalid.sum() > 1000
+    np.testing.assert_allclose(ours.permute(0, 2, 3, 1).numpy()[gvalid], gflow.numpy()[gvalid], atol=2e-3)
+    # gen drops points that leave the image; we keep them, and they agree with the NumPy reference
+    left = ours_valid.numpy() & ~gvalid
+    assert left.sum() > 100
+    for b in range(4):
+        ref, ref_valid = data.flow_from_depth_np(CAM, depth[b], motions[b])
+        g = CAM.pixel_grid()
+        p1 = (CAM.unproject(g, depth[b]) @ motions[b][:3, :3].T) + motions[b][:3, 3]
+        uv1, _ = CAM.project(p1)
+        expect = uv1 - g
+        m = left[b]
+        np.testing.assert_allclose(ours[b].permute(1, 2, 0).numpy()[m], expect[m], rtol=1e-4, atol=2e-3)
+
+
+def test_missing_depth_is_a_point_at_infinity():
+    depth = torch.zeros(2, 48, 160)  # all sky
+    rot_only = se3.from_euler6(np.array([[0.0, 0.02, 0.0, 0.0, 0.0, 0.0]] * 2))
+    rot_only[1, :3, 3] = [0.3, 0.1, -2.0]  # translation does not move points at infinity
+    flow, valid = data.synthesize_flow(depth, _k(CAM, 2), rot_only, "infinity")
+    assert valid.all()
+    torch.testing.assert_close(flow[0], flow[1])
+    # rotation about y by 0.02 rad: about fx * 0.02 = 2.4 px at the centre, u shrinking (R maps cam0 to cam1)
+    assert abs(abs(float(flow[0, 0, 20, 80])) - 120 * np.tan(0.02)) < 0.05
+    _, valid = data.synthesize_flow(depth, _k(CAM, 2), rot_only, "invalid")
+    assert not valid.any()
+
+
+def _frames(f: int = 2) -> data.Frames:
+    cam = CAM.scaled(80 * f, 24 * f)
+    depth = np.stack([_ground_depth(cam, h) for h in (1.5, 1.6, 1.7, 1.8, 1.9)])
+    return data.Frames(depth, np.zeros(5, dtype=np.int64), [cam], [f"f{i}" for i in range(5)])
+
+
+def test_synthetic_source_is_deterministic_per_epoch_and_pools_correctly():
+    src = data.SyntheticSource(_frames(2), data.toy_motion_sampler(), samples_per_epoch=20, seed=4, synth_factor=2)
+    a = list(src.batches(3, 8))
+    b = list(src.batches(3, 8))
+    assert [len(x["target"]) for x in a] == [8, 8, 4]
+    for x, y in zip(a, b):
+        for k in x:
+            assert torch.equal(x[k], y[k])
+    c = next(src.batches(4, 8))
+    assert not torch.equal(a[0]["target"], c["target"])
+    assert a[0]["flow"].shape == (8, 2, 24, 80)
+    np.testing.assert_allclose(a[0]["intrinsics"][0].numpy(), [CAM.scaled(80, 24).fx, CAM.scaled(80, 24).fy,
+                                                               CAM.scaled(80, 24).cx, CAM.scaled(80, 24).cy], rtol=1e-6)
+
+
+def test_flow_synthesized_at_twice_the_size_and_pooled_matches_the_direct_one():
+    motion = se3.from_euler6(np.array([[0.002, 0.01, -0.003, 0.05, 0.02, -0.8]]))
+    small, big = CAM.scaled(80, 24), CAM.scaled(160, 48)
+    direct, _ = data.synthesize_flow(torch.from_numpy(_ground_depth(small)[None]), _k(small, 1), motion)
+    fine, valid = data.synthesize_flow(torch.from_numpy(_ground_depth(big)[None]), _k(big, 1), motion)
+    pooled, _ = data.pool_flow(fine, valid, 2)
+    # the ground near the camera (smooth), away from the horizon
+    np.testing.assert_allclose(pooled[0, :, 14:, 2:-2].numpy(), direct[0, :, 14:, 2:-2].numpy(), atol=0.05)
+    assert float(direct[0, 1, 14:].abs().mean()) > 0.5  # a real flow, not zeros
+
+
+def test_materialized_holdout_is_fixed():
+    src = data.SyntheticSource(_frames(1), data.toy_motion_sampler(), 10, seed=1)
+    a, b = src.materialize(12, 7), src.materialize(12, 7)
+    assert len(a) == 12 and torch.equal(a.flow, b.flow) and torch.equal(a.target, b.target)
+
+
+def test_motion_mixture_draws_from_each_model_by_weight():
+    const = [lambda n, rng, v=v: np.full((n, 6), v) for v in (1.0, 2.0)]
+    mix = data.MotionMixture(const, [3, 1])
+    out = mix(4000, np.random.default_rng(0))
+    assert set(np.unique(out)) == {1.0, 2.0}
+    assert abs((out[:, 0] == 1.0).mean() - 0.75) < 0.03
+
+
+def test_frame_pairs_consecutive_strides_and_loops():
+    poses = np.tile(np.eye(4), (60, 1, 1))
+    poses[:, 0, 3] = np.r_[np.arange(30), np.arange(30)[::-1]] * 1.0  # out and back along x
+    pairs = data.frame_pairs(poses, data.PairSpec(strides=(1, 3)))
+    assert len(pairs) == 59 + 57 and {tuple(p) for p in pairs[:2]} == {(0, 1), (1, 2)}
+    loops = data.frame_pairs(poses, data.PairSpec(kind="loops", loop_min_gap_frames=20, loop_max_distance_m=1.0))
+    assert len(loops) > 0
+    assert (np.abs(poses[loops[:, 0], 0, 3] - poses[loops[:, 1], 0, 3]) <= 1.0).all()
+    assert (loops[:, 1] - loops[:, 0] >= 20).all()
+
+
+def test_supervised_samples_targets_are_ground_truth(plane_sequence):
+    from vo import flow_estimators
+
+    seq = open_sequence(plane_sequence)
+    pairs = data.frame_pairs(seq.gt.world_from_cam, data.PairSpec(strides=(1, 2)))[:5]
+    s = data.supervised_samples(seq, pairs, flow_estimators.make("gt"), 80, 24, progress=False)
+    assert s["flow"].shape == (5, 2, 24, 80)
+    for k, (i, j) in enumerate(pairs):
+        expect = se3.to_euler6(se3.inverse(seq.gt.world_from_cam[j]) @ seq.gt.world_from_cam[i])
+        np.testing.assert_allclose(s["target"][k], expect, atol=1e-6)
+    # forward motion: t_z of cam_j_from_cam_i is minus the distance driven
+    assert (s["target"][:, 5] < -0.5).all()
+
+
+def test_train_cli_synthetic_from_single_frames(plane_sequence, motion_json, tmp_path):
+    from deepslam.cli import main
+
+    out = tmp_path / "syn"
+    rc = main(["train", "--mode", "synthetic", "--frames", str(plane_sequence), "--motion", str(motion_json),
+               "--motion", f"{motion_json}@0.5", "--net", "tiny", "--batch", "16", "--samples-per-epoch", "64",
+               "--max-epochs", "2", "--nll-epochs", "1", "--bf16", "off", "--threads", "1", "--quiet", "--out", str(out)])
+    assert rc == 0
+    cfg = json.loads((out / "config.json").read_text())
+    d = cfg["data"]["data"]
+    assert d["n_frames"] == 12 and d["n_holdout_frames"] == 1 and len(d["motion"]) == 2
+    assert d["motion"][1]["weight"] == 0.5 and d["missing_depth"] == "infinity"
+    assert (out / "model.pt").is_file()
+
+
+def test_train_cli_supervised_with_ground_truth_flow(plane_sequence, tmp_path):
+    from deepslam.cli import main
+
+    out = tmp_path / "sup"
+    rc = main(["train", "--mode", "supervised", "--sequence", str(plane_sequence), "--strides", "1,2", "--flow", "gt",
+               "--net", "tiny", "--batch", "8", "--max-epochs", "2", "--nll-epochs", "1", "--bf16", "off",
+               "--threads", "1", "--quiet", "--out", str(out)])
+    assert rc == 0
+    cfg = json.loads((out / "config.json").read_text())
+    assert cfg["data"]["data"]["n_pairs"] == 11 + 10 and cfg["data"]["data"]["flow"] == "gt"
+
+
+def test_train_cli_bad_input(tmp_path, plane_sequence):
+    from deepslam.cli import main
+
+    base = ["train", "--net", "tiny", "--quiet", "--out", str(tmp_path / "o")]
+    assert main([*base, "--mode", "synthetic", "--frames", str(plane_sequence)]) == 2  # no motion model
+    assert main([*base, "--mode", "synthetic", "--frames", str(plane_sequence), "--motion", str(tmp_path / "nope.json")]) == 2
+    (tmp_path / "bad.json").write_text("{\"format\": 3}")
+    assert main([*base, "--mode", "synthetic", "--frames", str(plane_sequence), "--motion", str(tmp_path / "bad.json")]) == 2
+    assert main([*base, "--mode", "supervised"]) == 2
+
+
+def test_synthetic_flow_equals_the_simulators_true_flow_everywhere():
+    """On a rendered street (static scene), flow synthesized from frame t's depth and the true motion
+    equals the simulator's flow at EVERY pixel: those leaving the image and the sky included."""
+    pytest.importorskip("mujoco")
+    from scenes import SceneConfig
+    from sim import RenderConfig, SimConfig, Simulator, TrajectoryConfig
+
+    cfg = SimConfig(SceneConfig(name="street", seed=3), TrajectoryConfig(kind="car", frames=40),
+                    RenderConfig(backend="mujoco", width=160, stereo_baseline_m=0.0))
+    with Simulator(cfg) as sim:
+        f = sim.frame(30)
+        nxt = sim.frame(31)
+    c = f.camera
+    motion = se3.relative(nxt.world_from_cam, f.world_from_cam)
+    assert np.linalg.norm(motion[:3, 3]) > 0.3  # the car is moving
+    flow, valid = data.synthesize_flow(torch.from_numpy(f.depth_z[None]), np.array([[c.fx, c.fy, c.cx, c.cy]]), motion[None])
+    flow = flow[0].permute(1, 2, 0).numpy()
+    ok = np.isfinite(f.flow).all(-1) & (f.mask == 0)
+    assert ok.mean() > 0.95 and (f.depth_z[ok] == 0).any()  # sky is in the comparison
+    np.testing.assert_allclose(flow[ok], f.flow[ok], atol=2e-3)

@@ -1,0 +1,163 @@
+"""Training: a tiny net learns a known mapping, the NLL stage touches only the log-std heads and its
+std follows injected noise, resume after a kill is bit-identical, a NaN loss stops cleanly."""
+from __future__ import annotations
+
+import dataclasses
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from core.camera import PinholeCamera
+from vo import data
+from vo.infer import VOPredictor
+from vo.net import NetConfig
+from vo.train import CHECKPOINT, TrainConfig, fit_uncertainty, load_checkpoint, load_model, train
+
+REPO = Path(__file__).resolve().parents[2]
+CAM = PinholeCamera(1241, 376, 718.856, 718.856, 607.1928, 185.2157).scaled(80, 24)
+TINY = NetConfig(24, 80, filters=16, hidden_units=64, flow_scale=10.0)
+
+
+def _cfg(**kw) -> TrainConfig:
+    base = dict(net=TINY, batch_size=16, lr_max=3e-3, max_epochs=6, nll_epochs=0, bf16=False, channels_last=False, seed=3,
+                threads=1)
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+@pytest.fixture(scope="module")
+def toy():
+    s = data.toy_plane_samples(700, CAM, np.random.default_rng(0))
+    return data.TensorSamples(s["flow"], s["intrinsics"], s["target"], seed=0).split(0.1, 0)
+
+
+@pytest.fixture(scope="module")
+def trained(toy, tmp_path_factory):
+    out = tmp_path_factory.mktemp("trained")
+    res = train(_cfg(), *toy, out, progress=False)
+    return res
+
+
+def test_tiny_net_learns_motion_from_plane_flow(trained, toy):
+    hist = [h for h in trained.history if h["stage"] == 1]
+    assert len(hist) == 6 and trained.stop_reason == "max_epochs"
+    first_val = hist[0]["val_loss"]
+    # the loss of always predicting the mean motion, for scale
+    _, hold = toy
+    t = hold.target.numpy().astype(np.float64)
+    baseline = 50 * t[:, :3].var(0).mean() + t[:, 3:].var(0).mean()
+    assert trained.best_val_loss < 0.4 * baseline
+    assert trained.best_val_loss < first_val
+    pred = VOPredictor.from_file(trained.model_path, bf16=False)
+    test = data.toy_plane_samples(150, CAM, np.random.default_rng(5))
+    mean, std = pred.predict(test["flow"], test["intrinsics"])
+    assert mean.dtype == np.float64 and mean.shape == std.shape == (150, 6)
+    corr = [np.corrcoef(mean[:, k], test["target"][:, k])[0, 1] for k in range(6)]
+    print("correlations", np.round(corr, 3))
+    assert corr[5] > 0.9  # forward motion t_z
+    assert corr[1] > 0.6  # yaw
+    assert corr[3] > 0.4  # sideways
+    # (pitch and vertical translation look alike over a ground plane: not asserted)
+
+
+def test_outputs_written(trained):
+    out = trained.out_dir
+    for name in ("config.json", "checkpoint.pt", "history.json", "model.pt", "summary.json", "loss.png"):
+        assert (out / name).is_file(), name
+    import json
+
+    cfg = json.loads((out / "config.json").read_text())
+    assert cfg["train"]["rot_weight"] == 50.0 and cfg["train"]["net"]["filters"] == 16
+
+
+def test_nll_stage_changes_only_log_std_heads_and_std_follows_noise(trained):
+    model, _ = load_model(trained.model_path)
+    rng = np.random.default_rng(1)
+    h = data.toy_plane_samples(600, CAM, rng)
+    sigma = np.where(np.arange(600) % 2 == 0, 0.0, 3.0).astype(np.float32)
+    noisy = h["flow"] + sigma[:, None, None, None] * rng.normal(size=h["flow"].shape).astype(np.float32)
+    src = data.TensorSamples(noisy, h["intrinsics"], h["target"], seed=0)
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    nll = fit_uncertainty(model, src, _cfg(nll_lr=1e-2), 25)
+    assert nll[-1] < nll[0]
+    after = model.state_dict()
+    changed = {k for k in before if not torch.equal(before[k], after[k])}
+    assert changed == {"rot_log_std.weight", "rot_log_std.bias", "trans_log_std.weight", "trans_log_std.bias"}
+    pred = VOPredictor(model, bf16=False)
+    test = data.toy_plane_samples(200, CAM, np.random.default_rng(2))
+    noise = np.random.default_rng(3).normal(size=test["flow"].shape).astype(np.float32)
+    stds = [pred.predict(test["flow"] + s * noise, test["intrinsics"])[1].mean(0) for s in (0.0, 1.5, 3.0)]
+    # the translations' std grows monotonically with the noise, forward translation's clearly
+    for k in (3, 5):
+        assert stds[0][k] < stds[1][k] < stds[2][k]
+    assert stds[2][5] > 1.15 * stds[0][5]
+    assert (stds[2] / stds[0]).mean() > 1.03
+
+
+def test_resume_gives_identical_weights(toy, tmp_path):
+    cfg2 = _cfg(max_epochs=2, nll_epochs=2)
+    full = train(cfg2, *toy, tmp_path / "full", progress=False)
+    # stop after one epoch (a cap), then resume to two
+    train(dataclasses.replace(cfg2, max_epochs=1), *toy, tmp_path / "split", progress=False)
+    assert load_checkpoint(tmp_path / "split" / CHECKPOINT)["train_state"]["epoch"] == 1
+    resumed = train(cfg2, *toy, tmp_path / "split", resume=True, progress=False)
+    a, _ = load_model(full.model_path)
+    b, _ = load_model(resumed.model_path)
+    for (ka, va), (kb, vb) in zip(a.state_dict().items(), b.state_dict().items()):
+        assert ka == kb and torch.equal(va, vb), ka
+    assert [h["val_loss"] for h in full.history if h["stage"] == 1] == [h["val_loss"] for h in resumed.history if h["stage"] == 1]
+
+
+def test_resume_refuses_other_settings(toy, tmp_path):
+    from core.errors import InputError
+
+    train(_cfg(max_epochs=1), *toy, tmp_path, progress=False)
+    with pytest.raises(InputError, match="batch_size"):
+        train(_cfg(max_epochs=2, batch_size=8), *toy, tmp_path, resume=True, progress=False)
+    with pytest.raises(InputError, match="--resume"):  # never overwrite a run silently
+        train(_cfg(max_epochs=1), *toy, tmp_path, progress=False)
+
+
+def _cli(out, *extra):
+    return [sys.executable, "-m", "deepslam", "train", "--mode", "synthetic", "--toy", "300", "--net", "tiny",
+            "--batch", "32", "--nll-epochs", "2", "--bf16", "off", "--threads", "1", "--quiet", "--out", str(out), *extra]
+
+
+def test_kill_and_resume_matches_uninterrupted_run(tmp_path):
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    from deepslam.cli import main
+
+    assert main(_cli(tmp_path / "ref", "--max-epochs", "3")[3:]) == 0  # in-process: the same code, one start less
+    proc = subprocess.Popen(_cli(tmp_path / "killed", "--max-epochs", "3"), cwd=REPO, env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    ckpt = tmp_path / "killed" / CHECKPOINT
+    deadline = time.time() + 60
+    while not ckpt.exists() and proc.poll() is None and time.time() < deadline:
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert ckpt.exists(), "the run was killed before its first checkpoint"
+    done = subprocess.run(_cli(tmp_path / "killed", "--max-epochs", "3", "--resume"), cwd=REPO, env=env,
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    a, _ = load_model(tmp_path / "ref" / "model.pt")
+    b, _ = load_model(tmp_path / "killed" / "model.pt")
+    for k, v in a.state_dict().items():
+        assert torch.equal(v, b.state_dict()[k]), k
+
+
+def test_nan_loss_stops_with_one_line_and_status_2(tmp_path):
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    r = subprocess.run(_cli(tmp_path, "--max-epochs", "2", "--lr-min", "1e11", "--lr-max", "1e12"), cwd=REPO, env=env,
+                       capture_output=True, text=True)
+    assert r.returncode == 2
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("deepslam train: error:") and "nan" in lines[0].lower(), r.stderr
+    assert not (tmp_path / "model.pt").exists()

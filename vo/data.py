@@ -1,0 +1,584 @@
+"""Training samples for the flow -> 6DoF network, as deterministic batches per epoch.
+
+A *source* yields batches ``{"flow": (B, 2, h, w) float32 px at network resolution,
+"intrinsics": (B, 4) float32 fx, fy, cx, cy at network resolution, "target": (B, 6) float32 paper
+vector of cam_{t+k}_from_cam_t}`` through ``batches(epoch, batch_size)``; the same epoch gives the
+same batches (seeded from the source's seed and the epoch number, never a global RNG), which is what
+makes ``--resume`` reproduce an uninterrupted run bit for bit.
+
+Sources here:
+
+- :class:`TensorSamples`: samples held in memory (supervised pairs, a fixed validation set),
+  shuffled per epoch.
+- :class:`SyntheticSource`: the paper's synthetic data: single frames with depth + a motion model
+  (:mod:`gen.motion`) -> flow synthesized on the fly (:func:`synthesize_flow`, batched in torch,
+  gen.flow's algebra).
+- :func:`toy_plane_samples`: flows of known motions over random planes, computed with
+  :mod:`core.camera` alone (tests, benchmarks, smoke runs).
+- :func:`supervised_samples`: flow between real frames (estimated or ground truth) + ground-truth
+  relative poses.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable, Iterator, Sequence as Seq
+
+import numpy as np
+import torch
+
+from core import se3
+from core.camera import PinholeCamera
+from core.errors import InputError
+
+Batch = dict[str, torch.Tensor]
+
+
+def epoch_seed(seed: int, epoch: int, *more: int) -> int:
+    """A 63-bit seed derived from (seed, epoch, ...) with numpy's SeedSequence."""
+    return int(np.random.SeedSequence([int(seed), int(epoch), *map(int, more)]).generate_state(1, np.uint64)[0] >> 1)
+
+
+class TensorSamples:
+    """In-memory samples, shuffled per epoch with a ``torch.Generator`` seeded from (seed, epoch).
+
+    Args:
+        flow: (N, 2, h, w) float32 px at network resolution.
+        intrinsics: (N, 4) float32 (fx, fy, cx, cy) at network resolution.
+        target: (N, 6) float32 paper vectors of cam_{t+k}_from_cam_t.
+        seed: shuffling seed.
+        shuffle: shuffle each epoch (False: in order, e.g. for validation).
+    """
+
+    def __init__(self, flow, intrinsics, target, seed: int = 0, shuffle: bool = True):
+        self.flow = torch.as_tensor(np.asarray(flow, dtype=np.float32))
+        self.intrinsics = torch.as_tensor(np.asarray(intrinsics, dtype=np.float32))
+        self.target = torch.as_tensor(np.asarray(target, dtype=np.float32))
+        n = len(self.flow)
+        if self.flow.ndim != 4 or self.flow.shape[1] != 2:
+            raise ValueError(f"flow must be (N, 2, h, w), got {tuple(self.flow.shape)}")
+        if self.intrinsics.shape != (n, 4) or self.target.shape != (n, 6):
+            raise ValueError(f"intrinsics {tuple(self.intrinsics.shape)} / target {tuple(self.target.shape)} "
+                             f"do not match {n} flows")
+        self.seed = int(seed)
+        self.shuffle = shuffle
+
+    def __len__(self) -> int:
+        return len(self.flow)
+
+    def subset(self, idx: np.ndarray, shuffle: bool | None = None) -> "TensorSamples":
+        idx = torch.as_tensor(np.asarray(idx, dtype=np.int64))
+        return TensorSamples(self.flow[idx].numpy(), self.intrinsics[idx].numpy(), self.target[idx].numpy(),
+                             self.seed, self.shuffle if shuffle is None else shuffle)
+
+    def batches(self, epoch: int, batch_size: int) -> Iterator[Batch]:
+        n = len(self)
+        if self.shuffle:
+            g = torch.Generator().manual_seed(epoch_seed(self.seed, epoch))
+            order = torch.randperm(n, generator=g)
+        else:
+            order = torch.arange(n)
+        for s in range(0, n, batch_size):
+            idx = order[s:s + batch_size]
+            yield {"flow": self.flow[idx], "intrinsics": self.intrinsics[idx], "target": self.target[idx]}
+
+    def split(self, holdout_fraction: float, seed: int) -> tuple["TensorSamples", "TensorSamples"]:
+        """(train, holdout) by a seeded permutation; holdout gets round(fraction * N) >= 1 samples."""
+        n = len(self)
+        n_hold = max(1, int(round(holdout_fraction * n)))
+        if n_hold >= n:
+            raise InputError(None, f"{n} samples are too few to hold out {holdout_fraction:.0%} and train on the rest")
+        perm = np.random.default_rng(epoch_seed(seed, 0, 0x5EED)).permutation(n)
+        return self.subset(np.sort(perm[n_hold:])), self.subset(np.sort(perm[:n_hold]))
+
+
+# ----------------------------------------------------------------------------------------------------
+# toy data: flow of known motions over planes, from core.camera alone
+
+
+def plane_depth(camera: PinholeCamera, normal_cam: np.ndarray, distance_m: float) -> np.ndarray:
+    """depth_z (H, W) float32 of the plane ``{p : normal . p = distance}`` seen by ``camera``.
+
+    normal_cam: (3,) unit normal in camera axes pointing away from the camera (e.g. (0, 0, 1) for a
+    fronto-parallel wall, (0, 1, 0) for a floor below). Pixels whose ray misses the plane get 0.
+    """
+    g = camera.pixel_grid()
+    rays = np.stack([(g[..., 0] - camera.cx) / camera.fx, (g[..., 1] - camera.cy) / camera.fy,
+                     np.ones(g.shape[:2])], axis=-1)
+    denom = rays @ np.asarray(normal_cam, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(denom > 1e-6, distance_m / denom, 0.0)
+    return z.astype(np.float32)
+
+
+def flow_from_depth_np(camera: PinholeCamera, depth_z: np.ndarray, cam1_from_cam0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Reference flow (H, W, 2) float32 px and valid (H, W) bool from one depth map and one motion.
+
+    Unproject with depth_z (m, 0 = none), move by ``cam1_from_cam0`` (4, 4), reproject, subtract the
+    grid; invalid (no depth, behind the camera, outside the image) pixels get flow 0.
+    """
+    g = camera.pixel_grid()
+    p0 = camera.unproject(g, depth_z)
+    p1 = p0 @ cam1_from_cam0[:3, :3].T + cam1_from_cam0[:3, 3]
+    uv1, z1 = camera.project(p1)
+    flow = uv1 - g
+    valid = (depth_z > 0) & (z1 > 1e-6) & np.isfinite(flow).all(-1)
+    valid &= (uv1[..., 0] >= -0.5) & (uv1[..., 0] <= camera.width - 0.5)
+    valid &= (uv1[..., 1] >= -0.5) & (uv1[..., 1] <= camera.height - 0.5)
+    flow = np.where(valid[..., None], flow, 0.0)
+    return flow.astype(np.float32), valid
+
+
+def toy_motion_sampler(rot_std_rad: float = 0.01, trans_std_m: float = 0.1, forward_m: tuple[float, float] = (0.0, 1.0)):
+    """A simple motion model: euler ~ N(0, rot_std), t_x, t_y ~ N(0, trans_std), t_z ~ -U(forward_m).
+
+    Returns ``sample(n, rng) -> (n, 6) float64`` paper vectors of cam1_from_cam0 (the camera moves
+    forward, so scene points move towards it: t_z of cam1_from_cam0 is negative).
+    """
+
+    def sample(n: int, rng: np.random.Generator) -> np.ndarray:
+        out = np.empty((n, 6))
+        out[:, :3] = rng.normal(0.0, rot_std_rad, (n, 3))
+        out[:, 3:5] = rng.normal(0.0, trans_std_m, (n, 2))
+        out[:, 5] = -rng.uniform(*forward_m, n)
+        return out
+
+    return sample
+
+
+def toy_plane_samples(n: int, camera: PinholeCamera, rng: np.random.Generator,
+                      sample_motion: Callable[[int, np.random.Generator], np.ndarray] | None = None,
+                      camera_height_m: tuple[float, float] = (1.5, 1.8), tilt_std_rad: float = 0.03) -> dict[str, np.ndarray]:
+    """``n`` samples of flow over a ground plane (a car's view of a flat road) for random motions.
+
+    The plane lies ``camera_height_m`` below the camera (a narrow range, so that the flow fixes the
+    metric scale, as the road does for a car), its normal tilted by ``tilt_std_rad``; the pixels
+    above the horizon see nothing (flow 0, invalid).
+
+    Args:
+        n: number of samples.
+        camera: the network-resolution camera (flows are computed at its size directly).
+        rng: the generator all randomness comes from.
+        sample_motion: ``(n, rng) -> (n, 6)`` paper vectors of cam1_from_cam0; :func:`toy_motion_sampler` by default.
+
+    Returns dict of numpy arrays: ``flow`` (n, 2, H, W) float32 px, ``valid`` (n, H, W) bool,
+    ``intrinsics`` (n, 4) float32, ``target`` (n, 6) float32.
+    """
+    sample_motion = sample_motion or toy_motion_sampler()
+    vec6 = sample_motion(n, rng)
+    motions = se3.from_euler6(vec6)
+    flows = np.zeros((n, 2, camera.height, camera.width), np.float32)
+    valid = np.zeros((n, camera.height, camera.width), bool)
+    for i in range(n):
+        normal = np.array([rng.normal(0, tilt_std_rad), 1.0, rng.normal(0, tilt_std_rad)])
+        normal /= np.linalg.norm(normal)
+        depth = plane_depth(camera, normal, rng.uniform(*camera_height_m))
+        depth[depth > 200.0] = 0.0  # near the horizon: too far to matter
+        f, v = flow_from_depth_np(camera, depth, motions[i])
+        flows[i] = f.transpose(2, 0, 1)
+        valid[i] = v
+    k = np.array([camera.fx, camera.fy, camera.cx, camera.cy], np.float32)
+    return {"flow": flows, "valid": valid, "intrinsics": np.tile(k, (n, 1)), "target": vec6.astype(np.float32)}
+
+
+# ----------------------------------------------------------------------------------------------------
+# supervised: flow between real frames + ground-truth poses
+
+
+@dataclasses.dataclass(frozen=True)
+class PairSpec:
+    """Which frame pairs of a sequence become supervised samples."""
+
+    strides: tuple[int, ...] = (1,)
+    """Frame gaps k of the pairs (i, i + k) (``consecutive`` mode); several = a mixture."""
+    kind: str = "consecutive"
+    """``consecutive`` (pairs i, i + k) or ``loops`` (pairs far apart in time that see the same place)."""
+    loop_min_gap_frames: int = 20
+    """Loops: the two frames are at least this many frames apart."""
+    loop_max_distance_m: float = 3.0
+    """Loops: camera centres at most this far apart, metres."""
+    loop_max_angle_deg: float = 20.0
+    """Loops: relative rotation at most this, degrees."""
+    max_pairs: int = 0
+    """Keep at most this many pairs per sequence (evenly spaced; 0 = all)."""
+
+
+def frame_pairs(gt_world_from_cam: np.ndarray, spec: PairSpec) -> np.ndarray:
+    """(P, 2) int frame index pairs (i, j), i < j, of one sequence per ``spec``."""
+    n = len(gt_world_from_cam)
+    if spec.kind == "consecutive":
+        pairs = [(i, i + k) for k in spec.strides for i in range(n - k)]
+    elif spec.kind == "loops":
+        pos = gt_world_from_cam[:, :3, 3]
+        pairs = []
+        for i in range(n):
+            j = np.arange(i + spec.loop_min_gap_frames, n)
+            if not len(j):
+                break
+            near = np.linalg.norm(pos[j] - pos[i], axis=1) <= spec.loop_max_distance_m
+            j = j[near]
+            if len(j):
+                ang = np.rad2deg(se3.rotation_angle(se3.relative(gt_world_from_cam[j], gt_world_from_cam[i][None])))
+                pairs += [(i, int(jj)) for jj in j[ang <= spec.loop_max_angle_deg]]
+    else:
+        raise InputError(None, f"unknown pair kind {spec.kind!r} (consecutive or loops)")
+    pairs = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+    if spec.max_pairs and len(pairs) > spec.max_pairs:
+        pairs = pairs[np.linspace(0, len(pairs) - 1, spec.max_pairs).round().astype(int)]
+    return pairs
+
+
+def supervised_samples(seq, pairs: np.ndarray, estimator, width: int, height: int, progress: bool = True) -> dict[str, np.ndarray]:
+    """Flow between frame pairs of a sequence with ground truth, at network resolution, + targets.
+
+    Args:
+        seq: :class:`core.sequence.Sequence` with ``gt``.
+        pairs: (P, 2) frame indices (i, j).
+        estimator: a :mod:`vo.flow_estimators` estimator (``pair_flow(seq, i, j)``).
+        width, height: network input size.
+
+    Returns ``flow`` (P, 2, height, width) float32 px, ``intrinsics`` (P, 4) float32, ``target``
+    (P, 6) float32 = to_euler6(cam_j_from_cam_i).
+    """
+    from tqdm import tqdm
+
+    from vo.flow_estimators import to_network_input
+
+    if seq.gt is None:
+        raise InputError(seq.root, "supervised training needs ground-truth poses; this sequence has none")
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    flows = np.zeros((len(pairs), 2, height, width), np.float32)
+    intr = np.zeros((len(pairs), 4), np.float32)
+    for p, (i, j) in enumerate(tqdm(pairs, desc=f"flow {seq.name}", unit="pair", disable=not progress, leave=False)):
+        flows[p], intr[p] = to_network_input(estimator.pair_flow(seq, int(i), int(j)), seq.camera, width, height)
+    w = seq.gt.world_from_cam
+    target = se3.to_euler6(se3.relative(w[pairs[:, 1]], w[pairs[:, 0]])) if len(pairs) else np.zeros((0, 6))
+    return {"flow": flows, "intrinsics": intr, "target": target.astype(np.float32)}
+
+
+def concat_samples(parts: Seq[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    keys = ("flow", "intrinsics", "target")
+    return {k: np.concatenate([p[k] for p in parts], axis=0) for k in keys}
+
+
+# ----------------------------------------------------------------------------------------------------
+# synthetic: single frames with depth + a motion model -> flow on the fly (the paper's method)
+
+
+def resize_depth(depth_z: np.ndarray, width: int, height: int) -> np.ndarray:
+    """depth_z (H, W) float32 -> (height, width) by nearest neighbour (no mixing of foreground and
+    background depths at edges; 0 = unknown stays 0; non-finite values become 0)."""
+    import cv2
+
+    d = np.nan_to_num(np.asarray(depth_z, dtype=np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+    d[d < 0] = 0.0
+    if d.shape == (height, width):
+        return d
+    return cv2.resize(d, (width, height), interpolation=cv2.INTER_NEAREST)
+
+
+@dataclasses.dataclass
+class Frames:
+    """Single frames for synthetic training, held at the synthesis resolution.
+
+    Attributes:
+        depth_z: (N, Hs, Ws) float32 metres (0 = unknown).
+        camera_index: (N,) int index into ``cameras`` per frame.
+        cameras: the distinct cameras (at Hs x Ws).
+        names: (N,) "sequence:frame" labels.
+    """
+
+    depth_z: np.ndarray
+    camera_index: np.ndarray
+    cameras: list[PinholeCamera]
+    names: list[str]
+
+    def __len__(self) -> int:
+        return len(self.depth_z)
+
+    def subset(self, idx) -> "Frames":
+        idx = np.asarray(idx, dtype=np.int64)
+        return Frames(self.depth_z[idx], self.camera_index[idx], self.cameras, [self.names[i] for i in idx])
+
+    def split(self, holdout_fraction: float, seed: int) -> tuple["Frames", "Frames"]:
+        """(train, holdout) frames by a seeded permutation (held-out frames are never trained on)."""
+        n = len(self)
+        n_hold = max(1, int(round(holdout_fraction * n)))
+        if n_hold >= n:
+            raise InputError(None, f"{n} frames are too few to hold out {holdout_fraction:.0%} and train on the rest")
+        perm = np.random.default_rng(epoch_seed(seed, 0, 0xF4A3)).permutation(n)
+        return self.subset(np.sort(perm[n_hold:])), self.subset(np.sort(perm[:n_hold]))
+
+
+def fill_depth_holes(depth_z: np.ndarray) -> np.ndarray:
+    """Fill unknown depth (0 or non-finite) with the depth of the nearest known pixel (Euclidean
+    nearest, scipy.ndimage.distance_transform_edt), e.g. the band at the left border where stereo
+    matching has no disparity range, occlusion shadows, textureless road. A flow estimator reports
+    flow there, so the synthetic flow should have some too.
+
+    depth_z: (H, W) float32 metres. Returns (H, W) float32 (unchanged where known; all zeros stays zeros).
+    """
+    from scipy import ndimage
+
+    d = np.asarray(depth_z, dtype=np.float32)
+    hole = ~(np.isfinite(d) & (d > 0))
+    if not hole.any() or hole.all():
+        return np.where(hole, 0.0, d).astype(np.float32)
+    idx = ndimage.distance_transform_edt(hole, return_distances=False, return_indices=True)
+    return d[idx[0], idx[1]].astype(np.float32)
+
+
+def load_frames(sequences: Seq, width: int, height: int, frame_step: int = 1, depth: str = "auto",
+                max_frames: int = 0, progress: bool = True, fill_stereo_holes: bool = True) -> Frames:
+    """Depth of every ``frame_step``-th frame of each sequence, resized to ``width`` x ``height``.
+
+    Args:
+        sequences: :class:`core.sequence.Sequence` objects.
+        width, height: synthesis resolution.
+        frame_step: take frames 0, step, 2 step, ...
+        depth: ``rendered`` (the sequence's depth maps, e.g. our format), ``stereo`` (from the
+            rectified stereo pair via :mod:`gen.stereo`) or ``auto`` (rendered when present, else stereo).
+        max_frames: at most this many frames per sequence (0 = all).
+        fill_stereo_holes: fill the unknown pixels of stereo depth (:func:`fill_depth_holes`);
+            rendered depth keeps its zeros (nothing there: sky, a point at infinity).
+    """
+    from tqdm import tqdm
+
+    depths, cam_idx, cams, names = [], [], [], []
+    for seq in sequences:
+        how = depth
+        if how == "auto":
+            how = "rendered" if seq.has_depth else "stereo"
+        if how == "rendered" and not seq.has_depth:
+            raise InputError(seq.root, "sequence has no depth maps (use --depth stereo for a stereo sequence)")
+        if how == "stereo" and not seq.has_stereo:
+            raise InputError(seq.root, "sequence has neither depth maps nor a rectified stereo pair")
+        if how not in ("rendered", "stereo"):
+            raise InputError(None, f"unknown depth source {depth!r} (auto, rendered or stereo)")
+        idx = list(range(0, len(seq), max(1, frame_step)))
+        if max_frames:
+            idx = idx[:max_frames]
+        cam = seq.camera.scaled(width, height)
+        if cam not in cams:
+            cams.append(cam)
+        ci = cams.index(cam)
+        for i in tqdm(idx, desc=f"depth {seq.name} ({how})", unit="frame", disable=not progress, leave=False):
+            d = seq.depth(i) if how == "rendered" else stereo_depth(seq, i)
+            d = resize_depth(d, width, height)
+            if how == "stereo" and fill_stereo_holes:
+                d = fill_depth_holes(d)
+            depths.append(d)
+            cam_idx.append(ci)
+            names.append(f"{seq.name}:{i}")
+    if not depths:
+        raise InputError(None, "no frames to train on")
+    return Frames(np.stack(depths), np.array(cam_idx, dtype=np.int64), cams, names)
+
+
+def stereo_depth(seq, i: int) -> np.ndarray:
+    """depth_z (H, W) float32 of frame i from its rectified stereo pair (gen.stereo, SGBM), 0 = unknown."""
+    from gen import stereo
+
+    return np.asarray(stereo.sequence_depth(seq, i), dtype=np.float32)
+
+
+def motion_sampler(model, loops: bool = False):
+    """``(n, rng) -> (n, 6)`` from a :class:`gen.motion.MotionModel`: its consecutive distribution, or
+    with ``loops`` its loop distribution (NN_loops)."""
+    if loops and model.loop is None:
+        raise InputError(None, "the motion model has no loop distribution (fit it with --loops)")
+    frac = 1.0 if loops else 0.0
+    return lambda n, rng: model.sample(n, rng, frac)[0]
+
+
+class MotionMixture:
+    """Several motion samplers mixed with weights (strides 1, 2, 3..., or consecutive + loops).
+
+    Args:
+        samplers: callables ``(n, rng) -> (n, 6)`` paper vectors of cam1_from_cam0 (e.g. the
+            ``sample`` method of a gen.motion model).
+        weights: mixing weights (normalised here); equal by default.
+        names: labels for the resolved config.
+    """
+
+    def __init__(self, samplers, weights=None, names=None):
+        self.samplers = list(samplers)
+        w = np.ones(len(self.samplers)) if weights is None else np.asarray(weights, dtype=np.float64)
+        if len(w) != len(self.samplers) or (w < 0).any() or w.sum() <= 0:
+            raise InputError(None, f"bad motion mixture weights {list(w)}")
+        self.weights = w / w.sum()
+        self.names = list(names) if names else [f"motion{k}" for k in range(len(self.samplers))]
+
+    def __call__(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        which = rng.choice(len(self.samplers), size=n, p=self.weights)
+        out = np.zeros((n, 6))
+        for k, s in enumerate(self.samplers):
+            m = which == k
+            if m.any():
+                out[m] = np.asarray(s(int(m.sum()), rng), dtype=np.float64).reshape(-1, 6)
+        return out
+
+
+MISSING_DEPTH = ("infinity", "invalid")
+"""What depth 0 (no surface, or unknown) means to :func:`synthesize_flow`."""
+
+
+def synthesize_flow(depth_z: torch.Tensor, intrinsics: np.ndarray, cam1_from_cam0: np.ndarray,
+                    missing_depth: str = "infinity", pool: int = 1,
+                    chunk_pixels: int = 1 << 18) -> tuple[torch.Tensor, torch.Tensor]:
+    """Flow of a static scene for a batch of depth maps and motions, KEEPING points that leave the image.
+
+    The same algebra as :func:`gen.flow.synthesize` (its :func:`gen.flow.projection_coefficients`
+    ``M = [K R K^-1 | K t]``; ``(u1, v1, 1) ~ M (u, v, 1, 1 / depth_z)``), but a point that lands
+    outside frame 1 keeps its flow: an estimator such as DIS also reports (extrapolated) flow for
+    pixels that leave the view, so zeroing them (the right thing for a flow *label*) would teach the
+    network a pattern it never sees at test time. With ``missing_depth="infinity"`` a pixel without
+    depth (sky in a render, 0 or non-finite) is a point at infinity and gets the rotation-only flow,
+    as the simulator's ground-truth flow and any real estimator give it.
+
+    Computed in chunks of about ``chunk_pixels`` pixels with in-place ops (the temporaries stay in
+    cache, as in gen.flow), optionally averaged over ``pool`` x ``pool`` blocks per chunk
+    (:func:`pool_flow`).
+
+    Args:
+        depth_z: (B, H, W) float32 metres, 0 = none.
+        intrinsics: (B, 4) fx, fy, cx, cy at H x W.
+        cam1_from_cam0: (B, 4, 4) float64.
+        missing_depth: ``infinity`` or ``invalid`` (flow 0, valid false).
+        pool: average the result over pool x pool blocks (H, W multiples of pool).
+
+    Returns:
+        flow (B, 2, H/pool, W/pool) float32 px at the output grid (0 where invalid), valid
+        (B, H/pool, W/pool) bool (the point is in front of camera 1, depth known unless ``infinity``;
+        pooled: any pixel of the block valid).
+    """
+    from gen.flow import projection_coefficients
+
+    if missing_depth not in MISSING_DEPTH:
+        raise ValueError(f"missing_depth must be one of {MISSING_DEPTH}, got {missing_depth!r}")
+    z_all = torch.as_tensor(depth_z, dtype=torch.float32)
+    b, h, w = z_all.shape
+    if h % pool or w % pool:
+        raise ValueError(f"depth {h}x{w} is not a multiple of pool {pool}")
+    m = torch.as_tensor(projection_coefficients(np.asarray(intrinsics, np.float64).reshape(b, 4),
+                                                np.asarray(cam1_from_cam0, np.float64).reshape(b, 4, 4)),
+                        dtype=torch.float32)
+    u = torch.arange(w, dtype=torch.float32).view(1, 1, w)
+    v = torch.arange(h, dtype=torch.float32).view(1, h, 1)
+    flow_out = torch.empty(b, 2, h // pool, w // pool)
+    valid_out = torch.empty(b, h // pool, w // pool, dtype=torch.bool)
+    n_chunk = max(1, min(b, chunk_pixels // (h * w)))
+    p = torch.empty(n_chunk, 3, h, w)
+    inv = torch.empty(n_chunk, h, w)
+    tmp = torch.empty(n_chunk, h, w)
+    flow = torch.empty(n_chunk, 2, h, w)
+    with torch.no_grad():
+        for s in range(0, b, n_chunk):
+            n = min(n_chunk, b - s)
+            z, pp, iv, tt, fl = z_all[s:s + n], p[:n], inv[:n], tmp[:n], flow[:n]
+            mm = m[s:s + n]
+            torch.reciprocal(z, out=iv)
+            iv.nan_to_num_(0.0, 0.0, 0.0).clamp_min_(0.0)  # 0 / negative / NaN / inf depth -> infinity
+            torch.add(mm[:, :, 0, None, None] * u, mm[:, :, 1, None, None] * v + mm[:, :, 2, None, None], out=pp)
+            pp.addcmul_(mm[:, :, 3].view(n, 3, 1, 1), iv.unsqueeze(1))
+            d = pp[:, 2]
+            valid = d > 1e-6
+            if missing_depth == "invalid":
+                valid &= iv > 0
+            d.clamp_min_(1e-6).reciprocal_()
+            torch.mul(pp[:, 0], d, out=fl[:, 0])
+            fl[:, 0].sub_(u)
+            torch.mul(pp[:, 1], d, out=fl[:, 1])
+            fl[:, 1].sub_(v)
+            fl.nan_to_num_(0.0, 0.0, 0.0)
+            fl.mul_(valid.unsqueeze(1))
+            if pool > 1:
+                pooled, pv = pool_flow(fl, valid, pool, masked=True)
+                flow_out[s:s + n] = pooled
+                valid_out[s:s + n] = pv
+            else:
+                flow_out[s:s + n] = fl
+                valid_out[s:s + n] = valid
+    return flow_out, valid_out
+
+
+def pool_flow(flow: torch.Tensor, valid: torch.Tensor, factor: int, masked: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+    """Average flow (B, 2, H, W) px over ``factor`` x ``factor`` blocks, weighted by valid (B, H, W),
+    and rescale its values by 1/factor (the coarser pixel grid). Returns ((B, 2, H/f, W/f), valid any).
+    ``masked``: the flow is already 0 where not valid (saves a multiplication)."""
+    if factor == 1:
+        return (flow if masked else flow * valid[:, None]), valid
+    v = valid[:, None].float()
+    num = torch.nn.functional.avg_pool2d(flow if masked else flow * v, factor)
+    den = torch.nn.functional.avg_pool2d(v, factor)
+    out = torch.where(den > 0, num / den.clamp_min(1e-12), torch.zeros_like(num)) / factor
+    return out, den[:, 0] > 0
+
+
+class SyntheticSource:
+    """The paper's training data: a random frame, a random motion from the model, the flow that motion
+    would cause (:func:`synthesize_flow` on the frame's depth), batched and made on the fly.
+
+    Batch b of epoch e is a function of (seed, e, b) only. Flow is synthesized at ``synth_factor``
+    times the network resolution and averaged down (as a full-resolution flow estimate is resized to
+    the network input) by :func:`synthesize_flow`: points leaving the image keep their flow, pixels
+    without depth see a point at infinity (``missing_depth``), points behind the camera get flow 0.
+
+    Args:
+        frames: :class:`Frames` at the synthesis resolution (``synth_factor`` x network size).
+        sample_motion: ``(n, rng) -> (n, 6)`` paper vectors of cam1_from_cam0.
+        samples_per_epoch: samples per epoch.
+        seed: data seed.
+        synth_factor: synthesis resolution / network resolution (integer).
+        missing_depth: ``infinity`` (default) or ``invalid``, see :func:`synthesize_flow`.
+        synthesize: replaces :func:`synthesize_flow`: ``(depth (B, H, W) tensor, intrinsics (B, 4),
+            cam1_from_cam0 (B, 4, 4)) -> (flow (B, 2, H, W), valid (B, H, W))``.
+    """
+
+    def __init__(self, frames: Frames, sample_motion, samples_per_epoch: int, seed: int = 0, synth_factor: int = 1,
+                 missing_depth: str = "infinity", synthesize=None):
+        self.frames = frames
+        self.sample_motion = sample_motion
+        self.samples_per_epoch = int(samples_per_epoch)
+        self.seed = int(seed)
+        self.synth_factor = int(synth_factor)
+        self.missing_depth = missing_depth
+        self.synthesize = synthesize
+        self._depth = torch.from_numpy(np.ascontiguousarray(frames.depth_z))
+        hs, ws = frames.depth_z.shape[1:]
+        if hs % self.synth_factor or ws % self.synth_factor:
+            raise ValueError(f"frames {hs}x{ws} are not a multiple of synth_factor {self.synth_factor}")
+        self._k_synth = np.array([[c.fx, c.fy, c.cx, c.cy] for c in frames.cameras], np.float64)
+        self._k_out = np.array([[c.fx, c.fy, c.cx, c.cy] for c in
+                                (c.scaled(ws // self.synth_factor, hs // self.synth_factor) for c in frames.cameras)], np.float32)
+
+    def __len__(self) -> int:
+        return self.samples_per_epoch
+
+    def make_batch(self, rng: np.random.Generator, n: int) -> Batch:
+        idx = rng.integers(0, len(self.frames), n)
+        vec6 = np.asarray(self.sample_motion(n, rng), dtype=np.float64).reshape(n, 6)
+        cams = self.frames.camera_index[idx]
+        depth = self._depth[torch.from_numpy(idx)]
+        if self.synthesize is None:
+            flow, _ = synthesize_flow(depth, self._k_synth[cams], se3.from_euler6(vec6), self.missing_depth,
+                                      pool=self.synth_factor)
+        else:
+            flow, valid = self.synthesize(depth, self._k_synth[cams], se3.from_euler6(vec6))
+            flow, _ = pool_flow(flow, valid, self.synth_factor)
+        return {"flow": flow.contiguous(), "intrinsics": torch.from_numpy(self._k_out[cams]),
+                "target": torch.from_numpy(vec6.astype(np.float32))}
+
+    def batches(self, epoch: int, batch_size: int) -> Iterator[Batch]:
+        n_batches = -(-self.samples_per_epoch // batch_size)
+        for b in range(n_batches):
+            n = min(batch_size, self.samples_per_epoch - b * batch_size)
+            yield self.make_batch(np.random.default_rng(epoch_seed(self.seed, epoch, b)), n)
+
+    def materialize(self, n: int, seed: int) -> TensorSamples:
+        """A fixed set of ``n`` samples (a validation / NLL set), in order."""
+        rng = np.random.default_rng(epoch_seed(seed, 0, 0xA11))
+        parts = [self.make_batch(rng, min(256, n - s)) for s in range(0, n, 256)]
+        return TensorSamples(torch.cat([p["flow"] for p in parts]).numpy(), torch.cat([p["intrinsics"] for p in parts]).numpy(),
+                             torch.cat([p["target"] for p in parts]).numpy(), seed=seed)
+
+

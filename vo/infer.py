@@ -1,0 +1,155 @@
+"""Inference: :class:`VOPredictor` (flow -> 6DoF mean and std, batched) and trajectory chaining.
+
+All 6DoF vectors are the paper's ``(euler_x, euler_y, euler_z, t_x, t_y, t_z)`` of
+``cam_j_from_cam_i`` for a flow from frame i to frame j (radians, metres, OpenCV axes), float64.
+"""
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+from typing import Sequence as Seq
+
+import numpy as np
+import torch
+
+from core import se3
+from vo.net import FlowPoseNet
+
+
+@functools.lru_cache(maxsize=1)
+def cpu_has_native_bf16() -> bool:
+    """True when this CPU computes bf16 natively (AVX512-BF16 or AMX), where bf16 autocast pays off."""
+    try:
+        flags = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return False
+    return "avx512_bf16" in flags or "amx_bf16" in flags
+
+
+class VOPredictor:
+    """A trained flow -> 6DoF network, ready for batched inference.
+
+    Args:
+        model: a :class:`vo.net.FlowPoseNet` (put in eval mode here).
+        name: short name shown in logs (the model file's stem).
+        meta: what the model file says about its training.
+        batch_size: flows per forward pass.
+        bf16: run under bfloat16 autocast (None = when the CPU has native bf16).
+        channels_last: NHWC convolutions (faster on this CPU).
+    """
+
+    def __init__(self, model: FlowPoseNet, name: str = "vo", meta: dict | None = None, batch_size: int = 64,
+                 bf16: bool | None = None, channels_last: bool = True):
+        self.model = model.eval()
+        if channels_last:
+            self.model.set_channels_last(True)
+        self.name = name
+        self.meta = meta or {}
+        self.batch_size = int(batch_size)
+        self.bf16 = cpu_has_native_bf16() if bf16 is None else bool(bf16)
+
+    @classmethod
+    def from_file(cls, path: str | Path, **kwargs) -> "VOPredictor":
+        """Load a ``model.pt`` (or a training ``checkpoint.pt``); InputError when missing or malformed."""
+        from vo.train import load_model
+
+        model, meta = load_model(path)
+        kwargs.setdefault("name", Path(path).stem)
+        return cls(model, meta=meta, **kwargs)
+
+    @property
+    def input_size(self) -> tuple[int, int]:
+        """(height, width) of the flow the network takes, pixels."""
+        return self.model.cfg.input_height, self.model.cfg.input_width
+
+    @torch.inference_mode()
+    def predict(self, flow, intrinsics) -> tuple[np.ndarray, np.ndarray]:
+        """6DoF mean and std for flows at network resolution.
+
+        Args:
+            flow: (B, 2, h, w) float32 px (numpy or torch), h x w = :attr:`input_size`.
+            intrinsics: (B, 4) fx, fy, cx, cy at network resolution (used by coord-channel models).
+
+        Returns:
+            (mean6, std6): float64 (B, 6) each; std6 > 0.
+        """
+        flow = torch.as_tensor(np.asarray(flow, dtype=np.float32)) if not torch.is_tensor(flow) else flow.float()
+        intr = torch.as_tensor(np.asarray(intrinsics, dtype=np.float32)) if not torch.is_tensor(intrinsics) else intrinsics.float()
+        if flow.ndim != 4 or len(intr) != len(flow):
+            raise ValueError(f"flow (B, 2, h, w) and intrinsics (B, 4) expected, got {tuple(flow.shape)}, {tuple(intr.shape)}")
+        means, log_stds = [], []
+        for s in range(0, len(flow), self.batch_size):
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=self.bf16):
+                m, ls = self.model(flow[s:s + self.batch_size], intr[s:s + self.batch_size])
+            means.append(m.double())
+            log_stds.append(ls.double())
+        if not means:
+            return np.zeros((0, 6)), np.zeros((0, 6))
+        return torch.cat(means).numpy(), torch.cat(log_stds).exp().numpy()
+
+    def prepare(self, flow_full: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
+        """Full-resolution flow (H, W, 2) -> network input ((2, h, w) px, (4,) intrinsics)."""
+        from vo.flow_estimators import to_network_input
+
+        h, w = self.input_size
+        return to_network_input(flow_full, camera, w, h)
+
+    def predict_pairs(self, seq, pairs: Seq[tuple[int, int]], flow_estimator, progress: bool = True,
+                      chunk: int = 64) -> tuple[np.ndarray, np.ndarray]:
+        """Flow for every pair (i, j) of ``seq`` by ``flow_estimator``, then 6DoF of cam_j_from_cam_i.
+
+        Returns (mean6, std6): float64 (P, 6) in the order of ``pairs``.
+        """
+        from tqdm import tqdm
+
+        pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        h, w = self.input_size
+        means, stds = [], []
+        with tqdm(total=len(pairs), desc=f"vo {self.name}", unit="pair", disable=not progress, leave=False) as bar:
+            for s in range(0, len(pairs), chunk):
+                part = pairs[s:s + chunk]
+                flows = np.zeros((len(part), 2, h, w), np.float32)
+                intr = np.zeros((len(part), 4), np.float32)
+                for k, (i, j) in enumerate(part):
+                    flows[k], intr[k] = self.prepare(flow_estimator.pair_flow(seq, int(i), int(j)), seq.camera)
+                    bar.update(1)
+                m, sd = self.predict(flows, intr)
+                means.append(m)
+                stds.append(sd)
+        if not means:
+            return np.zeros((0, 6)), np.zeros((0, 6))
+        return np.concatenate(means), np.concatenate(stds)
+
+    def as_odometry(self, flow_estimator, progress: bool = True) -> "PredictorOdometry":
+        """This predictor with a flow estimator, as the SLAM pipeline's odometry (name, predict(seq, pairs))."""
+        return PredictorOdometry(self, flow_estimator, progress)
+
+
+class PredictorOdometry:
+    """Adapter: ``predict(seq, pairs) -> (mean6, std6)`` with a fixed flow estimator."""
+
+    def __init__(self, predictor: VOPredictor, flow_estimator, progress: bool = True):
+        self.predictor = predictor
+        self.flow_estimator = flow_estimator
+        self.progress = progress
+        self.name = f"{predictor.name}+{getattr(flow_estimator, 'name', 'flow')}"
+
+    def predict(self, seq, pairs):
+        return self.predictor.predict_pairs(seq, pairs, self.flow_estimator, progress=self.progress)
+
+
+def chain(cam_next_from_cam: np.ndarray) -> np.ndarray:
+    """Poses ``world_from_cam`` (N + 1, 4, 4) float64 with world = the first camera, from N relative
+    motions ``cam_{k+1}_from_cam_k`` (N, 4, 4): ``world_from_cam_{k+1} = world_from_cam_k @ inv(cam_{k+1}_from_cam_k)``."""
+    rel = np.asarray(cam_next_from_cam, dtype=np.float64)
+    out = np.empty((len(rel) + 1, 4, 4))
+    out[0] = np.eye(4)
+    inv = se3.inverse(rel)
+    for k in range(len(rel)):
+        out[k + 1] = out[k] @ inv[k]
+    return out
+
+
+def chain_euler6(mean6: np.ndarray) -> np.ndarray:
+    """:func:`chain` of paper vectors (N, 6) -> world_from_cam (N + 1, 4, 4)."""
+    return chain(se3.from_euler6(np.asarray(mean6, dtype=np.float64).reshape(-1, 6)))

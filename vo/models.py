@@ -1,0 +1,70 @@
+"""The models shipped in ``<repo>/models/`` (see models/README.md for the commands that make them).
+
+Files are named ``<kind>_<which>.pt``: kind ``kitti`` (street cameras, 96 x 320-like input) or
+``euroc`` (indoor MAV cameras); which ``cons`` (NN_cons: the motion distribution of consecutive
+frames, for odometry) or ``loops`` (NN_loops: the wide distribution of loop-closure pairs).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from core.errors import InputError
+from core.paths import repo_root
+
+KINDS = ("kitti", "euroc")
+"""Camera kinds with a shipped model."""
+WHICH = ("cons", "loops")
+"""NN_cons (consecutive frames) and NN_loops (loop pairs)."""
+
+
+def models_dir() -> Path:
+    return repo_root() / "models"
+
+
+def shipped_path(kind: str, which: str = "cons") -> Path:
+    """Path of a shipped model file (it may not exist)."""
+    if kind not in KINDS:
+        raise InputError(None, f"no shipped model for camera kind {kind!r} (one of {', '.join(KINDS)})")
+    if which not in WHICH:
+        raise InputError(None, f"unknown model variant {which!r} (one of {', '.join(WHICH)})")
+    return models_dir() / f"{kind}_{which}.pt"
+
+
+def load_shipped(kind: str, which: str = "cons", **kwargs):
+    """The shipped :class:`vo.infer.VOPredictor` for ``kind`` / ``which``; InputError when the file is missing."""
+    from vo.infer import VOPredictor
+
+    path = shipped_path(kind, which)
+    if not path.is_file():
+        raise InputError(path, f"shipped model {kind}/{which} is missing (see models/README.md to train it)")
+    kwargs.setdefault("name", f"{kind}_{which}")
+    return VOPredictor.from_file(path, **kwargs)
+
+
+def kind_for_sequence(seq) -> str:
+    """The shipped-model kind that suits a sequence: its reader's kind for KITTI/EuRoC; for our format
+    the scene's kind when sequence.json names one (``street`` -> kitti, ``room``/``indoor`` -> euroc),
+    else by the image's aspect ratio (wider than 2:1 -> kitti)."""
+    if seq.kind in KINDS:
+        return seq.kind
+    scene = str(seq.meta.get("scene", "")).lower() if isinstance(seq.meta, dict) else ""
+    if any(w in scene for w in ("street", "city", "road", "kitti")):
+        return "kitti"
+    if any(w in scene for w in ("room", "indoor", "euroc", "office")):
+        return "euroc"
+    return "kitti" if seq.camera.width > 2 * seq.camera.height else "euroc"
+
+
+def resolve(spec: str | None, seq=None, which: str = "cons", **kwargs):
+    """A predictor from ``spec``: a model file path, ``kitti``/``euroc`` (shipped ``cons``),
+    ``kitti:loops``-style shipped names, or None (the shipped model for ``seq``'s camera kind)."""
+    from vo.infer import VOPredictor
+
+    if spec is None:
+        if seq is None:
+            raise InputError(None, "no model given and no sequence to choose a shipped one")
+        return load_shipped(kind_for_sequence(seq), which, **kwargs)
+    kind, _, w = spec.partition(":")
+    if kind in KINDS and not Path(spec).exists():
+        return load_shipped(kind, w or which, **kwargs)
+    return VOPredictor.from_file(spec, **kwargs)

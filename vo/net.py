@@ -1,0 +1,198 @@
+"""The paper's flow -> 6DoF network with per-DoF uncertainty (Slinko et al., 2019, Sec. 3.2).
+
+Architecture (defaults = the paper): six convolutions of 64 filters, kernels 7, 5, 3, 3, 3, 3,
+strides 2, 1, 4, 1, 2, 1, each followed by ReLU ("same" padding k // 2); flatten; two branches,
+rotation and translation, each two fully connected layers of 500 units with ReLU and a linear output
+of 3: euler x, y, z (radians) and t x, y, z (metres) of ``cam_{t+k}_from_cam_t``. At 96 x 320 the
+convolutions give 64 x 6 x 20 features. Each branch also has a linear log-std head (3 outputs) on its
+last hidden layer, trained in a second stage with the Gaussian negative log-likelihood while
+everything else is frozen (:mod:`vo.train`).
+
+Input normalisation (the paper's): the flow in pixels at the network's resolution is divided by the
+image size, ``du / W`` and ``dv / H``, so a flow field means the same thing at any resolution; it is
+then multiplied by ``NetConfig.flow_scale`` (1.0 = exactly the paper). With
+``NetConfig.coord_channels`` two more channels hold each pixel's normalised image coordinates
+``(u - cx) / fx`` and ``(v - cy) / fy`` (intrinsics at network resolution), which tell the network
+the camera's field of view so that one model can serve several cameras.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import torch
+from torch import nn
+
+LOG_STD_MIN = -12.0
+"""Lower clamp of a predicted log-std (std >= 6e-6 in radians or metres)."""
+LOG_STD_MAX = 6.0
+"""Upper clamp of a predicted log-std."""
+
+
+@dataclasses.dataclass(frozen=True)
+class NetConfig:
+    """Shape of the network. The defaults are the paper's; shrink them to train on a CPU."""
+
+    input_height: int = 96
+    """Rows of the input flow (network resolution), pixels."""
+    input_width: int = 320
+    """Columns of the input flow, pixels."""
+    filters: int = 64
+    """Filters of every convolution."""
+    kernels: tuple[int, ...] = (7, 5, 3, 3, 3, 3)
+    """Kernel size of each convolution; its length is the number of conv layers (the depth)."""
+    strides: tuple[int, ...] = (2, 1, 4, 1, 2, 1)
+    """Stride of each convolution (same length as ``kernels``)."""
+    hidden_units: int = 500
+    """Units of each fully connected layer of the two branches."""
+    hidden_layers: int = 2
+    """Fully connected hidden layers per branch."""
+    coord_channels: bool = False
+    """Add the normalised pixel coordinates (u - cx)/fx, (v - cy)/fy as two input channels."""
+    flow_scale: float = 1.0
+    """Multiplier applied after the paper's normalisation flow / (W, H) (1.0 = the paper)."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kernels", tuple(int(k) for k in self.kernels))
+        object.__setattr__(self, "strides", tuple(int(s) for s in self.strides))
+        if len(self.kernels) != len(self.strides) or not self.kernels:
+            raise ValueError(f"kernels {self.kernels} and strides {self.strides} must be equally long and not empty")
+        for name in ("input_height", "input_width", "filters", "hidden_units", "hidden_layers"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+
+    @property
+    def in_channels(self) -> int:
+        return 4 if self.coord_channels else 2
+
+    def feature_shape(self) -> tuple[int, int, int]:
+        """(channels, rows, columns) after the convolutions."""
+        h, w = self.input_height, self.input_width
+        for k, s in zip(self.kernels, self.strides):
+            p = k // 2
+            h = (h + 2 * p - k) // s + 1
+            w = (w + 2 * p - k) // s + 1
+        return self.filters, h, w
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["kernels"], d["strides"] = list(self.kernels), list(self.strides)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "NetConfig":
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(d) - names
+        if unknown:
+            raise ValueError(f"unknown NetConfig fields: {sorted(unknown)}")
+        return cls(**d)
+
+    def __str__(self) -> str:
+        return json.dumps(self.to_dict())
+
+
+PAPER = NetConfig()
+"""The paper's configuration (96 x 320 input, 64 filters, 500 hidden units)."""
+
+
+def _branch(n_in: int, cfg: NetConfig) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for _ in range(cfg.hidden_layers):
+        layers += [nn.Linear(n_in, cfg.hidden_units), nn.ReLU(inplace=True)]
+        n_in = cfg.hidden_units
+    return nn.Sequential(*layers)
+
+
+class FlowPoseNet(nn.Module):
+    """Flow (B, 2, h, w) px at network resolution + intrinsics (B, 4) -> 6DoF mean and log-std.
+
+    ``forward`` returns ``(mean6, log_std6)``, both float32 (B, 6): the paper's vector
+    (euler x, y, z in radians, t x, y, z in metres) of ``cam_{t+k}_from_cam_t`` and the natural log
+    of its per-DoF standard deviation (clamped to [LOG_STD_MIN, LOG_STD_MAX]).
+    """
+
+    def __init__(self, cfg: NetConfig = PAPER):
+        super().__init__()
+        self.cfg = cfg
+        convs: list[nn.Module] = []
+        c = cfg.in_channels
+        for k, s in zip(cfg.kernels, cfg.strides):
+            convs += [nn.Conv2d(c, cfg.filters, k, stride=s, padding=k // 2), nn.ReLU(inplace=True)]
+            c = cfg.filters
+        self.conv = nn.Sequential(*convs)
+        fc, fh, fw = cfg.feature_shape()
+        n_feat = fc * fh * fw
+        self.rot_fc = _branch(n_feat, cfg)
+        self.trans_fc = _branch(n_feat, cfg)
+        self.rot_mean = nn.Linear(cfg.hidden_units, 3)
+        self.trans_mean = nn.Linear(cfg.hidden_units, 3)
+        self.rot_log_std = nn.Linear(cfg.hidden_units, 3)
+        self.trans_log_std = nn.Linear(cfg.hidden_units, 3)
+        for head in (self.rot_log_std, self.trans_log_std):
+            nn.init.zeros_(head.weight)
+            nn.init.zeros_(head.bias)
+        size = torch.tensor([cfg.input_width, cfg.input_height], dtype=torch.float32).view(1, 2, 1, 1)
+        self.register_buffer("_inv_size", cfg.flow_scale / size, persistent=False)
+        v, u = torch.meshgrid(torch.arange(cfg.input_height, dtype=torch.float32),
+                              torch.arange(cfg.input_width, dtype=torch.float32), indexing="ij")
+        self.register_buffer("_grid_uv", torch.stack([u, v])[None], persistent=False)
+        self.channels_last = False
+
+    def uncertainty_parameters(self) -> list[nn.Parameter]:
+        """The log-std heads' parameters (trained in the second stage)."""
+        return [*self.rot_log_std.parameters(), *self.trans_log_std.parameters()]
+
+    def motion_parameters(self) -> list[nn.Parameter]:
+        """Everything but the log-std heads (trained in the first stage, frozen in the second)."""
+        unc = {id(p) for p in self.uncertainty_parameters()}
+        return [p for p in self.parameters() if id(p) not in unc]
+
+    def prepare_input(self, flow_px: torch.Tensor, intrinsics: torch.Tensor | None = None) -> torch.Tensor:
+        """The tensor the convolutions see: (B, 2 or 4, h, w) float32 (see the module docstring)."""
+        cfg = self.cfg
+        if flow_px.shape[1:] != (2, cfg.input_height, cfg.input_width):
+            raise ValueError(f"flow must be (B, 2, {cfg.input_height}, {cfg.input_width}), got {tuple(flow_px.shape)}")
+        x = flow_px.float() * self._inv_size
+        if cfg.coord_channels:
+            if intrinsics is None:
+                raise ValueError("this network needs the intrinsics (coord_channels=True)")
+            k = intrinsics.to(x.dtype).view(-1, 4, 1, 1)
+            cu = (self._grid_uv[:, 0:1] - k[:, 2:3]) / k[:, 0:1]
+            cv = (self._grid_uv[:, 1:2] - k[:, 3:4]) / k[:, 1:2]
+            x = torch.cat([x, cu, cv], dim=1)
+        return x.contiguous(memory_format=torch.channels_last) if self.channels_last else x
+
+    def set_channels_last(self, on: bool = True) -> "FlowPoseNet":
+        """Store the convolution weights (and feed inputs) channels-last (NHWC); faster on some CPUs."""
+        self.channels_last = bool(on)
+        return self.to(memory_format=torch.channels_last if on else torch.contiguous_format)
+
+    def forward(self, flow_px: torch.Tensor, intrinsics: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        x = self.conv(self.prepare_input(flow_px, intrinsics))
+        x = torch.flatten(x, 1)
+        hr, ht = self.rot_fc(x).float(), self.trans_fc(x).float()
+        # the output layers always run in float32 (under bf16 autocast too): tiny, and a bf16 output
+        # would round a 1 m translation to 4 mm steps
+        with torch.autocast(x.device.type, enabled=False):
+            mean = torch.cat([self.rot_mean(hr), self.trans_mean(ht)], dim=1)
+            log_std = torch.cat([self.rot_log_std(hr), self.trans_log_std(ht)], dim=1)
+        return mean, log_std.clamp(LOG_STD_MIN, LOG_STD_MAX)
+
+
+def pose_loss(mean: torch.Tensor, target: torch.Tensor, rot_weight: float = 50.0) -> torch.Tensor:
+    """The paper's first-stage loss: ``rot_weight * MSE(euler) + MSE(translation)`` (scalar).
+
+    mean, target: (B, 6) float (radians, metres).
+    """
+    err2 = (mean.float() - target.float()) ** 2
+    return rot_weight * err2[:, :3].mean() + err2[:, 3:].mean()
+
+
+def gaussian_nll(mean: torch.Tensor, log_std: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Mean over batch and DoF of ``0.5 ((y - mu) / sigma)^2 + log sigma`` (the constant dropped)."""
+    z = (target.float() - mean.float()) * torch.exp(-log_std.float())
+    return (0.5 * z * z + log_std.float()).mean()
+
+
+def count_parameters(model: nn.Module) -> int:
+    return sum(p.numel() for p in model.parameters())

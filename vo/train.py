@@ -1,0 +1,476 @@
+"""Two-stage training of :class:`vo.net.FlowPoseNet` with the paper's recipe, checkpoints and resume.
+
+Stage 1 (motion): Adam with amsgrad, batch 128, a cyclic learning rate (triangular, between
+``lr_min`` and ``lr_max``, torch's CyclicLR stepped every batch), loss
+``rot_weight * MSE(euler) + MSE(translation)`` with ``rot_weight = 50``. After every epoch the loss on
+the held-out samples is measured; after ``patience_epochs`` epochs without improvement both bounds of
+the cycle are halved; training stops when the lower bound falls below ``lr_stop`` (1e-5), or at the
+``max_epochs`` / ``max_minutes`` caps (for CPU runs). The weights with the best held-out loss are kept.
+
+Stage 2 (uncertainty): everything but the per-DoF log-std heads is frozen (``requires_grad=False``, and
+only the heads are given to the optimizer, so frozen weights stay bit-identical); the heads are trained
+on the held-out samples (10 % of the data, never used for a gradient in stage 1) with the Gaussian
+negative log-likelihood for ``nll_epochs`` epochs.
+
+Every epoch ends with an atomic checkpoint (``checkpoint.pt``: model, optimizer, scheduler, best
+weights, epoch, stage, history, RNG states, config). Data batches are a function of (seed, epoch)
+(:mod:`vo.data`), so a run killed at any moment and resumed from its checkpoint ends with exactly
+the weights of an uninterrupted run (same threads, same machine). A non-finite loss raises
+:class:`TrainingDiverged` and leaves the last good checkpoint in place.
+"""
+from __future__ import annotations
+
+import copy
+import dataclasses
+import io
+import math
+import time
+from pathlib import Path
+from typing import Iterator, Protocol
+
+import torch
+
+from core import atomic
+from vo.net import FlowPoseNet, NetConfig, gaussian_nll, pose_loss
+
+CHECKPOINT = "checkpoint.pt"
+MODEL = "model.pt"
+CONFIG = "config.json"
+HISTORY = "history.json"
+MODEL_FORMAT = "deepslam-vo-model"
+MODEL_VERSION = 1
+
+
+class TrainingDiverged(RuntimeError):
+    """The loss became NaN or infinite; the message says where and what to try."""
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Optimisation settings (the defaults are the paper's recipe)."""
+
+    net: NetConfig = NetConfig()
+    """Network shape."""
+    batch_size: int = 128
+    """Samples per optimisation step."""
+    lr_min: float = 1e-4
+    """Lower bound of the cyclic learning rate."""
+    lr_max: float = 1e-3
+    """Upper bound of the cyclic learning rate."""
+    lr_half_cycle_steps: int = 0
+    """Steps from the lower to the upper bound (CyclicLR step_size_up); 0 = one epoch's steps."""
+    patience_epochs: int = 10
+    """Epochs without a held-out improvement after which both bounds are halved."""
+    lr_stop: float = 1e-5
+    """Stage 1 ends when the lower bound falls below this."""
+    max_epochs: int = 1000
+    """Cap on stage-1 epochs."""
+    max_minutes: float = 0.0
+    """Cap on stage-1 wall time in minutes (0 = none); a capped run is not bit-reproducible."""
+    rot_weight: float = 50.0
+    """Weight of the rotation (euler, radians) MSE against the translation (metres) MSE."""
+    holdout_fraction: float = 0.1
+    """Fraction of the data held out: stage-1 validation and the stage-2 (NLL) training set."""
+    nll_epochs: int = 20
+    """Stage-2 epochs (the log-std heads only)."""
+    nll_lr: float = 1e-3
+    """Stage-2 learning rate (Adam, amsgrad)."""
+    seed: int = 0
+    """Seed of the initial weights, the data and the shuffling."""
+    bf16: bool = True
+    """Run forward/backward under torch.autocast("cpu", bfloat16) (weights and the loss stay float32)."""
+    channels_last: bool = True
+    """Keep convolution weights and inputs channels-last (NHWC)."""
+    threads: int = 0
+    """torch intra-op threads (0 = leave torch's default)."""
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["net"] = self.net.to_dict()
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TrainConfig":
+        d = dict(d)
+        d["net"] = NetConfig.from_dict(d.get("net", {}))
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(d) - names
+        if unknown:
+            raise ValueError(f"unknown TrainConfig fields: {sorted(unknown)}")
+        return cls(**d)
+
+
+class Source(Protocol):
+    """A deterministic supplier of batches (see :mod:`vo.data`)."""
+
+    def __len__(self) -> int: ...
+
+    def batches(self, epoch: int, batch_size: int) -> Iterator[dict[str, torch.Tensor]]: ...
+
+
+@dataclasses.dataclass
+class TrainResult:
+    out_dir: Path
+    model_path: Path
+    history: list[dict]
+    stop_reason: str
+    best_val_loss: float
+    holdout_nll: float | None
+
+
+def new_model(cfg: TrainConfig) -> FlowPoseNet:
+    """The initial network, its weights drawn from ``cfg.seed`` (the global RNG is left as it was)."""
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(cfg.seed)
+        return FlowPoseNet(cfg.net)
+
+
+def _autocast(cfg: TrainConfig):
+    return torch.autocast("cpu", dtype=torch.bfloat16, enabled=cfg.bf16)
+
+
+def _step_size(cfg: TrainConfig, n_train: int) -> int:
+    if cfg.lr_half_cycle_steps > 0:
+        return cfg.lr_half_cycle_steps
+    return max(1, math.ceil(n_train / cfg.batch_size))
+
+
+def _stage1_optim(model: FlowPoseNet, cfg: TrainConfig, n_train: int):
+    opt = torch.optim.Adam(model.motion_parameters(), lr=cfg.lr_min, amsgrad=True)
+    sched = torch.optim.lr_scheduler.CyclicLR(opt, base_lr=cfg.lr_min, max_lr=cfg.lr_max,
+                                              step_size_up=_step_size(cfg, n_train), mode="triangular",
+                                              cycle_momentum=False)
+    return opt, sched
+
+
+def _stage2_optim(model: FlowPoseNet, cfg: TrainConfig):
+    for p in model.motion_parameters():
+        p.requires_grad_(False)
+    return torch.optim.Adam(model.uncertainty_parameters(), lr=cfg.nll_lr, amsgrad=True)
+
+
+def _state_bytes(obj) -> bytes:
+    buf = io.BytesIO()
+    torch.save(obj, buf)
+    return buf.getvalue()
+
+
+def save_checkpoint(path: Path, state: dict) -> None:
+    atomic.write_bytes(path, _state_bytes(state))
+
+
+def load_checkpoint(path: Path) -> dict:
+    from core.errors import InputError
+
+    try:
+        return torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as e:  # a truncated or foreign file
+        raise InputError(path, f"cannot read checkpoint ({type(e).__name__}: {e})") from None
+
+
+def save_model(path: Path, model: FlowPoseNet, meta: dict, half: bool = False) -> None:
+    """The inference artifact: net config + weights (+ meta: training summary, data description).
+
+    ``half``: store the weights as float16 (half the size; loaded back as float32).
+    """
+    sd = {k: (v.half() if half and v.is_floating_point() else v).contiguous() for k, v in model.state_dict().items()}
+    atomic.write_bytes(path, _state_bytes({"format": MODEL_FORMAT, "version": MODEL_VERSION,
+                                           "net": model.cfg.to_dict(), "state_dict": sd, "meta": meta}))
+
+
+@torch.no_grad()
+def evaluate(model: FlowPoseNet, source: Source, cfg: TrainConfig) -> dict:
+    """Held-out figures: pose loss, Gaussian NLL, RMSE per DoF (weighted by batch sizes)."""
+    model.eval()
+    n, loss, nll, se = 0, 0.0, 0.0, torch.zeros(6, dtype=torch.float64)
+    for b in source.batches(0, cfg.batch_size):
+        with _autocast(cfg):
+            mean, log_std = model(b["flow"], b["intrinsics"])
+        k = len(b["target"])
+        loss += float(pose_loss(mean, b["target"], cfg.rot_weight)) * k
+        nll += float(gaussian_nll(mean, log_std, b["target"])) * k
+        se += ((mean.double() - b["target"].double()) ** 2).sum(0)
+        n += k
+    return {"loss": loss / max(n, 1), "nll": nll / max(n, 1), "rmse6": (se / max(n, 1)).sqrt().tolist()}
+
+
+def uncertainty_epoch(model: FlowPoseNet, source: Source, cfg: TrainConfig, opt: torch.optim.Optimizer, epoch: int) -> float:
+    """One stage-2 epoch: the Gaussian NLL on ``source`` through the log-std heads only (``opt`` holds
+    just their parameters; the rest must be frozen). Returns the mean NLL over the epoch."""
+    model.train()
+    nll_sum, n_seen = 0.0, 0
+    for step, b in enumerate(source.batches(epoch, cfg.batch_size)):
+        with _autocast(cfg):
+            mean, log_std = model(b["flow"], b["intrinsics"])
+        loss = gaussian_nll(mean.detach(), log_std, b["target"])
+        _check_finite(loss, "stage-2 (NLL)", epoch, step, cfg.nll_lr)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        opt.step()
+        nll_sum += float(loss.detach()) * len(b["target"])
+        n_seen += len(b["target"])
+    return nll_sum / max(n_seen, 1)
+
+
+def fit_uncertainty(model: FlowPoseNet, source: Source, cfg: TrainConfig, epochs: int) -> list[float]:
+    """The whole second stage on a trained model: freeze all but the log-std heads, start them at
+    log(held-out RMSE), train them ``epochs`` epochs with the NLL. Returns the NLL per epoch."""
+    init_log_std(model, source, cfg)
+    opt = _stage2_optim(model, cfg)
+    return [uncertainty_epoch(model, source, cfg, opt, ep) for ep in range(epochs)]
+
+
+@torch.no_grad()
+def init_log_std(model: FlowPoseNet, source: Source, cfg: TrainConfig) -> list[float]:
+    """Start stage 2 from a calibrated constant: log-std heads' weights 0, biases log(held-out RMSE)."""
+    rmse = torch.tensor(evaluate(model, source, cfg)["rmse6"], dtype=torch.float32).clamp_min(1e-5)
+    for head, part in ((model.rot_log_std, rmse[:3]), (model.trans_log_std, rmse[3:])):
+        head.weight.zero_()
+        head.bias.copy_(part.log())
+    return rmse.tolist()
+
+
+def _check_finite(loss: torch.Tensor, stage: str, epoch: int, step: int, lr: float) -> None:
+    if not torch.isfinite(loss):
+        raise TrainingDiverged(f"{stage} loss is {float(loss.detach())} at epoch {epoch + 1}, step {step + 1} "
+                               f"(learning rate {lr:.3g}); lower --lr-max or check the training data for "
+                               "NaN/inf; the last good checkpoint is kept")
+
+
+def train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_dir: str | Path,
+          resume: bool = False, progress: bool = True, meta: dict | None = None,
+          half_weights: bool = False) -> TrainResult:
+    """Run both stages, writing ``checkpoint.pt`` every epoch and ``model.pt`` at the end.
+
+    Args:
+        cfg: the training configuration.
+        train_source, holdout_source: deterministic batch sources (:mod:`vo.data`); the holdout set is
+            stage 1's validation set and stage 2's training set.
+        out_dir: output folder (``config.json``, ``checkpoint.pt``, ``history.json``, ``model.pt``,
+            ``loss.png``).
+        resume: continue from ``out_dir/checkpoint.pt`` (whose config must equal ``cfg``).
+        meta: JSON-able description of the data, stored in config.json and model.pt.
+        half_weights: store model.pt's weights as float16.
+
+    Raises:
+        TrainingDiverged: a non-finite loss.
+        core.errors.InputError: ``resume`` with a checkpoint of another configuration.
+    """
+    threads_before = torch.get_num_threads()
+    if cfg.threads > 0:
+        torch.set_num_threads(cfg.threads)
+    try:
+        return _train(cfg, train_source, holdout_source, Path(out_dir), resume, progress, meta, half_weights)
+    finally:
+        torch.set_num_threads(threads_before)
+
+
+def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_dir: Path, resume: bool,
+           progress: bool, meta: dict | None, half_weights: bool) -> TrainResult:
+    from tqdm import tqdm
+
+    from core.errors import InputError
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    meta = dict(meta or {})
+    ckpt_path = out_dir / CHECKPOINT
+    if not resume and ckpt_path.exists():
+        raise InputError(ckpt_path, "a training run is already here; pass --resume to continue it or choose another --out")
+    model = new_model(cfg)
+    if cfg.channels_last:
+        model.set_channels_last(True)
+    n_train = len(train_source)
+    if n_train == 0 or len(holdout_source) == 0:
+        raise InputError(None, f"no training data ({n_train} training and {len(holdout_source)} held-out samples)")
+    opt, sched = _stage1_optim(model, cfg, n_train)
+    state = {"stage": 1, "epoch": 0, "nll_epoch": 0, "best_val": math.inf, "best_state": None,
+             "since_best": 0, "history": [], "elapsed_s": 0.0, "stop_reason": None, "halvings": 0}
+    stage1_saved: dict | None = None  # stage 1's last model/optimizer/scheduler, kept through stage 2
+    ck = None
+    if resume and ckpt_path.is_file():
+        ck = load_checkpoint(ckpt_path)
+        old, new = ck.get("config") or {}, cfg.to_dict()
+        diff = sorted(k for k in set(old) | set(new)
+                      if old.get(k) != new.get(k) and k not in ("max_epochs", "max_minutes", "threads"))
+        if diff:
+            raise InputError(ckpt_path, f"cannot resume: settings differ from the checkpoint's ({', '.join(diff)})")
+        state = ck["train_state"]
+        stage1_saved = ck.get("stage1")
+        cap_raised = ((state["stop_reason"] == "max_epochs" and state["epoch"] < cfg.max_epochs)
+                      or (state["stop_reason"] == "max_minutes"
+                          and (cfg.max_minutes <= 0 or state["elapsed_s"] < 60.0 * cfg.max_minutes)))
+        if cap_raised and stage1_saved is not None:
+            # stage 1 stopped at a cap that is now higher: go back to its end and carry on
+            state["stage"], state["nll_epoch"], state["stop_reason"] = 1, 0, None
+            state["history"] = [h for h in state["history"] if h["stage"] == 1]
+            model.load_state_dict(stage1_saved["model"])
+            opt.load_state_dict(stage1_saved["optimizer"])
+            sched.load_state_dict(stage1_saved["scheduler"])
+        else:
+            model.load_state_dict(ck["model"])
+            if state["stage"] == 1:
+                opt.load_state_dict(ck["optimizer"])
+                sched.load_state_dict(ck["scheduler"])
+        torch.set_rng_state(ck["torch_rng"])
+        if progress:
+            print(f"resuming {ckpt_path}: stage {state['stage']}, epoch {state['epoch']}, "
+                  f"{state['nll_epoch']} NLL epochs", flush=True)
+    config_doc = {"train": cfg.to_dict(), "data": meta, "torch": torch.__version__,
+                  "threads": torch.get_num_threads()}
+    atomic.write_json(out_dir / CONFIG, config_doc)
+
+    def checkpoint(opt_, sched_):
+        nonlocal stage1_saved
+        if state["stage"] == 1:
+            stage1_saved = {"model": model.state_dict(), "optimizer": opt_.state_dict(), "scheduler": sched_.state_dict()}
+        save_checkpoint(ckpt_path, {"config": cfg.to_dict(), "model": model.state_dict(), "train_state": state,
+                                    "optimizer": opt_.state_dict(), "scheduler": sched_.state_dict() if sched_ else None,
+                                    "stage1": stage1_saved, "torch_rng": torch.get_rng_state(), "meta": meta})
+        atomic.write_json(out_dir / HISTORY, state["history"])
+
+    # ---------------- stage 1: motion
+    while state["stage"] == 1:
+        reason = None
+        if state["epoch"] >= cfg.max_epochs:
+            reason = "max_epochs"
+        elif cfg.max_minutes > 0 and state["elapsed_s"] >= 60.0 * cfg.max_minutes:
+            reason = "max_minutes"
+        elif sched.base_lrs[0] < cfg.lr_stop:
+            reason = "lr_below_stop"
+        if reason is not None:
+            state["stop_reason"] = reason
+            break
+        epoch = state["epoch"]
+        model.train()
+        t0 = time.perf_counter()
+        n_seen, loss_sum = 0, 0.0
+        bar = tqdm(total=n_train, desc=f"epoch {epoch + 1}", unit="sample", disable=not progress, leave=False,
+                   dynamic_ncols=True)
+        for step, b in enumerate(train_source.batches(epoch, cfg.batch_size)):
+            with _autocast(cfg):
+                mean, _ = model(b["flow"], b["intrinsics"])
+            loss = pose_loss(mean, b["target"], cfg.rot_weight)
+            _check_finite(loss, "stage-1", epoch, step, sched.get_last_lr()[0])
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            sched.step()
+            k = len(b["target"])
+            n_seen += k
+            loss_sum += float(loss.detach()) * k
+            bar.update(k)
+            bar.set_postfix(loss=f"{loss_sum / n_seen:.4g}", sps=f"{n_seen / (time.perf_counter() - t0):.0f}",
+                            lr=f"{sched.get_last_lr()[0]:.2g}")
+        bar.close()
+        dt = time.perf_counter() - t0
+        val = evaluate(model, holdout_source, cfg)
+        if not math.isfinite(val["loss"]):
+            raise TrainingDiverged(f"held-out loss is {val['loss']} after epoch {epoch + 1}; lower --lr-max "
+                                   "or check the data; the last good checkpoint is kept")
+        improved = val["loss"] < state["best_val"]
+        if improved:
+            state["best_val"] = val["loss"]
+            state["best_state"] = copy.deepcopy(model.state_dict())
+            state["since_best"] = 0
+        else:
+            state["since_best"] += 1
+            if state["since_best"] >= cfg.patience_epochs:
+                sched.base_lrs = [x / 2 for x in sched.base_lrs]
+                sched.max_lrs = [x / 2 for x in sched.max_lrs]
+                state["since_best"] = 0
+                state["halvings"] += 1
+        state["epoch"] = epoch + 1
+        state["elapsed_s"] += dt
+        row = {"stage": 1, "epoch": epoch + 1, "train_loss": loss_sum / max(n_seen, 1), "val_loss": val["loss"],
+               "val_rmse6": val["rmse6"], "lr_min": sched.base_lrs[0], "lr_max": sched.max_lrs[0],
+               "samples_per_s": n_seen / dt, "seconds": dt}
+        state["history"].append(row)
+        if progress:
+            print(f"epoch {epoch + 1}: train {row['train_loss']:.4g}  held-out {val['loss']:.4g}"
+                  f"{' *' if improved else ''}  lr [{row['lr_min']:.2g}, {row['lr_max']:.2g}]  "
+                  f"{row['samples_per_s']:.0f} samples/s", flush=True)
+        checkpoint(opt, sched)
+
+    # ---------------- stage 2: uncertainty
+    if state["stage"] == 1:
+        if state["best_state"] is not None:
+            model.load_state_dict(state["best_state"])
+        state["stage"] = 2
+        init_log_std(model, holdout_source, cfg)
+        opt2 = _stage2_optim(model, cfg)
+        checkpoint(opt2, None)
+    else:
+        opt2 = _stage2_optim(model, cfg)
+        if state["stage"] == 2 and ck is not None:
+            opt2.load_state_dict(ck["optimizer"])
+    while state["stage"] == 2 and state["nll_epoch"] < cfg.nll_epochs:
+        ep = state["nll_epoch"]
+        nll = uncertainty_epoch(model, holdout_source, cfg, opt2, ep)
+        state["nll_epoch"] = ep + 1
+        state["history"].append({"stage": 2, "epoch": ep + 1, "holdout_nll": nll})
+        checkpoint(opt2, None)
+    if state["stage"] == 2:
+        state["stage"] = 3
+        checkpoint(opt2, None)
+
+    final = evaluate(model, holdout_source, cfg)
+    summary = {"stop_reason": state["stop_reason"], "epochs": state["epoch"], "nll_epochs": state["nll_epoch"],
+               "best_val_loss": state["best_val"], "holdout": final, "lr_halvings": state["halvings"],
+               "train_seconds": state["elapsed_s"]}
+    meta_out = {**meta, "train": cfg.to_dict(), "summary": summary}
+    model_path = out_dir / MODEL
+    save_model(model_path, model, meta_out, half=half_weights)
+    atomic.write_json(out_dir / "summary.json", summary)
+    _plot_history(out_dir / "loss.png", state["history"])
+    if progress:
+        print(f"stopped: {state['stop_reason']} after {state['epoch']} epochs; held-out loss {final['loss']:.4g}, "
+              f"NLL {final['nll']:.4g}; wrote {model_path}", flush=True)
+    return TrainResult(out_dir, model_path, state["history"], state["stop_reason"], state["best_val"], final["nll"])
+
+
+def _plot_history(path: Path, history: list[dict]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    s1 = [h for h in history if h["stage"] == 1]
+    s2 = [h for h in history if h["stage"] == 2]
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    if s1:
+        axes[0].semilogy([h["epoch"] for h in s1], [h["train_loss"] for h in s1], label="train")
+        axes[0].semilogy([h["epoch"] for h in s1], [h["val_loss"] for h in s1], label="held-out")
+    axes[0].set(title="stage 1: 50 MSE(euler) + MSE(t)", xlabel="epoch")
+    axes[0].legend()
+    if s2:
+        axes[1].plot([h["epoch"] for h in s2], [h["holdout_nll"] for h in s2])
+    axes[1].set(title="stage 2: Gaussian NLL (held-out)", xlabel="epoch")
+    fig.tight_layout()
+    with atomic.atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=90)
+    plt.close(fig)
+
+
+def load_model(path: str | Path) -> tuple[FlowPoseNet, dict]:
+    """(model in eval mode, float32; meta) from a ``model.pt`` or a ``checkpoint.pt``."""
+    from core.errors import InputError
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "model file is missing")
+    d = load_checkpoint(path)
+    if not isinstance(d, dict):
+        raise InputError(path, "not a deepslam VO model")
+    if d.get("format") == MODEL_FORMAT:
+        net_cfg, sd, meta = NetConfig.from_dict(d["net"]), d["state_dict"], d.get("meta", {})
+    elif "model" in d and "config" in d:
+        tcfg = TrainConfig.from_dict(d["config"])
+        net_cfg, sd, meta = tcfg.net, d["model"], d.get("meta", {})
+    else:
+        raise InputError(path, "not a deepslam VO model (no format/net/state_dict)")
+    model = FlowPoseNet(net_cfg)
+    try:
+        model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in sd.items()})
+    except RuntimeError as e:
+        raise InputError(path, f"weights do not fit the stored network config ({str(e).splitlines()[0]})") from None
+    return model.eval(), meta
