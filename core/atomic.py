@@ -74,6 +74,22 @@ def write_png(path: str | Path, image: np.ndarray) -> None:
     write_bytes(path, enc.tobytes())
 
 
+def json_safe(v: Any) -> Any:
+    """A copy of nested dicts/lists with numpy scalars made Python and non-finite floats made None,
+    so that ``json.dumps`` writes strict JSON (no NaN/Infinity)."""
+    import math
+
+    if isinstance(v, dict):
+        return {str(k): json_safe(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [json_safe(x) for x in v]
+    if isinstance(v, np.generic):
+        v = v.item()
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
 def _json_default(o: Any) -> Any:
     if isinstance(o, np.ndarray):
         return o.tolist()

@@ -694,15 +694,10 @@ def _vocab_key(config: StressConfig) -> str:
 
 
 def _clean(v):
-    if isinstance(v, dict):
-        return {str(k): _clean(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_clean(x) for x in v]
-    if isinstance(v, np.generic):
-        v = v.item()
-    if isinstance(v, float) and not math.isfinite(v):
-        return None
-    return v
+    """JSON-safe copy (see core.atomic.json_safe)."""
+    from core.atomic import json_safe
+
+    return json_safe(v)
 
 
 def table_rows(rows: list[dict]) -> list[dict]:

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 
@@ -171,17 +170,10 @@ def _save_vocab(args, res, seq, vocab) -> None:
 
 
 def _clean(v):
-    import numpy as np
+    """JSON-safe copy (see core.atomic.json_safe)."""
+    from core.atomic import json_safe
 
-    if isinstance(v, dict):
-        return {str(k): _clean(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_clean(x) for x in v]
-    if isinstance(v, np.generic):
-        v = v.item()
-    if isinstance(v, float) and not math.isfinite(v):
-        return None
-    return v
+    return json_safe(v)
 
 
 def format_report(r: dict) -> str:

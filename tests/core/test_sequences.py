@@ -35,17 +35,21 @@ def test_kitti06_slice(shared_data):
     assert seq.timestamps_s[1] == pytest.approx(0.1044989)
 
 
-def test_kitti_stereo_rows_are_aligned(shared_data):
-    """Rectified KITTI: SIFT matches between left and right lie on the same row, disparity >= 0."""
-    seq = open_sequence(shared_data / "kitti" / "sequences" / "06")
-    left, right = seq.image(10), seq.image_right(10)
+def _stereo_offsets(left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(du, dv) = left - right pixel positions of SIFT matches passing a 0.6 ratio test."""
     sift = cv2.SIFT_create(1000)
     k0, d0 = sift.detectAndCompute(left, None)
     k1, d1 = sift.detectAndCompute(right, None)
     matches = [m for m, n in cv2.BFMatcher().knnMatch(d0, d1, k=2) if m.distance < 0.6 * n.distance]
-    dv = np.array([k0[m.queryIdx].pt[1] - k1[m.trainIdx].pt[1] for m in matches])
-    du = np.array([k0[m.queryIdx].pt[0] - k1[m.trainIdx].pt[0] for m in matches])
-    assert len(matches) > 100
+    d = np.array([np.subtract(k0[m.queryIdx].pt, k1[m.trainIdx].pt) for m in matches]).reshape(-1, 2)
+    return d[:, 0], d[:, 1]
+
+
+def test_kitti_stereo_rows_are_aligned(shared_data):
+    """Rectified KITTI: SIFT matches between left and right lie on the same row, disparity >= 0."""
+    seq = open_sequence(shared_data / "kitti" / "sequences" / "06")
+    du, dv = _stereo_offsets(seq.image(10), seq.image_right(10))
+    assert len(du) > 100
     assert np.median(np.abs(dv)) < 0.5
     assert np.mean(du > -1) > 0.95
 
@@ -157,13 +161,8 @@ def test_euroc_gt_is_camera_pose_via_t_bs(shared_data):
 
 def test_euroc_stereo_rectified_rows(shared_data):
     seq = open_sequence(shared_data / "euroc" / "V1_01_easy")
-    left, right = seq.image(5), seq.image_right(5)
-    sift = cv2.SIFT_create(1000)
-    k0, d0 = sift.detectAndCompute(left, None)
-    k1, d1 = sift.detectAndCompute(right, None)
-    matches = [m for m, n in cv2.BFMatcher().knnMatch(d0, d1, k=2) if m.distance < 0.6 * n.distance]
-    dv = np.array([k0[m.queryIdx].pt[1] - k1[m.trainIdx].pt[1] for m in matches])
-    assert len(matches) > 50
+    du, dv = _stereo_offsets(seq.image(5), seq.image_right(5))
+    assert len(du) > 50
     assert np.median(np.abs(dv)) < 0.7  # raw images are off by several pixels
 
 
