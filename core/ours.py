@@ -137,6 +137,20 @@ def read_ours(root: str | Path) -> Sequence:
     )
 
 
+def read_instance_poses(root: str | Path, i: int) -> dict[int, np.ndarray]:
+    """``{instance id: (4, 4) float64 world_from_body}`` of the rigid movers at frame ``i`` (from
+    ``frames/NNNNNN.json``); empty when the frame has none. Deforming surfaces are not rigid and
+    carry no pose. InputError names the record when it is unreadable."""
+    path = Path(root) / "frames" / f"{_name(i)}.json"
+    try:
+        rec = json.loads(path.read_text())
+        return {int(k): np.asarray(v, np.float64).reshape(4, 4) for k, v in rec.get("instance_poses", {}).items()}
+    except FileNotFoundError:
+        raise InputError(path, "frame record is missing") from None
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError, TypeError, ValueError, AttributeError) as e:
+        raise InputError(path, f"cannot read frame record ({type(e).__name__}: {e})") from None
+
+
 def _read_kitti_poses(path: Path, n: int) -> np.ndarray:
     try:
         rows = np.loadtxt(path, ndmin=2)

@@ -9,8 +9,12 @@ Estimators are made by name from a registry (:func:`make`, :func:`register`, :fu
 - ``dis``: OpenCV's DIS optical flow (Kroeger et al., 2016), the default; preset ``ultrafast``,
   ``fast`` or ``medium`` (the default: on KITTI 06 its median end-point error against flow from
   stereo depth + ground-truth motion is 1.3 px vs 2.4 px for ``ultrafast``, at ~10x the time).
-- ``gt``: the simulator's ground-truth flow stored in a sequence of our format (``flow/NNNNNN.npy``,
-  frame i to i+1); pairs further apart are chained (see :func:`chain_flows`).
+- ``gt``: the simulator's exact flow. Consecutive frames read the flow the sequence stores
+  (``flow/NNNNNN.npy``, frame i to i+1: exact for static, moving and deforming surfaces). Pairs
+  further apart (loop pairs) are computed from geometry (:func:`exact_pair_flow`: frame i's depth, the
+  ground-truth motion and the rigid movers' poses), since chaining a hundred per-frame flows through
+  occlusions and pixels that leave the view gives nonsense; without depth they are chained
+  (:func:`chain_flows`).
 
 A learned estimator (RAFT, PWC-Net...) is added by registering a factory that returns an object with
 ``name``, ``estimate(img0, img1)`` and, if it can do better than reading the two images,
@@ -98,6 +102,8 @@ class GroundTruthFlow:
             raise InputError(seq.root, "sequence has no ground-truth flow (flow/ folder); use --flow dis")
         if j <= i:
             raise InputError(seq.root, f"ground-truth flow goes forward only, asked for {i} -> {j}")
+        if j > i + 1 and seq.depth_paths is not None and seq.gt is not None:
+            return exact_pair_flow(seq, i, j)
         flows = []
         for k in range(i, j):
             f = seq.flow(k)
@@ -105,6 +111,51 @@ class GroundTruthFlow:
                 raise InputError(seq.root, f"no ground-truth flow for frame {k}")
             flows.append(np.nan_to_num(f, nan=0.0, posinf=0.0, neginf=0.0))
         return chain_flows(flows)
+
+
+def exact_pair_flow(seq, i: int, j: int) -> np.ndarray:
+    """Exact flow (H, W, 2) float32 px from frame i to frame j of a rendered sequence, from geometry.
+
+    Each pixel of frame i with depth is unprojected, moved by ``cam_j_from_cam_i`` (ground truth) or,
+    on a rigid mover (instance id in ``mask/`` with a pose in both frame records), by that body's own
+    motion ``cam_j_from_world @ world_from_body_j @ body_i_from_world @ world_from_cam_i``, and
+    projected into frame j. Pixels without depth (sky) are points at infinity (rotation-only flow),
+    and points that leave the view keep their flow, as in the training data
+    (:func:`vo.data.synthesize_flow`) and as a dense estimator reports them. Deforming surfaces are
+    moved with the static scene (their own motion between distant frames is not recorded).
+    """
+    import torch
+
+    from core import se3
+    from vo.data import synthesize_flow
+
+    cam = seq.camera
+    depth = seq.depth(i)
+    world_from_cam = seq.gt.world_from_cam
+    cam_j_from_cam_i = se3.inverse(world_from_cam[j]) @ world_from_cam[i]
+    depths, motions = [depth], [cam_j_from_cam_i]
+    mask = seq.mask(i) if seq.mask_paths is not None else None
+    if mask is not None and mask.any() and seq.kind == "ours":
+        from core.ours import read_instance_poses
+
+        poses_i, poses_j = read_instance_poses(seq.root, i), read_instance_poses(seq.root, j)
+        static = depth.copy()
+        for k in np.unique(mask[mask > 0]):
+            if int(k) in poses_i and int(k) in poses_j:
+                on = mask == k
+                depths.append(np.where(on, depth, 0).astype(np.float32))
+                motions.append(se3.inverse(world_from_cam[j]) @ poses_j[int(k)] @ se3.inverse(poses_i[int(k)])
+                               @ world_from_cam[i])
+                static[on] = np.nan  # not part of the static scene (and no point at infinity either)
+        depths[0] = static
+    k4 = np.tile(np.array([cam.fx, cam.fy, cam.cx, cam.cy], np.float64), (len(depths), 1))
+    flow, _ = synthesize_flow(torch.from_numpy(np.stack(depths).astype(np.float32)), k4, np.stack(motions),
+                              missing_depth="infinity")
+    # the static scene (NaN on the movers), plus each mover's own synthesis where its depth is
+    out = flow[0] * torch.from_numpy(np.isfinite(depths[0]))[None]
+    for b in range(1, len(depths)):
+        out += flow[b] * torch.from_numpy(depths[b] > 0)[None]
+    return out.permute(1, 2, 0).numpy().copy()
 
 
 def chain_flows(flows: list[np.ndarray]) -> np.ndarray:
