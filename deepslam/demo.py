@@ -55,7 +55,7 @@ class DemoConfig:
     """Training seed."""
 
 
-def _deepslam(args: list[str], log: list[str]) -> None:
+def run_command(args: list[str], log: list[str]) -> None:
     from deepslam.cli import main
 
     cmd = "deepslam " + " ".join(shlex.quote(a) for a in args)
@@ -87,11 +87,11 @@ def run(cfg: DemoConfig, out: Path, data: Path) -> Path:
         d = out / f"street_train_s{s}"
         train_dirs.append(str(d))
         if not (d / "poses.txt").is_file():
-            _deepslam(["render", "--scene", "street", "--trajectory", "car", "--frames", str(cfg.train_frames),
+            run_command(["render", "--scene", "street", "--trajectory", "car", "--frames", str(cfg.train_frames),
                        "--width", w, "--seed", str(s), "--out", str(d)] + (["--resume"] if d.exists() else []), log)
     held = out / f"street_heldout_s{cfg.heldout_seed}"
     if not (held / "poses.txt").is_file():
-        _deepslam(["render", "--scene", "street", "--trajectory", "car", "--frames", str(cfg.heldout_frames),
+        run_command(["render", "--scene", "street", "--trajectory", "car", "--frames", str(cfg.heldout_frames),
                    "--width", w, "--seed", str(cfg.heldout_seed), "--moving-objects", str(cfg.moving_objects),
                    "--out", str(held)] + (["--resume"] if held.exists() else []), log)
 
@@ -112,7 +112,7 @@ def run(cfg: DemoConfig, out: Path, data: Path) -> Path:
     motion = out / "motion.json"
     if not motion.is_file():
         poses = sorted(str(p) for p in (data / "kitti" / "poses").glob("*.txt"))
-        _deepslam(["fit-motion", "--poses", *poses, "--stride", "1", "--loops", "--out", str(motion),
+        run_command(["fit-motion", "--poses", *poses, "--stride", "1", "--loops", "--out", str(motion),
                    "--plot", str(out / "motion.png")], log)
 
     # 4. NN_cons and NN_loops from single frames + depth + motion model
@@ -122,7 +122,7 @@ def run(cfg: DemoConfig, out: Path, data: Path) -> Path:
         d = out / f"nn_{which}"
         models[which] = d / "model.pt"
         if not models[which].is_file():
-            _deepslam(["train", "--mode", "synthetic", "--frames", *train_dirs, "--motion", spec, "--net", cfg.net,
+            run_command(["train", "--mode", "synthetic", "--frames", *train_dirs, "--motion", spec, "--net", cfg.net,
                        "--max-minutes", str(minutes), "--samples-per-epoch", str(cfg.samples_per_epoch),
                        "--nll-epochs", str(cfg.nll_epochs), "--seed", str(cfg.seed), "--out", str(d)]
                       + (["--resume"] if (d / "checkpoint.pt").is_file() else []), log)
@@ -130,14 +130,14 @@ def run(cfg: DemoConfig, out: Path, data: Path) -> Path:
     # 5. SLAM on the held-out sequence
     slam_json = out / "slam.json"
     if not slam_json.is_file():
-        _deepslam(["slam", "--sequence", str(held), "--model-cons", str(models["cons"]),
+        run_command(["slam", "--sequence", str(held), "--model-cons", str(models["cons"]),
                    "--model-loops", str(models["loops"]), "--out", str(out / "slam.txt"),
                    "--plot", str(out / "trajectories.png")], log)
     rec = json.loads(slam_json.read_text())
     # the same models on the simulator's exact flow: what a perfect flow estimator would give
     slam_gt_json = out / "slam_trueflow.json"
     if not slam_gt_json.is_file():
-        _deepslam(["slam", "--sequence", str(held), "--model-cons", str(models["cons"]),
+        run_command(["slam", "--sequence", str(held), "--model-cons", str(models["cons"]),
                    "--model-loops", str(models["loops"]), "--flow", "gt", "--out", str(out / "slam_trueflow.txt"),
                    "--plot", str(out / "trajectories_trueflow.png")], log)
     rec_gt = json.loads(slam_gt_json.read_text())

@@ -8,7 +8,11 @@ cam_i_from_cam_j`` when ``pose = world_from_cam``, so ``measured = inv(X)``.
 Covariance (the paper's): for a predicted vector p0 = (a, b, c, t) (euler x, y, z; t x, y, z) with
 predicted std sigma, the covariance of the euler vector is
 
-    Sigma_e = C_s * diag(C_r sa^2, C_r sb^2, C_r sc^2, stx^2, sty^2, stz^2)   (loop edges: * loop_cov_scale)
+    Sigma_e = C_s * diag(C_r sa^2, C_r sb^2, C_r sc^2, stx^2, sty^2, stz^2)   (consecutive edges)
+    Sigma_e =   s * diag(C_r sa^2, C_r sb^2, C_r sc^2, stx^2, sty^2, stz^2)   (loop edges, s = loop_cov_scale, 1)
+
+C_s weighs the odometry against the loop closures: a common factor on every covariance would not move
+the least-squares optimum, so it is applied to the consecutive edges only.
 
 Carrying it into gtsam's tangent space
 --------------------------------------
@@ -40,8 +44,7 @@ Hence ``J = -Ad(T0) J_e = -[[R0 E, 0], [[t0]x R0 E, I]]`` and ``Sigma_tangent = 
 E is singular at b = +-pi/2 (gimbal lock); a tiny diagonal jitter keeps the covariance invertible.
 
 Robust kernels (Huber or Cauchy, ``gtsam.noiseModel.Robust``) act on the whitened residual norm,
-on loop edges only by default; C_s scales every covariance, so with a robust kernel it also sets
-how far (in predicted sigmas) an edge may disagree before it is down-weighted. A strong prior fixes
+on loop edges only by default, in the loop edges' own predicted sigmas. A strong prior fixes
 the first pose (the gauge).
 
 Outlier handling (the default, :func:`optimize`): (1) Huber from dead reckoning (convex: with long
@@ -68,11 +71,15 @@ class PoseGraphConfig:
     """How edges are weighted and how the graph is optimised."""
 
     c_s: float = 1.0
-    """C_s: scale of every edge covariance (the paper's hyperparameter)."""
+    """C_s: scale of the consecutive (odometry) edges' covariance relative to the loop edges' (the
+    paper's hyperparameter). Scaling every covariance by one constant would leave the least-squares
+    optimum where it is, so C_s is the one weight that matters: how much the odometry is trusted
+    against the loop closures (> 1 when the odometry's errors are biased, which its predicted std
+    cannot show and which accumulate along the chain)."""
     c_r: float = 1.0
     """C_r: extra scale of the rotation variances (the paper's hyperparameter)."""
     loop_cov_scale: float = 1.0
-    """Extra scale of the loop edges' covariance relative to the consecutive edges' (1 = as predicted)."""
+    """Scale of the loop edges' covariance (1 = as NN_loops predicts it)."""
     robust: str = "cauchy"
     """Robust kernel: "none", "huber" or "cauchy"."""
     robust_k: float = 5.0
@@ -295,7 +302,7 @@ def _between_factors(graph, edges: Edges, config: PoseGraphConfig, is_loop: bool
 
     if not len(edges):
         return
-    scale = config.c_s * (config.loop_cov_scale if is_loop else 1.0)
+    scale = config.loop_cov_scale if is_loop else config.c_s
     covs = measurement_covariance(edges.mean6, edges.std6, scale, config.c_r, config.min_std)
     measured = se3.inverse(se3.from_euler6(edges.mean6))  # cam_i_from_cam_j
     for (i, j), m, cov in zip(edges.pairs, measured, covs):
@@ -353,7 +360,7 @@ def loop_residuals(world_from_cam: np.ndarray, edges: Edges, config: PoseGraphCo
 
     if not len(edges):
         return np.zeros(0)
-    scale = config.c_s * (config.loop_cov_scale if is_loop else 1.0)
+    scale = config.loop_cov_scale if is_loop else config.c_s
     covs = measurement_covariance(edges.mean6, edges.std6, scale, config.c_r, config.min_std)
     measured_inv = se3.from_euler6(edges.mean6)  # inv(cam_i_from_cam_j)
     p = np.asarray(world_from_cam, np.float64)

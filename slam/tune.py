@@ -31,7 +31,7 @@ SCORES = ("ate", "ate_ratio")
 class SearchSpace:
     """Values tried for each hyperparameter (the grid)."""
 
-    c_s: tuple[float, ...] = (0.1, 0.3, 1.0, 3.0, 10.0)
+    c_s: tuple[float, ...] = (0.1, 0.3, 1.0, 3.0, 10.0, 30.0)
     """C_s values."""
     c_r: tuple[float, ...] = (0.1, 1.0, 10.0, 100.0)
     """C_r values."""

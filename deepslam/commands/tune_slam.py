@@ -14,7 +14,7 @@ NAME = "tune-slam"
 HELP = "search the SLAM hyperparameters C_s, C_r, T_loop on validation sequences (ranked by ATE)"
 # slam.tune.SearchSpace's defaults (kept literal so that building the parser imports nothing heavy;
 # tests/slam/test_cli_slam.py checks they agree)
-DEFAULT_C_S = "0.1,0.3,1,3,10"
+DEFAULT_C_S = "0.1,0.3,1,3,10,30"
 DEFAULT_C_R = "0.1,1,10,100"
 DEFAULT_T_LOOP = "20,50,100,200"
 

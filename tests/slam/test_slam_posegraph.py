@@ -137,3 +137,19 @@ def test_gauss_newton_and_lm_agree_and_bad_edges_raise():
         optimize(100, g["cons"].subset(slice(1, None)), None)
     with pytest.raises(ValueError, match="robust"):
         optimize(100, g["cons"], g["loops"], PoseGraphConfig(robust="tukey"))
+
+
+def test_c_s_weighs_the_odometry_against_the_loops():
+    """C_s scales the consecutive edges' covariance only: a common factor on every edge would not move
+    the least-squares optimum, so C_s is the relative trust in odometry vs loop closures. With biased
+    odometry (its std cannot show the bias) trusting the loops more (larger C_s) lowers the ATE."""
+    g = loop_graph(n_frames=300, laps=2.0, radius_m=30.0, loop_every=5, seed=3)
+    gt, w0 = g["gt"].world_from_cam, g["gt"].world_from_cam[0]
+    plain = PoseGraphConfig(robust="none")
+    ates = [ate(gt, optimize(300, g["cons"], g["loops"], PoseGraphConfig(robust="none", c_s=c), w0).world_from_cam)["rmse_m"]
+            for c in (0.1, 1.0, 10.0)]
+    assert ates[0] > ates[1] > ates[2]
+    # the same factor on both kinds of edge: the same optimum
+    a = optimize(300, g["cons"], g["loops"], plain, w0).world_from_cam
+    b = optimize(300, g["cons"], g["loops"], PoseGraphConfig(robust="none", c_s=7.0, loop_cov_scale=7.0), w0).world_from_cam
+    np.testing.assert_allclose(a, b, atol=1e-6)

@@ -1,0 +1,338 @@
+"""``python -m bench.results_vo``: the paper's comparison of synthetic and supervised training.
+
+NN_cons and NN_loops are trained (a) synthetically from single frames (depth + the Student-t motion
+model fitted to KITTI 00-05, 07-10 -> flow on the fly; no pose of any training frame is used) and
+(b) supervised (pairs of the same training renders, the simulator's exact flow, ground-truth
+poses), with the same network, recipe and time budget, over several seeds. Then, per seed:
+
+- held-out simulated street (another town, a loop closed): VO of NN_cons (dead reckoning; ATE, RPE,
+  KITTI t_err / r_err), NN_loops on the ground-truth loop pairs (RMS translation / rotation error of
+  the relative pose), and SLAM with both (ATE, t_err), each with the simulator's exact flow and with
+  OpenCV DIS flow;
+- the real KITTI 06 slice (frames 0-50, DIS flow): VO of NN_cons trained on simulation only and, for
+  the synthetic mode, also trained with the slice's own single frames (depth from stereo: still no
+  pose is used);
+
+and writes ``results.json`` and ``results.md`` (mean +- std over seeds) under ``--out``. The headline
+is the synthetic / supervised t_err ratio (the paper: 2.7 on KITTI, about 1 on EuRoC).
+
+Every step is a ``deepslam`` subcommand or a cached evaluation; a step whose output exists is
+skipped, so a killed run resumes where it stopped. ``--quick``: one seed, tiny budgets (a smoke run).
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+MODES = ("synthetic", "supervised")
+
+
+@dataclasses.dataclass(frozen=True)
+class ResultsVOConfig:
+    """Sizes of the comparison; the defaults take about 35 minutes on 2 cores."""
+
+    width: int = 414
+    """Rendered width in pixels (KITTI's 1241 / 3; KITTI's camera otherwise)."""
+    train_seeds: tuple[int, ...] = (1, 2)
+    """Towns (scene + trajectory seeds) of the training renders."""
+    train_frames: int = 300
+    """Frames per training render (the car closes its loop within 300: supervised NN_loops needs it)."""
+    heldout_seed: int = 7
+    """Town of the held-out test sequence."""
+    heldout_frames: int = 300
+    """Frames of the held-out sequence."""
+    seeds: tuple[int, ...] = (0, 1, 2)
+    """Training seeds (weights, data order, synthetic samples)."""
+    samples_cons: int = 49152
+    """Training budget of each NN_cons in samples seen (the same for both modes: synthetic epochs of
+    ``samples_per_epoch``, supervised epochs over its pairs). A sample count, not minutes, so that
+    the comparison does not depend on the machine's load and every model is bit-reproducible."""
+    samples_loops: int = 32768
+    """Training budget of each NN_loops in samples seen."""
+    samples_per_epoch: int = 4096
+    """Synthetic samples per epoch."""
+    nll_epochs: int = 4
+    """Epochs of the uncertainty stage."""
+    net: str = "cpu"
+    """Network preset (vo.net; the paper's layout narrowed to train on a CPU)."""
+    motion: str = "kitti_s1.json"
+    """Student-t motion model in ``models/motion/`` (KITTI 00-05, 07-10 at stride 1; 06 is the real test slice)."""
+    loop_min_gap_frames: int = 50
+    """Ground-truth loop pairs (NN_loops evaluation, supervised NN_loops): frames at least this far apart."""
+    loop_max_distance_m: float = 3.0
+    """... and camera centres at most this far apart."""
+    loop_eval_pairs: int = 100
+    """At most this many evaluation loop pairs (evenly spaced)."""
+
+
+def _train(run_command, log, out: Path, mode: str, which: str, seed: int, cfg: ResultsVOConfig,
+           train_dirs: list[str], extra_frames: list[str] = ()) -> Path:
+    model = out / "model.pt"
+    if model.is_file():
+        return model
+    budget = cfg.samples_cons if which == "cons" else cfg.samples_loops
+    args = ["train", "--mode", mode, "--net", cfg.net, "--nll-epochs", str(cfg.nll_epochs), "--seed", str(seed),
+            "--out", str(out), "--quiet"]
+    if mode == "synthetic":
+        from vo.models import models_dir
+
+        args += ["--frames", *train_dirs, *extra_frames, "--motion",
+                 str(models_dir() / "motion" / cfg.motion) + (":loops" if which == "loops" else ""), "--samples-per-epoch", str(cfg.samples_per_epoch),
+                 "--max-epochs", str(max(1, round(budget / cfg.samples_per_epoch)))]
+    else:
+        n_train = _supervised_pairs(train_dirs, which) * 0.9  # the train CLI holds 10 % out
+        args += ["--sequence", *train_dirs, "--flow", "gt", "--pairs", "consecutive" if which == "cons" else "loops",
+                 "--max-epochs", str(max(1, round(budget / max(1.0, n_train))))]
+    if (out / "checkpoint.pt").is_file():
+        args.append("--resume")
+    run_command(args, log)
+    return model
+
+
+def _supervised_pairs(train_dirs: list[str], which: str) -> int:
+    """How many pairs ``deepslam train --mode supervised`` makes of the training renders (its defaults)."""
+    from core.sequence import open_sequence
+    from vo.data import PairSpec, frame_pairs
+
+    spec = PairSpec(kind="consecutive" if which == "cons" else "loops")
+    return sum(len(frame_pairs(open_sequence(d).gt.world_from_cam, spec)) for d in train_dirs)
+
+
+def _loop_pairs(seq, cfg: ResultsVOConfig) -> np.ndarray:
+    from vo.data import PairSpec, frame_pairs
+
+    return frame_pairs(seq.gt.world_from_cam, PairSpec(kind="loops", loop_min_gap_frames=cfg.loop_min_gap_frames,
+                                                       loop_max_distance_m=cfg.loop_max_distance_m,
+                                                       max_pairs=cfg.loop_eval_pairs))
+
+
+def pair_errors(seq, pairs: np.ndarray, mean6: np.ndarray) -> dict:
+    """RMS translation error (m) and rotation error (deg) of predicted ``cam_j_from_cam_i`` against
+    the ground truth, over the pairs."""
+    from core import se3
+
+    gt = seq.gt.world_from_cam
+    true = se3.relative(gt[pairs[:, 1]], gt[pairs[:, 0]])  # cam_j_from_cam_i
+    err = se3.compose(se3.inverse(true), se3.from_euler6(mean6))
+    return {"pairs": int(len(pairs)),
+            "t_rmse_m": float(np.sqrt(np.mean(np.sum(err[:, :3, 3] ** 2, axis=1)))),
+            "r_rmse_deg": float(np.degrees(np.sqrt(np.mean(se3.rotation_angle(err) ** 2)))),
+            "true_t_mean_m": float(np.linalg.norm(true[:, :3, 3], axis=1).mean())}
+
+
+def _metric_subset(ev: dict) -> dict:
+    keys = ("ate_m", "rpe_t_m", "rpe_r_deg", "kitti_t_err_pct", "kitti_r_err_deg_per_100m")
+    return {k: ev.get(k) for k in keys}
+
+
+def evaluate_street(seq, cons: Path, loops: Path, flow: str, cfg: ResultsVOConfig) -> dict:
+    """VO, loop-pair and SLAM figures of one (NN_cons, NN_loops) on the held-out street."""
+    from core import metrics
+    from slam.pipeline import run_slam
+    from vo import flow_estimators
+    from vo.infer import VOPredictor
+
+    est = flow_estimators.make(flow)
+    p_cons, p_loops = VOPredictor.from_file(cons), VOPredictor.from_file(loops)
+    res = run_slam(seq, p_cons.as_odometry(est, progress=False), p_loops.as_odometry(est, progress=False),
+                   show_progress=False)
+    pairs = _loop_pairs(seq, cfg)
+    mean6, _ = p_loops.predict_pairs(seq, pairs, est, progress=False)
+    return {"vo": _metric_subset(metrics.evaluate(seq.gt, res.vo)),
+            "slam": _metric_subset(metrics.evaluate(seq.gt, res.slam)),
+            "loops": pair_errors(seq, pairs, mean6), "loop_edges": int(len(res.loops))}
+
+
+def evaluate_vo(seq, cons: Path, flow: str) -> dict:
+    """VO (dead reckoning of NN_cons) on a sequence without loop closure."""
+    from core import metrics
+    from slam.pipeline import consecutive_pairs
+    from vo import flow_estimators
+    from vo.infer import VOPredictor, chain_euler6
+
+    p = VOPredictor.from_file(cons)
+    mean6, _ = p.predict_pairs(seq, consecutive_pairs(len(seq)), flow_estimators.make(flow), progress=False)
+    from core.trajectory import Trajectory
+
+    traj = Trajectory(seq.gt.world_from_cam[0] @ chain_euler6(mean6), seq.timestamps_s)
+    return _metric_subset(metrics.evaluate(seq.gt, traj))
+
+
+def _cached(path: Path, fn) -> dict:
+    from core import atomic
+
+    if path.is_file():
+        return json.loads(path.read_text())
+    rec = fn()
+    atomic.write_json(path, rec)
+    return rec
+
+
+def _agg(values: list) -> dict:
+    v = np.array([x for x in values if x is not None], np.float64)
+    if not len(v):
+        return {"mean": None, "std": None, "n": 0}
+    return {"mean": float(v.mean()), "std": float(v.std(ddof=1)) if len(v) > 1 else 0.0, "n": int(len(v))}
+
+
+def _get(rec: dict, path: str):
+    for k in path.split("."):
+        rec = rec.get(k) if isinstance(rec, dict) else None
+    return rec
+
+
+ROWS = [  # (table row, record path)
+    ("NN_cons VO ATE [m]", "vo.ate_m"),
+    ("NN_cons VO RPE [m/frame]", "vo.rpe_t_m"),
+    ("NN_cons VO RPE [deg/frame]", "vo.rpe_r_deg"),
+    ("NN_cons VO t_err [%]", "vo.kitti_t_err_pct"),
+    ("NN_cons VO r_err [deg/100 m]", "vo.kitti_r_err_deg_per_100m"),
+    ("NN_loops loop pairs, t RMSE [m]", "loops.t_rmse_m"),
+    ("NN_loops loop pairs, r RMSE [deg]", "loops.r_rmse_deg"),
+    ("SLAM ATE [m]", "slam.ate_m"),
+    ("SLAM t_err [%]", "slam.kitti_t_err_pct"),
+]
+
+
+def _pm(a: dict, f: str = ".3g") -> str:
+    if a["mean"] is None:
+        return "n/a"
+    return f"{a['mean']:{f}} ± {a['std']:{f}}" if a["n"] > 1 else f"{a['mean']:{f}}"
+
+
+def run(cfg: ResultsVOConfig, out: Path, data: Path) -> dict:
+    from core import atomic
+    from core.sequence import open_sequence
+    from deepslam.demo import run_command
+
+    out.mkdir(parents=True, exist_ok=True)
+    atomic.write_json(out / "config.json", dataclasses.asdict(cfg))
+    log: list[str] = []
+    t0 = time.perf_counter()
+    w = str(cfg.width)
+    train_dirs = []
+    for s in cfg.train_seeds:
+        d = out / f"street_train_s{s}"
+        train_dirs.append(str(d))
+        if not (d / "poses.txt").is_file():
+            run_command(["render", "--scene", "street", "--frames", str(cfg.train_frames), "--width", w, "--seed", str(s),
+                         "--out", str(d), "--quiet"] + (["--resume"] if d.exists() else []), log)
+    held = out / f"street_heldout_s{cfg.heldout_seed}"
+    if not (held / "poses.txt").is_file():
+        run_command(["render", "--scene", "street", "--frames", str(cfg.heldout_frames), "--width", w,
+                     "--seed", str(cfg.heldout_seed), "--out", str(held), "--quiet"] + (["--resume"] if held.exists() else []), log)
+    k06 = data / "kitti" / "sequences" / "06"
+    seq_held = open_sequence(held)
+    seq_k06 = open_sequence(k06) if k06.is_dir() else None
+
+    per_seed: dict = {m: [] for m in MODES}
+    kitti_plus: list = []
+    for seed in cfg.seeds:
+        for mode in MODES:
+            models = {which: _train(run_command, log, out / "models" / f"{mode}_{which}_s{seed}", mode, which, seed, cfg,
+                                    train_dirs) for which in ("cons", "loops")}
+            rec = {"seed": seed}
+            for flow in ("gt", "dis"):
+                print(f"evaluate {mode} seed {seed} on {held.name}, {flow} flow", flush=True)
+                rec[f"street_{flow}"] = _cached(out / "eval" / f"{mode}_s{seed}_street_{flow}.json",
+                                                lambda: evaluate_street(seq_held, models["cons"], models["loops"], flow, cfg))
+            if seq_k06 is not None:
+                rec["kitti06_dis"] = _cached(out / "eval" / f"{mode}_s{seed}_kitti06_dis.json",
+                                             lambda: evaluate_vo(seq_k06, models["cons"], "dis"))
+            per_seed[mode].append(rec)
+        if seq_k06 is not None:  # synthetic, also with the real slice's single frames (depth from stereo)
+            m = _train(run_command, log, out / "models" / f"synthetic_kitti_cons_s{seed}", "synthetic", "cons", seed, cfg,
+                       train_dirs, [str(k06)])
+            kitti_plus.append({"seed": seed, "kitti06_dis": _cached(out / "eval" / f"synthetic_kitti_s{seed}_kitti06_dis.json",
+                                                                   lambda: evaluate_vo(seq_k06, m, "dis"))})
+    report = summarize(cfg, per_seed, kitti_plus, seq_held)
+    report["commands"] = log
+    report["minutes"] = (time.perf_counter() - t0) / 60
+    atomic.write_json(out / "results.json", report)
+    atomic.write_text(out / "results.md", markdown(report))
+    return report
+
+
+def summarize(cfg: ResultsVOConfig, per_seed: dict, kitti_plus: list, seq_held) -> dict:
+    table = []
+    for flow in ("gt", "dis"):
+        for name, path in ROWS:
+            table.append({"data": f"street, {'exact' if flow == 'gt' else 'DIS'} flow", "measure": name,
+                          **{m: _agg([_get(r[f"street_{flow}"], path) for r in per_seed[m]]) for m in MODES}})
+    for name, path in (("NN_cons VO ATE [m]", "ate_m"), ("NN_cons VO RPE [m/frame]", "rpe_t_m"),
+                       ("NN_cons VO RPE [deg/frame]", "rpe_r_deg")):
+        if all("kitti06_dis" in r for m in MODES for r in per_seed[m]) and per_seed["synthetic"]:
+            table.append({"data": "KITTI 06 slice, DIS flow", "measure": name,
+                          **{m: _agg([r["kitti06_dis"][path] for r in per_seed[m]]) for m in MODES},
+                          "synthetic + KITTI 06 frames": _agg([r["kitti06_dis"][path] for r in kitti_plus])})
+    headline = {}
+    for flow in ("gt", "dis"):
+        s = _agg([_get(r[f"street_{flow}"], "vo.kitti_t_err_pct") for r in per_seed["synthetic"]])
+        u = _agg([_get(r[f"street_{flow}"], "vo.kitti_t_err_pct") for r in per_seed["supervised"]])
+        headline[flow] = None if not (s["mean"] and u["mean"]) else s["mean"] / u["mean"]
+    return {"config": dataclasses.asdict(cfg), "heldout": {"name": seq_held.name, "frames": len(seq_held)},
+            "table": table, "ratio_synthetic_over_supervised_t_err": headline, "per_seed": per_seed,
+            "synthetic_with_kitti06_frames": kitti_plus}
+
+
+def markdown(report: dict) -> str:
+    cfg = report["config"]
+    h = report["ratio_synthetic_over_supervised_t_err"]
+
+    def r(x):
+        return "n/a" if x is None else f"{x:.2f}"
+
+    md = ["# Synthetic (single frames) vs supervised training of NN_cons / NN_loops", "",
+          f"Held-out simulated street `{report['heldout']['name']}` ({report['heldout']['frames']} frames); "
+          f"training renders: towns {cfg['train_seeds']} ({cfg['train_frames']} frames each, {cfg['width']} px wide); "
+          f"seeds {list(cfg['seeds'])} (mean ± std); network preset `{cfg['net']}`; budget {cfg['samples_cons']} samples "
+          f"(NN_cons) and {cfg['samples_loops']} (NN_loops) per model in both modes. Synthetic: single frames + "
+          f"`{cfg['motion']}` (no pose of any training frame). Supervised: consecutive (NN_cons) or loop (NN_loops) "
+          "pairs of the same renders with the simulator's exact flow and ground-truth poses. Metrics se3-aligned.", "",
+          f"**Synthetic / supervised t_err: {r(h.get('gt'))} with exact flow, {r(h.get('dis'))} with DIS flow** "
+          "(the paper: 2.7 on KITTI, about 1 on EuRoC).", "",
+          "| data | measure | synthetic | supervised | synthetic + KITTI 06 frames |", "|---|---|---|---|---|"]
+    for row in report["table"]:
+        extra = row.get("synthetic + KITTI 06 frames")
+        md.append(f"| {row['data']} | {row['measure']} | {_pm(row['synthetic'])} | {_pm(row['supervised'])} | "
+                  f"{_pm(extra) if extra else ''} |")
+    md += ["", f"Run time: {report.get('minutes', 0):.1f} min.", "", "## Commands", "", "```"] + report.get("commands", []) + ["```"]
+    return "\n".join(md) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    import os
+
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
+    from core.errors import InputError
+    from core.paths import out_dir, shared_data_dir
+
+    ap = argparse.ArgumentParser(prog="python -m bench.results_vo", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", type=Path, default=None, help="output folder (default: out/results/vo)")
+    ap.add_argument("--data", type=Path, default=None, help="shared data folder (default: ../shared/data)")
+    ap.add_argument("--quick", action="store_true", help="one seed, tiny budgets (a smoke run)")
+    args = ap.parse_args(argv)
+    cfg = ResultsVOConfig()
+    if args.quick:
+        cfg = dataclasses.replace(cfg, width=207, train_frames=300, seeds=(0,), samples_cons=512, samples_loops=512,
+                                  samples_per_epoch=256, nll_epochs=1, loop_eval_pairs=20)
+    out = args.out or out_dir() / "results" / ("vo_quick" if args.quick else "vo")
+    try:
+        report = run(cfg, out, args.data or shared_data_dir())
+    except InputError as e:
+        print(f"results_vo: error: {e.message()}", file=sys.stderr)
+        return 2
+    print(markdown(report))
+    print(f"wrote {out / 'results.json'} and {out / 'results.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
