@@ -5,7 +5,8 @@ Stages (each causal in the frame order, run as batches):
 1. Odometry of consecutive frames (NN_cons through the :class:`slam.odometry.Odometry` protocol; the
    odometry computes its own optical flow) -> ``cam_{t+1}_from_cam_t`` and its std; dead reckoning of
    those is the VO trajectory.
-2. Relocalization on keyframes (every ``keyframe_stride``-th frame): SIFT, a BoW vocabulary (given,
+2. Relocalization on keyframes (every ``keyframe_stride``-th frame): SIFT (extracted in a second
+   thread while stage 1 runs), a BoW vocabulary (given,
    or trained on the sequence's own keyframes when none is given), retrieval of the 20 most similar
    keyframes at least ``t_loop + 1`` frames older, ratio test, N_th and an essential-matrix check.
    The database holds every keyframe but a query only sees frames older than its exclusion window, so
@@ -22,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -43,7 +45,7 @@ class SlamParams:
     """The paper's tuned hyperparameters (``deepslam tune-slam`` writes them as JSON)."""
 
     c_s: float = 1.0
-    """C_s, scale of every edge covariance (with the robust kernel: how many sigmas a loop may be off)."""
+    """C_s, scale of the consecutive (odometry) edges' covariance: the trust in the odometry relative to the loops."""
     c_r: float = 1.0
     """C_r, extra scale of the rotation variances."""
     t_loop: int = 50
@@ -224,21 +226,38 @@ def prepare(seq, odo_cons: Odometry, odo_loops: Odometry | None, config: Pipelin
     if config.keyframe_stride < 1:
         raise InputError(None, f"keyframe stride must be >= 1, got {config.keyframe_stride}")
     timings: dict = {}
-    t0 = time.perf_counter()
-    pairs = consecutive_pairs(n)
-    mean6, std6 = odo_cons.predict(seq, pairs)
-    mean6, std6 = check_prediction(odo_cons.name, pairs, mean6, std6)
-    cons = Edges(np.array(pairs), mean6, std6)
-    timings["odometry_cons_s"] = time.perf_counter() - t0
     reloc = config.reloc if config.reloc is not None else RelocConfig.for_kind(data_kind(seq))
     keyframes = list(range(0, n, config.keyframe_stride))
-    detector = None
-    if config.loops and odo_loops is not None:
-        t1 = time.perf_counter()
+    with_loops = config.loops and odo_loops is not None
+    # SIFT on the keyframes runs in a second thread while the odometry runs (OpenCV's SIFT and DIS and
+    # torch all release the GIL), so relocalization's features cost little extra wall time.
+    pool = ThreadPoolExecutor(1) if with_loops else None
+    feats_future = None
+    if pool is not None:
         extract = FeatureExtractor(reloc)
-        feats: list[Features] = [extract(seq.image(i)) for i in
-                                 progress(keyframes, desc="features", unit="frame", disable=None if show_progress else True)]
-        timings["features_s"] = time.perf_counter() - t1
+
+        def extract_all() -> tuple[list[Features], float]:
+            t = time.perf_counter()
+            out = [extract(seq.image(i)) for i in
+                   progress(keyframes, desc="features", unit="frame", disable=None if show_progress else True)]
+            return out, time.perf_counter() - t
+
+        feats_future = pool.submit(extract_all)
+    t0 = time.perf_counter()
+    try:
+        pairs = consecutive_pairs(n)
+        mean6, std6 = odo_cons.predict(seq, pairs)
+        mean6, std6 = check_prediction(odo_cons.name, pairs, mean6, std6)
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True)
+    cons = Edges(np.array(pairs), mean6, std6)
+    timings["odometry_cons_s"] = time.perf_counter() - t0
+    detector = None
+    if with_loops:
+        t1 = time.perf_counter()
+        feats, timings["features_cpu_thread_s"] = feats_future.result()
+        timings["features_s"] = time.perf_counter() - t1  # wall time spent waiting for them after the odometry
         if vocabulary is None:
             t2 = time.perf_counter()
             step = max(1, int(np.ceil(len(feats) / config.vocabulary_train_frames)))

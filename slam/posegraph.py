@@ -92,7 +92,7 @@ class PoseGraphConfig:
     """Edges the robust kernel wraps: "loops" or "all"."""
     prune_sigma: float | None = 10.0
     """After the robust solve, loop edges whose whitened residual norm (in predicted sigmas, after
-    C_s/C_r scaling) exceeds this are dropped and the graph is solved again without the kernel from
+    C_r scaling) exceeds this are dropped and the graph is solved again without the kernel from
     there; dropped edges that fit again are restored (at most ``prune_rounds`` rounds). None: a
     single robust solve. (True edges with honest sigmas stay below ~5; 10 leaves room for drift
     that the robust stage has not yet absorbed.)"""

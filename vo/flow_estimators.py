@@ -90,7 +90,8 @@ class DISFlow:
 
 
 class GroundTruthFlow:
-    """The ground-truth flow a sequence stores (our format: frame i to i+1); pairs i -> j chained."""
+    """The simulator's exact flow: stored for consecutive frames (our format: frame i to i+1); pairs
+    further apart from geometry (:func:`exact_pair_flow`), or chained where the sequence has no depth."""
 
     name = "gt"
 

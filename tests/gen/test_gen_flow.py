@@ -13,6 +13,7 @@ from gen.flow_reference import synthesize_reference, synthesize_reference_batch
 from gen_scenes import box_scene, ground_scene, random_motions
 
 CAM = PinholeCamera(64, 48, 50.0, 52.0, 31.2, 24.7)
+BACKENDS = ["numba", "torch"]
 
 
 def test_identity_gives_zero_flow_everywhere_with_depth():
@@ -49,14 +50,15 @@ def test_pure_rotation_flow_does_not_depend_on_depth():
     assert float((f1 - f2).abs().max()) < 1e-4
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_matches_numpy_reference(seed):
+def test_matches_numpy_reference(seed, backend):
     rng = np.random.default_rng(seed)
     b = 5
     depth = np.stack([box_scene(CAM, rng.uniform(5, 30), rng.uniform(1, 4)) for _ in range(b)])
     depth[1] = ground_scene(CAM)
     motions = random_motions(rng, b, rot_sigma=0.05, t_sigma=0.5)
-    flow, valid = synthesize(torch.from_numpy(depth), CAM, torch.from_numpy(motions))
+    flow, valid = synthesize(torch.from_numpy(depth), CAM, torch.from_numpy(motions), backend=backend)
     ref_flow, ref_valid = synthesize_reference_batch(depth, CAM, motions)
     flow, valid = flow.numpy(), valid.numpy()
     both = valid & ref_valid
@@ -81,13 +83,14 @@ def synthesize_reference_uv1_offset(depth, motion, u, v):
     return uv1 - np.array([u, v], float)
 
 
-def test_per_sample_intrinsics_and_numpy_inputs():
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_per_sample_intrinsics_and_numpy_inputs(backend):
     rng = np.random.default_rng(3)
     depth = np.stack([box_scene(CAM)] * 3)
     motions = random_motions(rng, 3)
     cams = [CAM, PinholeCamera(64, 48, 40.0, 40.0, 32.0, 20.0), PinholeCamera(64, 48, 80.0, 70.0, 30.0, 25.0)]
     k = np.array([[c.fx, c.fy, c.cx, c.cy] for c in cams])
-    flow, valid = synthesize(depth, k, motions)
+    flow, valid = synthesize(depth, k, motions, backend=backend)
     for i, c in enumerate(cams):
         ref, ref_valid, _ = synthesize_reference(depth[i], c, motions[i])
         both = valid[i].numpy() & ref_valid
@@ -95,25 +98,27 @@ def test_per_sample_intrinsics_and_numpy_inputs():
         assert (valid[i].numpy() == ref_valid).mean() > 0.999
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("bad", [0.0, -1.0, np.nan, np.inf, -np.inf, 1e-40])
-def test_degenerate_depth_is_masked_never_raises(bad):
+def test_degenerate_depth_is_masked_never_raises(bad, backend):
     depth = np.full((2, 48, 64), 5.0, np.float32)
     depth[:, 10:20, 10:30] = bad
     motions = np.stack([np.eye(4), se3.from_euler6([0.01, 0.02, 0.0, 0.1, 0.0, -0.5])])
-    flow, valid = synthesize(depth, CAM, motions)
+    flow, valid = synthesize(depth, CAM, motions, backend=backend)
     assert not bool(valid[:, 10:20, 10:30].any())
     assert bool(valid[0, 30:, 40:].all())
     assert bool(torch.isfinite(flow).all())
     assert float(flow[:, 10:20, 10:30].abs().max()) == 0.0
 
 
-def test_all_invalid_and_points_behind_camera():
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_all_invalid_and_points_behind_camera(backend):
     empty = np.zeros((48, 64), np.float32)
-    flow, valid = synthesize(empty, CAM, np.eye(4), zbuffer=True)
+    flow, valid = synthesize(empty, CAM, np.eye(4), zbuffer=True, backend=backend)
     assert not bool(valid.any()) and float(flow.abs().max()) == 0.0
     # Moving the camera 20 m forward past a wall 10 m away: every point ends behind it.
     wall = np.full((48, 64), 10.0, np.float32)
-    flow, valid = synthesize(wall, CAM, se3.from_rt(np.eye(3), [0, 0, -20.0]))
+    flow, valid = synthesize(wall, CAM, se3.from_rt(np.eye(3), [0, 0, -20.0]), backend=backend)
     assert not bool(valid.any())
     _, ref_valid, _ = synthesize_reference(wall, CAM, se3.from_rt(np.eye(3), [0, 0, -20.0]))
     assert not ref_valid.any()
@@ -168,43 +173,45 @@ def test_zbuffer_matches_reference_on_random_scenes():
         assert (valid.numpy() != ref_valid).mean() < 2e-3
 
 
-def test_depth1_out_buffers_and_single_input():
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_depth1_out_buffers_and_single_input(backend):
     rng = np.random.default_rng(4)
     depth = np.stack([box_scene(CAM)] * 2)
     motions = random_motions(rng, 2)
     flow_buf = torch.empty(2, 2, 48, 64)
     valid_buf = torch.empty(2, 48, 64, dtype=torch.bool)
-    flow, valid, z1 = synthesize(depth, CAM, motions, out=(flow_buf, valid_buf), return_depth1=True)
+    flow, valid, z1 = synthesize(depth, CAM, motions, out=(flow_buf, valid_buf), return_depth1=True, backend=backend)
     assert flow.data_ptr() == flow_buf.data_ptr() and valid.data_ptr() == valid_buf.data_ptr()
     assert torch.equal(flow.permute(0, 3, 1, 2), flow_buf)
     _, ref_valid, ref_z1 = synthesize_reference(depth[1], CAM, motions[1])
     both = valid[1].numpy() & ref_valid
     np.testing.assert_allclose(z1[1].numpy()[both], ref_z1[both], rtol=1e-5)
-    f1, v1 = synthesize(depth[1], CAM, motions[1])
+    f1, v1 = synthesize(depth[1], CAM, motions[1], backend=backend)
     assert f1.shape == (48, 64, 2) and torch.equal(f1, flow[1]) and torch.equal(v1, valid[1])
     with pytest.raises(ValueError):
-        synthesize(depth, CAM, motions, out=(torch.empty(2, 48, 64, 2), valid_buf))
+        synthesize(depth, CAM, motions, out=(torch.empty(2, 48, 64, 2), valid_buf), backend=backend)
     with pytest.raises(ValueError):
-        synthesize(depth, PinholeCamera(32, 24, 10, 10, 16, 12), motions)
+        synthesize(depth, PinholeCamera(32, 24, 10, 10, 16, 12), motions, backend=backend)
 
 
-def test_batch_results_do_not_depend_on_batching():
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_batch_results_do_not_depend_on_batching(backend):
     """Element-wise only: a sample gives the same bits alone or inside a batch of any size."""
     import gen.flow as gf
 
     rng = np.random.default_rng(5)
     depth = np.stack([box_scene(CAM, rng.uniform(5, 30), rng.uniform(1, 4)) for _ in range(7)])
     motions = random_motions(rng, 7)
-    flow, valid = synthesize(depth, CAM, motions)
+    flow, valid = synthesize(depth, CAM, motions, backend=backend)
     old = gf.CHUNK_PIXELS
     try:
         gf.CHUNK_PIXELS = 3 * 48 * 64  # chunks of 3 samples
-        flow3, valid3 = synthesize(depth, CAM, motions)
+        flow3, valid3 = synthesize(depth, CAM, motions, backend=backend)
     finally:
         gf.CHUNK_PIXELS = old
     assert torch.equal(flow, flow3) and torch.equal(valid, valid3)
     for i in (0, 6):
-        fi, vi = synthesize(depth[i:i + 1], CAM, motions[i:i + 1])
+        fi, vi = synthesize(depth[i:i + 1], CAM, motions[i:i + 1], backend=backend)
         assert torch.equal(fi[0], flow[i]) and torch.equal(vi[0], valid[i])
 
 
@@ -220,3 +227,26 @@ def test_visible_after_motion_on_empty_and_normalised_flow():
     t = torch.from_numpy(f).permute(2, 0, 1)[None]
     nt = normalize_flow(t, 320, 96, channel_axis=1)
     np.testing.assert_allclose(nt[0].permute(1, 2, 0).numpy(), n, rtol=1e-6)
+
+
+def test_numba_and_torch_backends_agree_and_threads_do_not_change_the_bits():
+    rng = np.random.default_rng(11)
+    depth = np.stack([box_scene(CAM, rng.uniform(5, 30), rng.uniform(1, 4)) for _ in range(6)])
+    depth[2, :5] = np.nan
+    depth[3, :5] = 0.0
+    motions = random_motions(rng, 6, rot_sigma=0.05, t_sigma=0.5)
+    fn, vn, zn = synthesize(depth, CAM, motions, backend="numba", return_depth1=True)
+    ft, vt, zt = synthesize(depth, CAM, motions, backend="torch", return_depth1=True)
+    assert (vn == vt).float().mean() > 0.999
+    both = vn & vt
+    assert float((fn - ft).abs()[both].max()) < 1e-3
+    assert float(((zn - zt).abs() / zt.clamp_min(1e-6))[both].max()) < 1e-5
+    old = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        f1, v1 = synthesize(depth, CAM, motions, backend="numba")
+    finally:
+        torch.set_num_threads(old)
+    assert torch.equal(f1, fn) and torch.equal(v1, vn)
+    with pytest.raises(ValueError, match="backend"):
+        synthesize(depth, CAM, motions, backend="cuda-magic")
