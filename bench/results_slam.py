@@ -18,7 +18,6 @@ SLAM issue: SLAM at most half the ATE of VO (the paper: 14.30 -> 3.24 m on KITTI
 """
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import sys
@@ -48,22 +47,24 @@ class ResultsSlamConfig:
     """Seed of the held-out test sequences."""
 
 
-def _render(run_command, log, scene: str, seed: int, cfg: ResultsSlamConfig, out: Path) -> Path:
-    d = out / f"{scene}_s{seed}"
-    if not (d / "poses.txt").is_file():
-        traj = "car" if scene == "street" else "drone"
-        width = cfg.street_width if scene == "street" else cfg.room_width
-        run_command(["render", "--scene", scene, "--trajectory", traj, "--frames", str(cfg.frames), "--width", str(width),
-                     "--seed", str(seed), "--out", str(d), "--quiet"] + (["--resume"] if d.exists() else []), log)
-    return d
+def _render(log, scene: str, seed: int, cfg: ResultsSlamConfig, out: Path) -> Path:
+    from deepslam.demo import render_once
+
+    return render_once(scene, "car" if scene == "street" else "drone", cfg.frames,
+                       cfg.street_width if scene == "street" else cfg.room_width, seed, out / f"{scene}_s{seed}", log,
+                       ("--quiet",))
 
 
 def _metrics(seq, world_from_cam: np.ndarray) -> dict:
     from core import metrics
     from core.trajectory import Trajectory
 
-    ev = metrics.evaluate(seq.gt, Trajectory(world_from_cam, seq.timestamps_s))
-    return {k: ev.get(k) for k in ("ate_m", "rpe_t_m", "rpe_r_deg", "kitti_t_err_pct", "kitti_r_err_deg_per_100m")}
+    traj = Trajectory(world_from_cam, seq.timestamps_s)
+    ev = metrics.evaluate(seq.gt, traj)
+    out = {k: ev.get(k) for k in ("ate_m", "rpe_t_m", "rpe_r_deg", "kitti_t_err_pct", "kitti_r_err_deg_per_100m")}
+    # sim3: the shape error once the scale is corrected (loop closure fixes drift, not a scale bias)
+    out["ate_sim3_m"] = metrics.evaluate(seq.gt, traj, align="sim3")["ate_m"]
+    return out
 
 
 def _odometry(seq, flow: str):
@@ -119,15 +120,15 @@ def markdown(report: dict) -> str:
           f"(seed {report['config']['validation_seed']}), tested on a held-out one (seed {report['config']['test_seed']}). "
           "ATE se3-aligned. Target: SLAM ATE at most half the VO ATE.", "",
           "| scene | flow | VO ATE [m] | SLAM ATE, defaults [m] | SLAM ATE, tuned [m] | SLAM/VO (tuned) | met | "
-          "VO t_err [%] | SLAM t_err [%] | VO r_err [deg/100 m] | SLAM r_err [deg/100 m] | tuned C_s, C_r, T_loop | "
-          "loop edges kept | loop edge error t [m] / r [deg] |",
-          "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+          "VO / SLAM ATE after sim3 [m] | VO t_err [%] | SLAM t_err [%] | VO r_err [deg/100 m] | SLAM r_err [deg/100 m] | "
+          "tuned C_s, C_r, T_loop | loop edges kept | loop edge error t [m] / r [deg] |",
+          "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for key, r in report["cases"].items():
         scene, flow = key.split("/")
         p, lt = r["params_tuned"], r["loops_tuned"] or {}
         md.append(f"| {scene} | {'exact' if flow == 'gt' else 'DIS'} | {_f(r['vo']['ate_m'])} | {_f(r['slam_default']['ate_m'])} | "
                   f"{_f(r['slam_tuned']['ate_m'])} | {_f(r['ratio_tuned'], '.2f')} | {'yes' if r['ratio_tuned'] <= 0.5 else 'no'} | "
-                  f"{_f(r['vo']['kitti_t_err_pct'])} | {_f(r['slam_tuned']['kitti_t_err_pct'])} | "
+                  f"{_f(r['vo']['ate_sim3_m'])} / {_f(r['slam_tuned']['ate_sim3_m'])} | {_f(r['vo']['kitti_t_err_pct'])} | {_f(r['slam_tuned']['kitti_t_err_pct'])} | "
                   f"{_f(r['vo']['kitti_r_err_deg_per_100m'])} | {_f(r['slam_tuned']['kitti_r_err_deg_per_100m'])} | "
                   f"{p['c_s']:g}, {p['c_r']:g}, {p['t_loop']} | {lt.get('kept', 0)} of {lt.get('pairs', 0)} | "
                   f"{_f(lt.get('t_rmse_m'))} / {_f(lt.get('r_rmse_deg'))} |")
@@ -140,16 +141,14 @@ def markdown(report: dict) -> str:
 def run(cfg: ResultsSlamConfig, out: Path) -> dict:
     from core import atomic
     from core.sequence import open_sequence
-    from deepslam.demo import run_command
-
     out.mkdir(parents=True, exist_ok=True)
     atomic.write_json(out / "config.json", dataclasses.asdict(cfg))
     log: list[str] = []
     t0 = time.perf_counter()
     cases = {}
     for scene in cfg.scenes:
-        val = open_sequence(_render(run_command, log, scene, cfg.validation_seed, cfg, out))
-        test = open_sequence(_render(run_command, log, scene, cfg.test_seed, cfg, out))
+        val = open_sequence(_render(log, scene, cfg.validation_seed, cfg, out))
+        test = open_sequence(_render(log, scene, cfg.test_seed, cfg, out))
         for flow in FLOWS:
             path = out / "cases" / f"{scene}_{flow}.json"
             if path.is_file():
@@ -169,30 +168,11 @@ def run(cfg: ResultsSlamConfig, out: Path) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    import os
+    from bench.results_common import results_main
 
-    os.environ.setdefault("MUJOCO_GL", "egl")
-    os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
-    from core.errors import InputError
-    from core.paths import out_dir
-
-    ap = argparse.ArgumentParser(prog="python -m bench.results_slam", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", type=Path, default=None, help="output folder (default: out/results/slam)")
-    ap.add_argument("--quick", action="store_true", help="small renders (a smoke run)")
-    args = ap.parse_args(argv)
-    cfg = ResultsSlamConfig()
-    if args.quick:
-        cfg = dataclasses.replace(cfg, street_width=207, room_width=188)
-    out = args.out or out_dir() / "results" / ("slam_quick" if args.quick else "slam")
-    try:
-        report = run(cfg, out)
-    except InputError as e:
-        print(f"results_slam: error: {e.message()}", file=sys.stderr)
-        return 2
-    print(markdown(report))
-    print(f"wrote {out / 'results.json'} and {out / 'results.md'}")
-    return 0
-
+    quick = dataclasses.replace(ResultsSlamConfig(), street_width=207, room_width=188)
+    return results_main("results_slam", __doc__, ResultsSlamConfig(), quick, "slam",
+                        lambda cfg, out, data: run(cfg, out), markdown, argv)
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -21,7 +21,6 @@ skipped, so a killed run resumes where it stopped. ``--quick``: one seed, tiny b
 """
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import sys
@@ -209,24 +208,16 @@ def _pm(a: dict, f: str = ".3g") -> str:
 def run(cfg: ResultsVOConfig, out: Path, data: Path) -> dict:
     from core import atomic
     from core.sequence import open_sequence
-    from deepslam.demo import run_command
+    from deepslam.demo import render_once, run_command
 
     out.mkdir(parents=True, exist_ok=True)
     atomic.write_json(out / "config.json", dataclasses.asdict(cfg))
     log: list[str] = []
     t0 = time.perf_counter()
-    w = str(cfg.width)
-    train_dirs = []
-    for s in cfg.train_seeds:
-        d = out / f"street_train_s{s}"
-        train_dirs.append(str(d))
-        if not (d / "poses.txt").is_file():
-            run_command(["render", "--scene", "street", "--frames", str(cfg.train_frames), "--width", w, "--seed", str(s),
-                         "--out", str(d), "--quiet"] + (["--resume"] if d.exists() else []), log)
-    held = out / f"street_heldout_s{cfg.heldout_seed}"
-    if not (held / "poses.txt").is_file():
-        run_command(["render", "--scene", "street", "--frames", str(cfg.heldout_frames), "--width", w,
-                     "--seed", str(cfg.heldout_seed), "--out", str(held), "--quiet"] + (["--resume"] if held.exists() else []), log)
+    train_dirs = [str(render_once("street", "car", cfg.train_frames, cfg.width, s, out / f"street_train_s{s}", log,
+                                  ("--quiet",))) for s in cfg.train_seeds]
+    held = render_once("street", "car", cfg.heldout_frames, cfg.width, cfg.heldout_seed,
+                       out / f"street_heldout_s{cfg.heldout_seed}", log, ("--quiet",))
     k06 = data / "kitti" / "sequences" / "06"
     seq_held = open_sequence(held)
     seq_k06 = open_sequence(k06) if k06.is_dir() else None
@@ -307,32 +298,12 @@ def markdown(report: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    import os
+    from bench.results_common import results_main
 
-    os.environ.setdefault("MUJOCO_GL", "egl")
-    os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
-    from core.errors import InputError
-    from core.paths import out_dir, shared_data_dir
-
-    ap = argparse.ArgumentParser(prog="python -m bench.results_vo", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", type=Path, default=None, help="output folder (default: out/results/vo)")
-    ap.add_argument("--data", type=Path, default=None, help="shared data folder (default: ../shared/data)")
-    ap.add_argument("--quick", action="store_true", help="one seed, tiny budgets (a smoke run)")
-    args = ap.parse_args(argv)
-    cfg = ResultsVOConfig()
-    if args.quick:
-        cfg = dataclasses.replace(cfg, width=207, train_frames=300, seeds=(0,), samples_cons=512, samples_loops=512,
-                                  samples_per_epoch=256, nll_epochs=1, loop_eval_pairs=20)
-    out = args.out or out_dir() / "results" / ("vo_quick" if args.quick else "vo")
-    try:
-        report = run(cfg, out, args.data or shared_data_dir())
-    except InputError as e:
-        print(f"results_vo: error: {e.message()}", file=sys.stderr)
-        return 2
-    print(markdown(report))
-    print(f"wrote {out / 'results.json'} and {out / 'results.md'}")
-    return 0
-
+    quick = dataclasses.replace(ResultsVOConfig(), width=207, train_frames=300, seeds=(0,), samples_cons=512,
+                                samples_loops=512, samples_per_epoch=256, nll_epochs=1, loop_eval_pairs=20)
+    return results_main("results_vo", __doc__, ResultsVOConfig(), quick, "vo",
+                        lambda cfg, out, data: run(cfg, out, data), markdown, argv)
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -68,6 +68,15 @@ def run_command(args: list[str], log: list[str]) -> None:
     print(f"  ({time.perf_counter() - t0:.0f} s)", flush=True)
 
 
+def render_once(scene: str, trajectory: str, frames: int, width: int, seed: int, out: Path, log: list[str],
+                extra: tuple[str, ...] = ()) -> Path:
+    """``deepslam render`` into ``out`` unless it is already complete (an interrupted one is resumed)."""
+    if not (out / "poses.txt").is_file():
+        run_command(["render", "--scene", scene, "--trajectory", trajectory, "--frames", str(frames), "--width", str(width),
+                     "--seed", str(seed), *extra, "--out", str(out)] + (["--resume"] if out.exists() else []), log)
+    return out
+
+
 def _fmt(x, spec=".3f") -> str:
     return "n/a" if x is None else format(x, spec)
 
@@ -79,21 +88,12 @@ def run(cfg: DemoConfig, out: Path, data: Path) -> Path:
     atomic.write_json(out / "config.json", dataclasses.asdict(cfg))
     log: list[str] = []
     t_start = time.perf_counter()
-    w = str(cfg.width)
 
     # 1. renders (resumable; a finished render is not redone)
-    train_dirs = []
-    for s in cfg.train_seeds:
-        d = out / f"street_train_s{s}"
-        train_dirs.append(str(d))
-        if not (d / "poses.txt").is_file():
-            run_command(["render", "--scene", "street", "--trajectory", "car", "--frames", str(cfg.train_frames),
-                       "--width", w, "--seed", str(s), "--out", str(d)] + (["--resume"] if d.exists() else []), log)
-    held = out / f"street_heldout_s{cfg.heldout_seed}"
-    if not (held / "poses.txt").is_file():
-        run_command(["render", "--scene", "street", "--trajectory", "car", "--frames", str(cfg.heldout_frames),
-                   "--width", w, "--seed", str(cfg.heldout_seed), "--moving-objects", str(cfg.moving_objects),
-                   "--out", str(held)] + (["--resume"] if held.exists() else []), log)
+    train_dirs = [str(render_once("street", "car", cfg.train_frames, cfg.width, s, out / f"street_train_s{s}", log))
+                  for s in cfg.train_seeds]
+    held = render_once("street", "car", cfg.heldout_frames, cfg.width, cfg.heldout_seed,
+                       out / f"street_heldout_s{cfg.heldout_seed}", log, ("--moving-objects", str(cfg.moving_objects)))
 
     # 2. the generator's geometry against the simulator's true flow
     validation = out / "validate_flow.json"

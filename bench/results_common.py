@@ -1,0 +1,42 @@
+"""The command line shared by the results scripts (``bench/results_*.py``): options, errors, output."""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+from typing import Callable
+
+
+def results_main(name: str, doc: str, config, quick_config, out_name: str,
+                 run: Callable[[object, Path, Path], dict], markdown: Callable[[dict], str],
+                 argv: list[str] | None = None) -> int:
+    """Parse ``--out``, ``--data``, ``--quick``; run; print the markdown table; InputError -> one line, exit 2.
+
+    Args:
+        name: program name (``results_vo``).
+        doc: the script's docstring (its first paragraph is the description).
+        config / quick_config: the full and the smoke-run configuration.
+        out_name: default output folder under ``out/results/`` (``_quick`` appended for --quick).
+        run: (config, out folder, shared data folder) -> report dict.
+        markdown: report -> markdown text.
+    """
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
+    from core.errors import InputError
+    from core.paths import out_dir, shared_data_dir
+
+    ap = argparse.ArgumentParser(prog=f"python -m bench.{name}", description=doc.split("\n\n")[0])
+    ap.add_argument("--out", type=Path, default=None, help=f"output folder (default: out/results/{out_name})")
+    ap.add_argument("--data", type=Path, default=None, help="shared data folder (default: ../shared/data)")
+    ap.add_argument("--quick", action="store_true", help="small sizes (a smoke run)")
+    args = ap.parse_args(argv)
+    out = args.out or out_dir() / "results" / (f"{out_name}_quick" if args.quick else out_name)
+    try:
+        report = run(quick_config if args.quick else config, out, args.data or shared_data_dir())
+    except InputError as e:
+        print(f"{name}: error: {e.message()}", file=sys.stderr)
+        return 2
+    print(markdown(report))
+    print(f"wrote {out / 'results.json'} and {out / 'results.md'}")
+    return 0

@@ -1,0 +1,71 @@
+"""The results scripts' own arithmetic: loop-pair errors against known answers, mean ± std over seeds,
+the tables they write (the full runs are `make results`; these check what they compute)."""
+from __future__ import annotations
+
+import dataclasses
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from bench import results_slam, results_vo
+from core import se3
+from core.trajectory import Trajectory
+
+
+def _seq(world_from_cam: np.ndarray):
+    return SimpleNamespace(gt=Trajectory(world_from_cam), name="toy", timestamps_s=None)
+
+
+def test_pair_errors_known_answers():
+    rng = np.random.default_rng(0)
+    poses = se3.from_euler6(np.c_[rng.normal(0, 0.2, (10, 3)), rng.normal(0, 3.0, (10, 3))])
+    seq = _seq(poses)
+    pairs = np.array([[0, 5], [1, 7], [2, 9]])
+    truth = se3.to_euler6(se3.relative(poses[pairs[:, 1]], poses[pairs[:, 0]]))  # cam_j_from_cam_i
+    exact = results_vo.pair_errors(seq, pairs, truth)
+    assert exact["t_rmse_m"] < 1e-9 and exact["r_rmse_deg"] < 1e-6 and exact["pairs"] == 3
+    # a prediction off by a known translation of 0.3 m along z (in frame j) and nothing else
+    off = se3.to_euler6(se3.from_rt(np.eye(3), [0, 0, 0.3]) @ se3.from_euler6(truth))
+    err = results_vo.pair_errors(seq, pairs, off)
+    assert err["t_rmse_m"] == pytest.approx(0.3, abs=1e-9) and err["r_rmse_deg"] < 1e-6
+    # a pure 2-degree rotation error
+    rot = se3.to_euler6(se3.from_euler6([0, np.radians(2.0), 0, 0, 0, 0]) @ se3.from_euler6(truth))
+    assert results_vo.pair_errors(seq, pairs, rot)["r_rmse_deg"] == pytest.approx(2.0, abs=1e-6)
+
+
+def _rec(t_err: float, ate: float) -> dict:
+    vo = {"ate_m": ate, "rpe_t_m": 0.1, "rpe_r_deg": 0.1, "kitti_t_err_pct": t_err, "kitti_r_err_deg_per_100m": 1.0}
+    loops = {"pairs": 10, "t_rmse_m": 0.5, "r_rmse_deg": 1.0, "true_t_mean_m": 1.0}
+    street = {"vo": vo, "slam": dict(vo, ate_m=ate / 2), "loops": loops, "loop_edges": 3}
+    return {"street_gt": street, "street_dis": street, "kitti06_dis": {k: vo[k] for k in ("ate_m", "rpe_t_m", "rpe_r_deg")}}
+
+
+def test_summary_means_stds_and_the_headline_ratio():
+    per_seed = {"synthetic": [_rec(6.0, 3.0), _rec(10.0, 5.0)], "supervised": [_rec(2.0, 1.0), _rec(2.0, 1.0)]}
+    kitti_plus = [{"seed": 0, "kitti06_dis": _rec(1, 2.0)["kitti06_dis"]}]
+    held = type("Held", (), {"name": "held", "__len__": lambda self: 300})()
+    rep = results_vo.summarize(results_vo.ResultsVOConfig(), per_seed, kitti_plus, held)
+    assert rep["ratio_synthetic_over_supervised_t_err"]["gt"] == pytest.approx(4.0)
+    row = next(r for r in rep["table"] if r["measure"] == "NN_cons VO t_err [%]")
+    assert row["synthetic"]["mean"] == pytest.approx(8.0) and row["synthetic"]["std"] == pytest.approx(np.std([6, 10], ddof=1))
+    assert row["supervised"]["std"] == 0.0
+    k06 = next(r for r in rep["table"] if r["data"].startswith("KITTI") and r["measure"].endswith("ATE [m]"))
+    assert k06["synthetic + KITTI 06 frames"]["mean"] == pytest.approx(2.0)
+    rep["commands"], rep["minutes"] = [], 1.0
+    md = results_vo.markdown(rep)
+    assert "8 ± 2.83" in md and "4.00 with exact flow" in md
+
+
+def test_slam_table_marks_the_half_target():
+    case = {"vo": {"ate_m": 2.0, "ate_sim3_m": 1.5, "kitti_t_err_pct": 3.0, "kitti_r_err_deg_per_100m": 1.0},
+            "slam_default": {"ate_m": 1.5}, "slam_tuned": {"ate_m": 0.5, "ate_sim3_m": 0.4, "kitti_t_err_pct": 1.0,
+                                                          "kitti_r_err_deg_per_100m": 0.5},
+            "ratio_tuned": 0.25, "params_tuned": {"c_s": 3.0, "c_r": 1.0, "t_loop": 50},
+            "loops_tuned": {"pairs": 8, "kept": 7, "t_rmse_m": 0.1, "r_rmse_deg": 0.2}}
+    bad = dict(case, ratio_tuned=0.8, slam_tuned=dict(case["slam_tuned"], ate_m=1.6))
+    md = results_slam.markdown({"config": dataclasses.asdict(results_slam.ResultsSlamConfig()), "minutes": 1.0,
+                                "commands": [], "cases": {"street/gt": case, "room/dis": bad}})
+    lines = [ln for ln in md.splitlines() if ln.startswith("| street") or ln.startswith("| room")]
+    assert "| 0.25 | yes |" in lines[0] and "| 0.80 | no |" in lines[1]
+    assert "3, 1, 50" in lines[0] and "7 of 8" in lines[0]
