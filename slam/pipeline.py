@@ -133,19 +133,11 @@ class Prepared:
         """Retrieval + verification of every keyframe against keyframes more than t_loop frames older."""
         if self.detector is None:
             return []
-        if t_loop in self._loops_by_t:
-            return self._loops_by_t[t_loop]
-        t0 = time.perf_counter()
-        out: list[LoopCandidate] = []
-        it = progress(self.keyframes, desc="loop search", unit="frame", disable=None if show_progress else True)
-        for row, j in enumerate(it):
-            if j - t_loop - 1 < 0:
-                continue
-            feats = self.detector.features[row]
-            out.extend(self.detector.query(j, feats, exclude_recent=t_loop + 1, bow=self.detector.db.row(row)))
-        self._loops_by_t[t_loop] = out
-        self.timings["loop_search_s"] = self.timings.get("loop_search_s", 0.0) + time.perf_counter() - t0
-        return out
+        if t_loop not in self._loops_by_t:
+            t0 = time.perf_counter()
+            self._loops_by_t[t_loop] = search_loops(self.detector, self.keyframes, t_loop, show_progress)
+            self.timings["loop_search_s"] = self.timings.get("loop_search_s", 0.0) + time.perf_counter() - t0
+        return self._loops_by_t[t_loop]
 
     def loop_pairs(self, t_loop: int, show_progress: bool = False) -> list[tuple[int, int]]:
         pairs = accepted_pairs(self.candidates(t_loop, show_progress), self.reloc.max_loops_per_query)
@@ -213,13 +205,29 @@ def data_kind(seq) -> str:
         return "kitti"
 
 
+def search_loops(detector: LoopDetector, keyframes: list[int], t_loop: int, show_progress: bool = False) -> list[LoopCandidate]:
+    """Query every keyframe against the keyframes more than ``t_loop`` frames older (retrieval + verification)."""
+    out: list[LoopCandidate] = []
+    it = progress(keyframes, desc="loop search", unit="frame", disable=None if show_progress else True)
+    for row, j in enumerate(it):
+        if j - t_loop - 1 >= 0:
+            out.extend(detector.query(j, detector.features[row], exclude_recent=t_loop + 1, bow=detector.db.row(row)))
+    return out
+
+
 def consecutive_pairs(n: int) -> list[tuple[int, int]]:
     return [(i, i + 1) for i in range(n - 1)]
 
 
 def prepare(seq, odo_cons: Odometry, odo_loops: Odometry | None, config: PipelineConfig = PipelineConfig(),
-            vocabulary: Vocabulary | None = None, show_progress: bool = True) -> Prepared:
-    """Stages 1 and 2 (features, vocabulary, database); loop search runs lazily per T_loop."""
+            vocabulary: Vocabulary | None = None, show_progress: bool = True, t_loop: int | None = None) -> Prepared:
+    """Stages 1 and 2 (features, vocabulary, database); the loop search runs lazily per T_loop.
+
+    Relocalization runs in a second thread while the odometry of stage 1 runs (OpenCV's SIFT, DIS and
+    matching and torch all release the GIL): the keyframes' SIFT features and, when a vocabulary is
+    given, the database and the loop search for ``t_loop`` too (without a vocabulary one is first
+    trained on those features, after the odometry). The results are those of the sequential order.
+    """
     n = len(seq)
     if n < 2:
         raise InputError(getattr(seq, "root", None), f"SLAM needs at least 2 frames, the sequence has {n}")
@@ -229,20 +237,25 @@ def prepare(seq, odo_cons: Odometry, odo_loops: Odometry | None, config: Pipelin
     reloc = config.reloc if config.reloc is not None else RelocConfig.for_kind(data_kind(seq))
     keyframes = list(range(0, n, config.keyframe_stride))
     with_loops = config.loops and odo_loops is not None
-    # SIFT on the keyframes runs in a second thread while the odometry runs (OpenCV's SIFT and DIS and
-    # torch all release the GIL), so relocalization's features cost little extra wall time.
     pool = ThreadPoolExecutor(1) if with_loops else None
-    feats_future = None
+    background = None
     if pool is not None:
         extract = FeatureExtractor(reloc)
 
-        def extract_all() -> tuple[list[Features], float]:
+        def relocalization() -> dict:
             t = time.perf_counter()
-            out = [extract(seq.image(i)) for i in
-                   progress(keyframes, desc="features", unit="frame", disable=None if show_progress else True)]
-            return out, time.perf_counter() - t
+            got: dict = {"feats": [extract(seq.image(i)) for i in
+                                   progress(keyframes, desc="features", unit="frame", disable=None if show_progress else True)]}
+            got["features_thread_s"] = time.perf_counter() - t
+            if vocabulary is not None:
+                got["detector"] = _database(vocabulary, seq.camera.k, reloc, keyframes, got["feats"])
+                if t_loop is not None:
+                    t = time.perf_counter()
+                    got["loops"] = search_loops(got["detector"], keyframes, t_loop)
+                    got["loop_search_thread_s"] = time.perf_counter() - t
+            return got
 
-        feats_future = pool.submit(extract_all)
+        background = pool.submit(relocalization)
     t0 = time.perf_counter()
     try:
         pairs = consecutive_pairs(n)
@@ -254,10 +267,15 @@ def prepare(seq, odo_cons: Odometry, odo_loops: Odometry | None, config: Pipelin
     cons = Edges(np.array(pairs), mean6, std6)
     timings["odometry_cons_s"] = time.perf_counter() - t0
     detector = None
+    loops_by_t: dict = {}
     if with_loops:
         t1 = time.perf_counter()
-        feats, timings["features_cpu_thread_s"] = feats_future.result()
+        got = background.result()
         timings["features_s"] = time.perf_counter() - t1  # wall time spent waiting for them after the odometry
+        timings.update({k: v for k, v in got.items() if k.endswith("_thread_s")})
+        feats, detector = got["feats"], got.get("detector")
+        if "loops" in got:
+            loops_by_t[t_loop] = got["loops"]
         if vocabulary is None:
             t2 = time.perf_counter()
             step = max(1, int(np.ceil(len(feats) / config.vocabulary_train_frames)))
@@ -267,12 +285,19 @@ def prepare(seq, odo_cons: Odometry, odo_loops: Odometry | None, config: Pipelin
             vocabulary = train_vocabulary([f.descriptors for f in feats[::step]], reloc.vocabulary_size,
                                           np.random.default_rng(config.seed))
             timings["vocabulary_s"] = time.perf_counter() - t2
-        detector = LoopDetector(vocabulary, seq.camera.k, reloc)
-        t3 = time.perf_counter()
-        for i, f in zip(keyframes, feats):
-            detector.add(i, f)
-        timings["database_s"] = time.perf_counter() - t3
-    return Prepared(seq, n, cons, detector, keyframes, odo_loops, reloc, timings)
+        if detector is None:
+            t3 = time.perf_counter()
+            detector = _database(vocabulary, seq.camera.k, reloc, keyframes, feats)
+            timings["database_s"] = time.perf_counter() - t3
+    return Prepared(seq, n, cons, detector, keyframes, odo_loops, reloc, timings, _loops_by_t=loops_by_t)
+
+
+def _database(vocabulary: Vocabulary, camera_k: np.ndarray, reloc: RelocConfig, keyframes: list[int],
+              feats: list[Features]) -> LoopDetector:
+    detector = LoopDetector(vocabulary, camera_k, reloc)
+    for i, f in zip(keyframes, feats):
+        detector.add(i, f)
+    return detector
 
 
 def solve(prep: Prepared, params: SlamParams, graph: PoseGraphConfig = PoseGraphConfig(),
@@ -304,7 +329,7 @@ def run_slam(seq, odo_cons: Odometry, odo_loops: Odometry | None = None, params:
     """
     params.validate()
     t_start = time.perf_counter()
-    prep = prepare(seq, odo_cons, odo_loops, config, vocabulary, show_progress)
+    prep = prepare(seq, odo_cons, odo_loops, config, vocabulary, show_progress, t_loop=params.t_loop)
     gt = getattr(seq, "gt", None)
     first = gt.world_from_cam[0] if gt is not None else None
     res, loops = solve(prep, params, config.graph, first, show_progress)

@@ -63,8 +63,12 @@ class RelocConfig:
     """Essential-matrix inliers needed to accept a loop."""
     min_inlier_ratio: float = 0.5
     """Inliers / ratio-test matches needed to accept a loop."""
-    max_loops_per_query: int = 3
-    """At most this many accepted candidates (most inliers first) per query frame."""
+    max_loops_per_query: int = 1
+    """At most this many accepted candidates per query frame."""
+    stop_when_found: bool = True
+    """Verify the candidates in decreasing BoW similarity and stop once ``max_loops_per_query`` are
+    accepted (the most similar verified frames win); False verifies all of them and keeps those with
+    the most inliers. Stopping halves the verification work where loops exist."""
 
     @staticmethod
     def for_kind(kind: str) -> "RelocConfig":
@@ -515,8 +519,9 @@ class LoopDetector:
               bow: tuple[np.ndarray, np.ndarray] | None = None) -> list[LoopCandidate]:
         """Retrieve and verify candidates for ``frame`` among database frames <= frame - exclude_recent.
 
-        Returns the candidates in decreasing similarity, each with its verification (accepted or not);
-        verification results are cached by pair, so repeated queries (hyperparameter search) are cheap.
+        Returns the candidates in decreasing similarity, each with its verification (accepted or not),
+        up to the ``max_loops_per_query``-th accepted one when ``stop_when_found``; verification results
+        are cached by pair, so repeated queries (hyperparameter search) are cheap.
         """
         cfg = self.config
         excl = cfg.exclude_recent if exclude_recent is None else exclude_recent
@@ -527,6 +532,7 @@ class LoopDetector:
         self.timings["retrieval_s"] += time.perf_counter() - t0
         self.timings["queries"] += 1
         out = []
+        n_accepted = 0
         t1 = time.perf_counter()
         for r, s in zip(rows, sims):
             if s <= 0 or s < cfg.min_similarity:
@@ -539,6 +545,9 @@ class LoopDetector:
                 self._verified[key] = v
                 self.timings["verifications"] += 1
             out.append(LoopCandidate(i, int(frame), float(s), v))
+            n_accepted += v.accepted
+            if cfg.stop_when_found and n_accepted >= cfg.max_loops_per_query:
+                break
         self.timings["verification_s"] += time.perf_counter() - t1
         return out
 

@@ -62,7 +62,7 @@ def test_slam_table_marks_the_half_target():
             "slam_default": {"ate_m": 1.5}, "slam_tuned": {"ate_m": 0.5, "ate_sim3_m": 0.4, "kitti_t_err_pct": 1.0,
                                                           "kitti_r_err_deg_per_100m": 0.5},
             "ratio_tuned": 0.25, "params_tuned": {"c_s": 3.0, "c_r": 1.0, "t_loop": 50},
-            "loops_tuned": {"pairs": 8, "kept": 7, "t_rmse_m": 0.1, "r_rmse_deg": 0.2}}
+            "loops_tuned": {"pairs": 7, "kept": 7, "candidates": 8, "t_rmse_m": 0.1, "r_rmse_deg": 0.2}}
     bad = dict(case, ratio_tuned=0.8, slam_tuned=dict(case["slam_tuned"], ate_m=1.6))
     md = results_slam.markdown({"config": dataclasses.asdict(results_slam.ResultsSlamConfig()), "minutes": 1.0,
                                 "commands": [], "cases": {"street/gt": case, "room/dis": bad}})

@@ -77,6 +77,7 @@ class DISFlow:
         code = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
                 "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}[preset]
         self._dis = cv2.DISOpticalFlow_create(code)
+        self._grey_cache: dict[tuple[int, int], np.ndarray] = {}
 
     def estimate(self, img0: np.ndarray, img1: np.ndarray) -> np.ndarray:
         g0, g1 = to_grey(img0), to_grey(img1)
@@ -86,7 +87,18 @@ class DISFlow:
         return np.ascontiguousarray(flow, dtype=np.float32)
 
     def pair_flow(self, seq, i: int, j: int) -> np.ndarray:
-        return self.estimate(seq.image(i), seq.image(j))
+        return self.estimate(self._grey(seq, i), self._grey(seq, j))
+
+    def _grey(self, seq, i: int) -> np.ndarray:
+        """Grey image i, decoded once for the consecutive pairs (i-1, i), (i, i+1): the last two are kept."""
+        key = (id(seq), int(i))
+        img = self._grey_cache.get(key)
+        if img is None:
+            img = to_grey(seq.image(i))
+            if len(self._grey_cache) >= 2:
+                self._grey_cache.pop(next(iter(self._grey_cache)))
+            self._grey_cache[key] = img
+        return img
 
 
 class GroundTruthFlow:

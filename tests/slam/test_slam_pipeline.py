@@ -104,3 +104,21 @@ def test_pipeline_without_loops_is_dead_reckoning(loop_seq):
     res = run_slam(loop_seq, cons, None, show_progress=False)
     np.testing.assert_allclose(res.slam.world_from_cam, res.vo.world_from_cam, atol=1e-6)
     assert len(res.loops) == 0 and res.vocabulary is None
+
+
+def test_loop_search_in_the_background_equals_the_sequential_one(loop_seq):
+    """With a given vocabulary the database and the loop search run in a second thread during the
+    odometry; the loops and the trajectory are exactly those of the lazy, sequential search."""
+    cons = GroundTruthOdometry(NoiseConfig(bias6=(0, 0.004, 0, 0, 0, 0), seed=1))
+    loops = GroundTruthOdometry(NoiseConfig(seed=2))
+    vocab = run_slam(loop_seq, cons, loops, SlamParams(t_loop=20), PipelineConfig(reloc=RELOC),
+                     show_progress=False).vocabulary
+    params = SlamParams(t_loop=20)
+    res = run_slam(loop_seq, cons, loops, params, PipelineConfig(reloc=RELOC), vocabulary=vocab, show_progress=False)
+    assert "loop_search_thread_s" in res.timings and "loop_search_s" not in res.timings
+    prep = prepare(loop_seq, cons, loops, PipelineConfig(reloc=RELOC), vocabulary=vocab, show_progress=False)
+    assert prep._loops_by_t == {}  # no t_loop given: nothing searched yet
+    opt, lazy = solve(prep, params, world_from_cam0=loop_seq.gt.world_from_cam[0])
+    assert len(lazy) > 0
+    np.testing.assert_array_equal(res.loops.pairs, lazy.pairs)
+    np.testing.assert_array_equal(res.slam.world_from_cam, opt.world_from_cam)

@@ -171,3 +171,18 @@ def test_real_kitti_frames_close_pairs_verify_and_far_pairs_do_not(shared_data):
         det.add(i, feats[i])
     cands = det.query(2, feats[2], exclude_recent=-60)  # let it see every frame
     assert cands[0].i == 0 and cands[0].verification.accepted
+
+
+@pytest.mark.parametrize("stop", [True, False])
+def test_verification_stops_at_the_first_accepted_candidate(views, vocab, stop):
+    import dataclasses
+
+    a, b = views
+    det = LoopDetector(vocab, CAM.k, dataclasses.replace(CFG, stop_when_found=stop))
+    for p, f in enumerate(a):
+        det.add(p, f)
+    cands = det.query(100, b[0], exclude_recent=5)
+    assert cands[0].i == 0 and cands[0].verification.accepted
+    assert len(cands) == (1 if stop else CFG.n_candidates)
+    assert det.timings["verifications"] == len(cands)
+    assert accepted_pairs(cands, 1) == [(0, 100)]
