@@ -1,4 +1,4 @@
-"""``make demo`` / ``python -m deepslam.demo``: the whole harness end to end, in about 15 minutes on 2 cores.
+"""``make demo`` / ``python -m deepslam.demo``: the whole harness end to end, in about 8 minutes on 2 cores (15 at most).
 
 1. render a simulated street for training (single frames + depth) and a held-out street sequence
    that closes a loop (another seed: other buildings, other parked cars);
@@ -27,7 +27,7 @@ from pathlib import Path
 
 @dataclasses.dataclass(frozen=True)
 class DemoConfig:
-    """Sizes of the demo; the defaults fit in about 15 minutes on 2 cores."""
+    """Sizes of the demo; the defaults take about 8 minutes on 2 cores (the budget is 15)."""
 
     width: int = 414
     """Rendered image width in pixels (KITTI's 1241 / 3; the height follows KITTI's aspect)."""
