@@ -88,3 +88,19 @@ def test_tune_cli_defaults_match_the_search_space():
     assert tune_slam._floats(tune_slam.DEFAULT_C_S) == d.c_s
     assert tune_slam._floats(tune_slam.DEFAULT_C_R) == d.c_r
     assert tune_slam._ints(tune_slam.DEFAULT_T_LOOP) == d.t_loop
+
+
+def test_slam_cli_corrupt_image_read_in_the_relocalization_thread(seq_dir, tmp_path, capsys):
+    """The keyframes' features are extracted in a second thread: a truncated image there still ends
+    with one line naming the file, exit status 2 and no trajectory written."""
+    import shutil
+
+    bad = tmp_path / "seq"
+    shutil.copytree(seq_dir, bad)
+    png = sorted((bad / "rgb").glob("*.png"))[7]
+    png.write_bytes(png.read_bytes()[:100])
+    out = tmp_path / "t.txt"
+    rc = main(["slam", "--sequence", str(bad), "--odometry", "gt-noisy", "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and png.name in err[0]
+    assert not out.exists()
