@@ -28,8 +28,8 @@ test: $(STAMP)
 	$(PY) -m pytest -q -n 2 --dist loadfile
 
 # Every figure of the issues: speed against same-run baselines (bench.run, about 5 minutes) and the
-# accuracy tables (SLAM vs VO on street and room, about 10 minutes; synthetic vs supervised training
-# over 3 seeds, about 40 minutes). All resumable: outputs that exist are reused.
+# accuracy tables (SLAM vs VO on street and room, about 5 minutes; synthetic vs supervised training
+# over 3 seeds, about 25 minutes). All resumable: outputs that exist are reused.
 bench: bench-speed results
 
 bench-speed: $(STAMP)

@@ -34,7 +34,7 @@ MODES = ("synthetic", "supervised")
 
 @dataclasses.dataclass(frozen=True)
 class ResultsVOConfig:
-    """Sizes of the comparison; the defaults take about 35 minutes on 2 cores."""
+    """Sizes of the comparison; the defaults take about 25 minutes on 2 cores."""
 
     width: int = 414
     """Rendered width in pixels (KITTI's 1241 / 3; KITTI's camera otherwise)."""
