@@ -5,8 +5,8 @@ Stages (each causal in the frame order, run as batches):
 1. Odometry of consecutive frames (NN_cons through the :class:`slam.odometry.Odometry` protocol; the
    odometry computes its own optical flow) -> ``cam_{t+1}_from_cam_t`` and its std; dead reckoning of
    those is the VO trajectory.
-2. Relocalization on keyframes (every ``keyframe_stride``-th frame): SIFT (extracted in a second
-   thread while stage 1 runs), a BoW vocabulary (given,
+2. Relocalization on keyframes (every ``keyframe_stride``-th frame; run in a second thread while
+   stage 1 runs, see :func:`prepare`): SIFT, a BoW vocabulary (given,
    or trained on the sequence's own keyframes when none is given), retrieval of the 20 most similar
    keyframes at least ``t_loop + 1`` frames older, ratio test, N_th and an essential-matrix check.
    The database holds every keyframe but a query only sees frames older than its exclusion window, so
