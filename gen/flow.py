@@ -26,11 +26,12 @@ wherever ``valid`` is false (never NaN).
 Two implementations of that algebra, chosen by ``backend``:
 
 - ``numba`` (the default for CPU tensors): one fused, compiled loop over the pixels
-  (:func:`_synthesize_kernel`, numba ``parallel=True`` over image rows, the inner loop vectorised),
+  (:func:`_numba_kernel`, numba ``parallel=True`` over image rows, the inner loop vectorised),
   which reads each depth once and writes each output once: about 1.5-2x the torch path on 2 cores,
   and insensitive to other load because it has no per-op thread synchronisation. Compiled on first
   use and cached on disk (``NUMBA_CACHE_DIR`` moves the cache).
-- ``torch``: the same steps as element-wise torch ops over chunks (any device, e.g. a GPU).
+- ``torch`` (:func:`_synthesize_torch`): the same steps as element-wise torch ops over chunks (any
+  device, e.g. a GPU).
 
 Bit-exactness: every pixel is computed independently, so results do not depend on the chunking or
 the thread count; they are the same for the same build (:mod:`gen.shards` relies on it for
@@ -224,6 +225,51 @@ def _synthesize_numba(z: torch.Tensor, mn: np.ndarray, flow_chw: torch.Tensor, v
                depth1 is not None, (w - 1) / 2.0, (h - 1) / 2.0, w / 2.0, h / 2.0)
 
 
+def _synthesize_torch(z: torch.Tensor, mn: np.ndarray, flow_chw: torch.Tensor, valid: torch.Tensor,
+                      depth1: torch.Tensor | None) -> None:
+    """The same algebra as element-wise torch ops over chunks of about :data:`CHUNK_PIXELS` pixels
+    (any device), with reused scratch buffers."""
+    bsz, h, w = z.shape
+    device = z.device
+    cu, cv = (w - 1) / 2.0, (h - 1) / 2.0
+    us, vs = np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)
+    f32 = dict(dtype=torch.float32, device=device)
+    row = torch.as_tensor(mn[:, :, 0, None] * us, **f32).unsqueeze(2)                     # (B, 3, 1, W)
+    col = torch.as_tensor(mn[:, :, 1, None] * vs + mn[:, :, 2, None], **f32).unsqueeze(3)  # (B, 3, H, 1)
+    # The translation column meets w = 1 / depth_z scaled by 2^100 (exact: a power of two), so that a
+    # single clamp d <= 2^100 w rejects depth_z <= 0 and depth_z = inf (2^100 w <= 0) while leaving
+    # every sane depth alone (2^100 w > 1e24 > d for depth_z < 1e6 m); depth_z below 4e-9 m gives inf.
+    e4 = torch.as_tensor(mn[:, :, 3] * _INV_SCALE_RECIP, **f32).view(bsz, 3, 1, 1)
+    scale = torch.tensor(_INV_SCALE, **f32)
+    gu = torch.as_tensor(cu - us, **f32).view(1, 1, w)
+    gv = torch.as_tensor(cv - vs, **f32).view(1, h, 1)
+    chunk = max(1, min(bsz, CHUNK_PIXELS // (h * w)))
+    ws = _WS.get(device, chunk, h, w)
+    for s in range(0, bsz, chunk):
+        n = min(chunk, bsz - s)
+        sl = slice(s, s + n)
+        inv = ws["w"][:n]
+        tt = ws["t"][:n]
+        bb = ws["b"][:n]
+        ab = ws["ab"][:n]
+        p = ws["p"][:n]
+        torch.div(scale, z[sl], out=inv)                       # 2^100 w = 2^100 / depth_z
+        torch.add(row[sl], col[sl], out=p)                     # M[:, :, :3] @ (u, v, 1)
+        p.addcmul_(e4[sl], inv.unsqueeze(1))                   # + (2^-100 M[:, :, 3]) (2^100 w)
+        d = p[:, 2]                                            # depth_z1 / depth_z
+        if depth1 is not None:
+            torch.mul(d, z[sl], out=depth1[sl])
+        d.clamp_(max=inv)                                      # depth_z <= 0 or inf: d <= 0 (NaN stays)
+        torch.abs(p[:, :2], out=ab)                            # |nu|, |nv|
+        torch.maximum(ab[:, 0], ab[:, 1], out=bb)              # NaN propagates
+        torch.lt(bb, d, out=tt)                                # |s_u|, |s_v| < 1 and d > 0: 1.0, else 0.0
+        valid[sl].copy_(tt)
+        d.mul_(tt).reciprocal_()                               # 1 / d; not valid -> inf (or NaN)
+        torch.addcmul(gu, p[:, 0], d, value=w / 2.0, out=ab[:, 0])  # u1 - u = (nu / d) W/2 + (cx_img - u)
+        torch.addcmul(gv, p[:, 1], d, value=h / 2.0, out=ab[:, 1])
+        torch.nan_to_num(ab, 0.0, 0.0, 0.0, out=flow_chw[sl])  # inf / NaN where not valid -> 0; one write
+
+
 # ------------------------------------------------------------------------------------------------- API
 
 BACKENDS = ("auto", "numba", "torch")
@@ -274,18 +320,7 @@ def synthesize(depth_z: Any, camera: Any, cam1_from_cam0: Any, zbuffer: bool = F
     mn = m.copy()
     mn[:, 0] = (m[:, 0] - cu * m[:, 2]) * (2.0 / w)
     mn[:, 1] = (m[:, 1] - cv * m[:, 2]) * (2.0 / h)
-    us, vs = np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)
     f32 = dict(dtype=torch.float32, device=device)
-    row = torch.as_tensor(mn[:, :, 0, None] * us, **f32).unsqueeze(2)                     # (B, 3, 1, W)
-    col = torch.as_tensor(mn[:, :, 1, None] * vs + mn[:, :, 2, None], **f32).unsqueeze(3)  # (B, 3, H, 1)
-    # The translation column meets w = 1 / depth_z scaled by 2^100 (exact: a power of two), so that a
-    # single clamp d <= 2^100 w rejects depth_z <= 0 and depth_z = inf (2^100 w <= 0) while leaving
-    # every sane depth alone (2^100 w > 1e24 > d for depth_z < 1e6 m); depth_z below 4e-9 m gives inf.
-    e4 = torch.as_tensor(mn[:, :, 3] * _INV_SCALE_RECIP, **f32).view(bsz, 3, 1, 1)
-    scale = torch.tensor(_INV_SCALE, **f32)
-    gu = torch.as_tensor(cu - us, **f32).view(1, 1, w)
-    gv = torch.as_tensor(cv - vs, **f32).view(1, h, 1)
-
     if out is None:
         flow_chw = torch.empty(bsz, 2, h, w, **f32)
         valid = torch.empty(bsz, h, w, dtype=torch.bool, device=device)
@@ -305,34 +340,8 @@ def synthesize(depth_z: Any, camera: Any, cam1_from_cam0: Any, zbuffer: bool = F
     if use_numba and device.type != "cpu":
         raise ValueError("the numba backend runs on CPU tensors only; use backend='torch'")
 
-    chunk = max(1, min(bsz, CHUNK_PIXELS // (h * w)))
-    ws = None if use_numba else _WS.get(device, chunk, h, w)
     with torch.no_grad():
-        if use_numba:
-            _synthesize_numba(z, mn, flow_chw, valid, depth1)
-        for s in range(0, 0 if use_numba else bsz, chunk):
-            n = min(chunk, bsz - s)
-            sl = slice(s, s + n)
-            inv = ws["w"][:n]
-            tt = ws["t"][:n]
-            bb = ws["b"][:n]
-            ab = ws["ab"][:n]
-            p = ws["p"][:n]
-            torch.div(scale, z[sl], out=inv)                       # 2^100 w = 2^100 / depth_z
-            torch.add(row[sl], col[sl], out=p)                     # M[:, :, :3] @ (u, v, 1)
-            p.addcmul_(e4[sl], inv.unsqueeze(1))                   # + (2^-100 M[:, :, 3]) (2^100 w)
-            d = p[:, 2]                                            # depth_z1 / depth_z
-            if need_z1:
-                torch.mul(d, z[sl], out=depth1[sl])
-            d.clamp_(max=inv)                                      # depth_z <= 0 or inf: d <= 0 (NaN stays)
-            torch.abs(p[:, :2], out=ab)                            # |nu|, |nv|
-            torch.maximum(ab[:, 0], ab[:, 1], out=bb)              # NaN propagates
-            torch.lt(bb, d, out=tt)                                # |s_u|, |s_v| < 1 and d > 0: 1.0, else 0.0
-            valid[sl].copy_(tt)
-            d.mul_(tt).reciprocal_()                               # 1 / d; not valid -> inf (or NaN)
-            torch.addcmul(gu, p[:, 0], d, value=w / 2.0, out=ab[:, 0])  # u1 - u = (nu / d) W/2 + (cx_img - u)
-            torch.addcmul(gv, p[:, 1], d, value=h / 2.0, out=ab[:, 1])
-            torch.nan_to_num(ab, 0.0, 0.0, 0.0, out=flow_chw[sl])  # inf / NaN where not valid -> 0; one write
+        (_synthesize_numba if use_numba else _synthesize_torch)(z, mn, flow_chw, valid, depth1)
         if zbuffer:
             visible = visible_after_motion(flow_chw, valid, depth1, occlusion_rel_tol)
             hidden = valid & ~visible
