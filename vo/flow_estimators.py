@@ -77,7 +77,7 @@ class DISFlow:
         code = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
                 "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}[preset]
         self._dis = cv2.DISOpticalFlow_create(code)
-        self._grey_cache: dict[tuple[int, int], np.ndarray] = {}
+        self._grey_cache: dict[str, np.ndarray] = {}
 
     def estimate(self, img0: np.ndarray, img1: np.ndarray) -> np.ndarray:
         g0, g1 = to_grey(img0), to_grey(img1)
@@ -90,8 +90,9 @@ class DISFlow:
         return self.estimate(self._grey(seq, i), self._grey(seq, j))
 
     def _grey(self, seq, i: int) -> np.ndarray:
-        """Grey image i, decoded once for the consecutive pairs (i-1, i), (i, i+1): the last two are kept."""
-        key = (id(seq), int(i))
+        """Grey image i, decoded once for the consecutive pairs (i-1, i), (i, i+1): the last two are kept,
+        keyed by the image file (an object id could be reused by the next sequence)."""
+        key = str(seq.image_paths[i])
         img = self._grey_cache.get(key)
         if img is None:
             img = to_grey(seq.image(i))
@@ -145,7 +146,7 @@ def exact_pair_flow(seq, i: int, j: int) -> np.ndarray:
     cam = seq.camera
     depth = seq.depth(i)
     world_from_cam = seq.gt.world_from_cam
-    cam_j_from_cam_i = se3.inverse(world_from_cam[j]) @ world_from_cam[i]
+    cam_j_from_cam_i = se3.relative(world_from_cam[j], world_from_cam[i])
     depths, motions = [depth], [cam_j_from_cam_i]
     mask = seq.mask(i) if seq.mask_paths is not None else None
     if mask is not None and mask.any() and seq.kind == "ours":

@@ -170,3 +170,18 @@ def test_gt_pairs_far_apart_use_geometry_not_a_chain(street_with_movers):
     chained = fe.chain_flows([seq.flow(k) for k in range(4)])
     err = np.linalg.norm(chained - got, axis=-1)[seq.depth(0) > 0]
     assert np.median(err) < 0.05
+
+
+def test_dis_pair_flow_reuses_decoded_images_but_never_across_sequences(plane_sequence, tmp_path):
+    """Consecutive pairs share a decoded image; a second sequence at the same index is read afresh."""
+    import shutil
+
+    seq = open_sequence(plane_sequence)
+    dis = fe.make("dis", preset="ultrafast")
+    np.testing.assert_array_equal(dis.pair_flow(seq, 2, 3), fe.make("dis", preset="ultrafast").estimate(seq.image(2), seq.image(3)))
+    other = tmp_path / "other"
+    shutil.copytree(plane_sequence, other)
+    imgs = sorted((other / "rgb").glob("*.png"))
+    shutil.copy(imgs[4], imgs[2])  # frame 2 of the copy shows frame 4
+    seq2 = open_sequence(other)
+    np.testing.assert_array_equal(dis.pair_flow(seq2, 2, 3), fe.make("dis", preset="ultrafast").estimate(seq2.image(2), seq2.image(3)))
