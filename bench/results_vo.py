@@ -115,13 +115,12 @@ def pair_errors(seq, pairs: np.ndarray, mean6: np.ndarray) -> dict:
     """RMS translation error (m) and rotation error (deg) of predicted ``cam_j_from_cam_i`` against
     the ground truth, over the pairs."""
     from core import se3
+    from core.metrics import relative_pose_errors
 
     gt = seq.gt.world_from_cam
     true = se3.relative(gt[pairs[:, 1]], gt[pairs[:, 0]])  # cam_j_from_cam_i
-    err = se3.compose(se3.inverse(true), se3.from_euler6(mean6))
-    return {"pairs": int(len(pairs)),
-            "t_rmse_m": float(np.sqrt(np.mean(np.sum(err[:, :3, 3] ** 2, axis=1)))),
-            "r_rmse_deg": float(np.degrees(np.sqrt(np.mean(se3.rotation_angle(err) ** 2)))),
+    err = relative_pose_errors(true, se3.from_euler6(mean6))
+    return {"pairs": int(len(pairs)), "t_rmse_m": err["t_rmse_m"], "r_rmse_deg": err["r_rmse_deg"],
             "true_t_mean_m": float(np.linalg.norm(true[:, :3, 3], axis=1).mean())}
 
 
@@ -151,14 +150,13 @@ def evaluate_street(seq, cons: Path, loops: Path, flow: str, cfg: ResultsVOConfi
 def evaluate_vo(seq, cons: Path, flow: str) -> dict:
     """VO (dead reckoning of NN_cons) on a sequence without loop closure."""
     from core import metrics
+    from core.trajectory import Trajectory
     from slam.pipeline import consecutive_pairs
     from vo import flow_estimators
     from vo.infer import VOPredictor, chain_euler6
 
     p = VOPredictor.from_file(cons)
     mean6, _ = p.predict_pairs(seq, consecutive_pairs(len(seq)), flow_estimators.make(flow), progress=False)
-    from core.trajectory import Trajectory
-
     traj = Trajectory(seq.gt.world_from_cam[0] @ chain_euler6(mean6), seq.timestamps_s)
     return _metric_subset(metrics.evaluate(seq.gt, traj))
 

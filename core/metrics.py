@@ -178,7 +178,14 @@ def rpe(gt, est, delta: int = 1, all_pairs: bool = False) -> dict:
     """
     gt, est = _pair(gt, est)
     i, j = rpe_pairs(len(gt), delta, all_pairs)
-    err = se3.inverse(se3.relative(gt[i], gt[j])) @ se3.relative(est[i], est[j])
+    return relative_pose_errors(se3.relative(gt[i], gt[j]), se3.relative(est[i], est[j]))
+
+
+def relative_pose_errors(true_a_from_b: np.ndarray, est_a_from_b: np.ndarray) -> dict:
+    """Errors of estimated relative motions (P, 4, 4) against the true ones: ``E = inv(true) est``,
+    translation |t(E)| (m), rotation angle(R(E)) (deg). Returns ``t_rmse_m``, ``t_mean_m``, ``t_max_m``,
+    ``r_rmse_deg``, ``r_mean_deg``, ``r_max_deg``, ``n``. :func:`rpe` is this over frame pairs."""
+    err = se3.inverse(true_a_from_b) @ np.asarray(est_a_from_b, dtype=np.float64)
     t = _stats(np.linalg.norm(err[:, :3, 3], axis=1))
     r = _stats(np.rad2deg(se3.rotation_angle(err)))
     return {"t_rmse_m": t["rmse"], "t_mean_m": t["mean"], "t_max_m": t["max"],
