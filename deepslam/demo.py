@@ -113,7 +113,7 @@ def run(cfg: DemoConfig, out: Path, data: Path) -> Path:
     if not motion.is_file():
         poses = sorted(str(p) for p in (data / "kitti" / "poses").glob("*.txt"))
         run_command(["fit-motion", "--poses", *poses, "--stride", "1", "--loops", "--out", str(motion),
-                   "--plot", str(out / "motion.png")], log)
+                     "--plot", str(out / "motion.png")], log)
 
     # 4. NN_cons and NN_loops from single frames + depth + motion model
     models = {}
@@ -123,23 +123,23 @@ def run(cfg: DemoConfig, out: Path, data: Path) -> Path:
         models[which] = d / "model.pt"
         if not models[which].is_file():
             run_command(["train", "--mode", "synthetic", "--frames", *train_dirs, "--motion", spec, "--net", cfg.net,
-                       "--max-minutes", str(minutes), "--samples-per-epoch", str(cfg.samples_per_epoch),
-                       "--nll-epochs", str(cfg.nll_epochs), "--seed", str(cfg.seed), "--out", str(d)]
-                      + (["--resume"] if (d / "checkpoint.pt").is_file() else []), log)
+                         "--max-minutes", str(minutes), "--samples-per-epoch", str(cfg.samples_per_epoch),
+                         "--nll-epochs", str(cfg.nll_epochs), "--seed", str(cfg.seed), "--out", str(d)]
+                        + (["--resume"] if (d / "checkpoint.pt").is_file() else []), log)
 
     # 5. SLAM on the held-out sequence
     slam_json = out / "slam.json"
     if not slam_json.is_file():
         run_command(["slam", "--sequence", str(held), "--model-cons", str(models["cons"]),
-                   "--model-loops", str(models["loops"]), "--out", str(out / "slam.txt"),
-                   "--plot", str(out / "trajectories.png")], log)
+                     "--model-loops", str(models["loops"]), "--out", str(out / "slam.txt"),
+                     "--plot", str(out / "trajectories.png")], log)
     rec = json.loads(slam_json.read_text())
     # the same models on the simulator's exact flow: what a perfect flow estimator would give
     slam_gt_json = out / "slam_trueflow.json"
     if not slam_gt_json.is_file():
         run_command(["slam", "--sequence", str(held), "--model-cons", str(models["cons"]),
-                   "--model-loops", str(models["loops"]), "--flow", "gt", "--out", str(out / "slam_trueflow.txt"),
-                   "--plot", str(out / "trajectories_trueflow.png")], log)
+                     "--model-loops", str(models["loops"]), "--flow", "gt", "--out", str(out / "slam_trueflow.txt"),
+                     "--plot", str(out / "trajectories_trueflow.png")], log)
     rec_gt = json.loads(slam_gt_json.read_text())
 
     # 6. metrics cross-check on published trajectories
