@@ -56,12 +56,12 @@ def _render(log, scene: str, seed: int, cfg: ResultsSlamConfig, out: Path) -> Pa
 
 
 def _metrics(seq, world_from_cam: np.ndarray) -> dict:
+    from bench.results_vo import metric_subset
     from core import metrics
     from core.trajectory import Trajectory
 
     traj = Trajectory(world_from_cam, seq.timestamps_s)
-    ev = metrics.evaluate(seq.gt, traj)
-    out = {k: ev.get(k) for k in ("ate_m", "rpe_t_m", "rpe_r_deg", "kitti_t_err_pct", "kitti_r_err_deg_per_100m")}
+    out = metric_subset(metrics.evaluate(seq.gt, traj))
     # sim3: the shape error once the scale is corrected (loop closure fixes drift, not a scale bias)
     out["ate_sim3_m"] = metrics.evaluate(seq.gt, traj, align="sim3")["ate_m"]
     return out

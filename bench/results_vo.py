@@ -124,7 +124,8 @@ def pair_errors(seq, pairs: np.ndarray, mean6: np.ndarray) -> dict:
             "true_t_mean_m": float(np.linalg.norm(true[:, :3, 3], axis=1).mean())}
 
 
-def _metric_subset(ev: dict) -> dict:
+def metric_subset(ev: dict) -> dict:
+    """The figures the results tables report, from a :func:`core.metrics.evaluate` record."""
     keys = ("ate_m", "rpe_t_m", "rpe_r_deg", "kitti_t_err_pct", "kitti_r_err_deg_per_100m")
     return {k: ev.get(k) for k in keys}
 
@@ -142,8 +143,8 @@ def evaluate_street(seq, cons: Path, loops: Path, flow: str, cfg: ResultsVOConfi
                    show_progress=False)
     pairs = _loop_pairs(seq, cfg)
     mean6, _ = p_loops.predict_pairs(seq, pairs, est, progress=False)
-    return {"vo": _metric_subset(metrics.evaluate(seq.gt, res.vo)),
-            "slam": _metric_subset(metrics.evaluate(seq.gt, res.slam)),
+    return {"vo": metric_subset(metrics.evaluate(seq.gt, res.vo)),
+            "slam": metric_subset(metrics.evaluate(seq.gt, res.slam)),
             "loops": pair_errors(seq, pairs, mean6), "loop_edges": int(len(res.loops))}
 
 
@@ -158,7 +159,7 @@ def evaluate_vo(seq, cons: Path, flow: str) -> dict:
     p = VOPredictor.from_file(cons)
     mean6, _ = p.predict_pairs(seq, consecutive_pairs(len(seq)), flow_estimators.make(flow), progress=False)
     traj = Trajectory(seq.gt.world_from_cam[0] @ chain_euler6(mean6), seq.timestamps_s)
-    return _metric_subset(metrics.evaluate(seq.gt, traj))
+    return metric_subset(metrics.evaluate(seq.gt, traj))
 
 
 def _cached(path: Path, fn) -> dict:
