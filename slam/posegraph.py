@@ -296,14 +296,20 @@ def _robust(config: PoseGraphConfig, base):
     return gtsam.noiseModel.Robust.Create(kernel, base)
 
 
+def edge_covariances(edges: Edges, config: PoseGraphConfig, is_loop: bool) -> np.ndarray:
+    """(P, 6, 6) tangent-space covariances of the edges as the graph weighs them: the predicted std
+    scaled by C_s (consecutive edges) or ``loop_cov_scale`` (loop edges), rotations also by C_r."""
+    scale = config.loop_cov_scale if is_loop else config.c_s
+    return measurement_covariance(edges.mean6, edges.std6, scale, config.c_r, config.min_std)
+
+
 def _between_factors(graph, edges: Edges, config: PoseGraphConfig, is_loop: bool, robust: bool) -> None:
     """Add BetweenFactorPose3(i, j, inv(T(mean6)), Gaussian(J Sigma_e J^T) [robust]) to ``graph``."""
     import gtsam
 
     if not len(edges):
         return
-    scale = config.loop_cov_scale if is_loop else config.c_s
-    covs = measurement_covariance(edges.mean6, edges.std6, scale, config.c_r, config.min_std)
+    covs = edge_covariances(edges, config, is_loop)
     measured = se3.inverse(se3.from_euler6(edges.mean6))  # cam_i_from_cam_j
     for (i, j), m, cov in zip(edges.pairs, measured, covs):
         noise = gtsam.noiseModel.Gaussian.Covariance(cov)
@@ -360,8 +366,7 @@ def loop_residuals(world_from_cam: np.ndarray, edges: Edges, config: PoseGraphCo
 
     if not len(edges):
         return np.zeros(0)
-    scale = config.loop_cov_scale if is_loop else config.c_s
-    covs = measurement_covariance(edges.mean6, edges.std6, scale, config.c_r, config.min_std)
+    covs = edge_covariances(edges, config, is_loop)
     measured_inv = se3.from_euler6(edges.mean6)  # inv(cam_i_from_cam_j)
     p = np.asarray(world_from_cam, np.float64)
     err_pose = measured_inv @ se3.inverse(p[edges.pairs[:, 0]]) @ p[edges.pairs[:, 1]]
