@@ -327,6 +327,35 @@ def fill_depth_holes(depth_z: np.ndarray) -> np.ndarray:
     return d[idx[0], idx[1]].astype(np.float32)
 
 
+def _depth_source(seq, depth: str) -> str:
+    """``rendered`` or ``stereo`` for ``seq`` (``auto``: rendered when present); InputError otherwise."""
+    how = depth
+    if how == "auto":
+        how = "rendered" if seq.has_depth else "stereo"
+    if how == "rendered" and not seq.has_depth:
+        raise InputError(seq.root, "sequence has no depth maps (use --depth stereo for a stereo sequence)")
+    if how == "stereo" and not seq.has_stereo:
+        raise InputError(seq.root, "sequence has neither depth maps nor a rectified stereo pair")
+    if how not in ("rendered", "stereo"):
+        raise InputError(None, f"unknown depth source {depth!r} (auto, rendered or stereo)")
+    return how
+
+
+def _frame_indices(seq, frame_step: int, max_frames: int) -> list[int]:
+    idx = list(range(0, len(seq), max(1, frame_step)))
+    return idx[:max_frames] if max_frames else idx
+
+
+def _frame_depth(seq, i: int, how: str, fill_stereo_holes: bool, width: int, height: int) -> np.ndarray:
+    """depth_z (height, width) float32 of frame i (nearest-neighbour resized), 0 = none; stereo holes
+    filled at that resolution."""
+    d = seq.depth(i) if how == "rendered" else stereo_depth(seq, i)
+    d = resize_depth(d, width, height)  # also cleans NaN / inf / negative to 0
+    if how == "stereo" and fill_stereo_holes:
+        d = fill_depth_holes(d)
+    return d
+
+
 def load_frames(sequences: Seq, width: int, height: int, frame_step: int = 1, depth: str = "auto",
                 max_frames: int = 0, progress: bool = True, fill_stereo_holes: bool = True) -> Frames:
     """Depth of every ``frame_step``-th frame of each sequence, resized to ``width`` x ``height``.
@@ -345,28 +374,14 @@ def load_frames(sequences: Seq, width: int, height: int, frame_step: int = 1, de
 
     depths, cam_idx, cams, names = [], [], [], []
     for seq in sequences:
-        how = depth
-        if how == "auto":
-            how = "rendered" if seq.has_depth else "stereo"
-        if how == "rendered" and not seq.has_depth:
-            raise InputError(seq.root, "sequence has no depth maps (use --depth stereo for a stereo sequence)")
-        if how == "stereo" and not seq.has_stereo:
-            raise InputError(seq.root, "sequence has neither depth maps nor a rectified stereo pair")
-        if how not in ("rendered", "stereo"):
-            raise InputError(None, f"unknown depth source {depth!r} (auto, rendered or stereo)")
-        idx = list(range(0, len(seq), max(1, frame_step)))
-        if max_frames:
-            idx = idx[:max_frames]
+        how = _depth_source(seq, depth)
         cam = seq.camera.scaled(width, height)
         if cam not in cams:
             cams.append(cam)
         ci = cams.index(cam)
-        for i in tqdm(idx, desc=f"depth {seq.name} ({how})", unit="frame", disable=not progress, leave=False):
-            d = seq.depth(i) if how == "rendered" else stereo_depth(seq, i)
-            d = resize_depth(d, width, height)
-            if how == "stereo" and fill_stereo_holes:
-                d = fill_depth_holes(d)
-            depths.append(d)
+        for i in tqdm(_frame_indices(seq, frame_step, max_frames), desc=f"depth {seq.name} ({how})", unit="frame",
+                      disable=not progress, leave=False):
+            depths.append(_frame_depth(seq, i, how, fill_stereo_holes, width, height))
             cam_idx.append(ci)
             names.append(f"{seq.name}:{i}")
     if not depths:
@@ -514,7 +529,33 @@ def pool_flow(flow: torch.Tensor, valid: torch.Tensor, factor: int, masked: bool
     return out, den[:, 0] > 0
 
 
-class SyntheticSource:
+class _OnTheFlySource:
+    """Batches made on the fly by ``make_batch(rng, n)``; batch b of epoch e is seeded by (seed, e, b)."""
+
+    samples_per_epoch: int
+    seed: int
+
+    def make_batch(self, rng: np.random.Generator, n: int) -> Batch:
+        raise NotImplementedError
+
+    def batches(self, epoch: int, batch_size: int) -> Iterator[Batch]:
+        n_batches = -(-self.samples_per_epoch // batch_size)
+        for b in range(n_batches):
+            n = min(batch_size, self.samples_per_epoch - b * batch_size)
+            yield self.make_batch(np.random.default_rng(epoch_seed(self.seed, epoch, b)), n)
+
+    def materialize(self, n: int, seed: int, progress: bool = False) -> TensorSamples:
+        """A fixed set of ``n`` samples (a validation / NLL set, or a pool to train on), in order."""
+        from tqdm import tqdm
+
+        rng = np.random.default_rng(epoch_seed(seed, 0, 0xA11))
+        parts = [self.make_batch(rng, min(256, n - s)) for s in
+                 tqdm(range(0, n, 256), desc="samples", unit="batch", disable=not progress, leave=False)]
+        return TensorSamples(torch.cat([p["flow"] for p in parts]).numpy(), torch.cat([p["intrinsics"] for p in parts]).numpy(),
+                             torch.cat([p["target"] for p in parts]).numpy(), seed=seed)
+
+
+class SyntheticSource(_OnTheFlySource):
     """The paper's training data: a random frame, a random motion from the model, the flow that motion
     would cause (:func:`synthesize_flow` on the frame's depth), batched and made on the fly.
 
@@ -568,17 +609,141 @@ class SyntheticSource:
         return {"flow": flow.contiguous(), "intrinsics": torch.from_numpy(self._k_out[cams]),
                 "target": torch.from_numpy(vec6.astype(np.float32))}
 
-    def batches(self, epoch: int, batch_size: int) -> Iterator[Batch]:
-        n_batches = -(-self.samples_per_epoch // batch_size)
-        for b in range(n_batches):
-            n = min(batch_size, self.samples_per_epoch - b * batch_size)
-            yield self.make_batch(np.random.default_rng(epoch_seed(self.seed, epoch, b)), n)
-
-    def materialize(self, n: int, seed: int) -> TensorSamples:
-        """A fixed set of ``n`` samples (a validation / NLL set), in order."""
-        rng = np.random.default_rng(epoch_seed(seed, 0, 0xA11))
-        parts = [self.make_batch(rng, min(256, n - s)) for s in range(0, n, 256)]
-        return TensorSamples(torch.cat([p["flow"] for p in parts]).numpy(), torch.cat([p["intrinsics"] for p in parts]).numpy(),
-                             torch.cat([p["target"] for p in parts]).numpy(), seed=seed)
 
 
+
+# ----------------------------------------------------------------------------------------------------
+# synthetic, as an estimator sees it: single frame -> rendered second view -> estimated flow
+
+
+@dataclasses.dataclass
+class ImageFrames:
+    """Single frames with their image, for training on an estimator's flow (:class:`EstimatedFlowSource`).
+
+    Held at each sequence's own resolution, because an estimator's errors depend on it (the network
+    later sees flow estimated at that resolution, then resized).
+
+    Attributes:
+        grey: N arrays (H_k, W_k) uint8.
+        depth_z: N arrays (H_k, W_k) float32 metres (0 = unknown / sky).
+        camera_index: (N,) int index into ``cameras``.
+        cameras: the distinct cameras (each at its frames' H_k x W_k).
+        names: N "sequence:frame" labels.
+    """
+
+    grey: list
+    depth_z: list
+    camera_index: np.ndarray
+    cameras: list[PinholeCamera]
+    names: list[str]
+
+    def __len__(self) -> int:
+        return len(self.grey)
+
+    def subset(self, idx) -> "ImageFrames":
+        idx = np.asarray(idx, dtype=np.int64)
+        return ImageFrames([self.grey[i] for i in idx], [self.depth_z[i] for i in idx], self.camera_index[idx],
+                           self.cameras, [self.names[i] for i in idx])
+
+    def split(self, holdout_fraction: float, seed: int) -> tuple["ImageFrames", "ImageFrames"]:
+        """(train, holdout) by the same seeded permutation as :meth:`Frames.split`."""
+        n = len(self)
+        n_hold = max(1, int(round(holdout_fraction * n)))
+        if n_hold >= n:
+            raise InputError(None, f"{n} frames are too few to hold out {holdout_fraction:.0%} and train on the rest")
+        perm = np.random.default_rng(epoch_seed(seed, 0, 0xF4A3)).permutation(n)
+        return self.subset(np.sort(perm[n_hold:])), self.subset(np.sort(perm[:n_hold]))
+
+
+def load_image_frames(sequences: Seq, frame_step: int = 1, depth: str = "auto", max_frames: int = 0,
+                      progress: bool = True, fill_stereo_holes: bool = True) -> ImageFrames:
+    """Grey image and depth of every ``frame_step``-th frame, at each sequence's resolution
+    (arguments as :func:`load_frames`)."""
+    from tqdm import tqdm
+
+    from vo.flow_estimators import to_grey
+
+    greys, depths, cam_idx, cams, names = [], [], [], [], []
+    for seq in sequences:
+        how = _depth_source(seq, depth)
+        cam = seq.camera
+        if cam not in cams:
+            cams.append(cam)
+        ci = cams.index(cam)
+        for i in tqdm(_frame_indices(seq, frame_step, max_frames), desc=f"frames {seq.name} ({how})", unit="frame",
+                      disable=not progress, leave=False):
+            greys.append(to_grey(seq.image(i)))
+            depths.append(_frame_depth(seq, i, how, fill_stereo_holes, cam.width, cam.height))
+            cam_idx.append(ci)
+            names.append(f"{seq.name}:{i}")
+    if not greys:
+        raise InputError(None, "no frames to train on")
+    return ImageFrames(greys, depths, np.array(cam_idx, dtype=np.int64), cams, names)
+
+
+class EstimatedFlowSource(_OnTheFlySource):
+    """The paper's synthetic samples, but with the flow a real estimator gives: for a random frame and
+    a motion from the model, the second view is rendered from that single frame
+    (:func:`gen.novel_view.render_novel_view`), the estimator runs on the pair at the frame's own
+    resolution and its flow is resized to the network input (:func:`vo.flow_estimators.to_network_input`,
+    exactly as at test time). The target is the sampled motion; no pose of any frame is used.
+
+    Batch b of epoch e is a function of (seed, e, b) only (the estimators are deterministic; each
+    worker thread has its own estimator object).
+
+    Args:
+        frames: :class:`ImageFrames`.
+        sample_motion: ``(n, rng) -> (n, 6)`` paper vectors of cam1_from_cam0.
+        estimator: a :mod:`vo.flow_estimators` name (e.g. ``dis``) that can ``estimate(img0, img1)``.
+        width, height: network input size.
+        samples_per_epoch: samples per epoch.
+        seed: data seed.
+        threads: worker threads (OpenCV and numba release the GIL).
+        estimator_options: options of the estimator's factory (e.g. ``{"preset": "medium"}``).
+    """
+
+    def __init__(self, frames: ImageFrames, sample_motion, estimator: str, width: int, height: int,
+                 samples_per_epoch: int, seed: int = 0, threads: int = 2, estimator_options: dict | None = None):
+        import threading
+
+        from vo import flow_estimators
+
+        self.frames = frames
+        self.sample_motion = sample_motion
+        self.estimator = estimator
+        self.estimator_options = dict(estimator_options or {})
+        flow_estimators.make(estimator, **self.estimator_options)  # fail early on a bad name / option
+        self.width, self.height = int(width), int(height)
+        self.samples_per_epoch = int(samples_per_epoch)
+        self.seed = int(seed)
+        self.threads = max(1, int(threads))
+        self._local = threading.local()
+
+    def __len__(self) -> int:
+        return self.samples_per_epoch
+
+    def _one(self, k: int, vec6: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        from gen.novel_view import render_novel_view
+        from vo import flow_estimators
+
+        est = getattr(self._local, "est", None)
+        if est is None:
+            est = self._local.est = flow_estimators.make(self.estimator, **self.estimator_options)
+        cam = self.frames.cameras[self.frames.camera_index[k]]
+        grey0 = self.frames.grey[k]
+        grey1, _ = render_novel_view(grey0, self.frames.depth_z[k], cam, se3.from_euler6(vec6))
+        return flow_estimators.to_network_input(est.estimate(grey0, grey1), cam, self.width, self.height)
+
+    def make_batch(self, rng: np.random.Generator, n: int) -> Batch:
+        from concurrent.futures import ThreadPoolExecutor
+
+        idx = rng.integers(0, len(self.frames), n)
+        vec6 = np.asarray(self.sample_motion(n, rng), dtype=np.float64).reshape(n, 6)
+        if self.threads == 1:
+            out = [self._one(int(k), m) for k, m in zip(idx, vec6)]
+        else:
+            with ThreadPoolExecutor(self.threads) as pool:
+                out = list(pool.map(self._one, (int(k) for k in idx), vec6))
+        return {"flow": torch.from_numpy(np.stack([o[0] for o in out])),
+                "intrinsics": torch.from_numpy(np.stack([o[1] for o in out])),
+                "target": torch.from_numpy(vec6.astype(np.float32))}

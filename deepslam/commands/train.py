@@ -54,6 +54,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="fixed held-out samples from the held-out frames (0 = holdout fraction x samples per epoch)")
     g.add_argument("--synth-factor", type=int, default=2, help="synthesize flow at this multiple of the network "
                    "resolution and average it down")
+    g.add_argument("--synthetic-flow", default="exact", metavar="NAME",
+                   help="flow of the synthetic samples: 'exact' (synthesized from depth + motion, the paper) or a flow "
+                        "estimator's name (e.g. dis: the second view is rendered from the single frame and the "
+                        "estimator runs on the pair, so the network learns the flow it will be given; --dis-preset)")
+    g.add_argument("--data-threads", type=int, default=2, help="threads that render and estimate (--synthetic-flow NAME)")
+    g.add_argument("--sample-pool", type=int, default=0, metavar="N",
+                   help="make N synthetic samples once and train on passes over them (an epoch is one pass) "
+                        "instead of fresh samples every epoch: for an expensive --synthetic-flow (0 = fresh)")
     g.add_argument("--toy", type=int, default=0, metavar="N",
                    help="instead of frames: N toy samples (flow of random motions over a ground plane)")
     g = p.add_argument_group("data (supervised)")
@@ -181,16 +189,34 @@ def run(args: argparse.Namespace) -> int:
             sampler = data.MotionMixture([m[0] for m in motions], [m[1] for m in motions])
             f = max(1, args.synth_factor)
             seqs = [open_sequence(d) for d in args.frames]
-            frames = data.load_frames(seqs, w * f, h * f, args.frame_step, args.depth, args.max_frames, progress)
-            train_frames, hold_frames = frames.split(args.holdout, args.seed)
-            train_src = data.SyntheticSource(train_frames, sampler, args.samples_per_epoch, args.seed, f, args.missing_depth)
             n_hold = args.holdout_samples or max(args.batch, int(round(args.holdout * args.samples_per_epoch)))
-            hold_src = data.SyntheticSource(hold_frames, sampler, n_hold, args.seed + 1, f,
-                                            args.missing_depth).materialize(n_hold, args.seed + 1)
+            if args.synthetic_flow == "exact":
+                frames = data.load_frames(seqs, w * f, h * f, args.frame_step, args.depth, args.max_frames, progress)
+                train_frames, hold_frames = frames.split(args.holdout, args.seed)
+
+                def source(fr, n, seed):
+                    return data.SyntheticSource(fr, sampler, n, seed, f, args.missing_depth)
+            else:
+                opts = {"preset": args.dis_preset} if args.synthetic_flow == "dis" else {}
+                frames = data.load_image_frames(seqs, args.frame_step, args.depth, args.max_frames, progress)
+                train_frames, hold_frames = frames.split(args.holdout, args.seed)
+
+                def source(fr, n, seed):
+                    return data.EstimatedFlowSource(fr, sampler, args.synthetic_flow, w, h, n, seed, args.data_threads, opts)
+            hold_src = source(hold_frames, n_hold, args.seed + 1).materialize(n_hold, args.seed + 1, progress)
+            train_src = source(train_frames, args.samples_per_epoch, args.seed)
+            if args.sample_pool:
+                train_src = train_src.materialize(args.sample_pool, args.seed, progress)
             meta["data"] = {"frames": [str(s.root) for s in seqs], "depth": args.depth, "frame_step": args.frame_step,
                             "n_frames": len(frames), "n_train_frames": len(train_frames), "n_holdout_frames": len(hold_frames),
                             "motion": [m[2] for m in motions], "samples_per_epoch": args.samples_per_epoch,
-                            "holdout_samples": n_hold, "synth_factor": f, "missing_depth": args.missing_depth}
+                            "holdout_samples": n_hold, "synth_factor": f, "missing_depth": args.missing_depth,
+                            "sample_pool": args.sample_pool}
+            if args.synthetic_flow != "exact":
+                from vo import flow_estimators
+
+                meta["data"].update(synth_factor=None, missing_depth=None,
+                                    synthetic_flow=flow_estimators.make(args.synthetic_flow, **opts).name)
     else:
         if not args.sequence:
             raise InputError(None, "supervised mode needs --sequence DIR...")

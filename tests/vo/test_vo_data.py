@@ -150,6 +150,54 @@ def test_train_cli_synthetic_from_single_frames(plane_sequence, motion_json, tmp
     assert (out / "model.pt").is_file()
 
 
+def test_estimated_flow_source_gives_dis_flow_of_a_rendered_second_view(plane_sequence):
+    """Single frames -> second view rendered from depth -> DIS: on the textured ground plane DIS is
+    close to the exact flow of the sampled motion; batches are deterministic; targets are the motions."""
+    from vo.flow_estimators import to_network_input
+
+    seq = open_sequence(plane_sequence)
+    frames = data.load_image_frames([seq], frame_step=3, progress=False)
+    assert len(frames) == 4 and frames.grey[0].shape == (80, 256) and frames.grey[0].dtype == np.uint8
+    fixed = np.array([0.0, 0.01, 0.0, 0.05, 0.0, -0.5])          # half a metre forward, a slight turn
+
+    def motion(n, rng):
+        return np.tile(fixed, (n, 1)) + rng.normal(0, [0.001, 0.002, 0.001, 0.02, 0.01, 0.1], (n, 6))
+
+    src = data.EstimatedFlowSource(frames, motion, "dis", 80, 24, 6, seed=3, threads=2)
+    b1, b2 = list(src.batches(0, 6)), list(src.batches(0, 6))
+    assert b1[0]["flow"].shape == (6, 2, 24, 80) and b1[0]["flow"].dtype == torch.float32
+    assert torch.equal(b1[0]["flow"], b2[0]["flow"])
+    assert not torch.equal(b1[0]["flow"], next(iter(src.batches(1, 6)))["flow"])
+    # against the exact flow of the same frames and motions (same rng draws)
+    rng = np.random.default_rng(data.epoch_seed(3, 0, 0))
+    idx = rng.integers(0, len(frames), 6)
+    vec6 = motion(6, rng)
+    np.testing.assert_allclose(b1[0]["target"].numpy(), vec6.astype(np.float32))
+    for k in range(6):
+        exact, _ = data.flow_from_depth_np(seq.camera, frames.depth_z[idx[k]], se3.from_euler6(vec6[k]))
+        want, intr = to_network_input(exact, seq.camera, 80, 24)
+        np.testing.assert_allclose(b1[0]["intrinsics"][k].numpy(), intr)
+        got = b1[0]["flow"][k].numpy()
+        road = np.abs(want).sum(0) > 0                          # below the horizon
+        epe = np.linalg.norm(got - want, axis=0)[road]
+        assert np.median(epe) < 0.3 * np.median(np.linalg.norm(want, axis=0)[road])
+
+
+def test_train_cli_synthetic_with_dis_flow_and_a_sample_pool(plane_sequence, motion_json, tmp_path):
+    from deepslam.cli import main
+
+    out = tmp_path / "syn_dis"
+    rc = main(["train", "--mode", "synthetic", "--synthetic-flow", "dis", "--dis-preset", "fast", "--sample-pool", "48",
+               "--frames", str(plane_sequence), "--motion", str(motion_json), "--net", "tiny", "--batch", "16",
+               "--samples-per-epoch", "64", "--max-epochs", "2", "--nll-epochs", "1", "--bf16", "off", "--threads", "1",
+               "--quiet", "--out", str(out)])
+    assert rc == 0
+    d = json.loads((out / "config.json").read_text())["data"]["data"]
+    assert d["synthetic_flow"] == "dis-fast" and d["sample_pool"] == 48 and d["synth_factor"] is None
+    assert main(["train", "--mode", "synthetic", "--synthetic-flow", "nope", "--frames", str(plane_sequence),
+                 "--motion", str(motion_json), "--net", "tiny", "--quiet", "--out", str(tmp_path / "o")]) == 2
+
+
 def test_train_cli_supervised_with_ground_truth_flow(plane_sequence, tmp_path):
     from deepslam.cli import main
 
