@@ -151,8 +151,8 @@ def _odometry_for_fps(seq):
         from vo import flow_estimators, models
 
         flow = flow_estimators.make("dis")
-        cons = models.load_shipped("kitti", "cons").as_odometry(flow, progress=False)
-        loops = models.load_shipped("kitti", "loops").as_odometry(flow, progress=False)
+        cons = models.load_shipped("kitti", "cons", flow).as_odometry(flow, progress=False)
+        loops = models.load_shipped("kitti", "loops", flow).as_odometry(flow, progress=False)
         return cons, loops, "shipped VO models + DIS flow"
     except Exception:  # models not shipped yet (or vo incomplete): measure the SLAM back end alone
         from slam.odometry import GroundTruthOdometry, NoiseConfig

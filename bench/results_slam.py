@@ -72,8 +72,8 @@ def _odometry(seq, flow: str):
 
     kind = models.kind_for_sequence(seq)
     est = flow_estimators.make(flow)
-    return (models.load_shipped(kind, "cons").as_odometry(est, progress=False),
-            models.load_shipped(kind, "loops").as_odometry(est, progress=False))
+    return (models.load_shipped(kind, "cons", est).as_odometry(est, progress=False),
+            models.load_shipped(kind, "loops", est).as_odometry(est, progress=False))
 
 
 def _loop_record(seq, loops, res) -> dict | None:

@@ -3,6 +3,11 @@
 Files are named ``<kind>_<which>.pt``: kind ``kitti`` (street cameras, 96 x 320-like input) or
 ``euroc`` (indoor MAV cameras); which ``cons`` (NN_cons: the motion distribution of consecutive
 frames, for odometry) or ``loops`` (NN_loops: the wide distribution of loop-closure pairs).
+
+Each is trained on exact synthetic flow (the paper). Where a flow estimator's errors matter, a
+variant trained on that estimator's flow is shipped beside it as ``<kind>_<which>_<estimator>.pt``
+(``deepslam train --synthetic-flow dis``): given the estimator's name (``flow=``), the functions here
+pick it, and fall back to the exact-flow model where there is none.
 """
 from __future__ import annotations
 
@@ -15,29 +20,45 @@ KINDS = ("kitti", "euroc")
 """Camera kinds with a shipped model."""
 WHICH = ("cons", "loops")
 """NN_cons (consecutive frames) and NN_loops (loop pairs)."""
+FLOW_VARIANTS = ("dis",)
+"""Estimators with models trained on their flow (file suffix ``_<name>``)."""
+
+
+def flow_variant(flow: str | None) -> str | None:
+    """The variant suffix for a flow estimator's name or object name (``dis``, ``dis-medium`` -> ``dis``;
+    ``gt``, None -> None: exact flow is what the plain models learned)."""
+    if flow is None:
+        return None
+    base = str(getattr(flow, "name", flow)).split("-")[0]
+    return base if base in FLOW_VARIANTS else None
 
 
 def models_dir() -> Path:
     return repo_root() / "models"
 
 
-def shipped_path(kind: str, which: str = "cons") -> Path:
-    """Path of a shipped model file (it may not exist)."""
+def shipped_path(kind: str, which: str = "cons", flow=None) -> Path:
+    """Path of a shipped model file (it may not exist): ``<kind>_<which>.pt``, or the variant trained on
+    ``flow``'s estimator (a name or an estimator object) where that file exists."""
     if kind not in KINDS:
         raise InputError(None, f"no shipped model for camera kind {kind!r} (one of {', '.join(KINDS)})")
     if which not in WHICH:
         raise InputError(None, f"unknown model variant {which!r} (one of {', '.join(WHICH)})")
+    variant = flow_variant(flow)
+    if variant is not None and (models_dir() / f"{kind}_{which}_{variant}.pt").is_file():
+        return models_dir() / f"{kind}_{which}_{variant}.pt"
     return models_dir() / f"{kind}_{which}.pt"
 
 
-def load_shipped(kind: str, which: str = "cons", **kwargs):
-    """The shipped :class:`vo.infer.VOPredictor` for ``kind`` / ``which``; InputError when the file is missing."""
+def load_shipped(kind: str, which: str = "cons", flow=None, **kwargs):
+    """The shipped :class:`vo.infer.VOPredictor` for ``kind`` / ``which`` (and the flow estimator, see
+    :func:`shipped_path`); InputError when the file is missing."""
     from vo.infer import VOPredictor
 
-    path = shipped_path(kind, which)
+    path = shipped_path(kind, which, flow)
     if not path.is_file():
         raise InputError(path, f"shipped model {kind}/{which} is missing (see models/README.md to train it)")
-    kwargs.setdefault("name", f"{kind}_{which}")
+    kwargs.setdefault("name", path.stem)
     return VOPredictor.from_file(path, **kwargs)
 
 
@@ -55,16 +76,17 @@ def kind_for_sequence(seq) -> str:
     return "kitti" if seq.camera.width > 2 * seq.camera.height else "euroc"
 
 
-def resolve(spec: str | None, seq=None, which: str = "cons", **kwargs):
+def resolve(spec: str | None, seq=None, which: str = "cons", flow=None, **kwargs):
     """A predictor from ``spec``: a model file path, ``kitti``/``euroc`` (shipped ``cons``),
-    ``kitti:loops``-style shipped names, or None (the shipped model for ``seq``'s camera kind)."""
+    ``kitti:loops``-style shipped names, or None (the shipped model for ``seq``'s camera kind). Shipped
+    models follow ``flow`` (the estimator's name or object, see :func:`shipped_path`); a file is taken as is."""
     from vo.infer import VOPredictor
 
     if spec is None:
         if seq is None:
             raise InputError(None, "no model given and no sequence to choose a shipped one")
-        return load_shipped(kind_for_sequence(seq), which, **kwargs)
+        return load_shipped(kind_for_sequence(seq), which, flow, **kwargs)
     kind, _, w = spec.partition(":")
     if kind in KINDS and not Path(spec).exists():
-        return load_shipped(kind, w or which, **kwargs)
+        return load_shipped(kind, w or which, flow, **kwargs)
     return VOPredictor.from_file(spec, **kwargs)

@@ -20,7 +20,7 @@ HELP = "run SLAM (learned odometry + BoVW loop closure + gtsam pose graph) on a 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sequence", required=True, metavar="DIR", help="KITTI sequences/NN, EuRoC folder or ours")
     p.add_argument("--model-cons", default=None, metavar="M",
-                   help="NN_cons model file or shipped name (default: the shipped model for the camera kind)")
+                   help="NN_cons model file or shipped name (default: the shipped model for the camera kind and, where one is shipped, trained on --flow's flow)")
     p.add_argument("--model-loops", default=None, metavar="M",
                    help="NN_loops model file or shipped name (default: the shipped loops model)")
     p.add_argument("--params", default=None, metavar="JSON", help="C_s, C_r, T_loop from `deepslam tune-slam`")
@@ -71,11 +71,11 @@ def make_odometry(args, seq):
     if not hasattr(models, "resolve"):
         raise InputError(None, "vo.models.resolve is missing: the learned odometry is not installed yet")
     flow = flow_estimators.make(args.flow)
-    cons = models.resolve(args.model_cons, seq, "cons").as_odometry(flow)
+    cons = models.resolve(args.model_cons, seq, "cons", flow).as_odometry(flow)
     loops = None
     if not args.no_loops:
         loops_spec = args.model_loops
-        loops = models.resolve(loops_spec, seq, "loops").as_odometry(flow)
+        loops = models.resolve(loops_spec, seq, "loops", flow).as_odometry(flow)
     return cons, loops
 
 

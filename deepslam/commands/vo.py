@@ -16,7 +16,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sequence", required=True, help="sequence folder: KITTI sequences/NN, EuRoC (holding mav0/), or ours")
     p.add_argument("--model", default=None,
                    help="model file (model.pt / checkpoint.pt), or a shipped one: kitti, euroc, kitti:loops, "
-                        "euroc:loops (default: the shipped NN_cons for the sequence's camera kind)")
+                        "euroc:loops (default: the shipped NN_cons for the sequence's camera kind, trained on --flow's flow "
+                        "where such a model is shipped)")
     p.add_argument("--out", required=True, help="trajectory file to write")
     p.add_argument("--format", choices=("kitti", "tum"), default=None,
                    help="trajectory format (default: kitti for KITTI sequences, tum otherwise)")
@@ -56,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     opts = {"preset": args.dis_preset} if args.flow == "dis" else {}
     estimator = flow_estimators.make(args.flow, **opts)
     bf16 = None if args.bf16 == "auto" else args.bf16 == "on"
-    predictor = models.resolve(args.model, seq, batch_size=args.batch, bf16=bf16)
+    predictor = models.resolve(args.model, seq, flow=estimator, batch_size=args.batch, bf16=bf16)
     fmt = args.format or ("kitti" if seq.kind == "kitti" else "tum")
 
     pairs = np.stack([frames[:-1], frames[1:]], axis=1)
