@@ -646,36 +646,53 @@ class ImageFrames:
                            self.cameras, [self.names[i] for i in idx])
 
     def split(self, holdout_fraction: float, seed: int) -> tuple["ImageFrames", "ImageFrames"]:
-        """(train, holdout) by the same seeded permutation as :meth:`Frames.split`."""
-        n = len(self)
+        """(train, holdout) by a seeded permutation of the source frames (as :meth:`Frames.split`); the
+        downscaled copies of a frame (names ``seq:i@WxH``) go where the frame goes."""
+        groups = [name.split("@")[0] for name in self.names]
+        uniq = list(dict.fromkeys(groups))
+        n = len(uniq)
         n_hold = max(1, int(round(holdout_fraction * n)))
         if n_hold >= n:
             raise InputError(None, f"{n} frames are too few to hold out {holdout_fraction:.0%} and train on the rest")
         perm = np.random.default_rng(epoch_seed(seed, 0, 0xF4A3)).permutation(n)
-        return self.subset(np.sort(perm[n_hold:])), self.subset(np.sort(perm[:n_hold]))
+        held = {uniq[k] for k in perm[:n_hold]}
+        hold = np.array([g in held for g in groups])
+        return self.subset(np.flatnonzero(~hold)), self.subset(np.flatnonzero(hold))
 
 
 def load_image_frames(sequences: Seq, frame_step: int = 1, depth: str = "auto", max_frames: int = 0,
-                      progress: bool = True, fill_stereo_holes: bool = True) -> ImageFrames:
-    """Grey image and depth of every ``frame_step``-th frame, at each sequence's resolution
-    (arguments as :func:`load_frames`)."""
+                      progress: bool = True, fill_stereo_holes: bool = True, scales: Seq[float] = (1.0,)) -> ImageFrames:
+    """Grey image and depth of every ``frame_step``-th frame, at each sequence's resolution times each
+    of ``scales`` (other arguments as :func:`load_frames`).
+
+    ``scales`` below 1 add the frame downscaled (image INTER_AREA, depth nearest, the camera scaled): an
+    estimator errs differently at another resolution (DIS under-reads a road more on a smaller image),
+    so a network that will see several resolutions should be trained on them.
+    """
+    import cv2
     from tqdm import tqdm
 
     from vo.flow_estimators import to_grey
 
+    if not scales or any(not (0.05 <= float(sc) <= 1.0) for sc in scales):
+        raise InputError(None, f"frame scales must be in [0.05, 1], got {list(scales)}")
     greys, depths, cam_idx, cams, names = [], [], [], [], []
     for seq in sequences:
         how = _depth_source(seq, depth)
-        cam = seq.camera
-        if cam not in cams:
-            cams.append(cam)
-        ci = cams.index(cam)
         for i in tqdm(_frame_indices(seq, frame_step, max_frames), desc=f"frames {seq.name} ({how})", unit="frame",
                       disable=not progress, leave=False):
-            greys.append(to_grey(seq.image(i)))
-            depths.append(_frame_depth(seq, i, how, fill_stereo_holes, cam.width, cam.height))
-            cam_idx.append(ci)
-            names.append(f"{seq.name}:{i}")
+            grey = to_grey(seq.image(i))
+            d = _frame_depth(seq, i, how, fill_stereo_holes, seq.camera.width, seq.camera.height)
+            for sc in scales:
+                w, h = max(8, round(seq.camera.width * sc)), max(8, round(seq.camera.height * sc))
+                cam = seq.camera.scaled(w, h)
+                if cam not in cams:
+                    cams.append(cam)
+                same = (w, h) == (seq.camera.width, seq.camera.height)
+                greys.append(grey if same else cv2.resize(grey, (w, h), interpolation=cv2.INTER_AREA))
+                depths.append(d if same else resize_depth(d, w, h))
+                cam_idx.append(cams.index(cam))
+                names.append(f"{seq.name}:{i}" + ("" if same else f"@{w}x{h}"))
     if not greys:
         raise InputError(None, "no frames to train on")
     return ImageFrames(greys, depths, np.array(cam_idx, dtype=np.int64), cams, names)

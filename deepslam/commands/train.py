@@ -32,6 +32,13 @@ def _ints(text: str) -> tuple[int, ...]:
         raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
 
 
+def _floats(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", choices=("synthetic", "supervised"), required=True)
     p.add_argument("--out", required=True, help="output folder")
@@ -58,6 +65,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="flow of the synthetic samples: 'exact' (synthesized from depth + motion, the paper) or a flow "
                         "estimator's name (e.g. dis: the second view is rendered from the single frame and the "
                         "estimator runs on the pair, so the network learns the flow it will be given; --dis-preset)")
+    g.add_argument("--frame-scales", type=_floats, default=(1.0,), metavar="S,S...",
+                   help="with --synthetic-flow NAME: also use each frame downscaled by these factors (e.g. 1,0.65), "
+                        "as the estimator's errors depend on the resolution")
     g.add_argument("--data-threads", type=int, default=2, help="threads that render and estimate (--synthetic-flow NAME)")
     g.add_argument("--sample-pool", type=int, default=0, metavar="N",
                    help="make N synthetic samples once and train on passes over them (an epoch is one pass) "
@@ -198,7 +208,8 @@ def run(args: argparse.Namespace) -> int:
                     return data.SyntheticSource(fr, sampler, n, seed, f, args.missing_depth)
             else:
                 opts = {"preset": args.dis_preset} if args.synthetic_flow == "dis" else {}
-                frames = data.load_image_frames(seqs, args.frame_step, args.depth, args.max_frames, progress)
+                frames = data.load_image_frames(seqs, args.frame_step, args.depth, args.max_frames, progress,
+                                                scales=args.frame_scales)
                 train_frames, hold_frames = frames.split(args.holdout, args.seed)
 
                 def source(fr, n, seed):
@@ -215,7 +226,7 @@ def run(args: argparse.Namespace) -> int:
             if args.synthetic_flow != "exact":
                 from vo import flow_estimators
 
-                meta["data"].update(synth_factor=None, missing_depth=None,
+                meta["data"].update(synth_factor=None, missing_depth=None, frame_scales=list(args.frame_scales),
                                     synthetic_flow=flow_estimators.make(args.synthetic_flow, **opts).name)
     else:
         if not args.sequence:

@@ -241,3 +241,17 @@ def test_synthetic_flow_equals_the_simulators_true_flow_everywhere():
     ok = np.isfinite(f.flow).all(-1) & (f.mask == 0)
     assert ok.mean() > 0.95 and (f.depth_z[ok] == 0).any()  # sky is in the comparison
     np.testing.assert_allclose(flow[ok], f.flow[ok], atol=2e-3)
+
+
+def test_image_frames_at_several_scales_split_by_source_frame(plane_sequence):
+    seq = open_sequence(plane_sequence)
+    frames = data.load_image_frames([seq], frame_step=2, scales=(1.0, 0.5), progress=False)
+    assert len(frames) == 12 and len(frames.cameras) == 2
+    small = [k for k, n in enumerate(frames.names) if "@" in n]
+    assert frames.grey[small[0]].shape == (40, 128) and frames.depth_z[small[0]].shape == (40, 128)
+    assert frames.cameras[frames.camera_index[small[0]]].fx == pytest.approx(seq.camera.fx / 2)
+    train, hold = frames.split(0.34, seed=0)
+    assert len(hold) == 4 and len(train) == 8                 # 2 of 6 source frames, each at both scales
+    assert not {n.split("@")[0] for n in train.names} & {n.split("@")[0] for n in hold.names}
+    with pytest.raises(Exception, match="scales"):
+        data.load_image_frames([seq], scales=(1.5,), progress=False)
