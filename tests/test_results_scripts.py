@@ -69,3 +69,27 @@ def test_slam_table_marks_the_half_target():
     lines = [ln for ln in md.splitlines() if ln.startswith("| street") or ln.startswith("| room")]
     assert "| 0.25 | yes |" in lines[0] and "| 0.80 | no |" in lines[1]
     assert "3, 1, 50" in lines[0] and "7 of 8" in lines[0]
+
+
+def test_true_loop_edges_remove_the_drift_they_span():
+    """The diagnostic graph of results_slam: true relative poses on the loop pairs (direction
+    cam_j_from_cam_i, as the pose graph reads them) pull a drifting circle back onto the truth."""
+    from types import SimpleNamespace
+
+    from bench.results_slam import _with_true_loops
+    from core import se3
+    from slam.pipeline import SlamParams
+    from slam.posegraph import Edges, chain
+
+    n = 80
+    step = se3.from_euler6(np.array([0.0, 2 * np.pi / n, 0.0, 0.0, 0.0, 0.5]))
+    gt = np.stack([np.linalg.matrix_power(step, k) for k in range(n)])
+    biased = se3.to_euler6(se3.inverse(step @ se3.from_euler6(np.array([0.0, 0.004, 0.0, 0.0, 0.0, 0.0]))))
+    cons = Edges(np.stack([np.arange(n - 1), np.arange(1, n)], 1), np.tile(biased, (n - 1, 1)), np.full((n - 1, 6), 0.01))
+    prep = SimpleNamespace(seq=SimpleNamespace(gt=SimpleNamespace(world_from_cam=gt)), n=n, cons=cons)
+    loops = Edges(np.array([[0, n - 1], [10, n - 11]]), np.zeros((2, 6)), np.full((2, 6), 0.01))
+    fixed = _with_true_loops(prep, loops, SlamParams(), gt[0])
+    drift = np.linalg.norm(chain(n, cons, gt[0])[:, :3, 3] - gt[:, :3, 3], axis=1).max()
+    assert drift > 1.0
+    assert np.linalg.norm(fixed[:, :3, 3] - gt[:, :3, 3], axis=1).max() < 0.2 * drift
+    assert _with_true_loops(prep, Edges.empty(), SlamParams(), gt[0]) is None
