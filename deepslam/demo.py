@@ -24,6 +24,8 @@ import sys
 import time
 from pathlib import Path
 
+from core.errors import InputError
+
 
 @dataclasses.dataclass(frozen=True)
 class DemoConfig:
@@ -70,8 +72,18 @@ def run_command(args: list[str], log: list[str]) -> None:
 
 def render_once(scene: str, trajectory: str, frames: int, width: int, seed: int, out: Path, log: list[str],
                 extra: tuple[str, ...] = ()) -> Path:
-    """``deepslam render`` into ``out`` unless it is already complete (an interrupted one is resumed)."""
-    if not (out / "poses.txt").is_file():
+    """``deepslam render`` into ``out`` unless it is already complete (an interrupted one is resumed).
+
+    A complete render made with another frame count or width is an error (InputError naming the
+    folder), never silently reused."""
+    if (out / "poses.txt").is_file():
+        from core.sequence import open_sequence
+
+        seq = open_sequence(out)
+        if (len(seq), seq.camera.width) != (frames, width):
+            raise InputError(out, f"holds a render of {len(seq)} frames at {seq.camera.width} px, not {frames} at "
+                                  f"{width}: delete it or choose another output folder")
+    else:
         run_command(["render", "--scene", scene, "--trajectory", trajectory, "--frames", str(frames), "--width", str(width),
                      "--seed", str(seed), *extra, "--out", str(out)] + (["--resume"] if out.exists() else []), log)
     return out

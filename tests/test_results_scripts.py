@@ -93,3 +93,23 @@ def test_true_loop_edges_remove_the_drift_they_span():
     assert drift > 1.0
     assert np.linalg.norm(fixed[:, :3, 3] - gt[:, :3, 3], axis=1).max() < 0.2 * drift
     assert _with_true_loops(prep, Edges.empty(), SlamParams(), gt[0]) is None
+
+
+def test_a_cached_render_of_other_settings_is_not_reused(tmp_path):
+    """render_once reuses a complete render only when its frame count and width are the ones asked for."""
+    from core.camera import PinholeCamera
+    from core.errors import InputError
+    from core.ours import OursWriter
+    from deepslam.demo import render_once
+
+    cam = PinholeCamera.from_fov_y(40, 30, 60.0)
+    root = tmp_path / "street_s1"
+    w = OursWriter(root, {"num_frames": 3, "rate_hz": 10.0, "camera": cam.to_dict(), "stereo_baseline_m": None,
+                          "has": {"rgb_right": False, "depth": False, "flow": False, "mask": False}})
+    for i in range(3):
+        w.write_frame(i, i / 10.0, np.eye(4), np.zeros((30, 40, 3), np.uint8))
+    w.finish()
+    log: list[str] = []
+    assert render_once("street", "car", 3, 40, 1, root, log) == root and log == []   # reused, nothing run
+    with pytest.raises(InputError, match="3 frames at 40 px, not 6 at 40"):
+        render_once("street", "car", 6, 40, 1, root, log)
