@@ -94,6 +94,34 @@ def synthetic_data_throughput(samples: int) -> float:
     return n / (time.perf_counter() - t0)
 
 
+def estimated_flow_throughput(samples: int) -> tuple[float, float]:
+    """Samples/s of vo.data.EstimatedFlowSource (a second view rendered from a 640 x 192 frame, DIS
+    medium on the pair, resized to 48 x 160; 2 threads) and of SyntheticSource on the same frames
+    (exact flow synthesized at 96 x 320, pooled), batch 128."""
+    import cv2
+
+    from core.camera import PinholeCamera
+    from vo import data
+
+    cam = PinholeCamera(1241, 376, 718.856, 718.856, 607.1928, 185.2157).scaled(640, 192)
+    depth = data.plane_depth(cam, np.array([0.0, 1.0, 0.0]), 1.65)
+    depth[depth > 80] = 0
+    rng = np.random.default_rng(0)
+    greys = [cv2.GaussianBlur(rng.integers(0, 256, (192, 640), dtype=np.uint8), (0, 0), 1.5) for _ in range(8)]
+    frames = data.ImageFrames(greys, [depth] * 8, np.zeros(8, dtype=np.int64), [cam], ["ground"] * 8)
+    est = data.EstimatedFlowSource(frames, data.toy_motion_sampler(), "dis", 160, 48, samples, seed=0, threads=2)
+    small = data.Frames(np.stack([data.resize_depth(depth, 320, 96)] * 8), np.zeros(8, dtype=np.int64),
+                        [cam.scaled(320, 96)], ["ground"] * 8)
+    exact = data.SyntheticSource(small, data.toy_motion_sampler(), samples, seed=0, synth_factor=2)
+    out = []
+    for src in (est, exact):
+        next(src.batches(99, 128))
+        t0 = time.perf_counter()
+        n = sum(len(b["target"]) for b in src.batches(0, 128))
+        out.append(n / (time.perf_counter() - t0))
+    return out[0], out[1]
+
+
 def _best(fns: dict, rounds: int) -> dict:
     """Best (highest) of ``rounds`` interleaved runs of each measurement: on a machine shared with
     other jobs the best run is the one least disturbed, and interleaving gives each the same chances."""
@@ -127,6 +155,9 @@ def run(quick: bool) -> list[dict]:
                      "one frame per call, fp32", m["single"], ">= 200 frames/s", m["batched"] >= 200))
     rows.append(_row("synthetic data 96x320 (synthesized at 192x640, pooled), batch 128",
                      _best({"d": lambda: synthetic_data_throughput(256 if quick else 1024)}, rounds)["d"], "samples/s"))
+    dis, exact = estimated_flow_throughput(128 if quick else 512)
+    rows.append(_row("synthetic data on DIS flow 48x160 (second view rendered from a 640x192 frame, DIS medium, "
+                     "2 threads), batch 128", dis, "samples/s", "exact synthetic flow, same frames and size", exact))
     return rows
 
 
