@@ -421,8 +421,9 @@ def make_odometries(config: StressConfig) -> OdometrySet:
         try:
             from vo import models
 
-            cons = models.resolve(config.model_cons or kind, None, "cons")
-            loops = models.resolve(config.model_loops or f"{kind}:loops", None, "loops")
+            # shipped models follow the flow they are given (a DIS-trained variant where one is shipped)
+            cons = {f: models.resolve(config.model_cons or kind, None, "cons", est) for f, est in flows.items()}
+            loops = models.resolve(config.model_loops or f"{kind}:loops", None, "loops", flows["dis"])
         except InputError as e:
             if config.model_cons or config.model_loops:
                 raise  # a model the user named is missing or broken: bad input
@@ -434,9 +435,10 @@ def make_odometries(config: StressConfig) -> OdometrySet:
             note = (f"learned odometry unavailable (vo cannot be imported: {e}); fell back to the rigid "
                     "least-squares fit of flow + depth over all pixels")
         else:
-            return OdometrySet("model", {f: cons.as_odometry(est, progress=False) for f, est in flows.items()},
+            names = ", ".join(f"{cons[f].name} on {f} flow" for f in flows)
+            return OdometrySet("model", {f: cons[f].as_odometry(est, progress=False) for f, est in flows.items()},
                                loops.as_odometry(flows["dis"], progress=False),
-                               f"learned, NN_cons {cons.name} (on each flow) and NN_loops {loops.name} (on DIS flow)")
+                               f"learned, NN_cons {names}, and NN_loops {loops.name} (on DIS flow)")
     return OdometrySet("rigid-fit", {f: RigidFitOdometry(est) for f, est in flows.items()}, RigidFitOdometry(flows["dis"]),
                        "rigid least-squares fit of flow + depth over all pixels (solvePnP, no outlier rejection); "
                        "loop pairs on DIS flow", note)
