@@ -151,27 +151,19 @@ def run(cfg: DemoConfig, out: Path, data: Path) -> Path:
                          "--nll-epochs", str(cfg.nll_epochs), "--seed", str(cfg.seed), "--out", str(d), *extra]
                         + (["--resume"] if (d / "checkpoint.pt").is_file() else []), log)
 
-    # 5. SLAM on the held-out sequence: DIS flow with the models trained on DIS flow, and with those
-    #    trained on exact flow
-    slam_json = out / "slam.json"
-    if not slam_json.is_file():
-        run_command(["slam", "--sequence", str(held), "--model-cons", str(models["cons_dis"]),
-                     "--model-loops", str(models["loops_dis"]), "--out", str(out / "slam.txt"),
-                     "--plot", str(out / "trajectories.png")], log)
-    rec = json.loads(slam_json.read_text())
-    slam_x_json = out / "slam_exactmodels.json"
-    if not slam_x_json.is_file():
-        run_command(["slam", "--sequence", str(held), "--model-cons", str(models["cons"]),
-                     "--model-loops", str(models["loops"]), "--out", str(out / "slam_exactmodels.txt"),
-                     "--plot", str(out / "trajectories_exactmodels.png")], log)
-    rec_x = json.loads(slam_x_json.read_text())
-    # the same models on the simulator's exact flow: what a perfect flow estimator would give
-    slam_gt_json = out / "slam_trueflow.json"
-    if not slam_gt_json.is_file():
-        run_command(["slam", "--sequence", str(held), "--model-cons", str(models["cons"]),
-                     "--model-loops", str(models["loops"]), "--flow", "gt", "--out", str(out / "slam_trueflow.txt"),
-                     "--plot", str(out / "trajectories_trueflow.png")], log)
-    rec_gt = json.loads(slam_gt_json.read_text())
+    # 5. SLAM on the held-out sequence: DIS flow with the models trained on DIS flow and with those
+    #    trained on exact flow; those on the simulator's exact flow (what a perfect flow estimator gives)
+    def slam(name: str, which: str, flow: str, plot: str) -> dict:
+        rec_json = out / f"{name}.json"
+        if not rec_json.is_file():
+            run_command(["slam", "--sequence", str(held), "--model-cons", str(models[f"cons{which}"]),
+                         "--model-loops", str(models[f"loops{which}"]), "--flow", flow, "--out", str(out / f"{name}.txt"),
+                         "--plot", str(out / plot)], log)
+        return json.loads(rec_json.read_text())
+
+    rec = slam("slam", "_dis", "dis", "trajectories.png")
+    rec_x = slam("slam_exactmodels", "", "dis", "trajectories_exactmodels.png")
+    rec_gt = slam("slam_trueflow", "", "gt", "trajectories_trueflow.png")
 
     # 6. metrics cross-check on published trajectories
     from deepslam import demo_reference
