@@ -717,10 +717,15 @@ class EstimatedFlowSource(_OnTheFlySource):
         seed: data seed.
         threads: worker threads (OpenCV and numba release the GIL).
         estimator_options: options of the estimator's factory (e.g. ``{"preset": "medium"}``).
+        appearance_noise: std (grey levels) of Gaussian noise added to the rendered view: a view
+            resampled from the first frame keeps its appearance exactly, a real next frame does not
+            (sensor noise, exposure; in a renderer, texture filtering at the new viewpoint), and the
+            estimator's errors depend on that. 0: none.
     """
 
     def __init__(self, frames: ImageFrames, sample_motion, estimator: str, width: int, height: int,
-                 samples_per_epoch: int, seed: int = 0, threads: int = 2, estimator_options: dict | None = None):
+                 samples_per_epoch: int, seed: int = 0, threads: int = 2, estimator_options: dict | None = None,
+                 appearance_noise: float = 0.0):
         import threading
 
         from vo import flow_estimators
@@ -734,12 +739,15 @@ class EstimatedFlowSource(_OnTheFlySource):
         self.samples_per_epoch = int(samples_per_epoch)
         self.seed = int(seed)
         self.threads = max(1, int(threads))
+        if not (np.isfinite(appearance_noise) and appearance_noise >= 0):
+            raise InputError(None, f"appearance noise must be a non-negative number, got {appearance_noise}")
+        self.appearance_noise = float(appearance_noise)
         self._local = threading.local()
 
     def __len__(self) -> int:
         return self.samples_per_epoch
 
-    def _one(self, k: int, vec6: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _one(self, k: int, vec6: np.ndarray, noise_seed: int) -> tuple[np.ndarray, np.ndarray]:
         from gen.novel_view import render_novel_view
         from vo import flow_estimators
 
@@ -749,6 +757,9 @@ class EstimatedFlowSource(_OnTheFlySource):
         cam = self.frames.cameras[self.frames.camera_index[k]]
         grey0 = self.frames.grey[k]
         grey1, _ = render_novel_view(grey0, self.frames.depth_z[k], cam, se3.from_euler6(vec6))
+        if self.appearance_noise > 0:
+            noise = np.random.default_rng(noise_seed).normal(0.0, self.appearance_noise, grey1.shape)
+            grey1 = np.clip(np.rint(grey1 + noise), 0, 255).astype(np.uint8)
         return flow_estimators.to_network_input(est.estimate(grey0, grey1), cam, self.width, self.height)
 
     def make_batch(self, rng: np.random.Generator, n: int) -> Batch:
@@ -756,11 +767,12 @@ class EstimatedFlowSource(_OnTheFlySource):
 
         idx = rng.integers(0, len(self.frames), n)
         vec6 = np.asarray(self.sample_motion(n, rng), dtype=np.float64).reshape(n, 6)
+        seeds = rng.integers(0, 2 ** 63, n) if self.appearance_noise > 0 else np.zeros(n, np.int64)
         if self.threads == 1:
-            out = [self._one(int(k), m) for k, m in zip(idx, vec6)]
+            out = [self._one(int(k), m, int(z)) for k, m, z in zip(idx, vec6, seeds)]
         else:
             with ThreadPoolExecutor(self.threads) as pool:
-                out = list(pool.map(self._one, (int(k) for k in idx), vec6))
+                out = list(pool.map(self._one, (int(k) for k in idx), vec6, (int(z) for z in seeds)))
         return {"flow": torch.from_numpy(np.stack([o[0] for o in out])),
                 "intrinsics": torch.from_numpy(np.stack([o[1] for o in out])),
                 "target": torch.from_numpy(vec6.astype(np.float32))}

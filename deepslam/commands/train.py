@@ -68,6 +68,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--frame-scales", type=_floats, default=(1.0,), metavar="S,S...",
                    help="with --synthetic-flow NAME: also use each frame downscaled by these factors (e.g. 1,0.65), "
                         "as the estimator's errors depend on the resolution")
+    g.add_argument("--appearance-noise", type=float, default=0.0, metavar="SIGMA",
+                   help="with --synthetic-flow NAME: Gaussian noise (grey levels) on the rendered second view, for "
+                        "the appearance changes a real next frame has and a resampled one lacks (0 = none)")
     g.add_argument("--data-threads", type=int, default=2, help="threads that render and estimate (--synthetic-flow NAME)")
     g.add_argument("--sample-pool", type=int, default=0, metavar="N",
                    help="make N synthetic samples once and train on passes over them (an epoch is one pass) "
@@ -213,7 +216,8 @@ def run(args: argparse.Namespace) -> int:
                 train_frames, hold_frames = frames.split(args.holdout, args.seed)
 
                 def source(fr, n, seed):
-                    return data.EstimatedFlowSource(fr, sampler, args.synthetic_flow, w, h, n, seed, args.data_threads, opts)
+                    return data.EstimatedFlowSource(fr, sampler, args.synthetic_flow, w, h, n, seed, args.data_threads, opts,
+                                                    args.appearance_noise)
             hold_src = source(hold_frames, n_hold, args.seed + 1).materialize(n_hold, args.seed + 1, progress)
             train_src = source(train_frames, args.samples_per_epoch, args.seed)
             if args.sample_pool:
@@ -227,6 +231,7 @@ def run(args: argparse.Namespace) -> int:
                 from vo import flow_estimators
 
                 meta["data"].update(synth_factor=None, missing_depth=None, frame_scales=list(args.frame_scales),
+                                    appearance_noise=args.appearance_noise,
                                     synthetic_flow=flow_estimators.make(args.synthetic_flow, **opts).name)
     else:
         if not args.sequence:

@@ -255,3 +255,22 @@ def test_image_frames_at_several_scales_split_by_source_frame(plane_sequence):
     assert not {n.split("@")[0] for n in train.names} & {n.split("@")[0] for n in hold.names}
     with pytest.raises(Exception, match="scales"):
         data.load_image_frames([seq], scales=(1.5,), progress=False)
+
+
+def test_appearance_noise_on_the_rendered_view_is_seeded_and_changes_only_the_flow(plane_sequence):
+    from core.errors import InputError
+
+    frames = data.load_image_frames([open_sequence(plane_sequence)], frame_step=4, progress=False)
+
+    def motion(n, rng):
+        return np.tile([0.0, 0.01, 0.0, 0.05, 0.0, -0.5], (n, 1)) + rng.normal(0, 0.01, (n, 6))
+
+    clean = data.EstimatedFlowSource(frames, motion, "dis", 80, 24, 4, seed=5, threads=1)
+    noisy = data.EstimatedFlowSource(frames, motion, "dis", 80, 24, 4, seed=5, threads=2, appearance_noise=6.0)
+    a, b, b2 = (next(iter(s.batches(0, 4))) for s in (clean, noisy, noisy))
+    assert torch.equal(a["target"], b["target"])                # the same frames and motions ...
+    assert torch.equal(b["flow"], b2["flow"])                   # ... the noise is seeded ...
+    diff = (a["flow"] - b["flow"]).abs()
+    assert 0 < diff.mean() < 0.5 * a["flow"].abs().mean()       # ... and perturbs the flow, not replaces it
+    with pytest.raises(InputError, match="appearance noise"):
+        data.EstimatedFlowSource(frames, motion, "dis", 80, 24, 4, appearance_noise=-1.0)
