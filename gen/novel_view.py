@@ -21,9 +21,10 @@ How (:func:`render_novel_view`), for frame 0 (image, depth_z) and ``cam1_from_ca
    way to know it; any estimator has to guess there, in a real pair too).
 
 The result agrees with the simulator's own rendering of the next frame except at disocclusions and
-at the border (tested in tests/gen/test_gen_novel_view.py), and DIS on a rendered pair makes the errors
-DIS makes on the real pair (its under-reading of the road's flow: ~0.84 against ~0.80 of the true flow
-on the street's lowest sixth, against 1.0 for exact flow; ``out/`` experiment in the commit message).
+at the border (tested in tests/gen/test_gen_novel_view.py), and DIS on a rendered pair makes most of
+the errors DIS makes on the real pair: on the simulated street's lowest sixth it reads ~0.84 of the
+true flow on rendered pairs and ~0.80 on real ones (exact flow: 1.0). Noise on the rendered view
+(``EstimatedFlowSource(appearance_noise=)``) stands for the appearance changes a real next frame has.
 """
 from __future__ import annotations
 
