@@ -87,7 +87,11 @@ def synthetic_data_throughput(samples: int) -> float:
     depth = data.plane_depth(cam, np.array([0.0, 1.0, 0.0]), 1.65)
     depth[depth > 80] = 0
     frames = data.Frames(np.stack([depth] * 8), np.zeros(8, dtype=np.int64), [cam], ["ground"] * 8)
-    src = data.SyntheticSource(frames, data.toy_motion_sampler(), samples, seed=0, synth_factor=2)
+    return _source_throughput(data.SyntheticSource(frames, data.toy_motion_sampler(), samples, seed=0, synth_factor=2))
+
+
+def _source_throughput(src) -> float:
+    """Samples/s of one epoch of a vo.data source in batches of 128, after one warm-up batch."""
     next(src.batches(99, 128))
     t0 = time.perf_counter()
     n = sum(len(b["target"]) for b in src.batches(0, 128))
@@ -113,13 +117,7 @@ def estimated_flow_throughput(samples: int) -> tuple[float, float]:
     small = data.Frames(np.stack([data.resize_depth(depth, 320, 96)] * 8), np.zeros(8, dtype=np.int64),
                         [cam.scaled(320, 96)], ["ground"] * 8)
     exact = data.SyntheticSource(small, data.toy_motion_sampler(), samples, seed=0, synth_factor=2)
-    out = []
-    for src in (est, exact):
-        next(src.batches(99, 128))
-        t0 = time.perf_counter()
-        n = sum(len(b["target"]) for b in src.batches(0, 128))
-        out.append(n / (time.perf_counter() - t0))
-    return out[0], out[1]
+    return _source_throughput(est), _source_throughput(exact)
 
 
 def _best(fns: dict, rounds: int) -> dict:

@@ -175,14 +175,13 @@ def render_novel_view(image: np.ndarray, depth_z: np.ndarray, camera: PinholeCam
     h, w = depth_z.shape
     if image.shape[:2] != (h, w) or (camera.width, camera.height) != (w, h):
         raise ValueError(f"image {image.shape[:2]}, depth {depth_z.shape} and camera {camera.height}x{camera.width} disagree")
-    splat, classify, back_map = _kernels()
+    _, classify, back_map = _kernels()
     cam1_from_cam0 = np.asarray(cam1_from_cam0, np.float64)
     r, t = np.ascontiguousarray(cam1_from_cam0[:3, :3]), np.ascontiguousarray(cam1_from_cam0[:3, 3])
     k = camera.k
     k_inv = np.linalg.inv(k)
     depth64 = np.ascontiguousarray(depth_z, np.float64)
-    zb = np.full((h, w), np.inf)
-    splat(depth64, _projection(camera, cam1_from_cam0), zb)
+    zb = depth_after_motion(depth64, camera, cam1_from_cam0)
     kind = classify(zb, depth64, k @ r.T @ k_inv)            # frame-1 pixel -> frame-0 pixel of the same ray
     seen = kind < 2
     splatted = kind == 0

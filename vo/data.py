@@ -276,6 +276,19 @@ def resize_depth(depth_z: np.ndarray, width: int, height: int) -> np.ndarray:
     return cv2.resize(d, (width, height), interpolation=cv2.INTER_NEAREST)
 
 
+def _holdout_mask(groups: list, holdout_fraction: float, seed: int) -> np.ndarray:
+    """(N,) bool, true for the held-out entries: a seeded permutation of the distinct ``groups`` (in
+    order of first appearance) holds out ``holdout_fraction`` of them, each with all its entries."""
+    uniq = list(dict.fromkeys(groups))
+    n = len(uniq)
+    n_hold = max(1, int(round(holdout_fraction * n)))
+    if n_hold >= n:
+        raise InputError(None, f"{n} frames are too few to hold out {holdout_fraction:.0%} and train on the rest")
+    perm = np.random.default_rng(epoch_seed(seed, 0, 0xF4A3)).permutation(n)
+    held = {uniq[k] for k in perm[:n_hold]}
+    return np.array([g in held for g in groups], dtype=bool)
+
+
 @dataclasses.dataclass
 class Frames:
     """Single frames for synthetic training, held at the synthesis resolution.
@@ -301,12 +314,8 @@ class Frames:
 
     def split(self, holdout_fraction: float, seed: int) -> tuple["Frames", "Frames"]:
         """(train, holdout) frames by a seeded permutation (held-out frames are never trained on)."""
-        n = len(self)
-        n_hold = max(1, int(round(holdout_fraction * n)))
-        if n_hold >= n:
-            raise InputError(None, f"{n} frames are too few to hold out {holdout_fraction:.0%} and train on the rest")
-        perm = np.random.default_rng(epoch_seed(seed, 0, 0xF4A3)).permutation(n)
-        return self.subset(np.sort(perm[n_hold:])), self.subset(np.sort(perm[:n_hold]))
+        hold = _holdout_mask(list(range(len(self))), holdout_fraction, seed)
+        return self.subset(np.flatnonzero(~hold)), self.subset(np.flatnonzero(hold))
 
 
 def fill_depth_holes(depth_z: np.ndarray) -> np.ndarray:
@@ -484,12 +493,11 @@ def synthesize_flow(depth_z: torch.Tensor, intrinsics: np.ndarray, cam1_from_cam
     n_chunk = max(1, min(b, chunk_pixels // (h * w)))
     p = torch.empty(n_chunk, 3, h, w)
     inv = torch.empty(n_chunk, h, w)
-    tmp = torch.empty(n_chunk, h, w)
     flow = torch.empty(n_chunk, 2, h, w)
     with torch.no_grad():
         for s in range(0, b, n_chunk):
             n = min(n_chunk, b - s)
-            z, pp, iv, tt, fl = z_all[s:s + n], p[:n], inv[:n], tmp[:n], flow[:n]
+            z, pp, iv, fl = z_all[s:s + n], p[:n], inv[:n], flow[:n]
             mm = m[s:s + n]
             torch.reciprocal(z, out=iv)
             iv.nan_to_num_(0.0, 0.0, 0.0).clamp_min_(0.0)  # 0 / negative / NaN / inf depth -> infinity
@@ -648,15 +656,7 @@ class ImageFrames:
     def split(self, holdout_fraction: float, seed: int) -> tuple["ImageFrames", "ImageFrames"]:
         """(train, holdout) by a seeded permutation of the source frames (as :meth:`Frames.split`); the
         downscaled copies of a frame (names ``seq:i@WxH``) go where the frame goes."""
-        groups = [name.split("@")[0] for name in self.names]
-        uniq = list(dict.fromkeys(groups))
-        n = len(uniq)
-        n_hold = max(1, int(round(holdout_fraction * n)))
-        if n_hold >= n:
-            raise InputError(None, f"{n} frames are too few to hold out {holdout_fraction:.0%} and train on the rest")
-        perm = np.random.default_rng(epoch_seed(seed, 0, 0xF4A3)).permutation(n)
-        held = {uniq[k] for k in perm[:n_hold]}
-        hold = np.array([g in held for g in groups])
+        hold = _holdout_mask([name.split("@")[0] for name in self.names], holdout_fraction, seed)
         return self.subset(np.flatnonzero(~hold)), self.subset(np.flatnonzero(hold))
 
 
@@ -734,7 +734,7 @@ class EstimatedFlowSource(_OnTheFlySource):
         self.sample_motion = sample_motion
         self.estimator = estimator
         self.estimator_options = dict(estimator_options or {})
-        flow_estimators.make(estimator, **self.estimator_options)  # fail early on a bad name / option
+        self.estimator_name = flow_estimators.make(estimator, **self.estimator_options).name  # fails early on a bad name
         self.width, self.height = int(width), int(height)
         self.samples_per_epoch = int(samples_per_epoch)
         self.seed = int(seed)

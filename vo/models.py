@@ -45,8 +45,9 @@ def shipped_path(kind: str, which: str = "cons", flow=None) -> Path:
     if which not in WHICH:
         raise InputError(None, f"unknown model variant {which!r} (one of {', '.join(WHICH)})")
     variant = flow_variant(flow)
-    if variant is not None and (models_dir() / f"{kind}_{which}_{variant}.pt").is_file():
-        return models_dir() / f"{kind}_{which}_{variant}.pt"
+    trained_on_flow = models_dir() / f"{kind}_{which}_{variant}.pt"
+    if variant is not None and trained_on_flow.is_file():
+        return trained_on_flow
     return models_dir() / f"{kind}_{which}.pt"
 
 

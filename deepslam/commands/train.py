@@ -220,6 +220,7 @@ def run(args: argparse.Namespace) -> int:
                                                     args.appearance_noise)
             hold_src = source(hold_frames, n_hold, args.seed + 1).materialize(n_hold, args.seed + 1, progress)
             train_src = source(train_frames, args.samples_per_epoch, args.seed)
+            estimator_name = getattr(train_src, "estimator_name", None)  # None: exact synthetic flow
             if args.sample_pool:
                 train_src = train_src.materialize(args.sample_pool, args.seed, progress)
             meta["data"] = {"frames": [str(s.root) for s in seqs], "depth": args.depth, "frame_step": args.frame_step,
@@ -227,12 +228,9 @@ def run(args: argparse.Namespace) -> int:
                             "motion": [m[2] for m in motions], "samples_per_epoch": args.samples_per_epoch,
                             "holdout_samples": n_hold, "synth_factor": f, "missing_depth": args.missing_depth,
                             "sample_pool": args.sample_pool}
-            if args.synthetic_flow != "exact":
-                from vo import flow_estimators
-
+            if estimator_name is not None:
                 meta["data"].update(synth_factor=None, missing_depth=None, frame_scales=list(args.frame_scales),
-                                    appearance_noise=args.appearance_noise,
-                                    synthetic_flow=flow_estimators.make(args.synthetic_flow, **opts).name)
+                                    appearance_noise=args.appearance_noise, synthetic_flow=estimator_name)
     else:
         if not args.sequence:
             raise InputError(None, "supervised mode needs --sequence DIR...")
