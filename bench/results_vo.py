@@ -72,7 +72,7 @@ class ResultsVOConfig:
 
 def _train(run_command, log, out: Path, mode: str, which: str, seed: int, cfg: ResultsVOConfig,
            train_dirs: list[str], extra_frames: list[str] = ()) -> Path:
-    model = out / "model.pt"
+    model = out / "model.safetensors"
     if model.is_file():
         return model
     budget = cfg.samples_cons if which == "cons" else cfg.samples_loops
@@ -88,7 +88,7 @@ def _train(run_command, log, out: Path, mode: str, which: str, seed: int, cfg: R
         n_train = _supervised_pairs(train_dirs, which) * 0.9  # the train CLI holds 10 % out
         args += ["--sequence", *train_dirs, "--flow", "gt", "--pairs", "consecutive" if which == "cons" else "loops",
                  "--max-epochs", str(max(1, round(budget / max(1.0, n_train))))]
-    if (out / "checkpoint.pt").is_file():
+    if (out / "checkpoint.safetensors").is_file():
         args.append("--resume")
     run_command(args, log)
     return model

@@ -143,13 +143,13 @@ def run(cfg: DemoConfig, out: Path, data: Path) -> Path:
                                       ("cons_dis", cfg.train_minutes_cons_dis, str(motion), True),
                                       ("loops_dis", cfg.train_minutes_loops_dis, f"{motion}:loops", True)):
         d = out / f"nn_{which}"
-        models[which] = d / "model.pt"
+        models[which] = d / "model.safetensors"
         if not models[which].is_file():
             extra = ["--synthetic-flow", "dis", "--sample-pool", str(cfg.dis_pool)] if dis else []
             run_command(["train", "--mode", "synthetic", "--frames", *train_dirs, "--motion", spec, "--net", cfg.net,
                          "--max-minutes", str(minutes), "--samples-per-epoch", str(cfg.samples_per_epoch),
                          "--nll-epochs", str(cfg.nll_epochs), "--seed", str(cfg.seed), "--out", str(d), *extra]
-                        + (["--resume"] if (d / "checkpoint.pt").is_file() else []), log)
+                        + (["--resume"] if (d / "checkpoint.safetensors").is_file() else []), log)
 
     # 5. SLAM on the held-out sequence: DIS flow with the models trained on DIS flow and with those
     #    trained on exact flow; those on the simulator's exact flow (what a perfect flow estimator gives)

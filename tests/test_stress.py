@@ -154,5 +154,5 @@ def test_falls_back_to_rigid_fit_with_a_note_when_no_model_is_shipped(tmp_path, 
 
     monkeypatch.setattr(vo.models, "models_dir", lambda: tmp_path)  # an empty models/ folder
     odo = make_odometries(StressConfig())
-    assert odo.kind == "rigid-fit" and "unavailable" in odo.note and "kitti_cons.pt" in odo.note
+    assert odo.kind == "rigid-fit" and "unavailable" in odo.note and "kitti_cons.safetensors" in odo.note
     assert set(odo.cons) == {"gt", "dis"} and isinstance(odo.loops, RigidFitOdometry)

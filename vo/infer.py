@@ -50,7 +50,7 @@ class VOPredictor:
 
     @classmethod
     def from_file(cls, path: str | Path, **kwargs) -> "VOPredictor":
-        """Load a ``model.pt`` (or a training ``checkpoint.pt``); InputError when missing or malformed."""
+        """Load a ``model.safetensors`` (or a training ``checkpoint.safetensors``); InputError when missing or malformed."""
         from vo.train import load_model
 
         model, meta = load_model(path)

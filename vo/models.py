@@ -1,11 +1,11 @@
 """The models shipped in ``<repo>/models/`` (see models/README.md for the commands that make them).
 
-Files are named ``<kind>_<which>.pt``: kind ``kitti`` (street cameras, 96 x 320-like input) or
+Files are named ``<kind>_<which>.safetensors``: kind ``kitti`` (street cameras, 96 x 320-like input) or
 ``euroc`` (indoor MAV cameras); which ``cons`` (NN_cons: the motion distribution of consecutive
 frames, for odometry) or ``loops`` (NN_loops: the wide distribution of loop-closure pairs).
 
 Each is trained on exact synthetic flow (the paper). Where a flow estimator's errors matter, a
-variant trained on that estimator's flow is shipped beside it as ``<kind>_<which>_<estimator>.pt``
+variant trained on that estimator's flow is shipped beside it as ``<kind>_<which>_<estimator>.safetensors``
 (``deepslam train --synthetic-flow dis``): given the estimator's name (``flow=``), the functions here
 pick it, and fall back to the exact-flow model where there is none.
 """
@@ -38,17 +38,17 @@ def models_dir() -> Path:
 
 
 def shipped_path(kind: str, which: str = "cons", flow=None) -> Path:
-    """Path of a shipped model file (it may not exist): ``<kind>_<which>.pt``, or the variant trained on
+    """Path of a shipped model file (it may not exist): ``<kind>_<which>.safetensors``, or the variant trained on
     ``flow``'s estimator (a name or an estimator object) where that file exists."""
     if kind not in KINDS:
         raise InputError(None, f"no shipped model for camera kind {kind!r} (one of {', '.join(KINDS)})")
     if which not in WHICH:
         raise InputError(None, f"unknown model variant {which!r} (one of {', '.join(WHICH)})")
     variant = flow_variant(flow)
-    trained_on_flow = models_dir() / f"{kind}_{which}_{variant}.pt"
+    trained_on_flow = models_dir() / f"{kind}_{which}_{variant}.safetensors"
     if variant is not None and trained_on_flow.is_file():
         return trained_on_flow
-    return models_dir() / f"{kind}_{which}.pt"
+    return models_dir() / f"{kind}_{which}.safetensors"
 
 
 def load_shipped(kind: str, which: str = "cons", flow=None, **kwargs):

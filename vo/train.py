@@ -12,7 +12,7 @@ only the heads are given to the optimizer, so frozen weights stay bit-identical)
 on the held-out samples (10 % of the data, never used for a gradient in stage 1) with the Gaussian
 negative log-likelihood for ``nll_epochs`` epochs.
 
-Every epoch ends with an atomic checkpoint (``checkpoint.pt``: model, optimizer, scheduler, best
+Every epoch ends with an atomic checkpoint (``checkpoint.safetensors``: model, optimizer, scheduler, best
 weights, epoch, stage, history, RNG states, config). Data batches are a function of (seed, epoch)
 (:mod:`vo.data`), so a run killed at any moment and resumed from its checkpoint ends with exactly
 the weights of an uninterrupted run (same threads, same machine). A non-finite loss raises
@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import io
 import math
 import time
 from pathlib import Path
@@ -31,14 +30,18 @@ from typing import Iterator, Protocol
 import torch
 
 from core import atomic
+from vo import modelfile
 from vo.net import FlowPoseNet, NetConfig, gaussian_nll, pose_loss
 
-CHECKPOINT = "checkpoint.pt"
-MODEL = "model.pt"
+CHECKPOINT = "checkpoint.safetensors"
+MODEL = "model.safetensors"
+LEGACY_CHECKPOINT = "checkpoint.pt"
+"""The pickle-based checkpoint of older versions (refused; ``deepslam convert-model`` converts it)."""
 CONFIG = "config.json"
 HISTORY = "history.json"
 MODEL_FORMAT = "deepslam-vo-model"
-MODEL_VERSION = 1
+MODEL_VERSION = 2
+CHECKPOINT_FORMAT = "deepslam-vo-checkpoint"
 
 
 class TrainingDiverged(RuntimeError):
@@ -149,23 +152,22 @@ def _stage2_optim(model: FlowPoseNet, cfg: TrainConfig):
     return torch.optim.Adam(model.uncertainty_parameters(), lr=cfg.nll_lr, amsgrad=True)
 
 
-def _state_bytes(obj) -> bytes:
-    buf = io.BytesIO()
-    torch.save(obj, buf)
-    return buf.getvalue()
-
-
 def save_checkpoint(path: Path, state: dict) -> None:
-    atomic.write_bytes(path, _state_bytes(state))
+    """Write a training checkpoint atomically (safetensors + JSON tree, :mod:`vo.modelfile`)."""
+    modelfile.save(path, CHECKPOINT_FORMAT, state)
 
 
 def load_checkpoint(path: Path) -> dict:
-    from core.errors import InputError
+    """A checkpoint written by :func:`save_checkpoint`; InputError for anything else (nothing in the
+    file is executed)."""
+    return modelfile.load(path, (CHECKPOINT_FORMAT,))[1]
 
-    try:
-        return torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as e:  # a truncated or foreign file
-        raise InputError(path, f"cannot read checkpoint ({type(e).__name__}: {e})") from None
+
+def model_tree(model: FlowPoseNet, meta: dict, half: bool = False) -> dict:
+    """What a model file holds: format, version, net config, weights (float16 with ``half``), meta."""
+    sd = {k: (v.half() if half and v.is_floating_point() else v).contiguous() for k, v in model.state_dict().items()}
+    return {"format": MODEL_FORMAT, "version": MODEL_VERSION, "net": model.cfg.to_dict(), "state_dict": sd,
+            "meta": meta}
 
 
 def save_model(path: Path, model: FlowPoseNet, meta: dict, half: bool = False) -> None:
@@ -173,9 +175,7 @@ def save_model(path: Path, model: FlowPoseNet, meta: dict, half: bool = False) -
 
     ``half``: store the weights as float16 (half the size; loaded back as float32).
     """
-    sd = {k: (v.half() if half and v.is_floating_point() else v).contiguous() for k, v in model.state_dict().items()}
-    atomic.write_bytes(path, _state_bytes({"format": MODEL_FORMAT, "version": MODEL_VERSION,
-                                           "net": model.cfg.to_dict(), "state_dict": sd, "meta": meta}))
+    modelfile.save(path, MODEL_FORMAT, model_tree(model, meta, half))
 
 
 @torch.no_grad()
@@ -240,17 +240,17 @@ def _check_finite(loss: torch.Tensor, stage: str, epoch: int, step: int, lr: flo
 def train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_dir: str | Path,
           resume: bool = False, progress: bool = True, meta: dict | None = None,
           half_weights: bool = False) -> TrainResult:
-    """Run both stages, writing ``checkpoint.pt`` every epoch and ``model.pt`` at the end.
+    """Run both stages, writing ``checkpoint.safetensors`` every epoch and ``model.safetensors`` at the end.
 
     Args:
         cfg: the training configuration.
         train_source, holdout_source: deterministic batch sources (:mod:`vo.data`); the holdout set is
             stage 1's validation set and stage 2's training set.
-        out_dir: output folder (``config.json``, ``checkpoint.pt``, ``history.json``, ``model.pt``,
+        out_dir: output folder (``config.json``, ``checkpoint.safetensors``, ``history.json``, ``model.safetensors``,
             ``loss.png``).
-        resume: continue from ``out_dir/checkpoint.pt`` (whose config must equal ``cfg``).
-        meta: JSON-able description of the data, stored in config.json and model.pt.
-        half_weights: store model.pt's weights as float16.
+        resume: continue from ``out_dir/checkpoint.safetensors`` (whose config must equal ``cfg``).
+        meta: JSON-able description of the data, stored in config.json and the model file.
+        half_weights: store the model file's weights as float16.
 
     Raises:
         TrainingDiverged: a non-finite loss.
@@ -274,6 +274,9 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
     out_dir.mkdir(parents=True, exist_ok=True)
     meta = dict(meta or {})
     ckpt_path = out_dir / CHECKPOINT
+    if (out_dir / LEGACY_CHECKPOINT).is_file() and not ckpt_path.exists():
+        raise InputError(out_dir / LEGACY_CHECKPOINT, "a pickle-based checkpoint of an older version; convert it "
+                         f"once with `deepslam convert-model {out_dir / LEGACY_CHECKPOINT}` (or choose another --out)")
     if not resume and ckpt_path.exists():
         raise InputError(ckpt_path, "a training run is already here; pass --resume to continue it or choose another --out")
     model = new_model(cfg)
@@ -452,22 +455,24 @@ def _plot_history(path: Path, history: list[dict]) -> None:
 
 
 def load_model(path: str | Path) -> tuple[FlowPoseNet, dict]:
-    """(model in eval mode, float32; meta) from a ``model.pt`` or a ``checkpoint.pt``."""
+    """(model in eval mode, float32; meta) from a ``model.safetensors`` or a ``checkpoint.safetensors``
+    (:mod:`vo.modelfile`: nothing in the file is executed)."""
     from core.errors import InputError
 
     path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "model file is missing")
-    d = load_checkpoint(path)
-    if not isinstance(d, dict):
-        raise InputError(path, "not a deepslam VO model")
-    if d.get("format") == MODEL_FORMAT:
-        net_cfg, sd, meta = NetConfig.from_dict(d["net"]), d["state_dict"], d.get("meta", {})
-    elif "model" in d and "config" in d:
-        tcfg = TrainConfig.from_dict(d["config"])
-        net_cfg, sd, meta = tcfg.net, d["model"], d.get("meta", {})
-    else:
-        raise InputError(path, "not a deepslam VO model (no format/net/state_dict)")
+    _, d = modelfile.load(path, (MODEL_FORMAT, CHECKPOINT_FORMAT))
+    try:
+        if d.get("format") == MODEL_FORMAT:
+            net_cfg, sd, meta = NetConfig.from_dict(d["net"]), d["state_dict"], d.get("meta", {})
+        elif "model" in d and "config" in d:
+            tcfg = TrainConfig.from_dict(d["config"])
+            net_cfg, sd, meta = tcfg.net, d["model"], d.get("meta", {})
+        else:
+            raise InputError(path, "not a deepslam VO model (no format/net/state_dict)")
+    except (KeyError, TypeError, ValueError) as e:
+        raise InputError(path, f"malformed VO model ({type(e).__name__}: {e})") from None
+    if not isinstance(sd, dict) or not all(torch.is_tensor(v) for v in sd.values()):
+        raise InputError(path, "malformed VO model (its weights are not a dict of tensors)")
     model = FlowPoseNet(net_cfg)
     try:
         model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in sd.items()})

@@ -5,9 +5,9 @@ depth (rendered, or from stereo) + a motion model (gen.motion JSON; several = a 
 1, 2, 3, or NN_loops' loop distribution) -> flow synthesized on the fly. Supervised: flow between real
 frame pairs (DIS or ground-truth flow) + ground-truth relative poses.
 
-Writes into ``--out``: config.json (resolved settings and data), checkpoint.pt (every epoch,
-atomically), history.json, model.pt (the result), summary.json, loss.png. ``--resume`` continues an
-interrupted run from checkpoint.pt.
+Writes into ``--out``: config.json (resolved settings and data), checkpoint.safetensors (every epoch,
+atomically), history.json, model.safetensors (the result), summary.json, loss.png. ``--resume`` continues an
+interrupted run from checkpoint.safetensors.
 """
 from __future__ import annotations
 
@@ -42,7 +42,7 @@ def _floats(text: str) -> tuple[float, ...]:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", choices=("synthetic", "supervised"), required=True)
     p.add_argument("--out", required=True, help="output folder")
-    p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.safetensors")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     g = p.add_argument_group("data (synthetic)")
     g.add_argument("--frames", nargs="+", default=[], metavar="DIR",
@@ -113,7 +113,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--bf16", choices=("auto", "on", "off"), default="auto", help="bf16 autocast (auto: native bf16 CPUs)")
     g.add_argument("--channels-last", choices=("on", "off"), default="on")
     g.add_argument("--threads", type=int, default=0, help="torch threads (0 = default)")
-    g.add_argument("--half-weights", action="store_true", help="store model.pt's weights as float16")
+    g.add_argument("--half-weights", action="store_true", help="store model.safetensors's weights as float16")
 
 
 def net_config(args):

@@ -15,7 +15,7 @@ HELP = "learned visual odometry: flow between frames -> network -> chained traje
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sequence", required=True, help="sequence folder: KITTI sequences/NN, EuRoC (holding mav0/), or ours")
     p.add_argument("--model", default=None,
-                   help="model file (model.pt / checkpoint.pt), or a shipped one: kitti, euroc, kitti:loops, "
+                   help="model file (model.safetensors / checkpoint.safetensors), or a shipped one: kitti, euroc, kitti:loops, "
                         "euroc:loops (default: the shipped NN_cons for the sequence's camera kind, trained on --flow's flow "
                         "where such a model is shipped)")
     p.add_argument("--out", required=True, help="trajectory file to write")

@@ -120,7 +120,7 @@ def test_shipped_model_names(monkeypatch, tmp_path, plane_sequence):
     seq = open_sequence(plane_sequence)
     assert models.kind_for_sequence(seq) == "kitti"  # scene "test-street-plane"
 
-    assert models.shipped_path("kitti", "cons").name == "kitti_cons.pt"
+    assert models.shipped_path("kitti", "cons").name == "kitti_cons.safetensors"
     with pytest.raises(InputError):
         models.shipped_path("tum", "cons")
     with pytest.raises(InputError):
@@ -128,19 +128,19 @@ def test_shipped_model_names(monkeypatch, tmp_path, plane_sequence):
 
 
 def test_shipped_models_follow_the_flow_estimator(monkeypatch, tmp_path, street_model):
-    """A model trained on an estimator's flow (<kind>_<which>_dis.pt) is chosen for that estimator,
+    """A model trained on an estimator's flow (<kind>_<which>_dis.safetensors) is chosen for that estimator,
     the exact-flow model for ground-truth flow or where no variant is shipped."""
     import shutil
 
     from vo import flow_estimators
 
     monkeypatch.setattr(models, "models_dir", lambda: tmp_path)
-    shutil.copy(street_model, tmp_path / "kitti_cons.pt")
-    shutil.copy(street_model, tmp_path / "kitti_cons_dis.pt")
-    assert models.shipped_path("kitti", "cons", "dis").name == "kitti_cons_dis.pt"
-    assert models.shipped_path("kitti", "cons", flow_estimators.make("dis", preset="fast")).name == "kitti_cons_dis.pt"
-    assert models.shipped_path("kitti", "cons", "gt").name == "kitti_cons.pt"
-    assert models.shipped_path("kitti", "cons").name == "kitti_cons.pt"
-    assert models.shipped_path("kitti", "loops", "dis").name == "kitti_loops.pt"   # no variant: the plain one
+    shutil.copy(street_model, tmp_path / "kitti_cons.safetensors")
+    shutil.copy(street_model, tmp_path / "kitti_cons_dis.safetensors")
+    assert models.shipped_path("kitti", "cons", "dis").name == "kitti_cons_dis.safetensors"
+    assert models.shipped_path("kitti", "cons", flow_estimators.make("dis", preset="fast")).name == "kitti_cons_dis.safetensors"
+    assert models.shipped_path("kitti", "cons", "gt").name == "kitti_cons.safetensors"
+    assert models.shipped_path("kitti", "cons").name == "kitti_cons.safetensors"
+    assert models.shipped_path("kitti", "loops", "dis").name == "kitti_loops.safetensors"   # no variant: the plain one
     assert models.resolve("kitti", None, "cons", "dis").name == "kitti_cons_dis"
-    assert models.resolve(str(tmp_path / "kitti_cons.pt"), None, "cons", "dis").name != "kitti_cons_dis"
+    assert models.resolve(str(tmp_path / "kitti_cons.safetensors"), None, "cons", "dis").name != "kitti_cons_dis"

@@ -147,7 +147,7 @@ def test_train_cli_synthetic_from_single_frames(plane_sequence, motion_json, tmp
     d = cfg["data"]["data"]
     assert d["n_frames"] == 12 and d["n_holdout_frames"] == 1 and len(d["motion"]) == 2
     assert d["motion"][1]["weight"] == 0.5 and d["missing_depth"] == "infinity"
-    assert (out / "model.pt").is_file()
+    assert (out / "model.safetensors").is_file()
 
 
 def test_estimated_flow_source_gives_dis_flow_of_a_rendered_second_view(plane_sequence):

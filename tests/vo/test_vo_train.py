@@ -69,7 +69,7 @@ def test_tiny_net_learns_motion_from_plane_flow(trained, toy):
 
 def test_outputs_written(trained):
     out = trained.out_dir
-    for name in ("config.json", "checkpoint.pt", "history.json", "model.pt", "summary.json", "loss.png"):
+    for name in ("config.json", "checkpoint.safetensors", "history.json", "model.safetensors", "summary.json", "loss.png"):
         assert (out / name).is_file(), name
     import json
 
@@ -147,8 +147,8 @@ def test_kill_and_resume_matches_uninterrupted_run(tmp_path):
     done = subprocess.run(_cli(tmp_path / "killed", "--max-epochs", "3", "--resume"), cwd=REPO, env=env,
                           capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
-    a, _ = load_model(tmp_path / "ref" / "model.pt")
-    b, _ = load_model(tmp_path / "killed" / "model.pt")
+    a, _ = load_model(tmp_path / "ref" / "model.safetensors")
+    b, _ = load_model(tmp_path / "killed" / "model.safetensors")
     for k, v in a.state_dict().items():
         assert torch.equal(v, b.state_dict()[k]), k
 
@@ -160,4 +160,4 @@ def test_nan_loss_stops_with_one_line_and_status_2(tmp_path):
     assert r.returncode == 2
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("deepslam train: error:") and "nan" in lines[0].lower(), r.stderr
-    assert not (tmp_path / "model.pt").exists()
+    assert not (tmp_path / "model.safetensors").exists()
