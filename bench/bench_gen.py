@@ -39,7 +39,7 @@ def _median_time(fn, repeats: int, warmup: int = 2) -> tuple[float, float]:
 
 
 def _inputs(rng: np.random.Generator):
-    from core import se3
+    from deepslam.core import se3
 
     # Depth: a road below the horizon and a facade at 8-40 m above it, with some holes (0 = none).
     v = np.arange(H, dtype=np.float64)[:, None] - (H - 1) / 2.0
@@ -71,8 +71,8 @@ def _measure_synthesis(quick: bool) -> dict:
     """Samples/s of gen.flow.synthesize in THIS process with torch on 2 threads (out=, fresh, z-buffer)."""
     import torch
 
-    from core.camera import PinholeCamera
-    from gen.flow import synthesize
+    from deepslam.core.camera import PinholeCamera
+    from deepslam.gen.flow import synthesize
 
     old_threads = torch.get_num_threads()
     torch.set_num_threads(2)
@@ -107,20 +107,20 @@ def _measure_in_subprocess(quick: bool, wait_policy: str) -> dict | None:
     import subprocess
     import sys
 
-    from core.paths import repo_root
+    from deepslam.core.paths import base_dir
 
     env = {**os.environ, "OMP_WAIT_POLICY": wait_policy, "OMP_NUM_THREADS": "2"}
     cmd = [sys.executable, "-m", "bench.bench_gen", "--worker"] + (["--quick"] if quick else [])
     try:
-        res = subprocess.run(cmd, cwd=repo_root(), env=env, capture_output=True, text=True, timeout=900)
+        res = subprocess.run(cmd, cwd=base_dir(), env=env, capture_output=True, text=True, timeout=900)
         return json.loads(res.stdout.strip().splitlines()[-1]) if res.returncode == 0 else None
     except (subprocess.TimeoutExpired, json.JSONDecodeError, IndexError):
         return None
 
 
 def run(quick: bool = False) -> list[dict]:
-    from core.camera import PinholeCamera
-    from gen.flow_reference import synthesize_reference
+    from deepslam.core.camera import PinholeCamera
+    from deepslam.gen.flow_reference import synthesize_reference
 
     runs = {}
     for policy in ("PASSIVE", "ACTIVE"):
@@ -181,9 +181,9 @@ def run(quick: bool = False) -> list[dict]:
 def _dataset_sps(quick: bool) -> float:
     """SyntheticFlowDataset.get_batch samples/s from in-memory 376x1241 frames to 96x320 (motion draws,
     depth resampling (cached per frame), synthesis, targets)."""
-    from core.camera import PinholeCamera
-    from gen.dataset import ArrayDepthFrames, DatasetConfig, SyntheticFlowDataset
-    from gen.motion import MotionModel, SixDof, StudentT
+    from deepslam.core.camera import PinholeCamera
+    from deepslam.gen.dataset import ArrayDepthFrames, DatasetConfig, SyntheticFlowDataset
+    from deepslam.gen.motion import MotionModel, SixDof, StudentT
 
     cam = PinholeCamera(1241, 376, 718.856, 718.856, 607.19, 185.22)
     rng = np.random.default_rng(1)

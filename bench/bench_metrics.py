@@ -48,9 +48,9 @@ def _row(name, value, unit, baseline, baseline_value, target=None, met=None) -> 
 
 
 def run(quick: bool) -> list[dict]:
-    from core import metrics
-    from core.paths import shared_data_dir
-    from core.trajio import read_trajectory
+    from deepslam.core import metrics
+    from deepslam.core.paths import shared_data_dir
+    from deepslam.core.trajio import read_trajectory
 
     data = shared_data_dir()
     gt_path, est_path = data / "kitti/poses/00.txt", data / "reference/KITTI_00_ORB.txt"

@@ -24,8 +24,8 @@ os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 
 
 def _sim(backend: str, frames: int):
-    from scenes import SceneConfig
-    from sim import RenderConfig, SimConfig, Simulator, TrajectoryConfig
+    from deepslam.scenes import SceneConfig
+    from deepslam.sim import RenderConfig, SimConfig, Simulator, TrajectoryConfig
 
     cfg = SimConfig(SceneConfig(name="street", seed=0, moving_objects=3, deform_amplitude_m=0.2),
                     TrajectoryConfig(frames=frames + 100), RenderConfig(backend=backend, width=640, height=480, stereo_baseline_m=0))
@@ -74,7 +74,7 @@ def _bare_mujoco(sim):
 def _bare_pyrender(sim):
     import pyrender
 
-    from core.camera import world_from_cam_gl_from_cv
+    from deepslam.core.camera import world_from_cam_gl_from_cv
 
     be = sim.backend
 

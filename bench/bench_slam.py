@@ -38,8 +38,8 @@ def _median_time(fn, repeats: int) -> tuple[float, object]:
 
 
 def bench_optimisation(quick: bool) -> list[dict]:
-    from slam.posegraph import PoseGraphConfig, optimize
-    from slam.synthetic import loop_graph
+    from deepslam.slam.posegraph import PoseGraphConfig, optimize
+    from deepslam.slam.synthetic import loop_graph
 
     n, laps = 5000, 5.0
     g = loop_graph(n_frames=n, laps=laps, radius_m=100.0, loop_every=8, seed=0)
@@ -77,7 +77,7 @@ def _bow_rows(rng: np.random.Generator, n: int, n_words: int = 1000, n_features:
 
 
 def bench_retrieval(quick: bool) -> list[dict]:
-    from slam.reloc import BowDatabase, naive_scores
+    from deepslam.slam.reloc import BowDatabase, naive_scores
 
     rng = np.random.default_rng(0)
     sizes = (10_000,) if quick else (10_000, 50_000)
@@ -110,9 +110,9 @@ def bench_retrieval(quick: bool) -> list[dict]:
 
 
 def bench_robustness(quick: bool) -> list[dict]:
-    from core.metrics import ate
-    from slam.posegraph import Edges, PoseGraphConfig, chain, optimize
-    from slam.synthetic import loop_graph
+    from deepslam.core.metrics import ate
+    from deepslam.slam.posegraph import Edges, PoseGraphConfig, chain, optimize
+    from deepslam.slam.synthetic import loop_graph
 
     seeds = range(2) if quick else range(5)
     ratios, ratios_plain, slam_ates, vo_ates, dirty_ates = [], [], [], [], []
@@ -148,14 +148,14 @@ def bench_robustness(quick: bool) -> list[dict]:
 def _odometry_for_fps(seq):
     """(cons, loops, label): the shipped KITTI models with DIS flow if loadable, else ground truth."""
     try:
-        from vo import flow_estimators, models
+        from deepslam.vo import flow_estimators, models
 
         flow = flow_estimators.make("dis")
         cons = models.load_shipped("kitti", "cons", flow).as_odometry(flow, progress=False)
         loops = models.load_shipped("kitti", "loops", flow).as_odometry(flow, progress=False)
         return cons, loops, "shipped VO models + DIS flow"
     except Exception:  # models not shipped yet (or vo incomplete): measure the SLAM back end alone
-        from slam.odometry import GroundTruthOdometry, NoiseConfig
+        from deepslam.slam.odometry import GroundTruthOdometry, NoiseConfig
 
         return (GroundTruthOdometry(NoiseConfig(bias6=(0, 0.002, 0, 0, 0, 0), seed=0)),
                 GroundTruthOdometry(NoiseConfig(seed=1)), "ground-truth odometry (VO models not available)")
@@ -167,9 +167,9 @@ def pipeline_fps(quick: bool) -> list[dict]:
     The BoW vocabulary is trained beforehand on another sequence (as a vocabulary is built offline);
     its training time is reported beside the row, not counted in the frames per second.
     """
-    from slam.pipeline import PipelineConfig, SlamParams, run_slam
-    from slam.reloc import FeatureExtractor, RelocConfig, train_vocabulary
-    from slam.synthetic import write_loop_sequence
+    from deepslam.slam.pipeline import PipelineConfig, SlamParams, run_slam
+    from deepslam.slam.reloc import FeatureExtractor, RelocConfig, train_vocabulary
+    from deepslam.slam.synthetic import write_loop_sequence
 
     n = 40 if quick else 120
     reloc = RelocConfig()

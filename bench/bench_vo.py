@@ -17,7 +17,7 @@ import time
 import numpy as np
 import torch
 
-from vo.net import PAPER, FlowPoseNet, NetConfig, pose_loss
+from deepslam.vo.net import PAPER, FlowPoseNet, NetConfig, pose_loss
 
 CPU_PRESET = NetConfig(48, 160, filters=32, hidden_units=256, flow_scale=10.0)
 
@@ -57,7 +57,7 @@ def train_throughput(cfg: NetConfig, bf16: bool, channels_last: bool, batch: int
 
 def inference_fps(cfg: NetConfig, batched: bool, frames: int) -> float:
     """Frames/s of VOPredictor.predict on random flows: batched (defaults) or one frame per call, fp32."""
-    from vo.infer import VOPredictor
+    from deepslam.vo.infer import VOPredictor
 
     torch.manual_seed(0)
     if batched:
@@ -80,8 +80,8 @@ def inference_fps(cfg: NetConfig, batched: bool, frames: int) -> float:
 
 def synthetic_data_throughput(samples: int) -> float:
     """Samples/s of vo.data.SyntheticSource at 96 x 320 (synthesis at 192 x 640, pooled), batch 128."""
-    from core.camera import PinholeCamera
-    from vo import data
+    from deepslam.core.camera import PinholeCamera
+    from deepslam.vo import data
 
     cam = PinholeCamera(1241, 376, 718.856, 718.856, 607.1928, 185.2157).scaled(640, 192)
     depth = data.plane_depth(cam, np.array([0.0, 1.0, 0.0]), 1.65)
@@ -104,8 +104,8 @@ def estimated_flow_throughput(samples: int) -> tuple[float, float]:
     (exact flow synthesized at 96 x 320, pooled), batch 128."""
     import cv2
 
-    from core.camera import PinholeCamera
-    from vo import data
+    from deepslam.core.camera import PinholeCamera
+    from deepslam.vo import data
 
     cam = PinholeCamera(1241, 376, 718.856, 718.856, 607.1928, 185.2157).scaled(640, 192)
     depth = data.plane_depth(cam, np.array([0.0, 1.0, 0.0]), 1.65)

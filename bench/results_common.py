@@ -23,8 +23,8 @@ def results_main(name: str, doc: str, config, quick_config, out_name: str,
     """
     os.environ.setdefault("MUJOCO_GL", "egl")
     os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
-    from core.errors import InputError
-    from core.paths import out_dir, shared_data_dir
+    from deepslam.core.errors import InputError
+    from deepslam.core.paths import out_dir, shared_data_dir
 
     ap = argparse.ArgumentParser(prog=f"python -m bench.{name}", description=doc.split("\n\n")[0])
     ap.add_argument("--out", type=Path, default=None, help=f"output folder (default: out/results/{out_name})")

@@ -63,8 +63,8 @@ def _render(log, scene: str, seed: int, cfg: ResultsSlamConfig, out: Path) -> Pa
 
 def _metrics(seq, world_from_cam: np.ndarray) -> dict:
     from bench.results_vo import metric_subset
-    from core import metrics
-    from core.trajectory import Trajectory
+    from deepslam.core import metrics
+    from deepslam.core.trajectory import Trajectory
 
     traj = Trajectory(world_from_cam, seq.timestamps_s)
     out = metric_subset(metrics.evaluate(seq.gt, traj))
@@ -74,7 +74,7 @@ def _metrics(seq, world_from_cam: np.ndarray) -> dict:
 
 
 def _odometry(seq, flow: str):
-    from vo import flow_estimators, models
+    from deepslam.vo import flow_estimators, models
 
     kind = models.kind_for_sequence(seq)
     est = flow_estimators.make(flow)
@@ -96,8 +96,8 @@ def _loop_record(seq, loops, res) -> dict | None:
 def _with_true_loops(prep, loops, params, world_from_cam0: np.ndarray) -> np.ndarray | None:
     """(N, 4, 4) the tuned graph solved with the ground truth's relative poses on the same loop pairs
     (NN_loops' predicted std kept as the weights); None without loop pairs."""
-    from core import se3
-    from slam.posegraph import Edges, PoseGraphConfig, optimize
+    from deepslam.core import se3
+    from deepslam.slam.posegraph import Edges, PoseGraphConfig, optimize
 
     if not len(loops):
         return None
@@ -109,10 +109,10 @@ def _with_true_loops(prep, loops, params, world_from_cam0: np.ndarray) -> np.nda
 
 def evaluate_case(val_seqs: list, test_seq, flow: str, plot: Path) -> dict:
     """Tune on ``val_seqs``, then VO / SLAM (default and tuned) on ``test_seq`` with one flow estimator."""
-    from core import plots
-    from slam.pipeline import PipelineConfig, SlamParams, prepare, solve
-    from slam.posegraph import chain
-    from slam.tune import problem_from_prepared, tune
+    from deepslam.core import plots
+    from deepslam.slam.pipeline import PipelineConfig, SlamParams, prepare, solve
+    from deepslam.slam.posegraph import chain
+    from deepslam.slam.tune import problem_from_prepared, tune
 
     t0 = time.perf_counter()
     tuned = tune([problem_from_prepared(prepare(v, *_odometry(v, flow), PipelineConfig(), show_progress=False))
@@ -174,8 +174,8 @@ def markdown(report: dict) -> str:
 
 
 def run(cfg: ResultsSlamConfig, out: Path) -> dict:
-    from core import atomic
-    from core.sequence import open_sequence
+    from deepslam.core import atomic
+    from deepslam.core.sequence import open_sequence
     out.mkdir(parents=True, exist_ok=True)
     atomic.write_json(out / "config.json", dataclasses.asdict(cfg))
     log: list[str] = []

@@ -79,7 +79,7 @@ def _train(run_command, log, out: Path, mode: str, which: str, seed: int, cfg: R
     args = ["train", "--mode", mode, "--net", cfg.net, "--nll-epochs", str(cfg.nll_epochs), "--seed", str(seed),
             "--out", str(out), "--quiet"]
     if mode == "synthetic":
-        from vo.models import models_dir
+        from deepslam.vo.models import models_dir
 
         args += ["--frames", *train_dirs, *extra_frames, "--motion",
                  str(models_dir() / "motion" / cfg.motion) + (":loops" if which == "loops" else ""), "--samples-per-epoch", str(cfg.samples_per_epoch),
@@ -96,15 +96,15 @@ def _train(run_command, log, out: Path, mode: str, which: str, seed: int, cfg: R
 
 def _supervised_pairs(train_dirs: list[str], which: str) -> int:
     """How many pairs ``deepslam train --mode supervised`` makes of the training renders (its defaults)."""
-    from core.sequence import open_sequence
-    from vo.data import PairSpec, frame_pairs
+    from deepslam.core.sequence import open_sequence
+    from deepslam.vo.data import PairSpec, frame_pairs
 
     spec = PairSpec(kind="consecutive" if which == "cons" else "loops")
     return sum(len(frame_pairs(open_sequence(d).gt.world_from_cam, spec)) for d in train_dirs)
 
 
 def _loop_pairs(seq, cfg: ResultsVOConfig) -> np.ndarray:
-    from vo.data import PairSpec, frame_pairs
+    from deepslam.vo.data import PairSpec, frame_pairs
 
     return frame_pairs(seq.gt.world_from_cam, PairSpec(kind="loops", loop_min_gap_frames=cfg.loop_min_gap_frames,
                                                        loop_max_distance_m=cfg.loop_max_distance_m,
@@ -114,8 +114,8 @@ def _loop_pairs(seq, cfg: ResultsVOConfig) -> np.ndarray:
 def pair_errors(seq, pairs: np.ndarray, mean6: np.ndarray) -> dict:
     """RMS translation error (m) and rotation error (deg) of predicted ``cam_j_from_cam_i`` against
     the ground truth, over the pairs."""
-    from core import se3
-    from core.metrics import relative_pose_errors
+    from deepslam.core import se3
+    from deepslam.core.metrics import relative_pose_errors
 
     gt = seq.gt.world_from_cam
     true = se3.relative(gt[pairs[:, 1]], gt[pairs[:, 0]])  # cam_j_from_cam_i
@@ -132,10 +132,10 @@ def metric_subset(ev: dict) -> dict:
 
 def evaluate_street(seq, cons: Path, loops: Path, flow: str, cfg: ResultsVOConfig) -> dict:
     """VO, loop-pair and SLAM figures of one (NN_cons, NN_loops) on the held-out street."""
-    from core import metrics
-    from slam.pipeline import run_slam
-    from vo import flow_estimators
-    from vo.infer import VOPredictor
+    from deepslam.core import metrics
+    from deepslam.slam.pipeline import run_slam
+    from deepslam.vo import flow_estimators
+    from deepslam.vo.infer import VOPredictor
 
     est = flow_estimators.make(flow)
     p_cons, p_loops = VOPredictor.from_file(cons), VOPredictor.from_file(loops)
@@ -150,11 +150,11 @@ def evaluate_street(seq, cons: Path, loops: Path, flow: str, cfg: ResultsVOConfi
 
 def evaluate_vo(seq, cons: Path, flow: str) -> dict:
     """VO (dead reckoning of NN_cons) on a sequence without loop closure."""
-    from core import metrics
-    from core.trajectory import Trajectory
-    from slam.pipeline import consecutive_pairs
-    from vo import flow_estimators
-    from vo.infer import VOPredictor, chain_euler6
+    from deepslam.core import metrics
+    from deepslam.core.trajectory import Trajectory
+    from deepslam.slam.pipeline import consecutive_pairs
+    from deepslam.vo import flow_estimators
+    from deepslam.vo.infer import VOPredictor, chain_euler6
 
     p = VOPredictor.from_file(cons)
     mean6, _ = p.predict_pairs(seq, consecutive_pairs(len(seq)), flow_estimators.make(flow), progress=False)
@@ -163,7 +163,7 @@ def evaluate_vo(seq, cons: Path, flow: str) -> dict:
 
 
 def _cached(path: Path, fn) -> dict:
-    from core import atomic
+    from deepslam.core import atomic
 
     if path.is_file():
         return json.loads(path.read_text())
@@ -205,8 +205,8 @@ def _pm(a: dict, f: str = ".3g") -> str:
 
 
 def run(cfg: ResultsVOConfig, out: Path, data: Path) -> dict:
-    from core import atomic
-    from core.sequence import open_sequence
+    from deepslam.core import atomic
+    from deepslam.core.sequence import open_sequence
     from deepslam.demo import render_once, run_command
 
     out.mkdir(parents=True, exist_ok=True)

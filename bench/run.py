@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 import bench as _bench
-from core import atomic
+from deepslam.core import atomic
 
 
 def main(argv: list[str] | None = None) -> int:

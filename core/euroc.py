@@ -21,12 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
-from core import se3
-from core.camera import PinholeCamera
-from core.errors import InputError
-from core.sequence import Sequence
-from core.trajectory import Trajectory
-from core.trajio import ns_to_s
+from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
+from deepslam.core.errors import InputError
+from deepslam.core.sequence import Sequence
+from deepslam.core.trajectory import Trajectory
+from deepslam.core.trajio import ns_to_s
 
 
 def read_sensor_yaml(path: Path) -> dict:
@@ -176,7 +176,7 @@ def read_euroc(root: str | Path, gt_path: str | Path | None = None, rectify: boo
     gt = None
     gt_file = _find_gt(root, gt_path)
     if gt_file is not None:
-        from core.trajio import read_trajectory
+        from deepslam.core.trajio import read_trajectory
 
         world_from_body = read_trajectory(gt_file)
         try:

@@ -12,11 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
-from core import se3
-from core.camera import PinholeCamera
-from core.errors import InputError
-from core.sequence import Sequence, read_image
-from core.trajectory import Trajectory
+from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
+from deepslam.core.errors import InputError
+from deepslam.core.sequence import Sequence, read_image
+from deepslam.core.trajectory import Trajectory
 
 
 def read_calib(path: Path) -> dict[str, np.ndarray]:
@@ -127,7 +127,7 @@ def read_kitti(seq_dir: str | Path, poses_path: str | Path | None = None) -> Seq
         candidate = seq_dir.parent.parent / "poses" / f"{seq_dir.name}.txt"
         poses_path = candidate if candidate.is_file() else None
     if poses_path is not None:
-        from core.trajio import read_trajectory
+        from deepslam.core.trajio import read_trajectory
 
         traj = read_trajectory(Path(poses_path), fmt="kitti")
         if indices[-1] >= len(traj):

@@ -28,9 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-from core import se3
-from core.errors import InputError
-from core.trajectory import Trajectory, associate
+from deepslam.core import se3
+from deepslam.core.errors import InputError
+from deepslam.core.trajectory import Trajectory, associate
 
 ALIGN_MODES = ("none", "se3", "sim3")
 """Accepted values of ``align``."""

@@ -25,11 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-from core import atomic
-from core.camera import PinholeCamera
-from core.errors import InputError
-from core.sequence import Sequence
-from core.trajectory import Trajectory
+from deepslam.core import atomic
+from deepslam.core.camera import PinholeCamera
+from deepslam.core.errors import InputError
+from deepslam.core.sequence import Sequence
+from deepslam.core.trajectory import Trajectory
 
 FORMAT = "deepslam-sequence"
 VERSION = 1

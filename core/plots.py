@@ -6,7 +6,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from core import atomic
+from deepslam.core import atomic
 
 _AXIS_NAMES = "xyz"
 

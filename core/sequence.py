@@ -11,9 +11,9 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from core.camera import PinholeCamera
-from core.errors import InputError
-from core.trajectory import Trajectory
+from deepslam.core.camera import PinholeCamera
+from deepslam.core.errors import InputError
+from deepslam.core.trajectory import Trajectory
 
 
 def read_image(path: str | Path) -> np.ndarray:
@@ -180,15 +180,15 @@ def open_sequence(path: str | Path) -> Sequence:
     if not path.is_dir():
         raise InputError(path, "not a folder")
     if (path / "sequence.json").is_file():
-        from core.ours import read_ours
+        from deepslam.core.ours import read_ours
 
         return read_ours(path)
     if (path / "mav0").is_dir() or path.name == "mav0":
-        from core.euroc import read_euroc
+        from deepslam.core.euroc import read_euroc
 
         return read_euroc(path)
     if (path / "image_0").is_dir() or (path / "image_2").is_dir() or (path / "calib.txt").is_file():
-        from core.kitti import read_kitti
+        from deepslam.core.kitti import read_kitti
 
         return read_kitti(path)
     raise InputError(path, "not a KITTI sequence (image_0/, calib.txt), EuRoC folder (mav0/) "

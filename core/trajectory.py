@@ -6,7 +6,7 @@ import dataclasses
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-from core import se3
+from deepslam.core import se3
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -34,9 +34,9 @@ from pathlib import Path
 
 import numpy as np
 
-from core import atomic, se3
-from core.errors import InputError
-from core.trajectory import Trajectory
+from deepslam.core import atomic, se3
+from deepslam.core.errors import InputError
+from deepslam.core.trajectory import Trajectory
 
 FORMATS = ("kitti", "tum", "euroc")
 """The trajectory formats this module reads and writes."""

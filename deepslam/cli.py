@@ -43,7 +43,7 @@ class _Parser(argparse.ArgumentParser):
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("MUJOCO_GL", "egl")
     os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
-    from core.errors import InputError
+    from deepslam.core.errors import InputError
 
     args = build_parser().parse_args(argv)
     try:

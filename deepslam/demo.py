@@ -26,7 +26,7 @@ import sys
 import time
 from pathlib import Path
 
-from core.errors import InputError
+from deepslam.core.errors import InputError
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,7 +85,7 @@ def render_once(scene: str, trajectory: str, frames: int, width: int, seed: int,
     A complete render made with another frame count or width is an error (InputError naming the
     folder), never silently reused."""
     if (out / "poses.txt").is_file():
-        from core.sequence import open_sequence
+        from deepslam.core.sequence import open_sequence
 
         seq = open_sequence(out)
         if (len(seq), seq.camera.width) != (frames, width):
@@ -102,7 +102,7 @@ def _fmt(x, spec=".3f") -> str:
 
 
 def run(cfg: DemoConfig, out: Path, data: Path) -> Path:
-    from core import atomic
+    from deepslam.core import atomic
 
     out.mkdir(parents=True, exist_ok=True)
     atomic.write_json(out / "config.json", dataclasses.asdict(cfg))
@@ -120,8 +120,8 @@ def run(cfg: DemoConfig, out: Path, data: Path) -> Path:
     if not validation.is_file():
         print(f"\n$ deepslam validate-flow --sequence {held} --json", flush=True)
         log.append(f"deepslam validate-flow --sequence {held} --json")
-        from core.sequence import open_sequence
-        from gen.validate import validate_sequence
+        from deepslam.core.sequence import open_sequence
+        from deepslam.gen.validate import validate_sequence
 
         report = validate_sequence(open_sequence(held))
         report.pop("per_frame", None)
@@ -221,8 +221,8 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("MUJOCO_GL", "egl")
     os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
     os.environ.setdefault("DEEPSLAM_PROGRESS", "1")
-    from core.errors import InputError
-    from core.paths import out_dir, shared_data_dir
+    from deepslam.core.errors import InputError
+    from deepslam.core.paths import out_dir, shared_data_dir
 
     ap = argparse.ArgumentParser(prog="python -m deepslam.demo", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", type=Path, default=None, help="output folder (default: out/demo)")

@@ -27,8 +27,8 @@ def _fmt(x, spec=".3f") -> str:
 
 
 def run(data: Path, out: Path) -> int:
-    from core import atomic, metrics, plots
-    from core.trajio import read_trajectory_and_format
+    from deepslam.core import atomic, metrics, plots
+    from deepslam.core.trajio import read_trajectory_and_format
 
     rows, results = [], {}
     for name, gt_rel, est_rel, align in PAIRS:
@@ -91,8 +91,8 @@ def run(data: Path, out: Path) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from core.errors import InputError
-    from core.paths import out_dir, shared_data_dir
+    from deepslam.core.errors import InputError
+    from deepslam.core.paths import out_dir, shared_data_dir
 
     ap = argparse.ArgumentParser(prog="python -m deepslam.demo_reference", description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", type=Path, default=None, help="shared data folder (default: ../shared/data)")

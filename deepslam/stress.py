@@ -47,8 +47,8 @@ from pathlib import Path
 
 import numpy as np
 
-from core import atomic, se3
-from core.errors import InputError
+from deepslam.core import atomic, se3
+from deepslam.core.errors import InputError
 
 SCENES = ("street", "room")
 ODOMETRIES = ("model", "rigid-fit")
@@ -222,8 +222,8 @@ def scaled_movers(scene, scale: float):
     are scaled by ``scale`` about their body origins (street cars: the origin is on the road under the
     car's centre, so a scaled car still stands on the road; room boxes: the box centre). Flags and the
     static scene are unchanged; texture coordinates are kept (the texture stretches with the mesh)."""
-    from scenes.geometry import MeshData
-    from scenes.spec import RIGID
+    from deepslam.scenes.geometry import MeshData
+    from deepslam.scenes.spec import RIGID
 
     if scale == 1.0:
         return scene
@@ -238,7 +238,7 @@ def scaled_movers(scene, scale: float):
 
 def sim_config(config: StressConfig, setting: Setting):
     """The simulator's :class:`sim.SimConfig` of one setting (mono, scene default trajectory)."""
-    from sim import RenderConfig, SceneConfig, SimConfig, TrajectoryConfig
+    from deepslam.sim import RenderConfig, SceneConfig, SimConfig, TrajectoryConfig
 
     return SimConfig(SceneConfig(name=config.scene, seed=config.seed, moving_objects=setting.moving_objects,
                                  deform_amplitude_m=setting.deform_amplitude_m),
@@ -256,9 +256,9 @@ def setting_scene(config: StressConfig, setting: Setting):
     movers only, not in where they drive (bigger cars would otherwise be pushed away from the camera
     by the clearance rule and the sweep would measure fewer dynamic pixels for bigger objects).
     """
-    from scenes import build_scene
-    from sim.trajectories import make_motion
-    from sim.world import separate_movers
+    from deepslam.scenes import build_scene
+    from deepslam.sim.trajectories import make_motion
+    from deepslam.sim.world import separate_movers
 
     cfg = sim_config(config, setting).validate()
     base = build_scene(cfg.scene)
@@ -275,8 +275,8 @@ def setting_scene(config: StressConfig, setting: Setting):
 
 def render_setting(config: StressConfig, setting: Setting, out_dir: Path, progress: bool = False) -> Path:
     """Render one setting into ``out_dir`` (our format; resumes an interrupted render). Returns the folder."""
-    from sim import Simulator
-    from sim.writers import render_sequence
+    from deepslam.sim import Simulator
+    from deepslam.sim.writers import render_sequence
 
     cfg, scene = setting_scene(config, setting)
     with Simulator(cfg, scene=scene) as simulator:
@@ -412,14 +412,14 @@ class OdometrySet:
 
 def make_odometries(config: StressConfig) -> OdometrySet:
     """Learned odometry when available (shipped or given models), else the rigid fit, noted."""
-    from vo.flow_estimators import DISFlow, GroundTruthFlow
+    from deepslam.vo.flow_estimators import DISFlow, GroundTruthFlow
 
     flows = {"gt": GroundTruthFlow(), "dis": DISFlow(config.dis_preset)}
     note = None
     if config.odometry == "model":
         kind = camera_kind(config.scene)
         try:
-            from vo import models
+            from deepslam.vo import models
 
             # shipped models follow the flow they are given (a DIS-trained variant where one is shipped)
             cons = {f: models.resolve(config.model_cons or kind, None, "cons", est) for f, est in flows.items()}
@@ -461,7 +461,7 @@ def dynamic_fraction(seq, frames) -> float:
 
 
 def _metrics(gt, est) -> dict:
-    from core import metrics
+    from deepslam.core import metrics
 
     ev = metrics.evaluate(gt, est, align="se3")
     out = {"ate_m": ev["ate_m"], "rpe_t_m": ev["rpe_t_m"], "rpe_r_deg": ev["rpe_r_deg"], "gt_length_m": ev["gt_length_m"]}
@@ -486,12 +486,12 @@ def measure_sequence(seq, odometries: OdometrySet, config: StressConfig, vocabul
     only) runs once and is shared by the flow sources; each flow source brings its own consecutive
     and loop odometry. VO is that dead reckoning (the trajectory ``deepslam vo`` would chain).
     """
-    from gen.validate import validate_sequence
-    from slam.odometry import check_prediction
-    from slam.pipeline import PipelineConfig, SlamParams, consecutive_pairs, prepare, solve
-    from slam.posegraph import Edges, PoseGraphConfig, chain
-    from slam.reloc import RelocConfig
-    from core.trajectory import Trajectory
+    from deepslam.gen.validate import validate_sequence
+    from deepslam.slam.odometry import check_prediction
+    from deepslam.slam.pipeline import PipelineConfig, SlamParams, consecutive_pairs, prepare, solve
+    from deepslam.slam.posegraph import Edges, PoseGraphConfig, chain
+    from deepslam.slam.reloc import RelocConfig
+    from deepslam.core.trajectory import Trajectory
 
     timings = {}
     t0 = time.perf_counter()
@@ -564,9 +564,9 @@ def run_stress(config: StressConfig, out: str | Path, resume: bool = False, prog
 
 
 def _run(config: StressConfig, out: Path, resume: bool, progress: bool | None) -> dict:
-    from core.progress import progress as progress_bar
-    from core.sequence import open_sequence
-    from slam.pipeline import SlamParams
+    from deepslam.core.progress import progress as progress_bar
+    from deepslam.core.sequence import open_sequence
+    from deepslam.slam.pipeline import SlamParams
 
     if out.exists() and not out.is_dir():
         raise InputError(out, "output exists and is not a folder")
@@ -665,7 +665,7 @@ def _config_key(config: StressConfig, odometries: OdometrySet) -> dict:
 def _shared_vocabulary(out: Path, config: StressConfig, seq):
     """One BoW vocabulary for the whole study, trained on the first rendered setting's frames and saved
     as ``out/vocabulary.npz`` (so every setting's SLAM sees the same words); None without keypoints."""
-    from slam.reloc import FeatureExtractor, RelocConfig, Vocabulary, train_vocabulary
+    from deepslam.slam.reloc import FeatureExtractor, RelocConfig, Vocabulary, train_vocabulary
 
     path = out / "vocabulary.npz"
     reloc = dataclasses.replace(RelocConfig.for_kind(camera_kind(config.scene)), image_scale=config.sift_image_scale,
@@ -697,7 +697,7 @@ def _vocab_key(config: StressConfig) -> str:
 
 def _clean(v):
     """JSON-safe copy (see core.atomic.json_safe)."""
-    from core.atomic import json_safe
+    from deepslam.core.atomic import json_safe
 
     return json_safe(v)
 

@@ -7,8 +7,8 @@ Nothing is read from video and nothing is written to disk: every item takes one 
 
 Use::
 
-    from gen.dataset import SyntheticFlowDataset, open_depth_frames
-    from gen.motion import MotionModel
+    from deepslam.gen.dataset import SyntheticFlowDataset, open_depth_frames
+    from deepslam.gen.motion import MotionModel
 
     frames = open_depth_frames("path/to/sequence")              # ours / KITTI / EuRoC export with depth/
     # frames = open_depth_frames("kitti/sequences/06", depth_from_stereo="sgbm")   # stereo -> depth
@@ -63,10 +63,10 @@ from typing import Iterable, Sequence as Seq
 import numpy as np
 import torch
 
-from core import se3
-from core.camera import PinholeCamera
-from core.errors import InputError
-from gen.motion import MotionModel
+from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
+from deepslam.core.errors import InputError
+from deepslam.gen.motion import MotionModel
 
 
 # ---------------------------------------------------------------------------------------- depth frames
@@ -139,7 +139,7 @@ class StereoDepthFrames(DepthFrames):
     """
 
     def __init__(self, seq, method: str = "sgbm", cache_frames: int = 64):
-        from gen.stereo import StereoConfig
+        from deepslam.gen.stereo import StereoConfig
 
         if not seq.has_stereo:
             raise InputError(seq.root, "sequence has neither depth nor a stereo pair (right images + baseline)")
@@ -154,7 +154,7 @@ class StereoDepthFrames(DepthFrames):
         return len(self.seq)
 
     def _compute(self, i: int) -> np.ndarray:
-        from gen.stereo import opencv_threads, sequence_depth
+        from deepslam.gen.stereo import opencv_threads, sequence_depth
 
         with opencv_threads(1):
             return sequence_depth(self.seq, i, self.config)
@@ -187,7 +187,7 @@ def open_depth_frames(path: str | Path, depth_from_stereo: str | None = None) ->
     Raises:
         InputError when the folder is not a sequence, or has no depth (and no stereo to compute it).
     """
-    from core.sequence import open_sequence
+    from deepslam.core.sequence import open_sequence
 
     seq = open_sequence(path)
     if seq.has_depth:
@@ -343,6 +343,6 @@ class SyntheticFlowDataset(torch.utils.data.Dataset):
 
 def synthesize_for_dataset(depth: np.ndarray, camera: PinholeCamera, motions: np.ndarray, zbuffer: bool):
     """:func:`gen.flow.synthesize` as the dataset and the shard writer call it (one place)."""
-    from gen.flow import synthesize
+    from deepslam.gen.flow import synthesize
 
     return synthesize(torch.from_numpy(depth), camera, motions, zbuffer=zbuffer)

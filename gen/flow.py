@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from core.camera import PinholeCamera
+from deepslam.core.camera import PinholeCamera
 
 CHUNK_PIXELS = 1 << 18
 """Pixels per chunk of the fast path (262,144: 1 MB per float32 temporary, so they stay in cache)."""

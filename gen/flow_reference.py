@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from core import se3
-from core.camera import PinholeCamera
-from gen.flow import DEFAULT_OCCLUSION_REL_TOL
+from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
+from deepslam.gen.flow import DEFAULT_OCCLUSION_REL_TOL
 
 
 def _camera(camera, width: int, height: int) -> PinholeCamera:

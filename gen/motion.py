@@ -32,9 +32,9 @@ from typing import Sequence
 
 import numpy as np
 
-from core import atomic, se3
-from core.errors import InputError
-from core.trajectory import Trajectory
+from deepslam.core import atomic, se3
+from deepslam.core.errors import InputError
+from deepslam.core.trajectory import Trajectory
 
 FORMAT = "deepslam-motion"
 VERSION = 1

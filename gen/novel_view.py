@@ -32,7 +32,7 @@ import threading
 
 import numpy as np
 
-from core.camera import PinholeCamera
+from deepslam.core.camera import PinholeCamera
 
 _KERNELS = None
 _KERNELS_LOCK = threading.Lock()

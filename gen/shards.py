@@ -45,8 +45,8 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from core import atomic
-from core.errors import InputError
+from deepslam.core import atomic
+from deepslam.core.errors import InputError
 
 FORMAT = "deepslam-flow-shards"
 VERSION = 1
@@ -127,8 +127,8 @@ def make_dataset(config: GenConfig, source_path: str | None = None):
     ``source_path`` opens the source from another path than ``config.source`` (the absolute path, for
     workers whose working directory differs); it does not change what is generated.
     """
-    from gen.dataset import DatasetConfig, SyntheticFlowDataset, open_depth_frames
-    from gen.motion import MotionModel
+    from deepslam.gen.dataset import DatasetConfig, SyntheticFlowDataset, open_depth_frames
+    from deepslam.gen.motion import MotionModel
 
     key = json.dumps([config.to_dict(), source_path], sort_keys=True)
     if key not in _DATASETS:
@@ -164,7 +164,7 @@ def single_threaded() -> Iterator[None]:
     """torch and OpenCV on one thread inside the block (bit-identical results in every process)."""
     import torch
 
-    from gen.stereo import opencv_threads
+    from deepslam.gen.stereo import opencv_threads
 
     old = torch.get_num_threads()
     torch.set_num_threads(1)
@@ -265,16 +265,15 @@ def _run_ray(config: GenConfig, todo: list[int], out_dir: Path, workers: int, on
              source_path: str) -> None:
     import ray
 
-    from core.paths import repo_root
-
     if not ray.is_initialized():
         # RAY_ADDRESS set: join that cluster; otherwise start a local one with `workers` CPUs.
         if os.environ.get("RAY_ADDRESS"):
             ray.init(include_dashboard=False, log_to_driver=False)
         else:
             ray.init(num_cpus=max(1, workers), include_dashboard=False, log_to_driver=False)
-    pythonpath = os.pathsep.join(p for p in (str(repo_root()), os.environ.get("PYTHONPATH", "")) if p)
-    task = ray.remote(num_cpus=1)(_guarded).options(runtime_env={"env_vars": {"PYTHONPATH": pythonpath}})
+    # Workers import deepslam from the same installation as the driver (site-packages or the editable
+    # install's finder), so no PYTHONPATH is passed along.
+    task = ray.remote(num_cpus=1)(_guarded)
     # Shard bytes come back to the driver, which writes them: no shared file system needed.
     max_in_flight = max(2, 2 * workers)
     pending: dict = {}
@@ -308,7 +307,7 @@ def generate(config: GenConfig, out_dir: str | Path, workers: int = 1, backend: 
         InputError: bad source (not a sequence, no depth), non-empty folder without ``resume``, or a
             resume whose configuration differs.
     """
-    from core.progress import progress as progress_bar
+    from deepslam.core.progress import progress as progress_bar
 
     if backend not in ("local", "ray"):
         raise ValueError(f"backend must be local or ray, got {backend!r}")

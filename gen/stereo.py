@@ -171,7 +171,7 @@ def depth_from_stereo(left: np.ndarray, right: np.ndarray, fx: float, baseline_m
 
 def sequence_depth(seq, i: int, config: StereoConfig = StereoConfig()) -> np.ndarray:
     """Depth of frame i of a stereo :class:`core.sequence.Sequence` (needs right images and a baseline)."""
-    from core.errors import InputError
+    from deepslam.core.errors import InputError
 
     if not seq.has_stereo:
         raise InputError(seq.root, "sequence has no stereo pair (right images and baseline) to compute depth from")

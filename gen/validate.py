@@ -34,8 +34,8 @@ import dataclasses
 import numpy as np
 import torch
 
-from core.camera import PinholeCamera
-from gen.flow import synthesize, visible_after_motion
+from deepslam.core.camera import PinholeCamera
+from deepslam.gen.flow import synthesize, visible_after_motion
 
 TARGET_EPE_PX = 0.01
 """Largest accepted mean end-point error on static visible pixels, pixels."""
@@ -171,8 +171,8 @@ def validate_sequence(seq, frames: range | None = None, config: ValidationConfig
         EPE mean/median/p95/max in px), ``per_instance``, ``per_frame``, excluded pixel counts,
         ``zbuffer_vs_next_depth`` and ``met`` (static visible mean EPE < target).
     """
-    from core.errors import InputError
-    from core.progress import progress as progress_bar
+    from deepslam.core.errors import InputError
+    from deepslam.core.progress import progress as progress_bar
 
     if not seq.has_depth:
         raise InputError(seq.root, "sequence has no depth (validate-flow needs a rendered sequence with depth/ and flow/)")
@@ -236,6 +236,6 @@ def validate_sequence(seq, frames: range | None = None, config: ValidationConfig
 
 def _relative(world_from_cam: np.ndarray, t: int) -> np.ndarray:
     """cam_{t+1}_from_cam_t = inverse(world_from_cam[t+1]) @ world_from_cam[t]."""
-    from core import se3
+    from deepslam.core import se3
 
     return se3.relative(world_from_cam[t + 1], world_from_cam[t])

@@ -15,10 +15,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from core import trajio  # noqa: E402
-from core.euroc import read_sensor_yaml  # noqa: E402
-from core.paths import shared_data_dir  # noqa: E402
-from core.trajectory import Trajectory  # noqa: E402
+from deepslam.core import trajio  # noqa: E402
+from deepslam.core.euroc import read_sensor_yaml  # noqa: E402
+from deepslam.core.paths import shared_data_dir  # noqa: E402
+from deepslam.core.trajectory import Trajectory  # noqa: E402
 
 
 def main() -> int:

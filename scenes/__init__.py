@@ -1,6 +1,6 @@
 """Scenes for the simulator: procedural, textured, deterministic from a seed.
 
-    from scenes import SceneConfig, build_scene
+    from deepslam.scenes import SceneConfig, build_scene
     scene = build_scene(SceneConfig(name="street", seed=0, moving_objects=3, deform_amplitude_m=0.2))
 
 A :class:`scenes.spec.Scene` is backend-neutral: one texture atlas (procedural textures with baked
@@ -24,7 +24,7 @@ import functools
 
 import numpy as np
 
-from core.errors import InputError
+from deepslam.core.errors import InputError
 
 SCENE_NAMES = ("street", "room")
 DEFAULT_PX_PER_M = {"street": 20.0, "room": 100.0}
@@ -69,9 +69,9 @@ def build_scene(config: SceneConfig):
     config.validate()
     rng = np.random.default_rng(config.seed)
     if config.name == "street":
-        from scenes.street import build_street as builder
+        from deepslam.scenes.street import build_street as builder
     else:
-        from scenes.room import build_room as builder
+        from deepslam.scenes.room import build_room as builder
     scene = builder(config.seed, config.px_per_m, config.moving_objects, float(config.deform_amplitude_m), rng)
     scene.config = config
     return scene

@@ -3,10 +3,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from core import se3
-from scenes import textures as tx
-from scenes.geometry import AtlasBuilder, MeshBuilder
-from scenes.spec import DEFORM, STATIC, Body, FlagDeform, StaticPose
+from deepslam.core import se3
+from deepslam.scenes import textures as tx
+from deepslam.scenes.geometry import AtlasBuilder, MeshBuilder
+from deepslam.scenes.spec import DEFORM, STATIC, Body, FlagDeform, StaticPose
 
 
 class Assembler:

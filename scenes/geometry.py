@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from scenes.textures import Painter
+from deepslam.scenes.textures import Painter
 
 # ----------------------------------------------------------------------------------------------
 # texture atlas

@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from core import se3
-from scenes.spec import RIGID, Scene
+from deepslam.core import se3
+from deepslam.scenes.spec import RIGID, Scene
 
 RIG_BODY = "camera_rig"
 LEFT_CAMERA = "left"
@@ -93,7 +93,7 @@ def scene_xml(scene: Scene, width: int, height: int, fov_y_deg: float, baseline_
 def write_mjcf(scene: Scene, folder: str | Path, width: int = 640, height: int = 480, fov_y_deg: float = 45.0,
                baseline_m: float | None = None) -> Path:
     """Write ``<folder>/<scene>.xml`` and ``atlas.png`` (a model MuJoCo's viewer opens)."""
-    from core import atomic
+    from deepslam.core import atomic
 
     folder = Path(folder)
     atomic.write_png(folder / "atlas.png", scene.atlas)

@@ -13,9 +13,9 @@ from typing import Any
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from core import se3
-from core.camera import PinholeCamera
-from scenes.geometry import MeshData, PeriodicPath
+from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
+from deepslam.scenes.geometry import MeshData, PeriodicPath
 
 STATIC, RIGID, DEFORM = "static", "rigid", "deform"
 

@@ -18,11 +18,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from core.camera import PinholeCamera
-from scenes import textures as tx
-from scenes.assemble import Assembler, flag_painter
-from scenes.geometry import MeshBuilder, PeriodicPath, offset_polyline
-from scenes.spec import RIGID, FlagDeform, PathFollower, PathProgress, Scene, speed_profile
+from deepslam.core.camera import PinholeCamera
+from deepslam.scenes import textures as tx
+from deepslam.scenes.assemble import Assembler, flag_painter
+from deepslam.scenes.geometry import MeshBuilder, PeriodicPath, offset_polyline
+from deepslam.scenes.spec import RIGID, FlagDeform, PathFollower, PathProgress, Scene, speed_profile
 
 ROAD_HALF_M = 6.0
 SIDEWALK_M = 3.5

@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from core import se3
-from core.camera import PinholeCamera
-from scenes import textures as tx
-from scenes.assemble import Assembler, flag_painter
-from scenes.geometry import AtlasBuilder, MeshBuilder
-from scenes.spec import RIGID, STATIC, Body, FlagDeform, Orbiter, Scene, StaticPose
+from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
+from deepslam.scenes import textures as tx
+from deepslam.scenes.assemble import Assembler, flag_painter
+from deepslam.scenes.geometry import AtlasBuilder, MeshBuilder
+from deepslam.scenes.spec import RIGID, STATIC, Body, FlagDeform, Orbiter, Scene, StaticPose
 
 TEST_CAMERA = PinholeCamera(160, 120, 100.0, 100.0, 79.5, 59.5)
 

@@ -3,8 +3,8 @@ MuJoCo or pyrender along scripted car and drone trajectories.
 
 Quick use (in memory)::
 
-    from scenes import SceneConfig
-    from sim import SimConfig, TrajectoryConfig, RenderConfig, Simulator
+    from deepslam.scenes import SceneConfig
+    from deepslam.sim import SimConfig, TrajectoryConfig, RenderConfig, Simulator
 
     cfg = SimConfig(SceneConfig(name="street", seed=0, moving_objects=2, deform_amplitude_m=0.2),
                     TrajectoryConfig(kind="car", frames=100),
@@ -16,7 +16,7 @@ Quick use (in memory)::
 
 To disk (our format, KITTI or EuRoC layout, atomic and resumable)::
 
-    from sim import render_sequence
+    from deepslam.sim import render_sequence
     render_sequence(cfg, "out/street00", fmt="kitti", resume=False, progress=True)
 
 Conventions (as everywhere in the project): OpenCV camera axes, world z up, metres, float64 poses,
@@ -57,17 +57,17 @@ import os as _os
 _os.environ.setdefault("MUJOCO_GL", "egl")
 _os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa" if _os.environ["MUJOCO_GL"] == "osmesa" else "egl")
 
-from scenes import SceneConfig  # noqa: E402
-from sim.config import BACKENDS, FORMATS, TRAJECTORY_KINDS, RenderConfig, SimConfig, TrajectoryConfig, camera_for
-from sim.simulator import SimFrame, Simulator
-from sim.trajectories import CarMotion, DroneMotion, KeyframeMotion, make_motion
+from deepslam.scenes import SceneConfig  # noqa: E402
+from deepslam.sim.config import BACKENDS, FORMATS, TRAJECTORY_KINDS, RenderConfig, SimConfig, TrajectoryConfig, camera_for
+from deepslam.sim.simulator import SimFrame, Simulator
+from deepslam.sim.trajectories import CarMotion, DroneMotion, KeyframeMotion, make_motion
 
 
 def render_sequence(config: SimConfig, out_dir, fmt: str = "ours", resume: bool = False, progress: bool = True,
                     sequence: str = "00"):
     """Render ``config`` into ``out_dir`` in format ``fmt`` ("ours", "kitti", "euroc"); see
     :func:`sim.writers.render_sequence`. Returns the output path of the sequence."""
-    from sim.writers import render_sequence as _render
+    from deepslam.sim.writers import render_sequence as _render
 
     return _render(config, out_dir, fmt=fmt, resume=resume, progress=progress, sequence=sequence)
 

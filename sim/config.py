@@ -5,9 +5,9 @@ import dataclasses
 
 import numpy as np
 
-from core.camera import PinholeCamera
-from core.errors import InputError
-from scenes import SceneConfig
+from deepslam.core.camera import PinholeCamera
+from deepslam.core.errors import InputError
+from deepslam.scenes import SceneConfig
 
 TRAJECTORY_KINDS = ("auto", "car", "drone")
 BACKENDS = ("mujoco", "pyrender")

@@ -19,10 +19,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from core import se3
-from core.camera import PinholeCamera
-from scenes.spec import DEFORM, RIGID, Scene
-from sim.world import WorldState
+from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
+from deepslam.scenes.spec import DEFORM, RIGID, Scene
+from deepslam.sim.world import WorldState
 
 
 class FlowComputer:

@@ -15,11 +15,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from core import se3
-from core.camera import PinholeCamera, world_from_cam_gl_from_cv
-from scenes import mjcf
-from scenes.spec import DEFORM, RIGID, Scene
-from sim.world import WorldState
+from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera, world_from_cam_gl_from_cv
+from deepslam.scenes import mjcf
+from deepslam.scenes.spec import DEFORM, RIGID, Scene
+from deepslam.sim.world import WorldState
 
 
 def compile_model(scene: Scene, width: int, height: int, fov_y_deg: float, baseline_m: float | None):

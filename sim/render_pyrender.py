@@ -15,10 +15,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from core.camera import PinholeCamera, world_from_cam_gl_from_cv
-from core import se3
-from scenes.spec import DEFORM, RIGID, STATIC, Scene
-from sim.world import WorldState
+from deepslam.core.camera import PinholeCamera, world_from_cam_gl_from_cv
+from deepslam.core import se3
+from deepslam.scenes.spec import DEFORM, RIGID, STATIC, Scene
+from deepslam.sim.world import WorldState
 
 
 SLAB_STEP_M = 2.5e-4

@@ -5,15 +5,15 @@ import dataclasses
 
 import numpy as np
 
-from core import se3
-from core.camera import PinholeCamera
-from core.trajectory import Trajectory
-from scenes import SceneConfig, build_scene
-from scenes.spec import Scene
-from sim.config import SimConfig, camera_for
-from sim.flow import FlowComputer
-from sim.trajectories import make_motion
-from sim.world import WorldState, separate_movers, world_state
+from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
+from deepslam.core.trajectory import Trajectory
+from deepslam.scenes import SceneConfig, build_scene
+from deepslam.scenes.spec import Scene
+from deepslam.sim.config import SimConfig, camera_for
+from deepslam.sim.flow import FlowComputer
+from deepslam.sim.trajectories import make_motion
+from deepslam.sim.world import WorldState, separate_movers, world_state
 
 
 @dataclasses.dataclass(eq=False)
@@ -64,11 +64,11 @@ class SimFrame:
 
 def make_backend(name: str, scene: Scene, camera: PinholeCamera, baseline_m: float | None):
     if name == "mujoco":
-        from sim.render_mujoco import MujocoBackend
+        from deepslam.sim.render_mujoco import MujocoBackend
 
         return MujocoBackend(scene, camera, baseline_m)
     if name == "pyrender":
-        from sim.render_pyrender import PyrenderBackend
+        from deepslam.sim.render_pyrender import PyrenderBackend
 
         return PyrenderBackend(scene, camera, baseline_m)
     raise ValueError(f"unknown backend {name!r}")

@@ -22,9 +22,9 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation
 
-from core import se3
-from scenes.geometry import PeriodicPath
-from scenes.spec import PathProgress, Scene, smoothstep5, speed_profile
+from deepslam.core import se3
+from deepslam.scenes.geometry import PeriodicPath
+from deepslam.scenes.spec import PathProgress, Scene, smoothstep5, speed_profile
 
 CAR_MAX_SPEED_MPS = 15.0
 DRONE_MAX_SPEED_MPS = 1.6

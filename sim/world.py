@@ -5,7 +5,7 @@ import dataclasses
 
 import numpy as np
 
-from scenes.spec import DEFORM, RIGID, Body, PathFollower, PathProgress, Scene
+from deepslam.scenes.spec import DEFORM, RIGID, Body, PathFollower, PathProgress, Scene
 
 
 @dataclasses.dataclass(eq=False)

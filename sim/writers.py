@@ -32,9 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-from core import atomic, se3
-from core.errors import InputError
-from sim.config import FORMATS, SimConfig
+from deepslam.core import atomic, se3
+from deepslam.core.errors import InputError
+from deepslam.sim.config import FORMATS, SimConfig
 
 EUROC_T0_NS = 1_600_000_000_000_000_000
 """Timestamp (ns) of frame 0 in EuRoC exports (absolute, like the real data's)."""
@@ -117,7 +117,7 @@ def _instances(sim) -> dict:
 
 class OursSink:
     def __init__(self, sim, root: Path, config: SimConfig, resume: bool):
-        from core.ours import OursWriter
+        from deepslam.core.ours import OursWriter
 
         self.sim = sim
         self.n = sim.num_frames
@@ -321,7 +321,7 @@ def render_sequence(config: SimConfig, out_dir, fmt: str = "ours", resume: bool 
     """
     from tqdm import tqdm
 
-    from sim.simulator import Simulator
+    from deepslam.sim.simulator import Simulator
 
     if fmt not in FORMATS:
         raise InputError(None, f"unknown format {fmt!r} (choose from {', '.join(FORMATS)})")

@@ -32,9 +32,9 @@ from typing import Protocol, Sequence as SequenceT, runtime_checkable
 
 import numpy as np
 
-from core import se3
-from core.errors import InputError
-from core.trajectory import Trajectory
+from deepslam.core import se3
+from deepslam.core.errors import InputError
+from deepslam.core.trajectory import Trajectory
 
 
 @runtime_checkable

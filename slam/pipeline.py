@@ -28,13 +28,13 @@ from pathlib import Path
 
 import numpy as np
 
-from core import atomic
-from core.errors import InputError
-from core.progress import progress
-from core.trajectory import Trajectory
-from slam.odometry import Odometry, check_prediction
-from slam.posegraph import Edges, PoseGraphConfig, chain, optimize
-from slam.reloc import (FeatureExtractor, Features, LoopCandidate, LoopDetector, RelocConfig, Vocabulary,
+from deepslam.core import atomic
+from deepslam.core.errors import InputError
+from deepslam.core.progress import progress
+from deepslam.core.trajectory import Trajectory
+from deepslam.slam.odometry import Odometry, check_prediction
+from deepslam.slam.posegraph import Edges, PoseGraphConfig, chain, optimize
+from deepslam.slam.reloc import (FeatureExtractor, Features, LoopCandidate, LoopDetector, RelocConfig, Vocabulary,
                         accepted_pairs, train_vocabulary)
 
 PARAMS_FORMAT = "deepslam-slam-params-v1"
@@ -198,7 +198,7 @@ def data_kind(seq) -> str:
     if kind in ("kitti", "euroc"):
         return kind
     try:
-        from vo.models import kind_for_sequence
+        from deepslam.vo.models import kind_for_sequence
 
         return kind_for_sequence(seq)
     except (ImportError, AttributeError):

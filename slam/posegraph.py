@@ -61,7 +61,7 @@ import time
 
 import numpy as np
 
-from core import se3
+from deepslam.core import se3
 
 ROBUST_KERNELS = ("none", "huber", "cauchy")
 

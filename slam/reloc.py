@@ -27,8 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from core import atomic
-from core.errors import InputError
+from deepslam.core import atomic
+from deepslam.core.errors import InputError
 
 VOCAB_FORMAT = "deepslam-bow-vocabulary-v1"
 

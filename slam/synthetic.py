@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from core import se3
-from core.camera import PinholeCamera
-from core.trajectory import Trajectory
+from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
+from deepslam.core.trajectory import Trajectory
 
 
 def circle_trajectory(n_frames: int, radius_m: float = 20.0, laps: float = 2.0, lap_offset_m: float = 0.0,
@@ -87,7 +87,7 @@ def write_loop_sequence(root: str | Path, n_frames: int = 120, laps: float = 2.0
     by a small random camera motion seeded by (seed, i). Poses: :func:`circle_trajectory`. The images are
     not rendered from the poses: they only carry the revisit structure the relocalization needs.
     """
-    from core.ours import OursWriter, read_ours
+    from deepslam.core.ours import OursWriter, read_ours
 
     camera = PinholeCamera.from_fov_y(width, height, 60.0)
     poses = circle_trajectory(n_frames, radius_m, laps, lap_offset_m)
@@ -124,8 +124,8 @@ def loop_graph(n_frames: int = 400, laps: float = 2.0, radius_m: float = 50.0, l
     Returns:
         dict with ``gt`` (Trajectory), ``cons``, ``loops``, ``false_loops`` (slam.posegraph.Edges).
     """
-    from slam.odometry import GroundTruthOdometry, NoiseConfig
-    from slam.posegraph import Edges
+    from deepslam.slam.odometry import GroundTruthOdometry, NoiseConfig
+    from deepslam.slam.posegraph import Edges
 
     cons_noise = cons_noise or NoiseConfig(std6=(0.001, 0.001, 0.001, 0.02, 0.02, 0.02),
                                            bias6=(0.0, 0.002, 0.0, 0.0, 0.0, 0.0), seed=seed)

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from core import se3
-from core.trajectory import Trajectory
-from core.trajio import write_trajectory
+from deepslam.core import se3
+from deepslam.core.trajectory import Trajectory
+from deepslam.core.trajio import write_trajectory
 from deepslam.cli import main
 
 REPO = Path(__file__).resolve().parents[1]

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from bench import results_slam, results_vo
-from core import se3
-from core.trajectory import Trajectory
+from deepslam.core import se3
+from deepslam.core.trajectory import Trajectory
 
 
 def _seq(world_from_cam: np.ndarray):
@@ -77,9 +77,9 @@ def test_true_loop_edges_remove_the_drift_they_span():
     from types import SimpleNamespace
 
     from bench.results_slam import _with_true_loops
-    from core import se3
-    from slam.pipeline import SlamParams
-    from slam.posegraph import Edges, chain
+    from deepslam.core import se3
+    from deepslam.slam.pipeline import SlamParams
+    from deepslam.slam.posegraph import Edges, chain
 
     n = 80
     step = se3.from_euler6(np.array([0.0, 2 * np.pi / n, 0.0, 0.0, 0.0, 0.5]))
@@ -97,9 +97,9 @@ def test_true_loop_edges_remove_the_drift_they_span():
 
 def test_a_cached_render_of_other_settings_is_not_reused(tmp_path):
     """render_once reuses a complete render only when its frame count and width are the ones asked for."""
-    from core.camera import PinholeCamera
-    from core.errors import InputError
-    from core.ours import OursWriter
+    from deepslam.core.camera import PinholeCamera
+    from deepslam.core.errors import InputError
+    from deepslam.core.ours import OursWriter
     from deepslam.demo import render_once
 
     cam = PinholeCamera.from_fov_y(40, 30, 60.0)

@@ -7,9 +7,9 @@ import cv2
 import numpy as np
 import pytest
 
-from core import se3
-from core.camera import PinholeCamera
-from core.errors import InputError
+from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
+from deepslam.core.errors import InputError
 from deepslam.cli import main
 from deepslam.stress import RigidFitOdometry, Setting, StressConfig, run_stress, setting_scene
 
@@ -112,7 +112,7 @@ def test_settings_one_factor_at_a_time():
 
 def test_scaled_movers_drive_where_unscaled_ones_do():
     """A size setting changes the movers' size only: same placement as the unscaled scene in the simulator."""
-    from sim import Simulator
+    from deepslam.sim import Simulator
 
     cfg = StressConfig(scene="street", frames=6, width=96, objects=(3,))
     plain_cfg, plain_scene = setting_scene(cfg, Setting("a", "objects", 3, 1.0, 0.0))
@@ -128,7 +128,7 @@ def test_scaled_movers_drive_where_unscaled_ones_do():
 
 
 def test_rigid_fit_recovers_motion_and_is_pulled_by_a_mover():
-    from gen.flow import synthesize
+    from deepslam.gen.flow import synthesize
 
     cam = PinholeCamera(96, 64, 80.0, 80.0, 47.5, 31.5)
     v, u = np.mgrid[0:64, 0:96]
@@ -148,11 +148,10 @@ def test_rigid_fit_recovers_motion_and_is_pulled_by_a_mover():
 
 
 def test_falls_back_to_rigid_fit_with_a_note_when_no_model_is_shipped(tmp_path, monkeypatch):
-    import vo.models
-
     from deepslam.stress import make_odometries
+    from deepslam.vo import models
 
-    monkeypatch.setattr(vo.models, "models_dir", lambda: tmp_path)  # an empty models/ folder
+    monkeypatch.setattr(models, "models_dir", lambda: tmp_path)  # an empty models/ folder
     odo = make_odometries(StressConfig())
     assert odo.kind == "rigid-fit" and "unavailable" in odo.note and "kitti_cons.safetensors" in odo.note
     assert set(odo.cons) == {"gt", "dis"} and isinstance(odo.loops, RigidFitOdometry)

@@ -3,9 +3,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from core.errors import InputError
-from vo import modelfile
-from vo.train import CHECKPOINT_FORMAT, MODEL_FORMAT, MODEL_VERSION
+from deepslam.core.errors import InputError
+from deepslam.vo import modelfile
+from deepslam.vo.train import CHECKPOINT_FORMAT, MODEL_FORMAT, MODEL_VERSION
 
 
 def convert_legacy(src: str | Path, dst: str | Path) -> str:

@@ -26,9 +26,9 @@ from typing import Callable, Iterator, Sequence as Seq
 import numpy as np
 import torch
 
-from core import se3
-from core.camera import PinholeCamera
-from core.errors import InputError
+from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
+from deepslam.core.errors import InputError
 
 Batch = dict[str, torch.Tensor]
 
@@ -241,7 +241,7 @@ def supervised_samples(seq, pairs: np.ndarray, estimator, width: int, height: in
     """
     from tqdm import tqdm
 
-    from vo.flow_estimators import to_network_input
+    from deepslam.vo.flow_estimators import to_network_input
 
     if seq.gt is None:
         raise InputError(seq.root, "supervised training needs ground-truth poses; this sequence has none")
@@ -400,7 +400,7 @@ def load_frames(sequences: Seq, width: int, height: int, frame_step: int = 1, de
 
 def stereo_depth(seq, i: int) -> np.ndarray:
     """depth_z (H, W) float32 of frame i from its rectified stereo pair (gen.stereo, SGBM), 0 = unknown."""
-    from gen import stereo
+    from deepslam.gen import stereo
 
     return np.asarray(stereo.sequence_depth(seq, i), dtype=np.float32)
 
@@ -475,7 +475,7 @@ def synthesize_flow(depth_z: torch.Tensor, intrinsics: np.ndarray, cam1_from_cam
         (B, H/pool, W/pool) bool (the point is in front of camera 1, depth known unless ``infinity``;
         pooled: any pixel of the block valid).
     """
-    from gen.flow import projection_coefficients
+    from deepslam.gen.flow import projection_coefficients
 
     if missing_depth not in MISSING_DEPTH:
         raise ValueError(f"missing_depth must be one of {MISSING_DEPTH}, got {missing_depth!r}")
@@ -672,7 +672,7 @@ def load_image_frames(sequences: Seq, frame_step: int = 1, depth: str = "auto", 
     import cv2
     from tqdm import tqdm
 
-    from vo.flow_estimators import to_grey
+    from deepslam.vo.flow_estimators import to_grey
 
     if not scales or any(not (0.05 <= float(sc) <= 1.0) for sc in scales):
         raise InputError(None, f"frame scales must be in [0.05, 1], got {list(scales)}")
@@ -728,7 +728,7 @@ class EstimatedFlowSource(_OnTheFlySource):
                  appearance_noise: float = 0.0):
         import threading
 
-        from vo import flow_estimators
+        from deepslam.vo import flow_estimators
 
         self.frames = frames
         self.sample_motion = sample_motion
@@ -748,8 +748,8 @@ class EstimatedFlowSource(_OnTheFlySource):
         return self.samples_per_epoch
 
     def _one(self, k: int, vec6: np.ndarray, noise_seed: int) -> tuple[np.ndarray, np.ndarray]:
-        from gen.novel_view import render_novel_view
-        from vo import flow_estimators
+        from deepslam.gen.novel_view import render_novel_view
+        from deepslam.vo import flow_estimators
 
         est = getattr(self._local, "est", None)
         if est is None:

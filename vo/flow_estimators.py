@@ -26,7 +26,7 @@ from typing import Callable, Protocol
 
 import numpy as np
 
-from core.errors import InputError
+from deepslam.core.errors import InputError
 
 DIS_PRESETS = ("ultrafast", "fast", "medium")
 """Presets of OpenCV's DIS flow, fastest first."""
@@ -140,8 +140,8 @@ def exact_pair_flow(seq, i: int, j: int) -> np.ndarray:
     """
     import torch
 
-    from core import se3
-    from vo.data import synthesize_flow
+    from deepslam.core import se3
+    from deepslam.vo.data import synthesize_flow
 
     cam = seq.camera
     depth = seq.depth(i)
@@ -150,7 +150,7 @@ def exact_pair_flow(seq, i: int, j: int) -> np.ndarray:
     depths, motions = [depth], [cam_j_from_cam_i]
     mask = seq.mask(i) if seq.mask_paths is not None else None
     if mask is not None and mask.any() and seq.kind == "ours":
-        from core.ours import read_instance_poses
+        from deepslam.core.ours import read_instance_poses
 
         poses_i, poses_j = read_instance_poses(seq.root, i), read_instance_poses(seq.root, j)
         static = depth.copy()

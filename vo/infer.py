@@ -12,8 +12,8 @@ from typing import Sequence as Seq
 import numpy as np
 import torch
 
-from core import se3
-from vo.net import FlowPoseNet
+from deepslam.core import se3
+from deepslam.vo.net import FlowPoseNet
 
 
 @functools.lru_cache(maxsize=1)
@@ -51,7 +51,7 @@ class VOPredictor:
     @classmethod
     def from_file(cls, path: str | Path, **kwargs) -> "VOPredictor":
         """Load a ``model.safetensors`` (or a training ``checkpoint.safetensors``); InputError when missing or malformed."""
-        from vo.train import load_model
+        from deepslam.vo.train import load_model
 
         model, meta = load_model(path)
         kwargs.setdefault("name", Path(path).stem)
@@ -89,7 +89,7 @@ class VOPredictor:
 
     def prepare(self, flow_full: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
         """Full-resolution flow (H, W, 2) -> network input ((2, h, w) px, (4,) intrinsics)."""
-        from vo.flow_estimators import to_network_input
+        from deepslam.vo.flow_estimators import to_network_input
 
         h, w = self.input_size
         return to_network_input(flow_full, camera, w, h)

@@ -27,8 +27,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from core import atomic
-from core.errors import InputError
+from deepslam.core import atomic
+from deepslam.core.errors import InputError
 
 SAFETENSORS_SUFFIX = ".safetensors"
 """Suffix of every model and checkpoint file deepslam writes."""

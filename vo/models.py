@@ -13,8 +13,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from core.errors import InputError
-from core.paths import repo_root
+from deepslam.core.errors import InputError
 
 KINDS = ("kitti", "euroc")
 """Camera kinds with a shipped model."""
@@ -34,7 +33,11 @@ def flow_variant(flow: str | None) -> str | None:
 
 
 def models_dir() -> Path:
-    return repo_root() / "models"
+    """The shipped models' folder: the ``deepslam.models`` package (``<repo>/models`` in a checkout,
+    ``site-packages/deepslam/models`` installed)."""
+    import deepslam.models
+
+    return Path(deepslam.models.__file__).resolve().parent
 
 
 def shipped_path(kind: str, which: str = "cons", flow=None) -> Path:
@@ -54,7 +57,7 @@ def shipped_path(kind: str, which: str = "cons", flow=None) -> Path:
 def load_shipped(kind: str, which: str = "cons", flow=None, **kwargs):
     """The shipped :class:`vo.infer.VOPredictor` for ``kind`` / ``which`` (and the flow estimator, see
     :func:`shipped_path`); InputError when the file is missing."""
-    from vo.infer import VOPredictor
+    from deepslam.vo.infer import VOPredictor
 
     path = shipped_path(kind, which, flow)
     if not path.is_file():
@@ -81,7 +84,7 @@ def resolve(spec: str | None, seq=None, which: str = "cons", flow=None, **kwargs
     """A predictor from ``spec``: a model file path, ``kitti``/``euroc`` (shipped ``cons``),
     ``kitti:loops``-style shipped names, or None (the shipped model for ``seq``'s camera kind). Shipped
     models follow ``flow`` (the estimator's name or object, see :func:`shipped_path`); a file is taken as is."""
-    from vo.infer import VOPredictor
+    from deepslam.vo.infer import VOPredictor
 
     if spec is None:
         if seq is None:

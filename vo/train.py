@@ -29,9 +29,9 @@ from typing import Iterator, Protocol
 
 import torch
 
-from core import atomic
-from vo import modelfile
-from vo.net import FlowPoseNet, NetConfig, gaussian_nll, pose_loss
+from deepslam.core import atomic
+from deepslam.vo import modelfile
+from deepslam.vo.net import FlowPoseNet, NetConfig, gaussian_nll, pose_loss
 
 CHECKPOINT = "checkpoint.safetensors"
 MODEL = "model.safetensors"
@@ -269,7 +269,7 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
            progress: bool, meta: dict | None, half_weights: bool) -> TrainResult:
     from tqdm import tqdm
 
-    from core.errors import InputError
+    from deepslam.core.errors import InputError
 
     out_dir.mkdir(parents=True, exist_ok=True)
     meta = dict(meta or {})
@@ -457,7 +457,7 @@ def _plot_history(path: Path, history: list[dict]) -> None:
 def load_model(path: str | Path) -> tuple[FlowPoseNet, dict]:
     """(model in eval mode, float32; meta) from a ``model.safetensors`` or a ``checkpoint.safetensors``
     (:mod:`vo.modelfile`: nothing in the file is executed)."""
-    from core.errors import InputError
+    from deepslam.core.errors import InputError
 
     path = Path(path)
     _, d = modelfile.load(path, (MODEL_FORMAT, CHECKPOINT_FORMAT))

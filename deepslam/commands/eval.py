@@ -42,9 +42,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from core import metrics, plots
-    from core.errors import InputError
-    from core.trajio import read_trajectory_and_format
+    from deepslam.core import metrics, plots
+    from deepslam.core.errors import InputError
+    from deepslam.core.trajio import read_trajectory_and_format
 
     if not (args.max_diff > 0 and math.isfinite(args.max_diff)):
         raise InputError(None, f"--max-diff must be a positive number of seconds, got {args.max_diff}")

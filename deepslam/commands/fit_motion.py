@@ -24,9 +24,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from core.errors import InputError
-    from core.trajio import read_trajectory
-    from gen import motion
+    from deepslam.core.errors import InputError
+    from deepslam.core.trajio import read_trajectory
+    from deepslam.gen import motion
 
     if args.stride < 1:
         raise InputError(None, f"--stride must be >= 1, got {args.stride}")

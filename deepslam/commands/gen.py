@@ -31,7 +31,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def parse_resolution(text: str | None) -> tuple[int, int] | None:
-    from core.errors import InputError
+    from deepslam.core.errors import InputError
 
     if text is None:
         return None
@@ -42,9 +42,9 @@ def parse_resolution(text: str | None) -> tuple[int, int] | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from core.errors import InputError
-    from gen.motion import MotionModel
-    from gen.shards import GenConfig, generate
+    from deepslam.core.errors import InputError
+    from deepslam.gen.motion import MotionModel
+    from deepslam.gen.shards import GenConfig, generate
 
     if args.samples < 1:
         raise InputError(None, f"--samples must be >= 1, got {args.samples}")

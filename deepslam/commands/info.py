@@ -15,8 +15,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from core.progress import progress
-    from core.sequence import open_sequence
+    from deepslam.core.progress import progress
+    from deepslam.core.sequence import open_sequence
 
     seq = open_sequence(args.sequence)
     if args.check:

@@ -31,9 +31,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from scenes import SceneConfig
-    from sim.config import RenderConfig, SimConfig, TrajectoryConfig
-    from sim.writers import render_sequence
+    from deepslam.scenes import SceneConfig
+    from deepslam.sim.config import RenderConfig, SimConfig, TrajectoryConfig
+    from deepslam.sim.writers import render_sequence
 
     cfg = SimConfig(
         SceneConfig(name=args.scene, seed=args.seed, moving_objects=args.moving_objects,

@@ -48,10 +48,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def make_odometry(args, seq):
     """(odo_cons, odo_loops) from the arguments (shared with tune-slam)."""
-    from core.errors import InputError
+    from deepslam.core.errors import InputError
 
     if args.odometry == "gt-noisy":
-        from slam.odometry import GroundTruthOdometry, NoiseConfig
+        from deepslam.slam.odometry import GroundTruthOdometry, NoiseConfig
 
         if seq.gt is None:
             raise InputError(args.sequence, "--odometry gt-noisy needs a sequence with ground truth")
@@ -65,7 +65,7 @@ def make_odometry(args, seq):
         loops = GroundTruthOdometry(NoiseConfig(std6=std, seed=args.seed + 1), name="gt-noisy-loops")
         return cons, loops
     try:
-        from vo import flow_estimators, models
+        from deepslam.vo import flow_estimators, models
     except ImportError as e:
         raise InputError(None, f"the learned odometry (package vo) is not available: {e}") from None
     if not hasattr(models, "resolve"):
@@ -82,13 +82,13 @@ def make_odometry(args, seq):
 def run(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from core import atomic, metrics, plots
-    from core.errors import InputError
-    from core.sequence import open_sequence
-    from core.trajio import write_trajectory
-    from slam.pipeline import PipelineConfig, SlamParams, run_slam
-    from slam.posegraph import PoseGraphConfig
-    from slam.reloc import Vocabulary
+    from deepslam.core import atomic, metrics, plots
+    from deepslam.core.errors import InputError
+    from deepslam.core.sequence import open_sequence
+    from deepslam.core.trajio import write_trajectory
+    from deepslam.slam.pipeline import PipelineConfig, SlamParams, run_slam
+    from deepslam.slam.posegraph import PoseGraphConfig
+    from deepslam.slam.reloc import Vocabulary
 
     if args.keyframe_stride < 1:
         raise InputError(None, f"--keyframe-stride must be at least 1, got {args.keyframe_stride}")
@@ -161,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _save_vocab(args, res, seq, vocab) -> None:
-    from core.errors import InputError
+    from deepslam.core.errors import InputError
 
     v = vocab if vocab is not None else res.vocabulary
     if v is None:
@@ -171,7 +171,7 @@ def _save_vocab(args, res, seq, vocab) -> None:
 
 def _clean(v):
     """JSON-safe copy (see core.atomic.json_safe)."""
-    from core.atomic import json_safe
+    from deepslam.core.atomic import json_safe
 
     return json_safe(v)
 

@@ -51,7 +51,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def parse_list(text: str, kind, what: str) -> tuple:
     """Comma-separated numbers -> tuple; InputError on an empty list or a bad number."""
-    from core.errors import InputError
+    from deepslam.core.errors import InputError
 
     items = [t.strip() for t in str(text).split(",")]
     if not any(items):

@@ -117,7 +117,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def net_config(args):
-    from vo.net import NetConfig
+    from deepslam.vo.net import NetConfig
 
     d = dict(NET_PRESETS[args.net])
     for arg, field in (("height", "input_height"), ("width", "input_width"), ("filters", "filters"),
@@ -131,7 +131,7 @@ def net_config(args):
     try:
         return NetConfig(**d)
     except ValueError as e:
-        from core.errors import InputError
+        from deepslam.core.errors import InputError
 
         raise InputError(None, f"bad network settings: {e}") from None
 
@@ -141,9 +141,9 @@ def _load_motion(spec: str):
     import hashlib
     from pathlib import Path
 
-    from core.errors import InputError
-    from gen.motion import MotionModel
-    from vo.data import motion_sampler
+    from deepslam.core.errors import InputError
+    from deepslam.gen.motion import MotionModel
+    from deepslam.vo.data import motion_sampler
 
     rest, _, w = spec.rpartition("@") if "@" in spec else (spec, "", "")
     try:
@@ -167,11 +167,11 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from core.errors import InputError
-    from core.sequence import open_sequence
-    from vo import data
-    from vo.infer import cpu_has_native_bf16
-    from vo.train import TrainConfig, TrainingDiverged, train
+    from deepslam.core.errors import InputError
+    from deepslam.core.sequence import open_sequence
+    from deepslam.vo import data
+    from deepslam.vo.infer import cpu_has_native_bf16
+    from deepslam.vo.train import TrainConfig, TrainingDiverged, train
 
     net = net_config(args)
     bf16 = cpu_has_native_bf16() if args.bf16 == "auto" else args.bf16 == "on"
@@ -187,7 +187,7 @@ def run(args: argparse.Namespace) -> int:
     meta: dict = {"mode": args.mode}
     if args.mode == "synthetic":
         if args.toy:
-            from core.camera import PinholeCamera
+            from deepslam.core.camera import PinholeCamera
 
             cam = PinholeCamera(1241, 376, 718.856, 718.856, 607.1928, 185.2157).scaled(w, h)
             s = data.toy_plane_samples(args.toy, cam, np.random.default_rng(args.seed))
@@ -234,7 +234,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         if not args.sequence:
             raise InputError(None, "supervised mode needs --sequence DIR...")
-        from vo import flow_estimators
+        from deepslam.vo import flow_estimators
 
         est = flow_estimators.make(args.flow, **({"preset": args.dis_preset} if args.flow == "dis" else {}))
         spec = data.PairSpec(strides=tuple(args.strides), kind=args.pairs, max_pairs=args.max_pairs)

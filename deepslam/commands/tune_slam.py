@@ -64,13 +64,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from core.errors import InputError
-    from core.sequence import open_sequence
+    from deepslam.core.errors import InputError
+    from deepslam.core.sequence import open_sequence
     from deepslam.commands.slam import make_odometry
-    from slam.pipeline import PipelineConfig, prepare
-    from slam.posegraph import PoseGraphConfig
-    from slam.reloc import Vocabulary
-    from slam.tune import SearchSpace, problem_from_prepared, tune
+    from deepslam.slam.pipeline import PipelineConfig, prepare
+    from deepslam.slam.posegraph import PoseGraphConfig
+    from deepslam.slam.reloc import Vocabulary
+    from deepslam.slam.tune import SearchSpace, problem_from_prepared, tune
 
     if args.keyframe_stride < 1:
         raise InputError(None, f"--keyframe-stride must be at least 1, got {args.keyframe_stride}")

@@ -16,7 +16,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _frames(text: str | None, n: int):
-    from core.errors import InputError
+    from deepslam.core.errors import InputError
 
     if text is None:
         return None
@@ -32,8 +32,8 @@ def _frames(text: str | None, n: int):
 
 
 def run(args: argparse.Namespace) -> int:
-    from core.sequence import open_sequence
-    from gen.validate import validate_sequence
+    from deepslam.core.sequence import open_sequence
+    from deepslam.gen.validate import validate_sequence
 
     seq = open_sequence(args.sequence)
     report = validate_sequence(seq, _frames(args.frames, len(seq)))

@@ -38,12 +38,12 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from core import atomic, se3, trajio
-    from core.errors import InputError
-    from core.sequence import open_sequence
-    from core.trajectory import Trajectory
-    from vo import flow_estimators, models
-    from vo.infer import chain_euler6
+    from deepslam.core import atomic, se3, trajio
+    from deepslam.core.errors import InputError
+    from deepslam.core.sequence import open_sequence
+    from deepslam.core.trajectory import Trajectory
+    from deepslam.vo import flow_estimators, models
+    from deepslam.vo.infer import chain_euler6
 
     seq = open_sequence(args.sequence)
     if args.stride < 1:
@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {out} ({len(frames)} poses, {fmt}) and {stem}.motions.csv")
 
     if seq.gt is not None:
-        from core import metrics, plots
+        from deepslam.core import metrics, plots
 
         gt_rel = se3.inverse(seq.gt.world_from_cam[frames[0]]) @ seq.gt.world_from_cam[frames]
         gt = Trajectory(gt_rel, seq.timestamps_s[frames])

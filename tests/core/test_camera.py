@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from core import se3
-from core.camera import (CV_FROM_GL, GL_FROM_CV, PinholeCamera, world_from_cam_cv_from_gl,
+from deepslam.core import se3
+from deepslam.core.camera import (CV_FROM_GL, GL_FROM_CV, PinholeCamera, world_from_cam_cv_from_gl,
                          world_from_cam_gl_from_cv)
 
 CAM = PinholeCamera(160, 120, fx=140.0, fy=138.0, cx=79.3, cy=61.2)

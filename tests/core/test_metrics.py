@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from core import metrics, se3
-from core.errors import InputError
-from core.trajectory import Trajectory
-from core.trajio import read_trajectory
+from deepslam.core import metrics, se3
+from deepslam.core.errors import InputError
+from deepslam.core.trajectory import Trajectory
+from deepslam.core.trajio import read_trajectory
 
 
 def _random_rotation(rng):

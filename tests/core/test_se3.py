@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from core import se3
+from deepslam.core import se3
 
 
 def _rx(a):

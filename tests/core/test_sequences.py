@@ -8,13 +8,13 @@ import cv2
 import numpy as np
 import pytest
 
-from core import se3
-from core.camera import PinholeCamera
-from core.errors import InputError
-from core.euroc import read_euroc, read_sensor_yaml
-from core.kitti import read_kitti
-from core.ours import OursWriter, read_ours
-from core.sequence import open_sequence
+from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
+from deepslam.core.errors import InputError
+from deepslam.core.euroc import read_euroc, read_sensor_yaml
+from deepslam.core.kitti import read_kitti
+from deepslam.core.ours import OursWriter, read_ours
+from deepslam.core.sequence import open_sequence
 from deepslam.cli import main
 
 
@@ -277,7 +277,7 @@ def test_input_error_survives_pickling():
 def test_atomic_files_get_normal_permissions(tmp_path):
     import os
 
-    from core import atomic
+    from deepslam.core import atomic
 
     atomic.write_text(tmp_path / "x.txt", "hi")
     umask = os.umask(0)

@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from core import se3
-from core.errors import InputError
-from core.trajectory import Trajectory
-from core.trajio import detect_format, format_trajectory, read_trajectory, read_trajectory_and_format, write_trajectory
+from deepslam.core import se3
+from deepslam.core.errors import InputError
+from deepslam.core.trajectory import Trajectory
+from deepslam.core.trajio import detect_format, format_trajectory, read_trajectory, read_trajectory_and_format, write_trajectory
 
 
 def _random_traj(rng: np.random.Generator, n: int = 25, times: bool = True) -> Trajectory:

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from core.ours import OursWriter
+from deepslam.core.ours import OursWriter
 from gen_scenes import write_depth_sequence
 
 
@@ -17,7 +17,7 @@ def depth_sequence(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def motion_json(tmp_path_factory) -> Path:
     """A KITTI-like motion model written by hand (no data needed): about 0.9 m forward per frame."""
-    from gen.motion import MotionModel, SixDof, StudentT
+    from deepslam.gen.motion import MotionModel, SixDof, StudentT
 
     six = SixDof((StudentT(3.1, 0.0, 0.002, -0.026, 0.022), StudentT(0.73, 0.0, 0.002, -0.074, 0.083),
                   StudentT(2.0, 0.0, 0.0016, -0.02, 0.019), StudentT(2.0, 0.001, 0.008, -0.07, 0.08),
@@ -32,9 +32,9 @@ def rendered_sequence(tmp_path_factory) -> Path:
     """4 frames of the street scene at 640x192 with stereo, moving cars and waving flags, in our format."""
     pytest.importorskip("mujoco")
     try:
-        from scenes import SceneConfig
-        from sim.config import RenderConfig, SimConfig, TrajectoryConfig
-        from sim.simulator import Simulator
+        from deepslam.scenes import SceneConfig
+        from deepslam.sim.config import RenderConfig, SimConfig, TrajectoryConfig
+        from deepslam.sim.simulator import Simulator
     except ImportError as e:  # the simulator is another package of this project
         pytest.skip(f"simulator not importable: {e}")
     root = tmp_path_factory.mktemp("rendered") / "street"

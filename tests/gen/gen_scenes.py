@@ -5,9 +5,9 @@ from pathlib import Path
 
 import numpy as np
 
-from core import se3
-from core.camera import PinholeCamera
-from core.ours import OursWriter
+from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
+from deepslam.core.ours import OursWriter
 
 
 def box_scene(camera: PinholeCamera, back_m: float = 10.0, box_m: float = 3.0) -> np.ndarray:

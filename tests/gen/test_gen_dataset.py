@@ -5,13 +5,13 @@ import numpy as np
 import pytest
 import torch
 
-from core import se3
-from core.camera import PinholeCamera
-from core.errors import InputError
-from gen.dataset import (ArrayDepthFrames, DatasetConfig, SyntheticFlowDataset, open_depth_frames,
+from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
+from deepslam.core.errors import InputError
+from deepslam.gen.dataset import (ArrayDepthFrames, DatasetConfig, SyntheticFlowDataset, open_depth_frames,
                          resample_nearest)
-from gen.flow_reference import synthesize_reference
-from gen.motion import MotionModel, SixDof, StudentT
+from deepslam.gen.flow_reference import synthesize_reference
+from deepslam.gen.motion import MotionModel, SixDof, StudentT
 from gen_scenes import box_scene, ground_scene
 
 CAM = PinholeCamera(160, 120, 120.0, 118.0, 80.3, 59.1)
@@ -22,7 +22,7 @@ def _motion(loop: bool = False) -> MotionModel:
         return SixDof(tuple([StudentT(4.0, 0.0, rot, -10 * rot, 10 * rot)] * 3
                             + [StudentT(4.0, 0.0, trans, -10 * trans, 10 * trans)] * 2
                             + [StudentT(4.0, tz_loc, trans, tz_loc - 10 * trans, tz_loc + 10 * trans)]), 100)
-    from gen.motion import LoopConfig
+    from deepslam.gen.motion import LoopConfig
 
     return MotionModel(1, six(0.005, 0.05, -0.8), six(0.02, 1.0, 0.0) if loop else None,
                        LoopConfig() if loop else None)

@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 import torch
 
-from core import se3
-from core.camera import PinholeCamera
-from gen.flow import denormalize_flow, normalize_flow, synthesize, visible_after_motion
-from gen.flow_reference import synthesize_reference, synthesize_reference_batch
+from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
+from deepslam.gen.flow import denormalize_flow, normalize_flow, synthesize, visible_after_motion
+from deepslam.gen.flow_reference import synthesize_reference, synthesize_reference_batch
 
 from gen_scenes import box_scene, ground_scene, random_motions
 
@@ -197,7 +197,7 @@ def test_depth1_out_buffers_and_single_input(backend):
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_batch_results_do_not_depend_on_batching(backend):
     """Element-wise only: a sample gives the same bits alone or inside a batch of any size."""
-    import gen.flow as gf
+    import deepslam.gen.flow as gf
 
     rng = np.random.default_rng(5)
     depth = np.stack([box_scene(CAM, rng.uniform(5, 30), rng.uniform(1, 4)) for _ in range(7)])

@@ -8,18 +8,18 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from core import se3
-from core.errors import InputError
-from core.trajectory import Trajectory
+from deepslam.core import se3
+from deepslam.core.errors import InputError
+from deepslam.core.trajectory import Trajectory
 from deepslam.cli import main
-from gen.motion import (DOF_NAMES, LoopConfig, MotionModel, StudentT, fit_motion, fit_student_t, ks_statistics,
+from deepslam.gen.motion import (DOF_NAMES, LoopConfig, MotionModel, StudentT, fit_motion, fit_student_t, ks_statistics,
                         loop_motions, relative_vectors)
 
 
 @pytest.fixture(scope="module")
 def kitti_fit(shared_data):
     """Consecutive motions of all of KITTI 00-10; loops of 00 and 05 (the sequences that revisit)."""
-    from core.trajio import read_trajectory
+    from deepslam.core.trajio import read_trajectory
 
     trajs = [read_trajectory(shared_data / "kitti" / "poses" / f"{k:02d}.txt") for k in range(11)]
     model, vec, _ = fit_motion(trajs, 1)

@@ -4,9 +4,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from core import se3
-from core.camera import PinholeCamera
-from gen.novel_view import depth_after_motion, render_novel_view
+from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
+from deepslam.gen.novel_view import depth_after_motion, render_novel_view
 
 CAM = PinholeCamera(160, 96, 110.0, 110.0, 79.5, 47.5)
 
@@ -98,9 +98,9 @@ def test_colour_images_keep_their_channels():
 def street_pair(tmp_path_factory):
     """2 frames of the simulated street (320 x 96, no moving objects) 2 s apart: the car has moved 3.5 m and turned 17 degrees."""
     pytest.importorskip("mujoco")
-    from scenes import SceneConfig
-    from sim.config import RenderConfig, SimConfig, TrajectoryConfig
-    from sim.writers import render_sequence
+    from deepslam.scenes import SceneConfig
+    from deepslam.sim.config import RenderConfig, SimConfig, TrajectoryConfig
+    from deepslam.sim.writers import render_sequence
 
     cfg = SimConfig(SceneConfig(name="street", seed=3, moving_objects=0),
                     TrajectoryConfig(frames=2, rate_hz=0.5), RenderConfig(width=320, height=96)).validate()
@@ -108,8 +108,8 @@ def street_pair(tmp_path_factory):
 
 
 def test_novel_view_matches_the_simulators_next_frame(street_pair):
-    from core.sequence import open_sequence
-    from vo.flow_estimators import to_grey
+    from deepslam.core.sequence import open_sequence
+    from deepslam.vo.flow_estimators import to_grey
 
     seq = open_sequence(street_pair)
     w = seq.gt.world_from_cam

@@ -14,10 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from core.paths import repo_root
 from deepslam.cli import main
-from gen.motion import MotionModel
-from gen.shards import GenConfig, generate, make_dataset, read_shard, verify
+from deepslam.gen.motion import MotionModel
+from deepslam.gen.shards import GenConfig, generate, make_dataset, read_shard, verify
+
+REPO = Path(__file__).resolve().parents[2]
 
 
 def _files(folder: Path) -> dict[str, bytes]:
@@ -64,7 +65,7 @@ def test_shards_are_open_and_deterministic(config, tmp_path):
 
 
 def test_tampered_shard_fails_verification(config, tmp_path):
-    from core.errors import InputError
+    from deepslam.core.errors import InputError
 
     generate(config, tmp_path / "a", progress=False)
     shard = tmp_path / "a" / "shard-000002.tar"
@@ -83,13 +84,13 @@ def _gen_cmd(source, motion, out, extra=()):
 
 @pytest.mark.slow
 def test_sigkill_then_resume_gives_the_uninterrupted_shards(depth_sequence, motion_json, tmp_path):
-    env = {**os.environ, "PYTHONPATH": str(repo_root()), "DEEPSLAM_PROGRESS": "0"}
+    env = {**os.environ, "DEEPSLAM_PROGRESS": "0"}
     ref = tmp_path / "ref"  # the uninterrupted run, in this process: the same config as the command line's
     generate(GenConfig(source=str(depth_sequence), motion=MotionModel.load(motion_json).to_dict(),
                        num_samples=60, seed=9, resolution_hw=(96, 128), samples_per_shard=3, zbuffer=True),
              ref, progress=False)
     out = tmp_path / "killed"
-    proc = subprocess.Popen(_gen_cmd(depth_sequence, motion_json, out), env=env, cwd=repo_root(),
+    proc = subprocess.Popen(_gen_cmd(depth_sequence, motion_json, out), env=env, cwd=REPO,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 60
     while not (out / "shard-000002.tar").exists():
@@ -100,7 +101,7 @@ def test_sigkill_then_resume_gives_the_uninterrupted_shards(depth_sequence, moti
     assert not (out / "manifest.json").exists()  # it really was interrupted
     done_before = len(list(out.glob("shard-*.tar")))
     assert done_before < 20
-    res = subprocess.run(_gen_cmd(depth_sequence, motion_json, out, ["--resume"]), env=env, cwd=repo_root(),
+    res = subprocess.run(_gen_cmd(depth_sequence, motion_json, out, ["--resume"]), env=env, cwd=REPO,
                          capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
     assert _files(out) == _files(ref)
@@ -119,8 +120,8 @@ def test_ray_backend_writes_the_same_bytes(config, tmp_path):
 
 
 def _no_depth_sequence(root: Path) -> Path:
-    from core.camera import PinholeCamera
-    from core.ours import OursWriter
+    from deepslam.core.camera import PinholeCamera
+    from deepslam.core.ours import OursWriter
 
     cam = PinholeCamera.from_fov_y(16, 12, 60.0)
     w = OursWriter(root, {"num_frames": 2, "rate_hz": 10.0, "camera": cam.to_dict(), "stereo_baseline_m": None,
@@ -165,7 +166,7 @@ def test_cli_bad_input_is_one_line_and_exit_2(depth_sequence, motion_json, tmp_p
 
 def test_bad_depth_file_in_a_worker_is_one_input_error(motion_json, tmp_path):
     """A truncated depth file met inside a worker process comes back as the same InputError."""
-    from core.errors import InputError
+    from deepslam.core.errors import InputError
     from gen_scenes import write_depth_sequence
 
     src = write_depth_sequence(tmp_path / "src", n=2)

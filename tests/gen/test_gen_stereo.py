@@ -5,10 +5,10 @@ import cv2
 import numpy as np
 import pytest
 
-from core import se3
-from core.sequence import open_sequence
-from gen.flow import synthesize
-from gen.stereo import StereoConfig, depth_from_disparity, depth_from_stereo, disparity
+from deepslam.core import se3
+from deepslam.core.sequence import open_sequence
+from deepslam.gen.flow import synthesize
+from deepslam.gen.stereo import StereoConfig, depth_from_disparity, depth_from_stereo, disparity
 
 
 def _textured_pair(disp_px: int, width: int = 160, height: int = 64, seed: int = 0):

@@ -6,13 +6,13 @@ import json
 import numpy as np
 import pytest
 
-from core import se3
-from core.camera import PinholeCamera
-from core.ours import OursWriter
-from core.sequence import open_sequence
+from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
+from deepslam.core.ours import OursWriter
+from deepslam.core.sequence import open_sequence
 from deepslam.cli import main
-from gen.flow_reference import synthesize_reference
-from gen.validate import validate_sequence
+from deepslam.gen.flow_reference import synthesize_reference
+from deepslam.gen.validate import validate_sequence
 
 CAM = PinholeCamera(64, 48, 50.0, 50.0, 31.5, 23.5)
 BOX_X = (-0.6, 0.4)    # world x extent of a board 3 m in front of a wall at 10 m, metres

@@ -4,12 +4,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from core.errors import InputError
-from scenes import SceneConfig, build_scene
-from scenes.geometry import PeriodicPath, offset_polyline
-from scenes.room import build_room
-from scenes.spec import FlagDeform, PathProgress, speed_profile
-from scenes.street import build_street
+from deepslam.core.errors import InputError
+from deepslam.scenes import SceneConfig, build_scene
+from deepslam.scenes.geometry import PeriodicPath, offset_polyline
+from deepslam.scenes.room import build_room
+from deepslam.scenes.spec import FlagDeform, PathProgress, speed_profile
+from deepslam.scenes.street import build_street
 
 
 def _build(name, seed, k=0, a=0.0, ppm=3.0):
@@ -127,11 +127,11 @@ def test_config_validation():
 def test_mjcf_compiles_and_keeps_the_geometry(tmp_path):
     import mujoco
 
-    from core import se3
-    from scenes import mjcf
+    from deepslam.core import se3
+    from deepslam.scenes import mjcf
 
     s = _build("street", 4, k=2, a=0.1)
-    from sim.render_mujoco import compile_model
+    from deepslam.sim.render_mujoco import compile_model
 
     model = compile_model(s, 320, 240, 30.0, 0.5)
     data = mujoco.MjData(model)

@@ -5,8 +5,8 @@ import cv2
 import numpy as np
 import pytest
 
-from scenes import SceneConfig
-from sim import RenderConfig, SimConfig, Simulator, TrajectoryConfig
+from deepslam.scenes import SceneConfig
+from deepslam.sim import RenderConfig, SimConfig, Simulator, TrajectoryConfig
 
 
 def _config(scene, backend, width, frames):

@@ -14,9 +14,9 @@ import cv2
 import numpy as np
 import pytest
 
-from core.sequence import open_sequence
-from scenes import SceneConfig
-from sim import RenderConfig, SimConfig, Simulator, TrajectoryConfig, render_sequence
+from deepslam.core.sequence import open_sequence
+from deepslam.scenes import SceneConfig
+from deepslam.sim import RenderConfig, SimConfig, Simulator, TrajectoryConfig, render_sequence
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -123,7 +123,7 @@ def _cli(args, **kw):
 @pytest.mark.slow
 @pytest.mark.parametrize("fmt", ["kitti", "ours"])
 def test_resume_after_sigkill_gives_the_same_bytes(tmp_path, fmt):
-    from core.errors import InputError
+    from deepslam.core.errors import InputError
 
     args = ["--scene", "street", "--frames", "12", "--width", "128", "--texture-density", "4", "--moving-objects", "1",
             "--deform", "0.1", "--seed", "5", "--format", fmt, "--quiet"]

@@ -5,8 +5,8 @@ import cv2
 import numpy as np
 import pytest
 
-from scenes import SceneConfig
-from sim import RenderConfig, SimConfig, Simulator, TrajectoryConfig
+from deepslam.scenes import SceneConfig
+from deepslam.sim import RenderConfig, SimConfig, Simulator, TrajectoryConfig
 
 
 @pytest.mark.parametrize("scene,ppm,width,frame", [("street", 12, 620, 60), ("room", 60, 376, 60)])

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from core import se3
-from scenes.testing import looking_along_y, mini_scene
-from sim import KeyframeMotion, RenderConfig, SimConfig, Simulator, TrajectoryConfig
+from deepslam.core import se3
+from deepslam.scenes.testing import looking_along_y, mini_scene
+from deepslam.sim import KeyframeMotion, RenderConfig, SimConfig, Simulator, TrajectoryConfig
 
 
 def _motion():

@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from core import se3
-from core.camera import PinholeCamera
-from scenes.testing import looking_along_y, marker_scene, plane_scene
-from sim import KeyframeMotion, RenderConfig, SimConfig, Simulator, TrajectoryConfig
+from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
+from deepslam.scenes.testing import looking_along_y, marker_scene, plane_scene
+from deepslam.sim import KeyframeMotion, RenderConfig, SimConfig, Simulator, TrajectoryConfig
 
 BACKENDS = ["mujoco", "pyrender"]
 CAM = PinholeCamera(96, 64, 70.0, 70.0, 47.5, 31.5)

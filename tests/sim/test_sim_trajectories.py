@@ -4,9 +4,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from core import se3
-from scenes import SceneConfig, build_scene
-from sim.trajectories import make_motion
+from deepslam.core import se3
+from deepslam.scenes import SceneConfig, build_scene
+from deepslam.sim.trajectories import make_motion
 
 DT = 0.01
 

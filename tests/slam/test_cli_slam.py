@@ -5,9 +5,9 @@ import json
 
 import pytest
 
-from core.trajio import read_trajectory
+from deepslam.core.trajio import read_trajectory
 from deepslam.cli import main
-from slam.synthetic import write_loop_sequence
+from deepslam.slam.synthetic import write_loop_sequence
 
 
 @pytest.fixture(scope="module")
@@ -82,7 +82,7 @@ def test_tune_slam_cli_writes_params_the_slam_cli_reads(seq_dir, tmp_path, capsy
 
 def test_tune_cli_defaults_match_the_search_space():
     from deepslam.commands import tune_slam
-    from slam.tune import SearchSpace
+    from deepslam.slam.tune import SearchSpace
 
     d = SearchSpace()
     assert tune_slam._floats(tune_slam.DEFAULT_C_S) == d.c_s

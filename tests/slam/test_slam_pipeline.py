@@ -6,13 +6,13 @@ import json
 import numpy as np
 import pytest
 
-from core import se3
-from core.errors import InputError
-from core.metrics import ate
-from slam.odometry import GroundTruthOdometry, NoiseConfig, Odometry, check_prediction
-from slam.pipeline import PipelineConfig, SlamParams, prepare, run_slam, solve
-from slam.reloc import RelocConfig
-from slam.synthetic import synthetic_trajectory, write_loop_sequence
+from deepslam.core import se3
+from deepslam.core.errors import InputError
+from deepslam.core.metrics import ate
+from deepslam.slam.odometry import GroundTruthOdometry, NoiseConfig, Odometry, check_prediction
+from deepslam.slam.pipeline import PipelineConfig, SlamParams, prepare, run_slam, solve
+from deepslam.slam.reloc import RelocConfig
+from deepslam.slam.synthetic import synthetic_trajectory, write_loop_sequence
 
 N, LAPS = 80, 2.0  # 40 frames per lap: frame i and i + 40 are the same place
 RELOC = RelocConfig(image_scale=1.0, n_features=300, vocabulary_size=200, n_candidates=5)

@@ -5,13 +5,13 @@ import gtsam
 import numpy as np
 import pytest
 
-from core import se3
-from core.metrics import ate
-from core.trajectory import Trajectory
-from slam.odometry import GroundTruthOdometry, NoiseConfig
-from slam.posegraph import (Edges, PoseGraphConfig, chain, euler6_covariance, euler6_jacobian, euler_rate_matrix,
+from deepslam.core import se3
+from deepslam.core.metrics import ate
+from deepslam.core.trajectory import Trajectory
+from deepslam.slam.odometry import GroundTruthOdometry, NoiseConfig
+from deepslam.slam.posegraph import (Edges, PoseGraphConfig, chain, euler6_covariance, euler6_jacobian, euler_rate_matrix,
                             loop_residuals, measurement_covariance, measurement_jacobian, optimize)
-from slam.synthetic import circle_trajectory, loop_graph
+from deepslam.slam.synthetic import circle_trajectory, loop_graph
 
 P0 = np.array([0.3, -0.4, 0.8, 1.0, -2.0, 0.5])
 

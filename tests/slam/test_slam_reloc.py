@@ -4,11 +4,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from core.camera import PinholeCamera
-from core.errors import InputError
-from slam.reloc import (BowDatabase, FeatureExtractor, Features, LoopDetector, RelocConfig, Vocabulary,
+from deepslam.core.camera import PinholeCamera
+from deepslam.core.errors import InputError
+from deepslam.slam.reloc import (BowDatabase, FeatureExtractor, Features, LoopDetector, RelocConfig, Vocabulary,
                         accepted_pairs, kmeans, naive_scores, ratio_matches, train_vocabulary, verify)
-from slam.synthetic import random_texture, revisit_image, small_motion
+from deepslam.slam.synthetic import random_texture, revisit_image, small_motion
 
 W, H = 160, 120
 CAM = PinholeCamera.from_fov_y(W, H, 60.0)
@@ -155,7 +155,7 @@ def test_detector_finds_the_revisit_and_excludes_recent_frames(views, vocab):
 
 
 def test_real_kitti_frames_close_pairs_verify_and_far_pairs_do_not(shared_data):
-    from core.sequence import open_sequence
+    from deepslam.core.sequence import open_sequence
 
     seq = open_sequence(shared_data / "kitti" / "sequences" / "06")
     cfg = RelocConfig.for_kind(seq.kind)

@@ -4,11 +4,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slam.odometry import NoiseConfig
-from slam.pipeline import SlamParams
-from slam.posegraph import Edges, PoseGraphConfig, chain, optimize
-from slam.synthetic import loop_graph
-from slam.tune import SearchSpace, coordinate_search, grid_search, trajectory_problem, tune
+from deepslam.slam.odometry import NoiseConfig
+from deepslam.slam.pipeline import SlamParams
+from deepslam.slam.posegraph import Edges, PoseGraphConfig, chain, optimize
+from deepslam.slam.synthetic import loop_graph
+from deepslam.slam.tune import SearchSpace, coordinate_search, grid_search, trajectory_problem, tune
 
 SPACE = SearchSpace(c_s=(0.1, 1.0, 10.0, 100.0), c_r=(0.01, 0.1, 1.0, 10.0), t_loop=(5, 20, 50, 100))
 

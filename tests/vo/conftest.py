@@ -6,9 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from core import se3
-from core.camera import PinholeCamera
-from core.ours import OursWriter
+from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
+from deepslam.core.ours import OursWriter
 
 CAMERA_HEIGHT_M = 1.6
 
@@ -58,7 +58,7 @@ def drive(n: int, speed_m: float = 0.8, yaw_rate_rad: float = 0.02) -> np.ndarra
 
 
 def write_plane_sequence(root: Path, n: int = 12, width: int = 256, height: int = 80, seed: int = 0) -> Path:
-    from vo.data import flow_from_depth_np
+    from deepslam.vo.data import flow_from_depth_np
 
     camera = PinholeCamera(width, height, 0.58 * width, 0.58 * width, (width - 1) / 2, (height - 1) / 2 - 0.15 * height)
     tex = ground_texture(np.random.default_rng(seed))
@@ -97,8 +97,8 @@ def drive_noisy(n: int, seed: int = 0) -> np.ndarray:
 @pytest.fixture(scope="session")
 def motion_json(tmp_path_factory) -> Path:
     """A gen.motion model (stride 1) fitted to a noisy car-like drive of 120 frames."""
-    from core.trajectory import Trajectory
-    from gen.motion import fit_motion
+    from deepslam.core.trajectory import Trajectory
+    from deepslam.gen.motion import fit_motion
 
     path = tmp_path_factory.mktemp("motion") / "motion.json"
     model, _, _ = fit_motion([Trajectory(drive_noisy(120))], stride=1)

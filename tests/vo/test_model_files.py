@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 import torch
 
-from core.errors import InputError
-from vo import modelfile
-from vo.train import CHECKPOINT, CHECKPOINT_FORMAT, MODEL_FORMAT, load_model
+from deepslam.core.errors import InputError
+from deepslam.vo import modelfile
+from deepslam.vo.train import CHECKPOINT, CHECKPOINT_FORMAT, MODEL_FORMAT, load_model
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -144,7 +144,7 @@ def test_shipped_models_load_and_legacy_conversion_round_trips(tmp_path):
                 "meta": meta}, legacy)
     with pytest.raises(InputError, match="convert-model"):
         load_model(legacy)
-    from vo.convert import convert_legacy
+    from deepslam.vo.convert import convert_legacy
 
     assert convert_legacy(legacy, tmp_path / "new.safetensors") == MODEL_FORMAT
     again, _ = load_model(tmp_path / "new.safetensors")

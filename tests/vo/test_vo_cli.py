@@ -10,12 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from core import se3, trajio
-from core.sequence import open_sequence
-from vo import data, models
-from vo.infer import VOPredictor, chain, chain_euler6
-from vo.net import NetConfig
-from vo.train import TrainConfig, train
+from deepslam.core import se3, trajio
+from deepslam.core.sequence import open_sequence
+from deepslam.vo import data, models
+from deepslam.vo.infer import VOPredictor, chain, chain_euler6
+from deepslam.vo.net import NetConfig
+from deepslam.vo.train import TrainConfig, train
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -76,7 +76,7 @@ def test_vo_cli_dis_stride_and_kitti_format(plane_sequence, street_model, tmp_pa
 
 
 def test_predict_pairs_matches_per_pair_predictions(plane_sequence, street_model):
-    from vo import flow_estimators
+    from deepslam.vo import flow_estimators
 
     seq = open_sequence(plane_sequence)
     pred = VOPredictor.from_file(street_model, bf16=False)
@@ -111,7 +111,7 @@ def test_bad_input_is_one_line_and_status_2(tmp_path, plane_sequence):
 
 
 def test_shipped_model_names(monkeypatch, tmp_path, plane_sequence):
-    from core.errors import InputError
+    from deepslam.core.errors import InputError
 
     monkeypatch.setattr(models, "models_dir", lambda: tmp_path)  # an empty models folder
     with pytest.raises(InputError, match="missing"):
@@ -132,7 +132,7 @@ def test_shipped_models_follow_the_flow_estimator(monkeypatch, tmp_path, street_
     the exact-flow model for ground-truth flow or where no variant is shipped."""
     import shutil
 
-    from vo import flow_estimators
+    from deepslam.vo import flow_estimators
 
     monkeypatch.setattr(models, "models_dir", lambda: tmp_path)
     shutil.copy(street_model, tmp_path / "kitti_cons.safetensors")

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 import torch
 
-from core import se3
-from core.camera import PinholeCamera
-from core.sequence import open_sequence
-from vo import data
+from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
+from deepslam.core.sequence import open_sequence
+from deepslam.vo import data
 
 CAM = PinholeCamera(160, 48, 120.0, 120.0, 79.5, 20.0)
 
@@ -27,7 +27,7 @@ def _k(cam, n):
 
 
 def test_synthesize_flow_matches_gen_and_the_numpy_reference():
-    from gen.flow import synthesize
+    from deepslam.gen.flow import synthesize
 
     rng = np.random.default_rng(0)
     vec = np.column_stack([rng.normal(0, 0.01, (4, 3)), rng.normal(0, 0.1, (4, 2)), -rng.uniform(0.2, 1.0, 4)])
@@ -122,7 +122,7 @@ def test_frame_pairs_consecutive_strides_and_loops():
 
 
 def test_supervised_samples_targets_are_ground_truth(plane_sequence):
-    from vo import flow_estimators
+    from deepslam.vo import flow_estimators
 
     seq = open_sequence(plane_sequence)
     pairs = data.frame_pairs(seq.gt.world_from_cam, data.PairSpec(strides=(1, 2)))[:5]
@@ -153,7 +153,7 @@ def test_train_cli_synthetic_from_single_frames(plane_sequence, motion_json, tmp
 def test_estimated_flow_source_gives_dis_flow_of_a_rendered_second_view(plane_sequence):
     """Single frames -> second view rendered from depth -> DIS: on the textured ground plane DIS is
     close to the exact flow of the sampled motion; batches are deterministic; targets are the motions."""
-    from vo.flow_estimators import to_network_input
+    from deepslam.vo.flow_estimators import to_network_input
 
     seq = open_sequence(plane_sequence)
     frames = data.load_image_frames([seq], frame_step=3, progress=False)
@@ -225,8 +225,8 @@ def test_synthetic_flow_equals_the_simulators_true_flow_everywhere():
     """On a rendered street (static scene), flow synthesized from frame t's depth and the true motion
     equals the simulator's flow at EVERY pixel: those leaving the image and the sky included."""
     pytest.importorskip("mujoco")
-    from scenes import SceneConfig
-    from sim import RenderConfig, SimConfig, Simulator, TrajectoryConfig
+    from deepslam.scenes import SceneConfig
+    from deepslam.sim import RenderConfig, SimConfig, Simulator, TrajectoryConfig
 
     cfg = SimConfig(SceneConfig(name="street", seed=3), TrajectoryConfig(kind="car", frames=40),
                     RenderConfig(backend="mujoco", width=160, stereo_baseline_m=0.0))
@@ -258,7 +258,7 @@ def test_image_frames_at_several_scales_split_by_source_frame(plane_sequence):
 
 
 def test_appearance_noise_on_the_rendered_view_is_seeded_and_changes_only_the_flow(plane_sequence):
-    from core.errors import InputError
+    from deepslam.core.errors import InputError
 
     frames = data.load_image_frames([open_sequence(plane_sequence)], frame_step=4, progress=False)
 

@@ -4,10 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from core import se3
-from core.errors import InputError
-from core.sequence import open_sequence
-from vo import flow_estimators as fe
+from deepslam.core import se3
+from deepslam.core.errors import InputError
+from deepslam.core.sequence import open_sequence
+from deepslam.vo import flow_estimators as fe
 
 
 def _texture(h, w, seed=0):
@@ -64,8 +64,8 @@ def test_resize_flow_rescales_values():
 def test_resized_flow_matches_flow_computed_at_the_small_resolution():
     """A smooth (planar) flow field computed at full size and resized equals the one computed with the
     scaled camera, so the network sees the same numbers whichever way the flow was made."""
-    from core.camera import PinholeCamera
-    from vo.data import flow_from_depth_np, plane_depth
+    from deepslam.core.camera import PinholeCamera
+    from deepslam.vo.data import flow_from_depth_np, plane_depth
 
     cam = PinholeCamera(320, 96, 250.0, 250.0, 159.5, 47.5)
     motion = se3.from_euler6(np.array([0.0, 0.01, 0.0, 0.05, 0.0, -0.3]))
@@ -81,7 +81,7 @@ def test_resized_flow_matches_flow_computed_at_the_small_resolution():
 
 
 def test_to_network_input_shapes_and_intrinsics():
-    from core.camera import PinholeCamera
+    from deepslam.core.camera import PinholeCamera
 
     cam = PinholeCamera(160, 48, 100.0, 100.0, 79.5, 23.5)
     flow = np.ones((48, 160, 2), np.float32)
@@ -100,7 +100,7 @@ def test_chain_flows_of_constant_fields_adds_them():
 
 
 def test_ground_truth_flow_reads_and_chains(plane_sequence):
-    from vo.data import flow_from_depth_np
+    from deepslam.vo.data import flow_from_depth_np
 
     seq = open_sequence(plane_sequence)
     gt = fe.make("gt")
@@ -136,9 +136,9 @@ def test_dis_on_rendered_sequence_matches_ground_truth(plane_sequence):
 def street_with_movers(tmp_path_factory):
     """5 frames of the simulated street with 32 moving cars (rigid movers with recorded poses; one is in view)."""
     pytest.importorskip("mujoco")
-    from scenes import SceneConfig
-    from sim.config import RenderConfig, SimConfig, TrajectoryConfig
-    from sim.writers import render_sequence
+    from deepslam.scenes import SceneConfig
+    from deepslam.sim.config import RenderConfig, SimConfig, TrajectoryConfig
+    from deepslam.sim.writers import render_sequence
 
     cfg = SimConfig(SceneConfig(name="street", seed=0, moving_objects=32),
                     TrajectoryConfig(frames=5), RenderConfig(width=320, height=97)).validate()
@@ -149,7 +149,7 @@ def test_exact_pair_flow_equals_the_simulators_flow_on_static_and_moving_pixels(
     """Geometry (depth + ground-truth motion + the movers' own poses) reproduces the simulator's
     rendered flow, on the static scene and on the moving cars, to 0.01 px."""
     seq = open_sequence(street_with_movers)
-    from core.ours import read_instance_poses
+    from deepslam.core.ours import read_instance_poses
 
     assert read_instance_poses(seq.root, 0), "the fixture should have rigid movers"
     for i in range(3):

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 import torch
 
-from core.camera import PinholeCamera
-from vo import data
-from vo.infer import VOPredictor
-from vo.net import NetConfig
-from vo.train import CHECKPOINT, TrainConfig, fit_uncertainty, load_checkpoint, load_model, train
+from deepslam.core.camera import PinholeCamera
+from deepslam.vo import data
+from deepslam.vo.infer import VOPredictor
+from deepslam.vo.net import NetConfig
+from deepslam.vo.train import CHECKPOINT, TrainConfig, fit_uncertainty, load_checkpoint, load_model, train
 
 REPO = Path(__file__).resolve().parents[2]
 CAM = PinholeCamera(1241, 376, 718.856, 718.856, 607.1928, 185.2157).scaled(80, 24)
@@ -116,7 +116,7 @@ def test_resume_gives_identical_weights(toy, tmp_path):
 
 
 def test_resume_refuses_other_settings(toy, tmp_path):
-    from core.errors import InputError
+    from deepslam.core.errors import InputError
 
     train(_cfg(max_epochs=1), *toy, tmp_path, progress=False)
     with pytest.raises(InputError, match="batch_size"):
