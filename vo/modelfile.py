@@ -93,11 +93,26 @@ def save(path: str | Path, kind: str, tree: dict) -> None:
     atomic.write_bytes(path, to_bytes(kind, tree))
 
 
-def is_pickle_file(path: Path) -> bool:
-    """True for a ``torch.save`` file (a zip archive or a legacy raw pickle), judged by its first bytes."""
+def looks_like_safetensors(path: Path) -> bool:
+    """True when the file starts like safetensors: an 8-byte little-endian header length that fits the
+    file, then a JSON object."""
+    size = path.stat().st_size
     with open(path, "rb") as f:
-        head = f.read(4)
-    return zipfile.is_zipfile(path) or head[:1] == b"\x80"
+        head = f.read(9)
+    if len(head) < 9:
+        return False
+    n = int.from_bytes(head[:8], "little")
+    return 8 + n <= size and head[8:9] == b"{"
+
+
+def is_pickle_file(path: Path) -> bool:
+    """True for a ``torch.save`` file (a zip archive) or a raw pickle (protocol 2+), judged by its first
+    bytes; never unpickles anything."""
+    if looks_like_safetensors(path):
+        return False
+    with open(path, "rb") as f:
+        head = f.read(2)
+    return zipfile.is_zipfile(path) or (len(head) == 2 and head[0] == 0x80 and 2 <= head[1] <= 5)
 
 
 def load(path: str | Path, kinds: tuple[str, ...]) -> tuple[str, dict]:
