@@ -10,7 +10,7 @@ export OMP_NUM_THREADS ?= 2
 # Shared cores: let idle OpenMP threads sleep instead of spinning.
 export OMP_WAIT_POLICY ?= PASSIVE
 
-.PHONY: setup demo test bench bench-speed results clean
+.PHONY: setup demo test bench bench-speed results readme-check clean
 
 setup: $(STAMP)
 
@@ -38,6 +38,11 @@ bench-speed: $(STAMP)
 results: $(STAMP)
 	$(PY) -m bench.results_slam
 	$(PY) -m bench.results_vo
+
+# Every command of the README's examples block, in order, in a temporary folder: exit status and wall
+# time of each against the time the README states (out/readme_check.md). Not part of `make test`.
+readme-check: $(STAMP)
+	$(PY) scripts/readme_check.py
 
 clean:
 	rm -rf out build *.egg-info

@@ -9,6 +9,10 @@ Rows (each against its baseline measured in the same run):
   straightforward per-frame loop); target >= 200 frames/s on 2 cores.
 - synthetic training data (single frames + motion model -> flow at 2x and pooled) samples/s at
   96 x 320, to show whether training is bound by the data or by the network.
+- the README's training command as a newcomer runs it (``deepslam train --mode synthetic --frames
+  STREET --motion M``, every default: paper network, batch 128, bf16 where native, torch's threads;
+  a rendered 414-px street), end to end through the data pipeline, stopped by ``--max-samples``:
+  its stage-1 samples/s against the network alone at the same settings (target: >= 0.7 of it).
 """
 from __future__ import annotations
 
@@ -120,6 +124,29 @@ def estimated_flow_throughput(samples: int) -> tuple[float, float]:
     return _source_throughput(est), _source_throughput(exact)
 
 
+def readme_train_throughput(samples: int) -> float:
+    """Stage-1 samples/s of ``deepslam train`` with the README's defaults on a freshly rendered street."""
+    import contextlib
+    import io
+    import json
+    import tempfile
+    from pathlib import Path
+
+    from deepslam.cli import main
+    from deepslam.vo.models import models_dir
+
+    with tempfile.TemporaryDirectory() as tmp:
+        street, out = Path(tmp) / "street", Path(tmp) / "nn_cons"
+        with contextlib.redirect_stdout(io.StringIO()):
+            assert main(["render", "--scene", "street", "--trajectory", "car", "--frames", "40", "--width", "414",
+                         "--out", str(street), "--moving-objects", "2", "--deform", "0.3", "--quiet"]) == 0
+            assert main(["train", "--mode", "synthetic", "--frames", str(street), "--motion",
+                         str(models_dir() / "motion" / "kitti_s1.json"), "--out", str(out), "--max-samples", str(samples),
+                         "--nll-epochs", "1", "--quiet"]) == 0
+        hist = json.loads((out / "history.json").read_text())
+        return float(hist[0]["samples_per_s"])
+
+
 def _best(fns: dict, rounds: int) -> dict:
     """Best (highest) of ``rounds`` interleaved runs of each measurement: on a machine shared with
     other jobs the best run is the one least disturbed, and interleaving gives each the same chances."""
@@ -153,6 +180,15 @@ def run(quick: bool) -> list[dict]:
                      "one frame per call, fp32", m["single"], ">= 200 frames/s", m["batched"] >= 200))
     rows.append(_row("synthetic data 96x320 (synthesized at 192x640, pooled), batch 128",
                      _best({"d": lambda: synthetic_data_throughput(256 if quick else 1024)}, rounds)["d"], "samples/s"))
+    from deepslam.vo.infer import cpu_has_native_bf16
+
+    bf16 = cpu_has_native_bf16()
+    readme = readme_train_throughput(512 if quick else 2560)
+    net_only = _best({"n": lambda: train_throughput(PAPER, bf16=bf16, channels_last=True, batch=128, steps=steps)},
+                     rounds)["n"]
+    rows.append(_row(f"train: the README's command end to end (paper net 96x320, batch 128, bf16 {'on' if bf16 else 'off'}, "
+                     f"{threads} threads, exact synthetic flow from a 414-px street)", readme, "samples/s",
+                     "the network alone, same settings", net_only, ">= 0.7x", readme >= 0.7 * net_only))
     dis, exact = estimated_flow_throughput(128 if quick else 512)
     rows.append(_row("synthetic data on DIS flow 48x160 (second view rendered from a 640x192 frame, DIS medium, "
                      "2 threads), batch 128", dis, "samples/s", "exact synthetic flow, same frames and size", exact))

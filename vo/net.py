@@ -167,16 +167,29 @@ class FlowPoseNet(nn.Module):
         self.channels_last = bool(on)
         return self.to(memory_format=torch.channels_last if on else torch.contiguous_format)
 
-    def forward(self, flow_px: torch.Tensor, intrinsics: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def trunk(self, flow_px: torch.Tensor, intrinsics: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """The hidden features the heads read: (rotation branch (B, hidden_units), translation branch
+        (B, hidden_units)), float32. Everything but the four output layers."""
         x = self.conv(self.prepare_input(flow_px, intrinsics))
         x = torch.flatten(x, 1)
-        hr, ht = self.rot_fc(x).float(), self.trans_fc(x).float()
+        return self.rot_fc(x).float(), self.trans_fc(x).float()
+
+    def mean_head(self, hr: torch.Tensor, ht: torch.Tensor) -> torch.Tensor:
+        """(B, 6) mean from the trunk's features (float32, outside any autocast)."""
         # the output layers always run in float32 (under bf16 autocast too): tiny, and a bf16 output
         # would round a 1 m translation to 4 mm steps
-        with torch.autocast(x.device.type, enabled=False):
-            mean = torch.cat([self.rot_mean(hr), self.trans_mean(ht)], dim=1)
+        with torch.autocast(hr.device.type, enabled=False):
+            return torch.cat([self.rot_mean(hr), self.trans_mean(ht)], dim=1)
+
+    def log_std_head(self, hr: torch.Tensor, ht: torch.Tensor) -> torch.Tensor:
+        """(B, 6) log-std from the trunk's features, clamped to [LOG_STD_MIN, LOG_STD_MAX] (float32)."""
+        with torch.autocast(hr.device.type, enabled=False):
             log_std = torch.cat([self.rot_log_std(hr), self.trans_log_std(ht)], dim=1)
-        return mean, log_std.clamp(LOG_STD_MIN, LOG_STD_MAX)
+        return log_std.clamp(LOG_STD_MIN, LOG_STD_MAX)
+
+    def forward(self, flow_px: torch.Tensor, intrinsics: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        hr, ht = self.trunk(flow_px, intrinsics)
+        return self.mean_head(hr, ht), self.log_std_head(hr, ht)
 
 
 def pose_loss(mean: torch.Tensor, target: torch.Tensor, rot_weight: float = 50.0) -> torch.Tensor:

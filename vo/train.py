@@ -5,12 +5,17 @@ Stage 1 (motion): Adam with amsgrad, batch 128, a cyclic learning rate (triangul
 ``rot_weight * MSE(euler) + MSE(translation)`` with ``rot_weight = 50``. After every epoch the loss on
 the held-out samples is measured; after ``patience_epochs`` epochs without improvement both bounds of
 the cycle are halved; training stops when the lower bound falls below ``lr_stop`` (1e-5), or at the
-``max_epochs`` / ``max_minutes`` caps (for CPU runs). The weights with the best held-out loss are kept.
+``max_epochs`` / ``max_samples`` / ``max_minutes`` caps. The sample and time caps are checked after
+every batch: a capped epoch ends early, is evaluated on the held-out set like a full one (its history
+row says ``partial``), and the time cap leaves room for that evaluation and stage 2, so a run takes
+about ``max_minutes`` of training. The weights with the best held-out loss are kept.
 
 Stage 2 (uncertainty): everything but the per-DoF log-std heads is frozen (``requires_grad=False``, and
 only the heads are given to the optimizer, so frozen weights stay bit-identical); the heads are trained
 on the held-out samples (10 % of the data, never used for a gradient in stage 1) with the Gaussian
-negative log-likelihood for ``nll_epochs`` epochs.
+negative log-likelihood for ``nll_epochs`` epochs. As the trunk is frozen, its features over the
+held-out set are computed once (:func:`head_inputs`) and each stage-2 epoch runs only the two small
+heads: the stage costs one forward pass over the held-out set, not ``nll_epochs`` of them.
 
 Every epoch ends with an atomic checkpoint (``checkpoint.safetensors``: model, optimizer, scheduler, best
 weights, epoch, stage, history, RNG states, config). Data batches are a function of (seed, epoch)
@@ -69,7 +74,12 @@ class TrainConfig:
     max_epochs: int = 1000
     """Cap on stage-1 epochs."""
     max_minutes: float = 0.0
-    """Cap on stage-1 wall time in minutes (0 = none); a capped run is not bit-reproducible."""
+    """Cap on the whole training's wall time in minutes, both stages (0 = none), checked after every
+    batch: stage 1 stops early enough to leave time for its last held-out evaluation and stage 2.
+    A run stopped by time is not bit-reproducible (use ``max_samples`` for that)."""
+    max_samples: int = 0
+    """Cap on stage-1 training samples (0 = none), checked after every batch: the deterministic way to
+    bound a run (same seed, same bytes)."""
     rot_weight: float = 50.0
     """Weight of the rotation (euler, radians) MSE against the translation (metres) MSE."""
     holdout_fraction: float = 0.1
@@ -194,36 +204,90 @@ def evaluate(model: FlowPoseNet, source: Source, cfg: TrainConfig) -> dict:
     return {"loss": loss / max(n, 1), "nll": nll / max(n, 1), "rmse6": (se / max(n, 1)).sqrt().tolist()}
 
 
-def uncertainty_epoch(model: FlowPoseNet, source: Source, cfg: TrainConfig, opt: torch.optim.Optimizer, epoch: int) -> float:
-    """One stage-2 epoch: the Gaussian NLL on ``source`` through the log-std heads only (``opt`` holds
-    just their parameters; the rest must be frozen). Returns the mean NLL over the epoch."""
-    model.train()
-    nll_sum, n_seen = 0.0, 0
-    for step, b in enumerate(source.batches(epoch, cfg.batch_size)):
+@dataclasses.dataclass
+class HeadInputs:
+    """What the frozen trunk gives for a fixed sample set: stage 2 trains the log-std heads on it
+    without running the convolutions again (they cannot change while frozen).
+
+    hr, ht: (N, hidden_units) float32 features of the rotation and translation branches.
+    mean: (N, 6) float32 predicted paper vectors; target: (N, 6) float32 labels.
+    """
+
+    hr: torch.Tensor
+    ht: torch.Tensor
+    mean: torch.Tensor
+    target: torch.Tensor
+
+    def __len__(self) -> int:
+        return len(self.target)
+
+
+@torch.no_grad()
+def head_inputs(model: FlowPoseNet, source: Source, cfg: TrainConfig) -> HeadInputs:
+    """One pass of the trunk over ``source`` (its epoch-0 batches, in their order)."""
+    model.eval()
+    parts: list[tuple[torch.Tensor, ...]] = []
+    for b in source.batches(0, cfg.batch_size):
         with _autocast(cfg):
-            mean, log_std = model(b["flow"], b["intrinsics"])
-        loss = gaussian_nll(mean.detach(), log_std, b["target"])
+            hr, ht = model.trunk(b["flow"], b["intrinsics"])
+        parts.append((hr, ht, model.mean_head(hr, ht), b["target"].float()))
+    return HeadInputs(*(torch.cat([p[i] for p in parts]) for i in range(4)))
+
+
+@torch.no_grad()
+def evaluate_heads(model: FlowPoseNet, hi: HeadInputs, cfg: TrainConfig) -> dict:
+    """:func:`evaluate`'s figures from cached trunk features."""
+    log_std = model.log_std_head(hi.hr, hi.ht)
+    se = ((hi.mean.double() - hi.target.double()) ** 2).mean(0)
+    return {"loss": float(pose_loss(hi.mean, hi.target, cfg.rot_weight)),
+            "nll": float(gaussian_nll(hi.mean, log_std, hi.target)), "rmse6": se.sqrt().tolist()}
+
+
+def uncertainty_epoch(model: FlowPoseNet, hi: HeadInputs, cfg: TrainConfig, opt: torch.optim.Optimizer, epoch: int,
+                      deadline: float | None = None) -> tuple[float, bool]:
+    """One stage-2 epoch: the Gaussian NLL through the log-std heads only (``opt`` holds just their
+    parameters), over the cached features in an order drawn from (seed, epoch).
+
+    Returns:
+        (mean NLL over the batches run, whether ``deadline`` (time.perf_counter()) cut the epoch short).
+    """
+    model.train()
+    g = torch.Generator().manual_seed(_seed(cfg.seed, epoch, 0x2))
+    order = torch.randperm(len(hi), generator=g)
+    nll_sum, n_seen = 0.0, 0
+    for step, s in enumerate(range(0, len(hi), cfg.batch_size)):
+        idx = order[s:s + cfg.batch_size]
+        loss = gaussian_nll(hi.mean[idx], model.log_std_head(hi.hr[idx], hi.ht[idx]), hi.target[idx])
         _check_finite(loss, "stage-2 (NLL)", epoch, step, cfg.nll_lr)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         opt.step()
-        nll_sum += float(loss.detach()) * len(b["target"])
-        n_seen += len(b["target"])
-    return nll_sum / max(n_seen, 1)
+        nll_sum += float(loss.detach()) * len(idx)
+        n_seen += len(idx)
+        if deadline is not None and time.perf_counter() >= deadline:
+            return nll_sum / max(n_seen, 1), True
+    return nll_sum / max(n_seen, 1), False
+
+
+def _seed(seed: int, *more: int) -> int:
+    from deepslam.vo.data import epoch_seed
+
+    return epoch_seed(seed, *more)
 
 
 def fit_uncertainty(model: FlowPoseNet, source: Source, cfg: TrainConfig, epochs: int) -> list[float]:
     """The whole second stage on a trained model: freeze all but the log-std heads, start them at
     log(held-out RMSE), train them ``epochs`` epochs with the NLL. Returns the NLL per epoch."""
-    init_log_std(model, source, cfg)
+    hi = head_inputs(model, source, cfg)
+    init_log_std(model, hi)
     opt = _stage2_optim(model, cfg)
-    return [uncertainty_epoch(model, source, cfg, opt, ep) for ep in range(epochs)]
+    return [uncertainty_epoch(model, hi, cfg, opt, ep)[0] for ep in range(epochs)]
 
 
 @torch.no_grad()
-def init_log_std(model: FlowPoseNet, source: Source, cfg: TrainConfig) -> list[float]:
+def init_log_std(model: FlowPoseNet, hi: HeadInputs) -> list[float]:
     """Start stage 2 from a calibrated constant: log-std heads' weights 0, biases log(held-out RMSE)."""
-    rmse = torch.tensor(evaluate(model, source, cfg)["rmse6"], dtype=torch.float32).clamp_min(1e-5)
+    rmse = ((hi.mean.double() - hi.target.double()) ** 2).mean(0).sqrt().float().clamp_min(1e-5)
     for head, part in ((model.rot_log_std, rmse[:3]), (model.trans_log_std, rmse[3:])):
         head.weight.zero_()
         head.bias.copy_(part.log())
@@ -256,11 +320,14 @@ def train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_di
         TrainingDiverged: a non-finite loss.
         core.errors.InputError: ``resume`` with a checkpoint of another configuration.
     """
+    from deepslam.core.lock import output_lock
+
     threads_before = torch.get_num_threads()
     if cfg.threads > 0:
         torch.set_num_threads(cfg.threads)
     try:
-        return _train(cfg, train_source, holdout_source, Path(out_dir), resume, progress, meta, half_weights)
+        with output_lock(out_dir):  # one writer: a second run into this folder is refused while this one runs
+            return _train(cfg, train_source, holdout_source, Path(out_dir), resume, progress, meta, half_weights)
     finally:
         torch.set_num_threads(threads_before)
 
@@ -287,21 +354,25 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
         raise InputError(None, f"no training data ({n_train} training and {len(holdout_source)} held-out samples)")
     opt, sched = _stage1_optim(model, cfg, n_train)
     state = {"stage": 1, "epoch": 0, "nll_epoch": 0, "best_val": math.inf, "best_state": None,
-             "since_best": 0, "history": [], "elapsed_s": 0.0, "stop_reason": None, "halvings": 0}
+             "since_best": 0, "history": [], "elapsed_s": 0.0, "stop_reason": None, "halvings": 0, "samples": 0,
+             "eval_s": None}
     stage1_saved: dict | None = None  # stage 1's last model/optimizer/scheduler, kept through stage 2
     ck = None
     if resume and ckpt_path.is_file():
         ck = load_checkpoint(ckpt_path)
         old, new = ck.get("config") or {}, cfg.to_dict()
         diff = sorted(k for k in set(old) | set(new)
-                      if old.get(k) != new.get(k) and k not in ("max_epochs", "max_minutes", "threads"))
+                      if old.get(k) != new.get(k) and k not in ("max_epochs", "max_minutes", "max_samples", "threads"))
         if diff:
             raise InputError(ckpt_path, f"cannot resume: settings differ from the checkpoint's ({', '.join(diff)})")
         state = ck["train_state"]
         stage1_saved = ck.get("stage1")
-        cap_raised = ((state["stop_reason"] == "max_epochs" and state["epoch"] < cfg.max_epochs)
-                      or (state["stop_reason"] == "max_minutes"
-                          and (cfg.max_minutes <= 0 or state["elapsed_s"] < 60.0 * cfg.max_minutes)))
+        stopped = str(state["stop_reason"]).partition(";")[0]
+        cap_raised = ((stopped == "max_epochs" and state["epoch"] < cfg.max_epochs)
+                      or (stopped == "max_minutes"
+                          and (cfg.max_minutes <= 0 or state["elapsed_s"] < 60.0 * cfg.max_minutes))
+                      or (stopped == "max_samples"
+                          and (cfg.max_samples <= 0 or state.get("samples", 0) < cfg.max_samples)))
         if cap_raised and stage1_saved is not None:
             # stage 1 stopped at a cap that is now higher: go back to its end and carry on
             state["stage"], state["nll_epoch"], state["stop_reason"] = 1, 0, None
@@ -331,13 +402,23 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
                                     "stage1": stage1_saved, "torch_rng": torch.get_rng_state(), "meta": meta})
         atomic.write_json(out_dir / HISTORY, state["history"])
 
+    clock0 = time.perf_counter() - state["elapsed_s"]  # training time so far, over resumes
+
+    def elapsed() -> float:
+        return time.perf_counter() - clock0
+
+    limit_s = 60.0 * cfg.max_minutes if cfg.max_minutes > 0 else math.inf
+    n_hold = len(holdout_source)
+
     # ---------------- stage 1: motion
     while state["stage"] == 1:
         reason = None
         if state["epoch"] >= cfg.max_epochs:
             reason = "max_epochs"
-        elif cfg.max_minutes > 0 and state["elapsed_s"] >= 60.0 * cfg.max_minutes:
+        elif elapsed() >= limit_s:
             reason = "max_minutes"
+        elif cfg.max_samples > 0 and state.get("samples", 0) >= cfg.max_samples:
+            reason = "max_samples"
         elif sched.base_lrs[0] < cfg.lr_stop:
             reason = "lr_below_stop"
         if reason is not None:
@@ -347,7 +428,8 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
         model.train()
         t0 = time.perf_counter()
         n_seen, loss_sum = 0, 0.0
-        bar = tqdm(total=n_train, desc=f"epoch {epoch + 1}", unit="sample", disable=not progress, leave=False,
+        planned = n_train if cfg.max_samples <= 0 else min(n_train, cfg.max_samples - state.get("samples", 0))
+        bar = tqdm(total=planned, desc=f"epoch {epoch + 1}", unit="sample", disable=not progress, leave=False,
                    dynamic_ncols=True)
         for step, b in enumerate(train_source.batches(epoch, cfg.batch_size)):
             with _autocast(cfg):
@@ -361,12 +443,27 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
             k = len(b["target"])
             n_seen += k
             loss_sum += float(loss.detach()) * k
+            state["samples"] = state.get("samples", 0) + k
+            sps = n_seen / (time.perf_counter() - t0)
+            # time left for training once the last held-out evaluation and stage 2 are paid for:
+            # each is about one forward pass over the held-out set (forward ~3x a training step)
+            eval_s = state.get("eval_s") or n_hold / (3.0 * sps)
+            left_s = limit_s - elapsed() - 2.2 * eval_s - 3.0
+            if cfg.max_samples > 0 and state["samples"] >= cfg.max_samples:
+                reason = "max_samples"
+            elif left_s <= 0:
+                reason = "max_minutes"
+            if math.isfinite(left_s):  # the bar ends where the time cap will end the epoch
+                bar.total = max(n_seen, min(planned, n_seen + int(sps * max(left_s, 0.0))))
             bar.update(k)
-            bar.set_postfix(loss=f"{loss_sum / n_seen:.4g}", sps=f"{n_seen / (time.perf_counter() - t0):.0f}",
-                            lr=f"{sched.get_last_lr()[0]:.2g}")
+            bar.set_postfix(loss=f"{loss_sum / n_seen:.4g}", sps=f"{sps:.0f}", lr=f"{sched.get_last_lr()[0]:.2g}")
+            if reason is not None:
+                break
         bar.close()
         dt = time.perf_counter() - t0
+        te = time.perf_counter()
         val = evaluate(model, holdout_source, cfg)
+        state["eval_s"] = time.perf_counter() - te
         if not math.isfinite(val["loss"]):
             raise TrainingDiverged(f"held-out loss is {val['loss']} after epoch {epoch + 1}; lower --lr-max "
                                    "or check the data; the last good checkpoint is kept")
@@ -383,52 +480,76 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
                 state["since_best"] = 0
                 state["halvings"] += 1
         state["epoch"] = epoch + 1
-        state["elapsed_s"] += dt
+        state["elapsed_s"] = elapsed()
         row = {"stage": 1, "epoch": epoch + 1, "train_loss": loss_sum / max(n_seen, 1), "val_loss": val["loss"],
                "val_rmse6": val["rmse6"], "lr_min": sched.base_lrs[0], "lr_max": sched.max_lrs[0],
-               "samples_per_s": n_seen / dt, "seconds": dt}
+               "samples_per_s": n_seen / dt, "seconds": dt, "samples": n_seen, "partial": n_seen < n_train}
         state["history"].append(row)
         if progress:
             print(f"epoch {epoch + 1}: train {row['train_loss']:.4g}  held-out {val['loss']:.4g}"
                   f"{' *' if improved else ''}  lr [{row['lr_min']:.2g}, {row['lr_max']:.2g}]  "
-                  f"{row['samples_per_s']:.0f} samples/s", flush=True)
+                  f"{row['samples_per_s']:.0f} samples/s" + (f"  ({n_seen} of {n_train} samples)" if row["partial"] else ""),
+                  flush=True)
+        if reason is not None:
+            state["stop_reason"] = reason
         checkpoint(opt, sched)
+        if reason is not None:
+            break
 
-    # ---------------- stage 2: uncertainty
+    # ---------------- stage 2: uncertainty (the log-std heads on cached trunk features)
     if state["stage"] == 1:
         if state["best_state"] is not None:
             model.load_state_dict(state["best_state"])
         state["stage"] = 2
-        init_log_std(model, holdout_source, cfg)
+        hi = head_inputs(model, holdout_source, cfg)
+        init_log_std(model, hi)
         opt2 = _stage2_optim(model, cfg)
+        state["elapsed_s"] = elapsed()
         checkpoint(opt2, None)
     else:
         opt2 = _stage2_optim(model, cfg)
         if state["stage"] == 2 and ck is not None:
             opt2.load_state_dict(ck["optimizer"])
+        hi = head_inputs(model, holdout_source, cfg)
+    deadline = clock0 + limit_s if math.isfinite(limit_s) else None
     while state["stage"] == 2 and state["nll_epoch"] < cfg.nll_epochs:
+        if deadline is not None and time.perf_counter() >= deadline:
+            state["stop_reason"] = f"{state['stop_reason']}; stage 2 cut by the time cap after {state['nll_epoch']} of " \
+                                   f"{cfg.nll_epochs} epochs"
+            break
         ep = state["nll_epoch"]
-        nll = uncertainty_epoch(model, holdout_source, cfg, opt2, ep)
+        nll, cut = uncertainty_epoch(model, hi, cfg, opt2, ep, deadline)
         state["nll_epoch"] = ep + 1
-        state["history"].append({"stage": 2, "epoch": ep + 1, "holdout_nll": nll})
+        state["elapsed_s"] = elapsed()
+        state["history"].append({"stage": 2, "epoch": ep + 1, "holdout_nll": nll, "partial": cut})
         checkpoint(opt2, None)
     if state["stage"] == 2:
         state["stage"] = 3
         checkpoint(opt2, None)
 
-    final = evaluate(model, holdout_source, cfg)
+    final = evaluate_heads(model, hi, cfg)
     summary = {"stop_reason": state["stop_reason"], "epochs": state["epoch"], "nll_epochs": state["nll_epoch"],
                "best_val_loss": state["best_val"], "holdout": final, "lr_halvings": state["halvings"],
-               "train_seconds": state["elapsed_s"]}
+               "train_seconds": elapsed(), "train_samples": state.get("samples", 0)}
     meta_out = {**meta, "train": cfg.to_dict(), "summary": summary}
     model_path = out_dir / MODEL
     save_model(model_path, model, meta_out, half=half_weights)
     atomic.write_json(out_dir / "summary.json", summary)
     _plot_history(out_dir / "loss.png", state["history"])
     if progress:
-        print(f"stopped: {state['stop_reason']} after {state['epoch']} epochs; held-out loss {final['loss']:.4g}, "
-              f"NLL {final['nll']:.4g}; wrote {model_path}", flush=True)
+        print(f"stopped: {_why(state['stop_reason'])} after {state['epoch']} epochs ({state.get('samples', 0)} samples, "
+              f"{elapsed() / 60:.1f} min); held-out loss {final['loss']:.4g}, NLL {final['nll']:.4g}; wrote {model_path}",
+              flush=True)
     return TrainResult(out_dir, model_path, state["history"], state["stop_reason"], state["best_val"], final["nll"])
+
+
+_WHY = {"max_epochs": "the epoch cap (--max-epochs)", "max_minutes": "the time cap (--max-minutes)",
+        "max_samples": "the sample cap (--max-samples)", "lr_below_stop": "the learning rate fell below --lr-stop"}
+
+
+def _why(reason: str | None) -> str:
+    head, _, rest = str(reason).partition(";")
+    return _WHY.get(head, str(reason)) + (f"; {rest.strip()}" if rest else "")
 
 
 def _plot_history(path: Path, history: list[dict]) -> None:

@@ -54,6 +54,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--motion", action="append", default=[], metavar="FILE[:loops][@WEIGHT]",
                    help="gen.motion JSON (deepslam fit-motion); ':loops' samples its loop distribution (NN_loops); "
                         "repeat for a mixture (strides 1, 2, 3...), optional @weight")
+    g.add_argument("--speed-range", default=None, metavar="MIN:MAX",
+                   help="draw the forward speed uniformly in MIN:MAX m/s (at --rate-hz) instead of from the motion "
+                        "model, keeping its other DoFs: the network must read speed from the flow, not a prior")
+    g.add_argument("--rate-hz", type=float, default=10.0, help="frame rate of the motion model, for --speed-range")
     g.add_argument("--missing-depth", choices=("infinity", "invalid"), default="infinity",
                    help="pixels without depth: points at infinity (rotation-only flow; sky) or flow 0")
     g.add_argument("--samples-per-epoch", type=int, default=20000)
@@ -104,7 +108,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--patience", type=int, default=10, help="epochs without improvement before halving the LR bounds")
     g.add_argument("--lr-stop", type=float, default=1e-5)
     g.add_argument("--max-epochs", type=int, default=1000)
-    g.add_argument("--max-minutes", type=float, default=0.0)
+    g.add_argument("--max-minutes", type=float, default=0.0,
+                   help="stop training after about this many minutes, both stages, checked every batch (0 = no cap)")
+    g.add_argument("--max-samples", type=int, default=0,
+                   help="stop stage 1 after this many training samples, checked every batch: a bounded run that is "
+                        "bit-reproducible, unlike --max-minutes (0 = no cap)")
     g.add_argument("--rot-weight", type=float, default=50.0)
     g.add_argument("--holdout", type=float, default=0.1, help="held-out fraction (validation + NLL stage)")
     g.add_argument("--nll-epochs", type=int, default=20)
@@ -134,6 +142,56 @@ def net_config(args):
         from deepslam.core.errors import InputError
 
         raise InputError(None, f"bad network settings: {e}") from None
+
+
+def _check_ranges(args) -> None:
+    """Numeric flags that cannot be: one line naming the flag (exit 2)."""
+    import math
+
+    from deepslam.core.errors import InputError
+
+    positive = {"--batch": args.batch, "--samples-per-epoch": args.samples_per_epoch, "--frame-step": args.frame_step,
+                "--max-epochs": args.max_epochs, "--synth-factor": args.synth_factor, "--data-threads": args.data_threads}
+    non_negative = {"--max-minutes": args.max_minutes, "--max-samples": args.max_samples, "--nll-epochs": args.nll_epochs,
+                    "--max-frames": args.max_frames, "--holdout-samples": args.holdout_samples, "--toy": args.toy,
+                    "--sample-pool": args.sample_pool, "--threads": args.threads, "--patience": args.patience,
+                    "--appearance-noise": args.appearance_noise, "--half-cycle-steps": args.half_cycle_steps}
+    for flag, v in positive.items():
+        if not (math.isfinite(v) and v > 0):
+            raise InputError(None, f"{flag} must be > 0, got {v}")
+    for flag, v in non_negative.items():
+        if not (math.isfinite(v) and v >= 0):
+            raise InputError(None, f"{flag} must be >= 0, got {v}")
+    for flag, v in {"--lr-min": args.lr_min, "--lr-max": args.lr_max, "--nll-lr": args.nll_lr,
+                    "--rot-weight": args.rot_weight, "--lr-stop": args.lr_stop}.items():
+        if not (math.isfinite(v) and v > 0):
+            raise InputError(None, f"{flag} must be a positive number, got {v}")
+    if args.lr_min > args.lr_max:
+        raise InputError(None, f"--lr-min {args.lr_min} is above --lr-max {args.lr_max}")
+
+
+def speed_summary(cfg, preset: str, data_meta: dict, n_train: int, n_hold: int) -> str:
+    """The settings that decide training speed, as the run's first lines (network, input, threads,
+    bf16, layout, data source, caps)."""
+    import torch
+
+    net = cfg.net
+    threads = cfg.threads or torch.get_num_threads()
+    if "toy_samples" in data_meta:
+        source = f"{data_meta['toy_samples']} toy ground-plane samples"
+    elif "frames" in data_meta:
+        flow = data_meta.get("synthetic_flow") or f"exact synthetic flow at {data_meta.get('synth_factor')}x, pooled"
+        pool = f", a pool of {data_meta['sample_pool']} samples" if data_meta.get("sample_pool") else ", fresh every epoch"
+        source = f"{data_meta['n_train_frames']} single frames -> {flow}{pool}"
+    else:
+        source = f"{data_meta.get('n_pairs')} real frame pairs ({data_meta.get('flow')} flow)"
+    caps = [f"{cfg.max_epochs} epochs"] + ([f"{cfg.max_samples} samples"] if cfg.max_samples else []) \
+        + ([f"{cfg.max_minutes:g} min"] if cfg.max_minutes else [])
+    return (f"network: {preset} preset, input {net.input_height}x{net.input_width}, {net.filters} filters, "
+            f"{net.hidden_units} units; batch {cfg.batch_size}; torch threads {threads}; "
+            f"bf16 {'on' if cfg.bf16 else 'off'}; channels-last {'on' if cfg.channels_last else 'off'}\n"
+            f"data: {source}; {n_train} training + {n_hold} held-out samples per epoch; "
+            f"stops at {' / '.join(caps)} (whichever first), or when the learning rate falls below {cfg.lr_stop:g}")
 
 
 def _load_motion(spec: str):
@@ -173,11 +231,13 @@ def run(args: argparse.Namespace) -> int:
     from deepslam.vo.infer import cpu_has_native_bf16
     from deepslam.vo.train import TrainConfig, TrainingDiverged, train
 
+    _check_ranges(args)
     net = net_config(args)
     bf16 = cpu_has_native_bf16() if args.bf16 == "auto" else args.bf16 == "on"
     cfg = TrainConfig(net=net, batch_size=args.batch, lr_min=args.lr_min, lr_max=args.lr_max,
                       lr_half_cycle_steps=args.half_cycle_steps, patience_epochs=args.patience, lr_stop=args.lr_stop,
-                      max_epochs=args.max_epochs, max_minutes=args.max_minutes, rot_weight=args.rot_weight,
+                      max_epochs=args.max_epochs, max_minutes=args.max_minutes, max_samples=args.max_samples,
+                      rot_weight=args.rot_weight,
                       holdout_fraction=args.holdout, nll_epochs=args.nll_epochs, nll_lr=args.nll_lr, seed=args.seed,
                       bf16=bf16, channels_last=args.channels_last == "on", threads=args.threads)
     if not 0 < args.holdout < 1:
@@ -200,6 +260,14 @@ def run(args: argparse.Namespace) -> int:
                 raise InputError(None, "synthetic mode needs --motion FILE (a gen.motion JSON; repeat for a mixture)")
             motions = [_load_motion(m) for m in args.motion]
             sampler = data.MotionMixture([m[0] for m in motions], [m[1] for m in motions])
+            speed_range = None
+            if args.speed_range:
+                try:
+                    lo, hi = (float(x) for x in args.speed_range.split(":"))
+                except ValueError:
+                    raise InputError(None, f"--speed-range must be MIN:MAX in m/s, got {args.speed_range!r}") from None
+                sampler = data.FlatSpeed(sampler, lo, hi, args.rate_hz)
+                speed_range = [lo, hi, args.rate_hz]
             f = max(1, args.synth_factor)
             seqs = [open_sequence(d) for d in args.frames]
             n_hold = args.holdout_samples or max(args.batch, int(round(args.holdout * args.samples_per_epoch)))
@@ -227,7 +295,7 @@ def run(args: argparse.Namespace) -> int:
                             "n_frames": len(frames), "n_train_frames": len(train_frames), "n_holdout_frames": len(hold_frames),
                             "motion": [m[2] for m in motions], "samples_per_epoch": args.samples_per_epoch,
                             "holdout_samples": n_hold, "synth_factor": f, "missing_depth": args.missing_depth,
-                            "sample_pool": args.sample_pool}
+                            "sample_pool": args.sample_pool, "speed_range_mps_at_hz": speed_range}
             if estimator_name is not None:
                 meta["data"].update(synth_factor=None, missing_depth=None, frame_scales=list(args.frame_scales),
                                     appearance_noise=args.appearance_noise, synthetic_flow=estimator_name)
@@ -254,6 +322,8 @@ def run(args: argparse.Namespace) -> int:
         meta["data"] = {"sequences": counts, "pairs": spec.kind, "strides": list(spec.strides), "flow": est.name,
                         "n_pairs": int(sum(counts.values()))}
     meta["argv"] = sys.argv[1:]
+    if progress:
+        print(speed_summary(cfg, args.net, meta["data"], len(train_src), len(hold_src)), flush=True)
     try:
         res = train(cfg, train_src, hold_src, args.out, resume=args.resume, progress=progress, meta=meta,
                     half_weights=args.half_weights)

@@ -161,3 +161,62 @@ def test_nan_loss_stops_with_one_line_and_status_2(tmp_path):
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("deepslam train: error:") and "nan" in lines[0].lower(), r.stderr
     assert not (tmp_path / "model.safetensors").exists()
+
+
+class _SlowSource:
+    """A huge epoch of toy batches, each taking at least ``delay_s``: only a time cap can end it early."""
+
+    def __init__(self, base: data.TensorSamples, delay_s: float, epoch_samples: int = 10 ** 6):
+        self.base, self.delay_s, self.n = base, delay_s, epoch_samples
+
+    def __len__(self) -> int:
+        return self.n
+
+    def batches(self, epoch: int, batch_size: int):
+        while True:
+            for b in self.base.batches(epoch, batch_size):
+                time.sleep(self.delay_s)
+                yield b
+
+
+def test_time_cap_is_checked_every_batch_in_both_stages(toy, tmp_path):
+    train_src, hold = toy
+    cap_min = 0.04  # 2.4 s of training, against an epoch that would take hours
+    t0 = time.perf_counter()
+    res = train(_cfg(max_minutes=cap_min, nll_epochs=10 ** 6), _SlowSource(train_src, 0.01), hold, tmp_path,
+                progress=False)
+    wall = time.perf_counter() - t0
+    assert wall < 60 * cap_min + 3.0, wall
+    assert res.stop_reason.startswith("max_minutes")
+    s1 = [h for h in res.history if h["stage"] == 1]
+    assert len(s1) == 1 and s1[0]["partial"] and 0 < s1[0]["samples"] < 10 ** 6
+    assert np.isfinite(s1[0]["val_loss"])  # the cut epoch was evaluated and its weights kept
+    s2 = [h for h in res.history if h["stage"] == 2]
+    assert 0 < len(s2) < 10 ** 6  # stage 2 ran, and its cap ended it
+    assert (tmp_path / "model.safetensors").is_file()
+
+
+def test_sample_cap_stops_mid_epoch_deterministically_and_resumes(toy, tmp_path):
+    cfg = _cfg(max_epochs=10, max_samples=200, nll_epochs=2)  # 630 samples per epoch, batches of 16
+    a = train(cfg, *toy, tmp_path / "a", progress=False)
+    b = train(cfg, *toy, tmp_path / "b", progress=False)
+    assert a.stop_reason == "max_samples"
+    s1 = [h for h in a.history if h["stage"] == 1]
+    assert len(s1) == 1 and s1[0]["samples"] == 208 and s1[0]["partial"]  # 13 batches: the first to reach 200
+    wa, wb = load_model(a.model_path)[0].state_dict(), load_model(b.model_path)[0].state_dict()
+    assert all(torch.equal(wa[k], wb[k]) for k in wa)  # same weights (the meta holds the run's seconds)
+    more = train(dataclasses.replace(cfg, max_samples=1000), *toy, tmp_path / "a", resume=True, progress=False)
+    s1 = [h for h in more.history if h["stage"] == 1]
+    assert more.stop_reason == "max_samples" and [h["samples"] for h in s1] == [208, 630, 176]
+
+
+def test_cached_stage_two_figures_match_a_full_forward(trained, toy):
+    from deepslam.vo.train import evaluate, evaluate_heads, head_inputs
+
+    model, _ = load_model(trained.model_path)
+    _, hold = toy
+    cfg = _cfg()
+    full, cached = evaluate(model, hold, cfg), evaluate_heads(model, head_inputs(model, hold, cfg), cfg)
+    assert cached["loss"] == pytest.approx(full["loss"], rel=1e-5)
+    assert cached["nll"] == pytest.approx(full["nll"], rel=1e-5, abs=1e-6)
+    np.testing.assert_allclose(cached["rmse6"], full["rmse6"], rtol=1e-5)
