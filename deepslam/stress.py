@@ -558,8 +558,10 @@ def run_stress(config: StressConfig, out: str | Path, resume: bool = False, prog
         resume: reuse ``out/settings/<name>.json`` results computed with the same configuration.
         progress: progress bar over the settings (None: the project's default policy).
     """
+    from deepslam.core.lock import output_lock
+
     config = config.validate()
-    with cpu_threads(config.threads):
+    with cpu_threads(config.threads), output_lock(out):  # one writer per output folder
         return _run(config, Path(out), resume, progress)
 
 

@@ -47,6 +47,7 @@ import numpy as np
 
 from deepslam.core import atomic
 from deepslam.core.errors import InputError
+from deepslam.core.lock import output_lock
 
 FORMAT = "deepslam-flow-shards"
 VERSION = 1
@@ -307,14 +308,20 @@ def generate(config: GenConfig, out_dir: str | Path, workers: int = 1, backend: 
         InputError: bad source (not a sequence, no depth), non-empty folder without ``resume``, or a
             resume whose configuration differs.
     """
-    from deepslam.core.progress import progress as progress_bar
-
     if backend not in ("local", "ray"):
         raise ValueError(f"backend must be local or ray, got {backend!r}")
     out_dir = Path(out_dir)
+    with output_lock(out_dir):  # one writer: a second gen into this folder is refused while this one runs
+        return _generate_locked(config, out_dir, workers, backend, resume, progress)
+
+
+def _generate_locked(config: GenConfig, out_dir: Path, workers: int, backend: str, resume: bool,
+                     progress: bool | None) -> dict:
+    from deepslam.core.progress import progress as progress_bar
+
     run_json = out_dir / "run.json"
     want = {"format": FORMAT, "version": VERSION, "config": config.to_dict()}
-    if out_dir.exists() and any(out_dir.iterdir()):
+    if any(out_dir.iterdir()):
         if not resume:
             raise InputError(out_dir, "output folder is not empty (pass --resume to finish an interrupted run)")
         try:

@@ -34,6 +34,7 @@ import numpy as np
 
 from deepslam.core import atomic, se3
 from deepslam.core.errors import InputError
+from deepslam.core.lock import output_lock
 from deepslam.sim.config import FORMATS, SimConfig
 
 EUROC_T0_NS = 1_600_000_000_000_000_000
@@ -319,18 +320,26 @@ def render_sequence(config: SimConfig, out_dir, fmt: str = "ours", resume: bool 
     core.errors.InputError before anything is written. Returns the sequence folder (what
     ``core.sequence.open_sequence`` opens).
     """
-    from tqdm import tqdm
-
-    from deepslam.sim.simulator import Simulator
-
     if fmt not in FORMATS:
         raise InputError(None, f"unknown format {fmt!r} (choose from {', '.join(FORMATS)})")
     if fmt == "kitti" and not (sequence.isdigit() and len(sequence) == 2):
         raise InputError(None, f"KITTI sequence name must be two digits, got {sequence!r}")
     config = config.validate() if simulator is None else config
     out = Path(out_dir)
-    check_output_folder(out, resume)
+    if out.exists() and not out.is_dir():
+        raise InputError(out, "output exists and is not a folder")
     created = not out.exists()
+    with output_lock(out):  # one writer: a second render into this folder is refused while this one runs
+        return _render_locked(config, out, created, fmt, resume, progress, sequence, simulator)
+
+
+def _render_locked(config: SimConfig, out: Path, created: bool, fmt: str, resume: bool, progress: bool,
+                   sequence: str, simulator) -> Path:
+    from tqdm import tqdm
+
+    from deepslam.sim.simulator import Simulator
+
+    check_output_folder(out, resume)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
