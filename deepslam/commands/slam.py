@@ -40,43 +40,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="alignment before ATE/RPE (default: se3)")
     p.add_argument("--json", action="store_true", help="print the record as one JSON object")
     # hidden: ground-truth odometry with noise, for tests and benchmarks
-    p.add_argument("--odometry", choices=("model", "gt-noisy"), default="model", help=argparse.SUPPRESS)
+    p.add_argument("--odometry", default="model", metavar="MODULE:FACTORY|NAME",
+                   help="consecutive-frame odometry: model (the network, default) or a plug-in: a factory returning "
+                        "an object with name and predict(seq, pairs) -> (mean6, std6), or an entry-point name of group "
+                        "deepslam.odometry")
+    p.add_argument("--odometry-loops", default=None, metavar="MODULE:FACTORY|NAME",
+                   help="loop-pair odometry plug-in (default: the --odometry plug-in, or NN_loops with the network)")
+    p.add_argument("--odometry-command", default=None, metavar="'CMD {sequence} {out}'",
+                   help="an external program that reads the sequence folder and writes a KITTI or TUM trajectory to "
+                        "{out}; used for consecutive and loop pairs")
     p.add_argument("--gt-noise", default="0.002,0.02", help=argparse.SUPPRESS)
     p.add_argument("--gt-drift", type=float, default=0.002, help=argparse.SUPPRESS)
     p.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
-
-
-def make_odometry(args, seq):
-    """(odo_cons, odo_loops) from the arguments (shared with tune-slam)."""
-    from deepslam.core.errors import InputError
-
-    if args.odometry == "gt-noisy":
-        from deepslam.slam.odometry import GroundTruthOdometry, NoiseConfig
-
-        if seq.gt is None:
-            raise InputError(args.sequence, "--odometry gt-noisy needs a sequence with ground truth")
-        try:
-            rot, trans = (float(x) for x in args.gt_noise.split(","))
-        except ValueError:
-            raise InputError(None, f"--gt-noise must be 'ROT_STD,T_STD', got {args.gt_noise!r}") from None
-        std = (rot, rot, rot, trans, trans, trans)
-        cons = GroundTruthOdometry(NoiseConfig(std6=std, bias6=(0, args.gt_drift, 0, 0, 0, 0), seed=args.seed),
-                                   name="gt-noisy-cons")
-        loops = GroundTruthOdometry(NoiseConfig(std6=std, seed=args.seed + 1), name="gt-noisy-loops")
-        return cons, loops
-    try:
-        from deepslam.vo import flow_estimators, models
-    except ImportError as e:
-        raise InputError(None, f"the learned odometry (package vo) is not available: {e}") from None
-    if not hasattr(models, "resolve"):
-        raise InputError(None, "vo.models.resolve is missing: the learned odometry is not installed yet")
-    flow = flow_estimators.make(args.flow)
-    cons = models.resolve(args.model_cons, seq, "cons", flow).as_odometry(flow)
-    loops = None
-    if not args.no_loops:
-        loops_spec = args.model_loops
-        loops = models.resolve(loops_spec, seq, "loops", flow).as_odometry(flow)
-    return cons, loops
 
 
 def run(args: argparse.Namespace) -> int:
@@ -86,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
     from deepslam.core.errors import InputError
     from deepslam.core.sequence import open_sequence
     from deepslam.core.trajio import write_trajectory
+    from deepslam.slam import plugins
     from deepslam.slam.pipeline import PipelineConfig, SlamParams, run_slam
     from deepslam.slam.posegraph import PoseGraphConfig
     from deepslam.slam.reloc import Vocabulary
@@ -100,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(args.sequence, f"the {args.format} format needs timestamps and the sequence has none")
     params = SlamParams.load(args.params) if args.params else SlamParams()
     vocab = Vocabulary.load(args.vocabulary) if args.vocabulary else None
-    odo_cons, odo_loops = make_odometry(args, seq)
+    odo_cons, odo_loops = plugins.odometry_from_args(args, seq)
     if args.no_loops:
         odo_loops = None
     config = PipelineConfig(graph=PoseGraphConfig(robust=args.robust), keyframe_stride=args.keyframe_stride,

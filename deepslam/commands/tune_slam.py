@@ -57,7 +57,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--keyframe-stride", type=int, default=1, metavar="K", help="relocalize every K-th frame")
     p.add_argument("--robust", choices=("none", "huber", "cauchy"), default="cauchy", help="robust kernel on loops")
     p.add_argument("--vocabulary", default=None, metavar="NPZ", help="BoW vocabulary (default: train per sequence)")
-    p.add_argument("--odometry", choices=("model", "gt-noisy"), default="model", help=argparse.SUPPRESS)
+    p.add_argument("--odometry", default="model", metavar="MODULE:FACTORY|NAME",
+                   help="consecutive-frame odometry: model (default) or a plug-in (see deepslam slam --help)")
+    p.add_argument("--odometry-loops", default=None, metavar="MODULE:FACTORY|NAME", help="loop-pair odometry plug-in")
+    p.add_argument("--odometry-command", default=None, metavar="'CMD {sequence} {out}'",
+                   help="an external program writing a trajectory to {out} (see deepslam slam --help)")
     p.add_argument("--gt-noise", default="0.002,0.02", help=argparse.SUPPRESS)
     p.add_argument("--gt-drift", type=float, default=0.002, help=argparse.SUPPRESS)
     p.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
@@ -66,7 +70,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from deepslam.core.errors import InputError
     from deepslam.core.sequence import open_sequence
-    from deepslam.commands.slam import make_odometry
+    from deepslam.slam.plugins import odometry_from_args
     from deepslam.slam.pipeline import PipelineConfig, prepare
     from deepslam.slam.posegraph import PoseGraphConfig
     from deepslam.slam.reloc import Vocabulary
@@ -85,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
         seq = open_sequence(path)
         if seq.gt is None:
             raise InputError(path, "a validation sequence needs ground truth")
-        odo_cons, odo_loops = make_odometry(args, seq)
+        odo_cons, odo_loops = odometry_from_args(args, seq)
         prep = prepare(seq, odo_cons, odo_loops, config, vocab)
         problems.append(problem_from_prepared(prep, graph, name=str(path)))
     res = tune(problems, space, args.method, args.score, show_progress=True)

@@ -30,6 +30,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--batch", type=int, default=64, help="flows per forward pass")
     p.add_argument("--bf16", choices=("auto", "on", "off"), default="auto",
                    help="bfloat16 inference (auto: when the CPU computes bf16 natively)")
+    p.add_argument("--odometry", default=None, metavar="MODULE:FACTORY|NAME",
+                   help="a plug-in odometry instead of the network: a factory returning an object with name and "
+                        "predict(seq, pairs) -> (mean6, std6), or a name registered under the entry-point group "
+                        "deepslam.odometry (see the README)")
+    p.add_argument("--odometry-command", default=None, metavar="'CMD {sequence} {out}'",
+                   help="an external program that reads the sequence folder and writes a KITTI or TUM trajectory "
+                        "to {out}; its poses become the relative motions")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -42,6 +49,7 @@ def run(args: argparse.Namespace) -> int:
     from deepslam.core.errors import InputError
     from deepslam.core.sequence import open_sequence
     from deepslam.core.trajectory import Trajectory
+    from deepslam.slam import plugins
     from deepslam.vo import flow_estimators, models
     from deepslam.vo.infer import chain_euler6
 
@@ -54,14 +62,21 @@ def run(args: argparse.Namespace) -> int:
     frames = np.arange(args.start, end, args.stride)
     if len(frames) < 2:
         raise InputError(args.sequence, f"needs at least two frames at stride {args.stride} in [{args.start}, {end})")
-    opts = {"preset": args.dis_preset} if args.flow == "dis" else {}
-    estimator = flow_estimators.make(args.flow, **opts)
-    bf16 = None if args.bf16 == "auto" else args.bf16 == "on"
-    predictor = models.resolve(args.model, seq, flow=estimator, batch_size=args.batch, bf16=bf16)
     fmt = args.format or ("kitti" if seq.kind == "kitti" else "tum")
-
     pairs = np.stack([frames[:-1], frames[1:]], axis=1)
-    mean6, std6 = predictor.predict_pairs(seq, pairs, estimator, progress=not args.quiet)
+    plugin = plugins.from_options(args.odometry, args.odometry_command)
+    if plugin is not None:
+        if args.model is not None:
+            raise InputError(None, "--model and --odometry/--odometry-command exclude each other")
+        mean6, std6 = plugin.predict(seq, pairs)
+        name, estimator, predictor = plugin.name, None, None
+    else:
+        opts = {"preset": args.dis_preset} if args.flow == "dis" else {}
+        estimator = flow_estimators.make(args.flow, **opts)
+        bf16 = None if args.bf16 == "auto" else args.bf16 == "on"
+        predictor = models.resolve(args.model, seq, flow=estimator, batch_size=args.batch, bf16=bf16)
+        mean6, std6 = predictor.predict_pairs(seq, pairs, estimator, progress=not args.quiet)
+        name = predictor.name
     world_from_cam = chain_euler6(mean6)
     est = Trajectory(world_from_cam, seq.timestamps_s[frames])
 
@@ -75,10 +90,13 @@ def run(args: argparse.Namespace) -> int:
                                *(repr(float(x)) for x in m), *(repr(float(x)) for x in s)]))
     atomic.write_text(Path(f"{stem}.motions.csv"), "\n".join(lines) + "\n")
     config = {"sequence": str(seq.root), "sequence_kind": seq.kind, "frames": [int(frames[0]), int(frames[-1])],
-              "stride": args.stride, "model": args.model or f"shipped:{models.kind_for_sequence(seq)}_cons",
-              "model_name": predictor.name, "model_net": predictor.model.cfg.to_dict(),
-              "flow": getattr(estimator, "name", args.flow), "format": fmt, "bf16": predictor.bf16,
-              "batch": args.batch, "out": str(out)}
+              "stride": args.stride, "format": fmt, "out": str(out)}
+    if predictor is None:
+        config.update(odometry=args.odometry, odometry_command=args.odometry_command, model_name=name)
+    else:
+        config.update(model=args.model or f"shipped:{models.kind_for_sequence(seq)}_cons", model_name=name,
+                      model_net=predictor.model.cfg.to_dict(), flow=getattr(estimator, "name", args.flow),
+                      bf16=predictor.bf16, batch=args.batch)
     atomic.write_json(Path(f"{stem}.config.json"), config)
     print(f"wrote {out} ({len(frames)} poses, {fmt}) and {stem}.motions.csv")
 
@@ -92,8 +110,8 @@ def run(args: argparse.Namespace) -> int:
         report = {k: v for k, v in res.items() if not k.startswith("_")}
         report["ate_unaligned_m"] = res_none["ate_m"]
         atomic.write_json(Path(f"{stem}.metrics.json"), report)
-        plots.plot_trajectories_topdown(Path(f"{stem}.png"), {"ground truth": gt.positions, predictor.name: est.positions},
-                                        title=f"{seq.name}: {predictor.name} ({config['flow']})")
+        plots.plot_trajectories_topdown(Path(f"{stem}.png"), {"ground truth": gt.positions, name: est.positions},
+                                        title=f"{seq.name}: {name}" + (f" ({config['flow']})" if "flow" in config else ""))
         line = (f"ATE {res['ate_m']:.3f} m (se3-aligned; {res_none['ate_m']:.3f} m unaligned), "
                 f"RPE {res['rpe_t_m']:.3f} m / {res['rpe_r_deg']:.3f} deg per {args.stride} frame(s)")
         if "kitti_t_err_pct" in res:

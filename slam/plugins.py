@@ -1,0 +1,243 @@
+"""Anyone's odometry where deepslam's goes: Python plugins, entry points and external commands.
+
+Three ways to plug an odometry into ``vo``, ``slam``, ``tune-slam`` and ``stress`` (``--odometry``):
+
+- ``MODULE:FACTORY``: ``FACTORY`` is a callable in an importable module returning an object with
+  ``name`` and ``predict(seq, pairs) -> (mean6, std6)`` (:class:`deepslam.slam.odometry.Odometry`:
+  the paper's vector of ``cam_j_from_cam_i`` per pair (i, j), R = Rz Ry Rx, and its std).
+- a NAME registered by an installed package under the entry-point group ``deepslam.odometry``
+  (``[project.entry-points."deepslam.odometry"] myvo = "mypkg.vo:make"``), used the same way.
+- ``--odometry-command 'CMD {sequence} {out}'`` (:class:`CommandOdometry`): an external program (ORB-SLAM,
+  DPVO, a script) that reads the sequence folder and writes a trajectory to ``{out}`` (KITTI or TUM,
+  detected); deepslam turns it into relative motions with a fixed std (``DEFAULT_COMMAND_STD6``) or
+  the six numbers the program writes to ``{out}.std`` (rad x3, m x3; applied to every pair).
+
+Every answer goes through :func:`checked`, which turns a plugin's failure (an import error, a missing
+attribute, an exception, wrong shapes, NaN, a std <= 0) into an InputError naming the plugin.
+"""
+from __future__ import annotations
+
+import importlib
+import shlex
+import subprocess
+import tempfile
+from pathlib import Path
+from typing import Sequence as SequenceT
+
+import numpy as np
+
+from deepslam.core import se3
+from deepslam.core.errors import InputError
+from deepslam.slam.odometry import check_prediction
+
+ENTRY_POINT_GROUP = "deepslam.odometry"
+"""Entry-point group of odometry plugins (``NAME = "module:factory"``)."""
+FLOW_ENTRY_POINT_GROUP = "deepslam.flow"
+"""Entry-point group of flow-estimator plugins (``NAME = "module:factory"``; see deepslam.vo.flow_estimators)."""
+DEFAULT_COMMAND_STD6 = (0.002, 0.002, 0.002, 0.05, 0.05, 0.05)
+"""Std of an external command's relative motions when it writes none (rad x3, m x3)."""
+
+
+class CheckedOdometry:
+    """Wraps a plugin odometry: every answer is validated, every failure an InputError naming it."""
+
+    def __init__(self, inner, label: str):
+        self.inner = inner
+        self.label = label
+        self.name = str(getattr(inner, "name", label))
+
+    def predict(self, seq, pairs: SequenceT[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
+        try:
+            mean6, std6 = self.inner.predict(seq, pairs)
+        except InputError:
+            raise
+        except Exception as e:  # noqa: BLE001 - a user's plugin: report it, one line
+            raise InputError(None, f"odometry plugin {self.label}: predict failed ({type(e).__name__}: {e})") from None
+        plain = [(int(i), int(j)) for i, j in np.asarray(pairs, dtype=np.int64).reshape(-1, 2)]
+        try:
+            return check_prediction(self.label, plain, mean6, std6)
+        except (ValueError, TypeError) as e:
+            what = str(e).removeprefix(f"odometry {self.label!r}: ")
+            raise InputError(None, f"odometry plugin {self.label}: {what}") from None
+
+
+def checked(odometry, label: str) -> CheckedOdometry:
+    """``odometry`` wrapped by :class:`CheckedOdometry`, after checking it has ``name`` and ``predict``."""
+    if not callable(getattr(odometry, "predict", None)):
+        raise InputError(None, f"odometry plugin {label}: the factory returned {type(odometry).__name__}, "
+                               "which has no predict(seq, pairs) method")
+    return CheckedOdometry(odometry, label)
+
+
+def _entry_point(name: str, group: str):
+    from importlib.metadata import entry_points
+
+    found = [ep for ep in entry_points(group=group) if ep.name == name]
+    return found[0] if found else None
+
+
+def load_factory(spec: str, group: str = ENTRY_POINT_GROUP):
+    """The callable named by ``MODULE:FACTORY`` or by an entry point NAME of ``group``."""
+    if ":" in spec:
+        mod_name, _, attr = spec.partition(":")
+        try:
+            mod = importlib.import_module(mod_name)
+        except Exception as e:  # noqa: BLE001 - ImportError, or the module's own error at import
+            raise InputError(None, f"plugin {spec}: cannot import {mod_name} ({type(e).__name__}: {e})") from None
+        obj = mod
+        for part in attr.split("."):
+            if not hasattr(obj, part):
+                raise InputError(None, f"plugin {spec}: {mod_name} has no attribute {attr!r}")
+            obj = getattr(obj, part)
+    else:
+        ep = _entry_point(spec, group)
+        if ep is None:
+            raise InputError(None, f"unknown plugin {spec!r}: neither MODULE:FACTORY nor an installed entry point "
+                                   f"of group {group}")
+        try:
+            obj = ep.load()
+        except Exception as e:  # noqa: BLE001
+            raise InputError(None, f"plugin {spec} ({ep.value}): cannot load ({type(e).__name__}: {e})") from None
+    if not callable(obj):
+        raise InputError(None, f"plugin {spec}: {type(obj).__name__} is not callable")
+    return obj
+
+
+def load_odometry(spec: str) -> CheckedOdometry:
+    """An odometry from ``MODULE:FACTORY`` or an entry-point NAME (the factory is called with no arguments)."""
+    factory = load_factory(spec)
+    try:
+        odo = factory()
+    except Exception as e:  # noqa: BLE001
+        raise InputError(None, f"odometry plugin {spec}: the factory failed ({type(e).__name__}: {e})") from None
+    return checked(odo, spec)
+
+
+class CommandOdometry:
+    """An external program that writes a trajectory, as an odometry.
+
+    The command template gets ``{sequence}`` (the sequence folder) and ``{out}`` (the trajectory file
+    to write) substituted, shell-quoted; it runs once per sequence and its trajectory is cached.
+    A KITTI-format answer must have one pose per frame (matched by index); a TUM answer is matched
+    to the frames by timestamp (nearest within ``max_diff_s``). Relative motions of the pairs come
+    from those poses; the std is ``std6``, or the six numbers the program writes to ``{out}.std``.
+    """
+
+    def __init__(self, template: str, std6=DEFAULT_COMMAND_STD6, max_diff_s: float = 0.02, timeout_s: float = 3600.0):
+        if "{out}" not in template:
+            raise InputError(None, f"--odometry-command needs an {{out}} placeholder: {template!r}")
+        self.template = template
+        self.std6 = np.asarray(std6, dtype=np.float64)
+        self.max_diff_s = float(max_diff_s)
+        self.timeout_s = float(timeout_s)
+        self.name = shlex.split(template)[0].rsplit("/", 1)[-1] if template.strip() else "command"
+        self._cache: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+
+    def _run(self, seq) -> tuple[np.ndarray, np.ndarray]:
+        from deepslam.core.trajio import read_trajectory_and_format
+
+        key = str(Path(seq.root).resolve())
+        if key in self._cache:
+            return self._cache[key]
+        with tempfile.TemporaryDirectory(prefix="deepslam-odometry-") as tmp:
+            out = Path(tmp) / "trajectory.txt"
+            cmd = self.template.format(sequence=shlex.quote(str(seq.root)), out=shlex.quote(str(out)))
+            try:
+                r = subprocess.run(cmd, shell=True, capture_output=True, text=True, timeout=self.timeout_s)
+            except subprocess.TimeoutExpired:
+                raise InputError(None, f"odometry command {self.name}: no answer within {self.timeout_s:.0f} s") from None
+            if r.returncode != 0:
+                tail = (r.stderr.strip().splitlines() or [""])[-1][:200]
+                raise InputError(None, f"odometry command {self.name} failed with exit status {r.returncode}: {tail}")
+            if not out.is_file() or out.stat().st_size == 0:
+                raise InputError(None, f"odometry command {self.name} wrote no trajectory to {{out}}")
+            traj, fmt = read_trajectory_and_format(out)
+            std_file = Path(f"{out}.std")
+            std6 = self.std6
+            if std_file.is_file():
+                try:
+                    std6 = np.array([float(x) for x in std_file.read_text().split()], dtype=np.float64)
+                except ValueError:
+                    raise InputError(None, f"odometry command {self.name}: {{out}}.std is not six numbers") from None
+                if std6.shape != (6,) or not (np.isfinite(std6).all() and (std6 > 0).all()):
+                    raise InputError(None, f"odometry command {self.name}: {{out}}.std must hold six positive numbers")
+        poses = self._per_frame(seq, traj, fmt)
+        self._cache[key] = (poses, std6)
+        return poses, std6
+
+    def _per_frame(self, seq, traj, fmt: str) -> np.ndarray:
+        n = len(seq)
+        if traj.timestamps_s is None or seq.timestamps_s is None:
+            if len(traj) != n:
+                raise InputError(None, f"odometry command {self.name}: {len(traj)} poses for a {n}-frame sequence "
+                                       f"({fmt}, matched by index)")
+            return traj.world_from_cam
+        t, ts = np.asarray(traj.timestamps_s), np.asarray(seq.timestamps_s)
+        idx = np.searchsorted(t, ts)
+        lo, hi = np.clip(idx - 1, 0, len(t) - 1), np.clip(idx, 0, len(t) - 1)
+        k = np.where(np.abs(t[lo] - ts) <= np.abs(t[hi] - ts), lo, hi)
+        gap = np.abs(t[k] - seq.timestamps_s)
+        if (gap > self.max_diff_s).any():
+            bad = int(np.flatnonzero(gap > self.max_diff_s)[0])
+            raise InputError(None, f"odometry command {self.name}: no pose within {self.max_diff_s} s of frame {bad} "
+                                   f"(t = {seq.timestamps_s[bad]:.3f} s)")
+        return traj.world_from_cam[k]
+
+    def predict(self, seq, pairs: SequenceT[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
+        poses, std6 = self._run(seq)
+        p = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        mean6 = se3.to_euler6(se3.relative(poses[p[:, 1]], poses[p[:, 0]])).reshape(-1, 6)
+        return mean6, np.tile(std6, (len(p), 1))
+
+
+def from_options(odometry: str | None, command: str | None) -> CheckedOdometry | None:
+    """The plug-in odometry the ``--odometry`` / ``--odometry-command`` flags name, or None."""
+    if odometry and command:
+        raise InputError(None, "give --odometry or --odometry-command, not both")
+    if command:
+        return command_odometry(command)
+    if odometry:
+        return load_odometry(odometry)
+    return None
+
+
+def command_odometry(template: str, **kwargs) -> CheckedOdometry:
+    """:class:`CommandOdometry` wrapped by :func:`checked`."""
+    return checked(CommandOdometry(template, **kwargs), f"command {template.split()[0] if template.split() else ''}")
+
+
+def odometry_from_args(args, seq):
+    """(odo_cons, odo_loops) from the command-line options of ``slam`` and ``tune-slam``: ``odometry``
+    (model, gt-noisy or a plug-in spec), ``odometry_loops``, ``odometry_command``, ``model_cons``,
+    ``model_loops``, ``flow``, ``no_loops``, ``gt_noise``, ``gt_drift``, ``seed``, ``sequence``."""
+    if args.odometry == "gt-noisy":
+        from deepslam.slam.odometry import GroundTruthOdometry, NoiseConfig
+
+        if seq.gt is None:
+            raise InputError(args.sequence, "--odometry gt-noisy needs a sequence with ground truth")
+        try:
+            rot, trans = (float(x) for x in args.gt_noise.split(","))
+        except ValueError:
+            raise InputError(None, f"--gt-noise must be 'ROT_STD,T_STD', got {args.gt_noise!r}") from None
+        std = (rot, rot, rot, trans, trans, trans)
+        cons = GroundTruthOdometry(NoiseConfig(std6=std, bias6=(0, args.gt_drift, 0, 0, 0, 0), seed=args.seed),
+                                   name="gt-noisy-cons")
+        loops = GroundTruthOdometry(NoiseConfig(std6=std, seed=args.seed + 1), name="gt-noisy-loops")
+        return cons, loops
+    command = getattr(args, "odometry_command", None)
+    if command or args.odometry != "model":
+        if getattr(args, "model_cons", None) or getattr(args, "model_loops", None):
+            raise InputError(None, "--model-cons/--model-loops and a plug-in odometry exclude each other")
+        cons = from_options(None if command else args.odometry, command)
+        loops_spec = getattr(args, "odometry_loops", None)
+        loops = load_odometry(loops_spec) if loops_spec else cons
+        return cons, loops
+    from deepslam.vo import flow_estimators, models
+
+    flow = flow_estimators.make(args.flow)
+    cons = models.resolve(args.model_cons, seq, "cons", flow).as_odometry(flow)
+    loops = None
+    if not args.no_loops:
+        loops_spec = args.model_loops
+        loops = models.resolve(loops_spec, seq, "loops", flow).as_odometry(flow)
+    return cons, loops

@@ -1,0 +1,166 @@
+"""Plug-in odometry (MODULE:FACTORY, entry points, external commands) in vo and slam, and its refusals."""
+from __future__ import annotations
+
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from deepslam.core import trajio
+from deepslam.core.sequence import open_sequence
+
+PLUGIN = '''
+import numpy as np
+from deepslam.core import se3
+
+class GtOdometry:
+    """A user's odometry: the ground truth's relative motions."""
+    name = "user-gt"
+    def predict(self, seq, pairs):
+        p = np.asarray(pairs).reshape(-1, 2)
+        w = seq.gt.world_from_cam
+        return se3.to_euler6(se3.relative(w[p[:, 1]], w[p[:, 0]])).reshape(-1, 6), np.full((len(p), 6), 0.01)
+
+def make():
+    return GtOdometry()
+
+class Bad:
+    name = "bad"
+    def __init__(self, kind): self.kind = kind
+    def predict(self, seq, pairs):
+        n = len(pairs)
+        if self.kind == "shape":
+            return np.zeros((n, 5)), np.ones((n, 5))
+        if self.kind == "nan":
+            m = np.zeros((n, 6)); m[1, 2] = np.nan
+            return m, np.ones((n, 6))
+        if self.kind == "std":
+            return np.zeros((n, 6)), np.zeros((n, 6))
+        raise RuntimeError("my model crashed")
+
+def make_shape(): return Bad("shape")
+def make_nan(): return Bad("nan")
+def make_std(): return Bad("std")
+def make_raise(): return Bad("raise")
+def make_nothing(): return 42
+def make_failing(): raise ValueError("no weights here")
+NOT_CALLABLE = 3
+'''
+
+WRITER = '''
+import shutil, sys
+from pathlib import Path
+seq, out = Path(sys.argv[1]), Path(sys.argv[2])
+mode = sys.argv[3] if len(sys.argv) > 3 else "ok"
+if mode == "fail":
+    print("segmentation fault (core dumped)", file=sys.stderr); sys.exit(3)
+if mode == "nothing":
+    sys.exit(0)
+lines = (seq / "poses.txt").read_text().splitlines()
+if mode == "short":
+    lines = lines[:-2]
+out.write_text("\\n".join(lines) + "\\n")
+'''
+
+
+@pytest.fixture(scope="module")
+def plugin_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("userpkg")
+    (d / "user_vo.py").write_text(textwrap.dedent(PLUGIN))
+    (d / "writer.py").write_text(textwrap.dedent(WRITER))
+    sys.path.insert(0, str(d))
+    yield d
+    sys.path.remove(str(d))
+
+
+@pytest.fixture(scope="module")
+def seq_dir(tmp_path_factory) -> Path:
+    from deepslam.cli import main
+
+    out = tmp_path_factory.mktemp("plug") / "street"
+    assert main(["render", "--scene", "street", "--frames", "8", "--width", "160", "--seed", "4", "--out", str(out),
+                 "--quiet"]) == 0
+    return out
+
+
+def _main(argv, capsys):
+    from deepslam.cli import main
+
+    rc = main([str(a) for a in argv])
+    return rc, capsys.readouterr()
+
+
+def test_python_plugin_in_vo_gives_the_ground_truth_back(plugin_dir, seq_dir, tmp_path, capsys):
+    rc, cap = _main(["vo", "--sequence", seq_dir, "--odometry", "user_vo:make", "--out", tmp_path / "t.txt"], capsys)
+    assert rc == 0, cap.err
+    est = trajio.read_trajectory(tmp_path / "t.txt")
+    gt = open_sequence(seq_dir).gt
+    rel = np.linalg.inv(gt.world_from_cam[0]) @ gt.world_from_cam
+    np.testing.assert_allclose(est.world_from_cam, rel, atol=1e-9)
+    assert "ATE 0.000 m" in cap.out
+
+
+def test_external_command_in_vo_and_slam(plugin_dir, seq_dir, tmp_path, capsys):
+    cmd = f"{sys.executable} {plugin_dir / 'writer.py'} {{sequence}} {{out}}"
+    rc, cap = _main(["vo", "--sequence", seq_dir, "--odometry-command", cmd, "--out", tmp_path / "t.txt"], capsys)
+    assert rc == 0, cap.err
+    assert "ATE 0.000 m" in cap.out
+    rc, cap = _main(["slam", "--sequence", seq_dir, "--odometry-command", cmd, "--out", tmp_path / "s.txt"], capsys)
+    assert rc == 0, cap.err
+    assert len(trajio.read_trajectory(tmp_path / "s.txt")) == 8
+
+
+def test_entry_point_names_resolve():
+    from deepslam.slam import plugins
+    from deepslam.slam.classical import PnPOdometry
+
+    assert isinstance(plugins.load_odometry("pnp").inner, PnPOdometry)
+    assert isinstance(plugins.load_odometry("deepslam.slam.classical:make_pnp").inner, PnPOdometry)
+
+
+def test_classical_pnp_baseline_with_depth_is_accurate(seq_dir):
+    from deepslam.slam.classical import PnPOdometry
+    from deepslam.testing import assert_relative_motion_close
+
+    seq = open_sequence(seq_dir)
+    pairs = [(i, i + 1) for i in range(len(seq) - 1)]
+    mean6, std6 = PnPOdometry().predict(seq, pairs)
+    from deepslam.vo.infer import chain_euler6
+
+    gt = np.linalg.inv(seq.gt.world_from_cam[0]) @ seq.gt.world_from_cam
+    assert_relative_motion_close(gt, chain_euler6(mean6), trans_m=0.05, rot_deg=0.3)
+    assert (std6 > 0).all()
+
+
+@pytest.mark.parametrize("spec,what", [
+    ("no_such_module:make", "cannot import no_such_module"),
+    ("user_vo:missing", "has no attribute 'missing'"),
+    ("user_vo:NOT_CALLABLE", "is not callable"),
+    ("user_vo:make_nothing", "no predict(seq, pairs) method"),
+    ("user_vo:make_failing", "the factory failed (ValueError: no weights here)"),
+    ("user_vo:make_shape", "mean6 has shape"),
+    ("user_vo:make_nan", "not finite for pair (1, 2)"),
+    ("user_vo:make_std", "std6 must be > 0"),
+    ("user_vo:make_raise", "predict failed (RuntimeError: my model crashed)"),
+    ("nosuchname", "unknown plugin 'nosuchname'"),
+])
+def test_bad_python_plugin_is_one_line_exit_2(spec, what, plugin_dir, seq_dir, tmp_path, capsys):
+    rc, cap = _main(["vo", "--sequence", seq_dir, "--odometry", spec, "--out", tmp_path / "t.txt"], capsys)
+    lines = cap.err.strip().splitlines()
+    assert rc == 2 and len(lines) == 1 and what in lines[0] and "Traceback" not in cap.err, cap.err
+    assert not (tmp_path / "t.txt").exists()
+
+
+@pytest.mark.parametrize("mode,what", [
+    ("fail", "failed with exit status 3: segmentation fault (core dumped)"),
+    ("nothing", "wrote no trajectory"),
+    ("short", "6 poses for a 8-frame sequence"),
+])
+def test_bad_command_is_one_line_exit_2(mode, what, plugin_dir, seq_dir, tmp_path, capsys):
+    cmd = f"{sys.executable} {plugin_dir / 'writer.py'} {{sequence}} {{out}} {mode}"
+    for command in ("vo", "slam"):
+        rc, cap = _main([command, "--sequence", seq_dir, "--odometry-command", cmd, "--out", tmp_path / "t.txt"], capsys)
+        lines = cap.err.strip().splitlines()
+        assert rc == 2 and len(lines) == 1 and what in lines[0], (command, cap.err)
