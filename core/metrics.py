@@ -277,6 +277,28 @@ def _span(t: Trajectory) -> str:
     return f"{t.timestamps_s[0]:.3f}..{t.timestamps_s[-1]:.3f}" if len(t) else "none"
 
 
+def drift(gt, est) -> dict:
+    """Odometry drift figures of matched poses, with no alignment (both expressed relative to their
+    first pose, as an odometry starts at the identity).
+
+    ``gt``/``est``: two Trajectory objects (matched by timestamp or index) or matched (N, 4, 4) arrays.
+
+    Returns a dict: ``path_length_ratio`` (estimated / true path length: the scale read over the whole
+    run), ``endpoint_drift_m`` (distance between the last estimated and true positions, metres) and
+    ``endpoint_drift_pct`` (that, in percent of the true path length).
+    """
+    from deepslam.core import se3
+
+    g, e = _pair(gt, est)
+    g = se3.inverse(g[0]) @ g
+    e = se3.inverse(e[0]) @ e
+    g_len = float(np.linalg.norm(np.diff(g[:, :3, 3], axis=0), axis=1).sum())
+    e_len = float(np.linalg.norm(np.diff(e[:, :3, 3], axis=0), axis=1).sum())
+    end = float(np.linalg.norm(g[-1, :3, 3] - e[-1, :3, 3]))
+    return {"path_length_ratio": e_len / g_len if g_len > 0 else float("nan"), "endpoint_drift_m": end,
+            "endpoint_drift_pct": 100.0 * end / g_len if g_len > 0 else float("nan")}
+
+
 def evaluate(gt: Trajectory, est: Trajectory, align: str = "se3", rpe_delta: int = 1, max_diff_s: float = 0.01,
              gt_path: str | Path | None = None, est_path: str | Path | None = None) -> dict:
     """All metrics of an estimate against ground truth.
@@ -288,7 +310,9 @@ def evaluate(gt: Trajectory, est: Trajectory, align: str = "se3", rpe_delta: int
 
     Returns a JSON-ready dict: ``ate_m``, ``ate_mean_m``, ``ate_median_m``, ``ate_max_m``, ``rpe_t_m``,
     ``rpe_r_deg``, ``rpe_delta``, ``rpe_pairs``, ``align``, ``scale``, ``rotation`` and ``translation``
-    (alignment), ``n_gt``, ``n_est``, ``n_matched``, ``matched_by``, ``gt_length_m``, and, when the
+    (alignment), ``n_gt``, ``n_est``, ``n_matched``, ``matched_by``, ``gt_length_m``, the unaligned
+    drift figures of :func:`drift` (``path_length_ratio``, ``endpoint_drift_m``, ``endpoint_drift_pct``),
+    and, when the
     ground truth is long enough, ``kitti_t_err_pct``, ``kitti_r_err_deg_per_100m``,
     ``kitti_n_segments``, ``kitti_per_length``. Also ``_gt_poses``/``_est_aligned_poses``
     ((M, 4, 4) matched, for plots; keys starting with ``_`` are not for JSON).
@@ -314,6 +338,7 @@ def evaluate(gt: Trajectory, est: Trajectory, align: str = "se3", rpe_delta: int
         "n_gt": len(gt), "n_est": len(est), "n_matched": int(len(ig)), "matched_by": how,
         "max_diff_s": float(max_diff_s) if how == "timestamps" else None,
         "gt_length_m": gt_len,
+        **drift(g, e),
     }
     if gt_len > KITTI_MIN_GT_LENGTH_M:
         k = kitti_errors(g, aligned)

@@ -442,6 +442,31 @@ class MotionMixture:
         return out
 
 
+class FlatSpeed:
+    """A motion sampler whose forward speed is uniform over a range instead of the fitted prior.
+
+    The fitted Student-t of t_z (KITTI: about 9 m/s, scale 3 m/s) teaches a network a speed prior:
+    it reads slow driving too fast and the highway too slow. This keeps every other DoF of ``base``
+    and draws the forward motion per frame uniformly in ``[min_mps, max_mps] / rate_hz``, so the
+    flow is the only cue to the speed. Forward is -t_z of cam1_from_cam0 (the paper's vector).
+
+    Args:
+        base: ``(n, rng) -> (n, 6)`` sampler (its t_z is replaced).
+        min_mps, max_mps: speed range, m/s (0 <= min < max).
+        rate_hz: frame rate of the motions (KITTI 10 Hz; a stride-k model: 10 / k).
+    """
+
+    def __init__(self, base, min_mps: float, max_mps: float, rate_hz: float):
+        if not (np.isfinite([min_mps, max_mps, rate_hz]).all() and 0 <= min_mps < max_mps and rate_hz > 0):
+            raise InputError(None, f"bad speed range {min_mps}:{max_mps} m/s at {rate_hz} Hz (need 0 <= min < max)")
+        self.base, self.min_mps, self.max_mps, self.rate_hz = base, float(min_mps), float(max_mps), float(rate_hz)
+
+    def __call__(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        out = np.array(self.base(n, rng), dtype=np.float64).reshape(n, 6)
+        out[:, 5] = -rng.uniform(self.min_mps, self.max_mps, n) / self.rate_hz
+        return out
+
+
 MISSING_DEPTH = ("infinity", "invalid")
 """What depth 0 (no surface, or unknown) means to :func:`synthesize_flow`."""
 

@@ -308,3 +308,32 @@ def test_evaluate_sim3_fixes_monocular_scale_for_kitti_numbers():
     assert res["kitti_t_err_pct"] == pytest.approx(0.0, abs=1e-7)
     raw = metrics.evaluate(Trajectory(gt), Trajectory(est), align="se3")
     assert raw["kitti_t_err_pct"] == pytest.approx(50.0, abs=1.0)  # half of each segment's chord missing
+
+
+@pytest.mark.parametrize("scale", [0.5, 0.88, 1.0, 1.41])
+def test_drift_of_a_scaled_estimate_in_another_start_frame(scale):
+    """A straight 100 m drive read at ``scale`` x: path ratio = scale, end-point drift |scale - 1| x 100 %,
+    whatever world frame each trajectory starts in (the figures are relative to the first pose)."""
+    n = 101
+    gt = np.repeat(np.eye(4)[None], n, 0)
+    gt[:, 2, 3] = np.linspace(0, 100, n)
+    start = se3.from_euler6(np.array([0.1, -0.3, 0.2, 5.0, -2.0, 7.0]))
+    est = start @ gt.copy()
+    est[:, :3, 3] = start[:3, 3] + scale * (est[:, :3, 3] - start[:3, 3])
+    d = metrics.drift(gt, est)
+    assert d["path_length_ratio"] == pytest.approx(scale, rel=1e-9)
+    assert d["endpoint_drift_pct"] == pytest.approx(abs(scale - 1) * 100, abs=1e-7)
+    full = metrics.evaluate(Trajectory(gt, np.arange(n) * 0.1), Trajectory(est, np.arange(n) * 0.1))
+    assert full["path_length_ratio"] == pytest.approx(scale, rel=1e-9)
+
+
+def test_drift_sees_a_heading_error_that_keeps_the_length():
+    n = 51
+    gt = np.repeat(np.eye(4)[None], n, 0)
+    gt[:, 2, 3] = np.linspace(0, 50, n)
+    yaw = se3.from_euler6(np.array([0.0, math.radians(10), 0.0, 0.0, 0.0, 0.0]))
+    est = gt.copy()
+    est[:, :3, 3] = gt[:, :3, 3] @ yaw[:3, :3].T  # the path bends away by 10 degrees; the start pose is the same
+    d = metrics.drift(gt, est)
+    assert d["path_length_ratio"] == pytest.approx(1.0)
+    assert d["endpoint_drift_m"] == pytest.approx(2 * 50 * math.sin(math.radians(5)), rel=1e-9)

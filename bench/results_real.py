@@ -1,0 +1,134 @@
+"""Learned odometry on the real KITTI slices: distance read and drift, with what each model saw.
+
+For every model (the shipped KITTI NN_cons variants, plus any ``--model NAME=PATH`` candidates) and
+its flow estimator, ``deepslam vo``'s computation runs on ``../shared/data/kitti/sequences/06``
+(frames 0-50) and ``07`` (frames 0-159) and is scored against the ground truth with no alignment:
+estimated / true path length and end-point drift in percent of the path (the issue's targets:
+0.95-1.05 and <= 5 %), plus the se3-aligned ATE. Each row says which of the slice's frames the model
+saw in training, from the model file's own record: ``none``, or ``single frames, no poses`` (the
+paper's unsupervised adaptation). 07 is never trained on. Writes results.json and results.md into
+``out/results/real`` (``python -m bench.results_real``, about 1 minute per model).
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+import numpy as np
+
+SLICES = ("06", "07")
+"""KITTI sequences with images in ../shared/data."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Candidate:
+    """A model to score: a display name, a path (or shipped spec) and the flow it reads."""
+
+    name: str
+    """Row label."""
+    model: str
+    """Model file, or a shipped spec such as ``kitti`` (see deepslam.vo.models.resolve)."""
+    flow: str = "dis"
+    """Flow estimator: ``dis`` or ``gt``."""
+
+
+SHIPPED = (Candidate("shipped kitti_cons_dis", "kitti", "dis"),)
+
+
+def seen_frames(meta: dict, seq_root: Path) -> str:
+    """What a model's training saw of ``seq_root``: from its ``meta["data"]`` (frames / sequences lists)."""
+    data = meta.get("data", {}) if isinstance(meta, dict) else {}
+    seq_id = seq_root.resolve()
+    for p in data.get("frames", []) or []:
+        if Path(p).resolve() == seq_id:
+            return "single frames, no poses"
+    for p in (data.get("sequences") or {}):
+        if Path(p).resolve() == seq_id:
+            return "frame pairs WITH poses (supervised)"
+    return "none"
+
+
+def score(cand: Candidate, seq) -> dict:
+    """``deepslam vo`` on the whole slice with ``cand``; the drift and ATE figures (core.metrics)."""
+    from deepslam.core import metrics
+    from deepslam.core.trajectory import Trajectory
+    from deepslam.vo import flow_estimators, models
+    from deepslam.vo.infer import chain_euler6
+
+    est = flow_estimators.make(cand.flow, **({"preset": "medium"} if cand.flow == "dis" else {}))
+    pred = models.resolve(cand.model, seq, flow=est)
+    pairs = np.stack([np.arange(len(seq) - 1), np.arange(1, len(seq))], axis=1)
+    mean6, _ = pred.predict_pairs(seq, pairs, est, progress=False)
+    traj = Trajectory(chain_euler6(mean6), seq.timestamps_s)
+    res = metrics.evaluate(seq.gt, traj, align="se3")
+    return {"model": cand.name, "model_file": pred.name, "flow": est.name, "slice": seq.name, "frames": len(seq),
+            "seen_in_training": seen_frames(pred.meta, Path(seq.root)), "gt_length_m": res["gt_length_m"],
+            "path_length_ratio": res["path_length_ratio"], "endpoint_drift_pct": res["endpoint_drift_pct"],
+            "ate_se3_m": res["ate_m"],
+            "met": bool(0.95 <= res["path_length_ratio"] <= 1.05 and res["endpoint_drift_pct"] <= 5.0)}
+
+
+def run(candidates: tuple[Candidate, ...], out: Path, data_dir: Path) -> dict:
+    from deepslam.core import atomic
+    from deepslam.core.errors import InputError
+    from deepslam.core.sequence import open_sequence
+
+    rows = []
+    for sl in SLICES:
+        root = data_dir / "kitti" / "sequences" / sl
+        if not root.is_dir():
+            raise InputError(root, "KITTI slice not found (../shared/data)")
+        seq = open_sequence(root)
+        for c in candidates:
+            rows.append(score(c, seq))
+            print(f"{c.name} on {sl}: path x{rows[-1]['path_length_ratio']:.3f}, "
+                  f"drift {rows[-1]['endpoint_drift_pct']:.1f} %", flush=True)
+    report = {"rows": rows, "targets": {"path_length_ratio": [0.95, 1.05], "endpoint_drift_pct_max": 5.0}}
+    out.mkdir(parents=True, exist_ok=True)
+    atomic.write_json(out / "results.json", report)
+    atomic.write_text(out / "results.md", markdown(report))
+    return report
+
+
+def markdown(report: dict) -> str:
+    lines = ["| model | flow | slice | frames the model saw in training | path est/true | end-point drift | ATE (se3) | target met |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in report["rows"]:
+        lines.append(f"| {r['model']} | {r['flow']} | KITTI {r['slice']} ({r['frames']} frames, {r['gt_length_m']:.0f} m) | "
+                     f"{r['seen_in_training']} | {r['path_length_ratio']:.3f} | {r['endpoint_drift_pct']:.1f} % | "
+                     f"{r['ate_se3_m']:.2f} m | {'yes' if r['met'] else 'no'} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    import os
+
+    from deepslam.core.errors import InputError
+    from deepslam.core.paths import out_dir, shared_data_dir
+
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    ap = argparse.ArgumentParser(prog="python -m bench.results_real", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--model", action="append", default=[], metavar="NAME=PATH[@FLOW]",
+                    help="a candidate model beside the shipped ones (repeatable; FLOW dis or gt, default dis)")
+    ap.add_argument("--no-shipped", action="store_true", help="score only the --model candidates")
+    ap.add_argument("--out", type=Path, default=None, help="output folder (default out/results/real)")
+    ap.add_argument("--data", type=Path, default=None, help="shared data folder (default ../shared/data)")
+    args = ap.parse_args(argv)
+    cands = [] if args.no_shipped else list(SHIPPED)
+    for spec in args.model:
+        name, _, rest = spec.partition("=")
+        path, _, flow = rest.partition("@")
+        cands.append(Candidate(name, path, flow or "dis"))
+    try:
+        report = run(tuple(cands), args.out or out_dir() / "results" / "real", args.data or shared_data_dir())
+    except InputError as e:
+        print(f"results_real: error: {e.message()}", file=sys.stderr)
+        return 2
+    print(markdown(report))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
