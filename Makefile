@@ -22,7 +22,7 @@ $(STAMP): pyproject.toml scripts/apt-deps.sh
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(PY) -m deepslam.demo
+	$(PY) -m deepslam.studies.demo
 
 test: $(STAMP)
 	$(PY) -m pytest -q -n 2 --dist loadfile

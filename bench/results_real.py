@@ -73,7 +73,7 @@ def score(cand: Candidate, seq) -> dict:
 def run(candidates: tuple[Candidate, ...], out: Path, data_dir: Path) -> dict:
     from deepslam.core import atomic
     from deepslam.core.errors import InputError
-    from deepslam.core.sequence import open_sequence
+    from deepslam.core.readers import open_sequence
 
     rows = []
     for sl in SLICES:

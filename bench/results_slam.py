@@ -54,7 +54,7 @@ class ResultsSlamConfig:
 
 
 def _render(log, scene: str, seed: int, cfg: ResultsSlamConfig, out: Path) -> Path:
-    from deepslam.demo import render_once
+    from deepslam.studies.demo import render_once
 
     return render_once(scene, "car" if scene == "street" else "drone", cfg.frames if scene == "street" else cfg.room_frames,
                        cfg.street_width if scene == "street" else cfg.room_width, seed, out / f"{scene}_s{seed}", log,
@@ -175,7 +175,7 @@ def markdown(report: dict) -> str:
 
 def run(cfg: ResultsSlamConfig, out: Path) -> dict:
     from deepslam.core import atomic
-    from deepslam.core.sequence import open_sequence
+    from deepslam.core.readers import open_sequence
     out.mkdir(parents=True, exist_ok=True)
     atomic.write_json(out / "config.json", dataclasses.asdict(cfg))
     log: list[str] = []

@@ -63,8 +63,8 @@ def _sweeps(seq, kind: str, cfg: ResultsSpeedConfig) -> dict:
 
 def run(cfg: ResultsSpeedConfig, out: Path, data_dir: Path) -> dict:
     from deepslam.core import atomic
-    from deepslam.core.sequence import open_sequence
-    from deepslam.demo import render_once
+    from deepslam.core.readers import open_sequence
+    from deepslam.studies.demo import render_once
 
     out.mkdir(parents=True, exist_ok=True)
     log: list[str] = []

@@ -96,7 +96,7 @@ def _train(run_command, log, out: Path, mode: str, which: str, seed: int, cfg: R
 
 def _supervised_pairs(train_dirs: list[str], which: str) -> int:
     """How many pairs ``deepslam train --mode supervised`` makes of the training renders (its defaults)."""
-    from deepslam.core.sequence import open_sequence
+    from deepslam.core.readers import open_sequence
     from deepslam.vo.data import PairSpec, frame_pairs
 
     spec = PairSpec(kind="consecutive" if which == "cons" else "loops")
@@ -206,8 +206,8 @@ def _pm(a: dict, f: str = ".3g") -> str:
 
 def run(cfg: ResultsVOConfig, out: Path, data: Path) -> dict:
     from deepslam.core import atomic
-    from deepslam.core.sequence import open_sequence
-    from deepslam.demo import render_once, run_command
+    from deepslam.core.readers import open_sequence
+    from deepslam.studies.demo import render_once, run_command
 
     out.mkdir(parents=True, exist_ok=True)
     atomic.write_json(out / "config.json", dataclasses.asdict(cfg))

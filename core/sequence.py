@@ -162,6 +162,43 @@ class Sequence:
             return None
         return read_image(self.mask_paths[i]).astype(np.uint16, copy=False)
 
+    def check(self, i: int) -> None:
+        """Decode everything of frame i a later command would read and check it against the camera:
+        image size, depth (H, W) finite and >= 0, flow (H, W, 2) finite, mask (H, W). InputError
+        naming the file otherwise."""
+        h, w = self.camera.height, self.camera.width
+        items = [(self.image_paths[i], self.image(i))]
+        if self.right_paths is not None:
+            items.append((self.right_paths[i], self.image_right(i)))
+        for path, img in items:
+            if img.shape[:2] != (h, w):
+                raise InputError(path, f"image is {img.shape[1]}x{img.shape[0]}, the camera is {w}x{h}")
+        d = self.depth(i)
+        if d is not None:
+            if d.shape != (h, w):
+                raise InputError(self.depth_paths[i], f"depth is {d.shape}, expected ({h}, {w})")
+            if not np.isfinite(d).all() or (d < 0).any():
+                raise InputError(self.depth_paths[i], "depth has NaN, infinite or negative values (0 = unknown)")
+        f = self.flow(i)
+        if f is not None:
+            if f.shape != (h, w, 2):
+                raise InputError(self.flow_paths[i], f"flow is {f.shape}, expected ({h}, {w}, 2)")
+            if not np.isfinite(f).all():
+                raise InputError(self.flow_paths[i], "flow has NaN or infinite values")
+        m = self.mask(i)
+        if m is not None and m.shape[:2] != (h, w):
+            raise InputError(self.mask_paths[i], f"mask is {m.shape}, expected ({h}, {w})")
+
+    def check_timestamps(self) -> None:
+        """InputError unless the frame times are finite and strictly increasing."""
+        t = np.asarray(self.timestamps_s, dtype=np.float64)
+        if not np.isfinite(t).all():
+            raise InputError(self.root, "frame timestamps are not all finite")
+        bad = np.flatnonzero(np.diff(t) <= 0)
+        if len(bad):
+            raise InputError(self.root, f"frame timestamps do not increase at frame {int(bad[0]) + 1} "
+                                        f"({t[bad[0]]:.6f} s then {t[bad[0] + 1]:.6f} s)")
+
     @property
     def has_depth(self) -> bool:
         return self.depth_paths is not None
@@ -169,27 +206,3 @@ class Sequence:
     @property
     def has_stereo(self) -> bool:
         return self.right_paths is not None and self.baseline_m is not None
-
-
-def open_sequence(path: str | Path) -> Sequence:
-    """Open a KITTI odometry sequence folder (``.../sequences/NN``), an EuRoC ASL folder (holding
-    ``mav0``, or ``mav0`` itself) or a folder in our format (holding ``sequence.json``)."""
-    path = Path(path)
-    if not path.exists():
-        raise InputError(path, "sequence folder does not exist")
-    if not path.is_dir():
-        raise InputError(path, "not a folder")
-    if (path / "sequence.json").is_file():
-        from deepslam.core.ours import read_ours
-
-        return read_ours(path)
-    if (path / "mav0").is_dir() or path.name == "mav0":
-        from deepslam.core.euroc import read_euroc
-
-        return read_euroc(path)
-    if (path / "image_0").is_dir() or (path / "image_2").is_dir() or (path / "calib.txt").is_file():
-        from deepslam.core.kitti import read_kitti
-
-        return read_kitti(path)
-    raise InputError(path, "not a KITTI sequence (image_0/, calib.txt), EuRoC folder (mav0/) "
-                     "or deepslam sequence (sequence.json)")

@@ -177,7 +177,7 @@ class StereoDepthFrames(DepthFrames):
 
 
 def open_depth_frames(path: str | Path, depth_from_stereo: str | None = None) -> DepthFrames:
-    """Frames with depth from a sequence folder (any layout :func:`core.sequence.open_sequence` reads).
+    """Frames with depth from a sequence folder (any layout :func:`core.readers.open_sequence` reads).
 
     Args:
         path: the sequence folder.
@@ -187,7 +187,7 @@ def open_depth_frames(path: str | Path, depth_from_stereo: str | None = None) ->
     Raises:
         InputError when the folder is not a sequence, or has no depth (and no stereo to compute it).
     """
-    from deepslam.core.sequence import open_sequence
+    from deepslam.core.readers import open_sequence
 
     seq = open_sequence(path)
     if seq.has_depth:

@@ -460,3 +460,100 @@ def denormalize_flow(flow_norm: Any, width: int, height: int, channel_axis: int 
     if isinstance(flow_norm, torch.Tensor):
         return flow_norm * torch.as_tensor(scale, device=flow_norm.device, dtype=flow_norm.dtype)
     return np.asarray(flow_norm) * scale.astype(np.asarray(flow_norm).dtype)
+
+
+# ----------------------------------------------------------------------------------------------------
+# flow as an estimator sees it: points leaving the image keep their flow (training inputs, not labels)
+
+
+MISSING_DEPTH = ("infinity", "invalid")
+"""What depth 0 (no surface, or unknown) means to :func:`synthesize_flow`."""
+
+
+def synthesize_flow(depth_z: torch.Tensor, intrinsics: np.ndarray, cam1_from_cam0: np.ndarray,
+                    missing_depth: str = "infinity", pool: int = 1,
+                    chunk_pixels: int = 1 << 18) -> tuple[torch.Tensor, torch.Tensor]:
+    """Flow of a static scene for a batch of depth maps and motions, KEEPING points that leave the image.
+
+    The same algebra as :func:`synthesize` (its :func:`projection_coefficients`
+    ``M = [K R K^-1 | K t]``; ``(u1, v1, 1) ~ M (u, v, 1, 1 / depth_z)``), but a point that lands
+    outside frame 1 keeps its flow: an estimator such as DIS also reports (extrapolated) flow for
+    pixels that leave the view, so zeroing them (the right thing for a flow *label*) would teach the
+    network a pattern it never sees at test time. With ``missing_depth="infinity"`` a pixel without
+    depth (sky in a render, 0 or non-finite) is a point at infinity and gets the rotation-only flow,
+    as the simulator's ground-truth flow and any real estimator give it.
+
+    Computed in chunks of about ``chunk_pixels`` pixels with in-place ops (the temporaries stay in
+    cache, as in gen.flow), optionally averaged over ``pool`` x ``pool`` blocks per chunk
+    (:func:`pool_flow`).
+
+    Args:
+        depth_z: (B, H, W) float32 metres, 0 = none.
+        intrinsics: (B, 4) fx, fy, cx, cy at H x W.
+        cam1_from_cam0: (B, 4, 4) float64.
+        missing_depth: ``infinity`` or ``invalid`` (flow 0, valid false).
+        pool: average the result over pool x pool blocks (H, W multiples of pool).
+
+    Returns:
+        flow (B, 2, H/pool, W/pool) float32 px at the output grid (0 where invalid), valid
+        (B, H/pool, W/pool) bool (the point is in front of camera 1, depth known unless ``infinity``;
+        pooled: any pixel of the block valid).
+    """
+    if missing_depth not in MISSING_DEPTH:
+        raise ValueError(f"missing_depth must be one of {MISSING_DEPTH}, got {missing_depth!r}")
+    z_all = torch.as_tensor(depth_z, dtype=torch.float32)
+    b, h, w = z_all.shape
+    if h % pool or w % pool:
+        raise ValueError(f"depth {h}x{w} is not a multiple of pool {pool}")
+    m = torch.as_tensor(projection_coefficients(np.asarray(intrinsics, np.float64).reshape(b, 4),
+                                                np.asarray(cam1_from_cam0, np.float64).reshape(b, 4, 4)),
+                        dtype=torch.float32)
+    u = torch.arange(w, dtype=torch.float32).view(1, 1, w)
+    v = torch.arange(h, dtype=torch.float32).view(1, h, 1)
+    flow_out = torch.empty(b, 2, h // pool, w // pool)
+    valid_out = torch.empty(b, h // pool, w // pool, dtype=torch.bool)
+    n_chunk = max(1, min(b, chunk_pixels // (h * w)))
+    p = torch.empty(n_chunk, 3, h, w)
+    inv = torch.empty(n_chunk, h, w)
+    flow = torch.empty(n_chunk, 2, h, w)
+    with torch.no_grad():
+        for s in range(0, b, n_chunk):
+            n = min(n_chunk, b - s)
+            z, pp, iv, fl = z_all[s:s + n], p[:n], inv[:n], flow[:n]
+            mm = m[s:s + n]
+            torch.reciprocal(z, out=iv)
+            iv.nan_to_num_(0.0, 0.0, 0.0).clamp_min_(0.0)  # 0 / negative / NaN / inf depth -> infinity
+            torch.add(mm[:, :, 0, None, None] * u, mm[:, :, 1, None, None] * v + mm[:, :, 2, None, None], out=pp)
+            pp.addcmul_(mm[:, :, 3].view(n, 3, 1, 1), iv.unsqueeze(1))
+            d = pp[:, 2]
+            valid = d > 1e-6
+            if missing_depth == "invalid":
+                valid &= iv > 0
+            d.clamp_min_(1e-6).reciprocal_()
+            torch.mul(pp[:, 0], d, out=fl[:, 0])
+            fl[:, 0].sub_(u)
+            torch.mul(pp[:, 1], d, out=fl[:, 1])
+            fl[:, 1].sub_(v)
+            fl.nan_to_num_(0.0, 0.0, 0.0)
+            fl.mul_(valid.unsqueeze(1))
+            if pool > 1:
+                pooled, pv = pool_flow(fl, valid, pool, masked=True)
+                flow_out[s:s + n] = pooled
+                valid_out[s:s + n] = pv
+            else:
+                flow_out[s:s + n] = fl
+                valid_out[s:s + n] = valid
+    return flow_out, valid_out
+
+
+def pool_flow(flow: torch.Tensor, valid: torch.Tensor, factor: int, masked: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+    """Average flow (B, 2, H, W) px over ``factor`` x ``factor`` blocks, weighted by valid (B, H, W),
+    and rescale its values by 1/factor (the coarser pixel grid). Returns ((B, 2, H/f, W/f), valid any).
+    ``masked``: the flow is already 0 where not valid (saves a multiplication)."""
+    if factor == 1:
+        return (flow if masked else flow * valid[:, None]), valid
+    v = valid[:, None].float()
+    num = torch.nn.functional.avg_pool2d(flow if masked else flow * v, factor)
+    den = torch.nn.functional.avg_pool2d(v, factor)
+    out = torch.where(den > 0, num / den.clamp_min(1e-12), torch.zeros_like(num)) / factor
+    return out, den[:, 0] > 0

@@ -318,7 +318,7 @@ def render_sequence(config: SimConfig, out_dir, fmt: str = "ours", resume: bool 
 
     Bad input (config values, an unusable output folder, a resume whose settings differ) raises
     core.errors.InputError before anything is written. Returns the sequence folder (what
-    ``core.sequence.open_sequence`` opens).
+    ``core.readers.open_sequence`` opens).
     """
     if fmt not in FORMATS:
         raise InputError(None, f"unknown format {fmt!r} (choose from {', '.join(FORMATS)})")

@@ -1,4 +1,4 @@
-"""``deepslam eval`` and ``python -m deepslam.demo_reference``: output, JSON, plots, and bad input (exit 2, one line)."""
+"""``deepslam eval`` and ``python -m deepslam.studies.demo_reference``: output, JSON, plots, and bad input (exit 2, one line)."""
 from __future__ import annotations
 
 import json
@@ -153,7 +153,7 @@ def test_eval_on_kitti_00_orb(shared_data, capsys):
 
 
 def test_reference_report(shared_data, tmp_path, capsys):
-    from deepslam import demo_reference as demo
+    from deepslam.studies import demo_reference as demo
 
     assert demo.main(["--data", str(shared_data), "--out", str(tmp_path / "demo")]) == 0
     out = capsys.readouterr().out

@@ -100,7 +100,7 @@ def test_a_cached_render_of_other_settings_is_not_reused(tmp_path):
     from deepslam.core.camera import PinholeCamera
     from deepslam.core.errors import InputError
     from deepslam.core.ours import OursWriter
-    from deepslam.demo import render_once
+    from deepslam.studies.demo import render_once
 
     cam = PinholeCamera.from_fov_y(40, 30, 60.0)
     root = tmp_path / "street_s1"

@@ -135,13 +135,13 @@ def exact_pair_flow(seq, i: int, j: int) -> np.ndarray:
     motion ``cam_j_from_world @ world_from_body_j @ body_i_from_world @ world_from_cam_i``, and
     projected into frame j. Pixels without depth (sky) are points at infinity (rotation-only flow),
     and points that leave the view keep their flow, as in the training data
-    (:func:`vo.data.synthesize_flow`) and as a dense estimator reports them. Deforming surfaces are
+    (:func:`deepslam.gen.flow.synthesize_flow`) and as a dense estimator reports them. Deforming surfaces are
     moved with the static scene (their own motion between distant frames is not recorded).
     """
     import torch
 
     from deepslam.core import se3
-    from deepslam.vo.data import synthesize_flow
+    from deepslam.gen.flow import synthesize_flow
 
     cam = seq.camera
     depth = seq.depth(i)

@@ -32,7 +32,7 @@ def _frames(text: str | None, n: int):
 
 
 def run(args: argparse.Namespace) -> int:
-    from deepslam.core.sequence import open_sequence
+    from deepslam.core.readers import open_sequence
     from deepslam.gen.validate import validate_sequence
 
     seq = open_sequence(args.sequence)

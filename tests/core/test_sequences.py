@@ -14,7 +14,7 @@ from deepslam.core.errors import InputError
 from deepslam.core.euroc import read_euroc, read_sensor_yaml
 from deepslam.core.kitti import read_kitti
 from deepslam.core.ours import OursWriter, read_ours
-from deepslam.core.sequence import open_sequence
+from deepslam.core.readers import open_sequence
 from deepslam.cli import main
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from deepslam.core import se3
-from deepslam.core.sequence import open_sequence
+from deepslam.core.readers import open_sequence
 from deepslam.gen.flow import synthesize
 from deepslam.gen.stereo import StereoConfig, depth_from_disparity, depth_from_stereo, disparity
 

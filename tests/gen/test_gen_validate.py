@@ -9,7 +9,7 @@ import pytest
 from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
 from deepslam.core.ours import OursWriter
-from deepslam.core.sequence import open_sequence
+from deepslam.core.readers import open_sequence
 from deepslam.cli import main
 from deepslam.gen.flow_reference import synthesize_reference
 from deepslam.gen.validate import validate_sequence

@@ -1,4 +1,4 @@
-"""Writers: our format, KITTI and EuRoC exports read back with core.sequence.open_sequence;
+"""Writers: our format, KITTI and EuRoC exports read back with core.readers.open_sequence;
 determinism; resume after SIGKILL; bad input on the command line."""
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 import pytest
 
-from deepslam.core.sequence import open_sequence
+from deepslam.core.readers import open_sequence
 from deepslam.scenes import SceneConfig
 from deepslam.sim import RenderConfig, SimConfig, Simulator, TrajectoryConfig, render_sequence
 

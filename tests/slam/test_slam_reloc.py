@@ -155,7 +155,7 @@ def test_detector_finds_the_revisit_and_excludes_recent_frames(views, vocab):
 
 
 def test_real_kitti_frames_close_pairs_verify_and_far_pairs_do_not(shared_data):
-    from deepslam.core.sequence import open_sequence
+    from deepslam.core.readers import open_sequence
 
     seq = open_sequence(shared_data / "kitti" / "sequences" / "06")
     cfg = RelocConfig.for_kind(seq.kind)

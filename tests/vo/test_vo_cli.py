@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from deepslam.core import se3, trajio
-from deepslam.core.sequence import open_sequence
+from deepslam.core.readers import open_sequence
 from deepslam.vo import data, models
 from deepslam.vo.infer import VOPredictor, chain, chain_euler6
 from deepslam.vo.net import NetConfig

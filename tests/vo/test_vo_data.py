@@ -11,7 +11,8 @@ import torch
 from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
-from deepslam.core.sequence import open_sequence
+from deepslam.core.readers import open_sequence
+from deepslam.gen import flow as gen_flow
 from deepslam.vo import data
 
 CAM = PinholeCamera(160, 48, 120.0, 120.0, 79.5, 20.0)
@@ -34,7 +35,7 @@ def test_synthesize_flow_matches_gen_and_the_numpy_reference():
     vec = np.column_stack([rng.normal(0, 0.01, (4, 3)), rng.normal(0, 0.1, (4, 2)), -rng.uniform(0.2, 1.0, 4)])
     motions = se3.from_euler6(vec)
     depth = np.stack([_ground_depth(CAM, h) for h in (1.4, 1.6, 1.8, 2.0)])
-    ours, ours_valid = data.synthesize_flow(torch.from_numpy(depth), _k(CAM, 4), motions, "invalid")
+    ours, ours_valid = gen_flow.synthesize_flow(torch.from_numpy(depth), _k(CAM, 4), motions, "invalid")
     gflow, gvalid = synthesize(torch.from_numpy(depth), CAM, motions)
     gvalid = gvalid.numpy()
     assert gvalid.sum() > 1000
@@ -56,12 +57,12 @@ def test_missing_depth_is_a_point_at_infinity():
     depth = torch.zeros(2, 48, 160)  # all sky
     rot_only = se3.from_euler6(np.array([[0.0, 0.02, 0.0, 0.0, 0.0, 0.0]] * 2))
     rot_only[1, :3, 3] = [0.3, 0.1, -2.0]  # translation does not move points at infinity
-    flow, valid = data.synthesize_flow(depth, _k(CAM, 2), rot_only, "infinity")
+    flow, valid = gen_flow.synthesize_flow(depth, _k(CAM, 2), rot_only, "infinity")
     assert valid.all()
     torch.testing.assert_close(flow[0], flow[1])
     # rotation about y by 0.02 rad: about fx * 0.02 = 2.4 px at the centre, u shrinking (R maps cam0 to cam1)
     assert abs(abs(float(flow[0, 0, 20, 80])) - 120 * np.tan(0.02)) < 0.05
-    _, valid = data.synthesize_flow(depth, _k(CAM, 2), rot_only, "invalid")
+    _, valid = gen_flow.synthesize_flow(depth, _k(CAM, 2), rot_only, "invalid")
     assert not valid.any()
 
 
@@ -89,9 +90,9 @@ def test_synthetic_source_is_deterministic_per_epoch_and_pools_correctly():
 def test_flow_synthesized_at_twice_the_size_and_pooled_matches_the_direct_one():
     motion = se3.from_euler6(np.array([[0.002, 0.01, -0.003, 0.05, 0.02, -0.8]]))
     small, big = CAM.scaled(80, 24), CAM.scaled(160, 48)
-    direct, _ = data.synthesize_flow(torch.from_numpy(_ground_depth(small)[None]), _k(small, 1), motion)
-    fine, valid = data.synthesize_flow(torch.from_numpy(_ground_depth(big)[None]), _k(big, 1), motion)
-    pooled, _ = data.pool_flow(fine, valid, 2)
+    direct, _ = gen_flow.synthesize_flow(torch.from_numpy(_ground_depth(small)[None]), _k(small, 1), motion)
+    fine, valid = gen_flow.synthesize_flow(torch.from_numpy(_ground_depth(big)[None]), _k(big, 1), motion)
+    pooled, _ = gen_flow.pool_flow(fine, valid, 2)
     # the ground near the camera (smooth), away from the horizon
     np.testing.assert_allclose(pooled[0, :, 14:, 2:-2].numpy(), direct[0, :, 14:, 2:-2].numpy(), atol=0.05)
     assert float(direct[0, 1, 14:].abs().mean()) > 0.5  # a real flow, not zeros
@@ -237,7 +238,7 @@ def test_synthetic_flow_equals_the_simulators_true_flow_everywhere():
     c = f.camera
     motion = se3.relative(nxt.world_from_cam, f.world_from_cam)
     assert np.linalg.norm(motion[:3, 3]) > 0.3  # the car is moving
-    flow, valid = data.synthesize_flow(torch.from_numpy(f.depth_z[None]), np.array([[c.fx, c.fy, c.cx, c.cy]]), motion[None])
+    flow, valid = gen_flow.synthesize_flow(torch.from_numpy(f.depth_z[None]), np.array([[c.fx, c.fy, c.cx, c.cy]]), motion[None])
     flow = flow[0].permute(1, 2, 0).numpy()
     ok = np.isfinite(f.flow).all(-1) & (f.mask == 0)
     assert ok.mean() > 0.95 and (f.depth_z[ok] == 0).any()  # sky is in the comparison

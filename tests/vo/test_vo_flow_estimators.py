@@ -6,7 +6,7 @@ import pytest
 
 from deepslam.core import se3
 from deepslam.core.errors import InputError
-from deepslam.core.sequence import open_sequence
+from deepslam.core.readers import open_sequence
 from deepslam.vo import flow_estimators as fe
 
 

@@ -1,4 +1,4 @@
-"""``make demo`` / ``python -m deepslam.demo``: the whole harness end to end, in about 13 minutes on 2 cores (15 at most).
+"""``make demo`` / ``python -m deepslam.studies.demo``: the whole harness end to end, in about 13 minutes on 2 cores (15 at most).
 
 1. render a simulated street for training (single frames + depth) and a held-out street sequence
    that closes a loop (another seed: other buildings, other parked cars);
@@ -85,7 +85,7 @@ def render_once(scene: str, trajectory: str, frames: int, width: int, seed: int,
     A complete render made with another frame count or width is an error (InputError naming the
     folder), never silently reused."""
     if (out / "poses.txt").is_file():
-        from deepslam.core.sequence import open_sequence
+        from deepslam.core.readers import open_sequence
 
         seq = open_sequence(out)
         if (len(seq), seq.camera.width) != (frames, width):
@@ -120,7 +120,7 @@ def run(cfg: DemoConfig, out: Path, data: Path) -> Path:
     if not validation.is_file():
         print(f"\n$ deepslam validate-flow --sequence {held} --json", flush=True)
         log.append(f"deepslam validate-flow --sequence {held} --json")
-        from deepslam.core.sequence import open_sequence
+        from deepslam.core.readers import open_sequence
         from deepslam.gen.validate import validate_sequence
 
         report = validate_sequence(open_sequence(held))
@@ -166,9 +166,9 @@ def run(cfg: DemoConfig, out: Path, data: Path) -> Path:
     rec_gt = slam("slam_trueflow", "", "gt", "trajectories_trueflow.png")
 
     # 6. metrics cross-check on published trajectories
-    from deepslam import demo_reference
+    from deepslam.studies import demo_reference
 
-    print("\n$ python -m deepslam.demo_reference", flush=True)
+    print("\n$ python -m deepslam.studies.demo_reference", flush=True)
     demo_reference.run(data, out / "reference")
 
     # 7. the report
@@ -224,7 +224,7 @@ def main(argv: list[str] | None = None) -> int:
     from deepslam.core.errors import InputError
     from deepslam.core.paths import out_dir, shared_data_dir
 
-    ap = argparse.ArgumentParser(prog="python -m deepslam.demo", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m deepslam.studies.demo", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", type=Path, default=None, help="output folder (default: out/demo)")
     ap.add_argument("--data", type=Path, default=None, help="shared data folder (default: ../shared/data)")
     ap.add_argument("--quick", action="store_true", help="tiny sizes (a smoke run of a minute or two)")

@@ -112,6 +112,10 @@ class StressConfig:
     odometry: str = "model"
     """"model": learned NN_cons / NN_loops (falls back to "rigid-fit", noted, when none is available);
     "rigid-fit": :class:`RigidFitOdometry` (least-squares rigid motion from flow + depth, all pixels)."""
+    plugins: tuple[str, ...] = ()
+    """Further odometries measured side by side with the first, each on the images alone: plug-in specs
+    (``MODULE:FACTORY`` or an entry-point name of group ``deepslam.odometry``, e.g. ``pnp``, the shipped
+    classical baseline; see :mod:`deepslam.slam.plugins`). Their rows are keyed by the plug-in's name."""
     model_cons: str | None = None
     """NN_cons model file or shipped name (None: the shipped model for the scene's camera kind)."""
     model_loops: str | None = None
@@ -167,6 +171,8 @@ class StressConfig:
             raise InputError(None, f"unknown backend {self.backend!r} (choose from mujoco, pyrender)")
         if self.odometry not in ODOMETRIES:
             raise InputError(None, f"unknown odometry {self.odometry!r} (choose from {', '.join(ODOMETRIES)})")
+        if len(set(self.plugins)) != len(self.plugins):
+            raise InputError(None, f"an odometry is listed twice: {list(self.plugins)}")
         if self.odometry == "rigid-fit" and (self.model_cons or self.model_loops):
             raise InputError(None, "model files are for --odometry model; rigid-fit uses no model")
         if self.dis_preset not in ("ultrafast", "fast", "medium"):
@@ -210,7 +216,9 @@ class StressConfig:
         return list(out.values())
 
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        d = dataclasses.asdict(self)
+        d["plugins"] = list(self.plugins)
+        return d
 
 
 # --------------------------------------------------------------------------------------------------
@@ -408,10 +416,40 @@ class OdometrySet:
     """What it is, for the table."""
     note: str | None = None
     """Why the study fell back to the rigid fit, or None."""
+    plugins: dict = dataclasses.field(default_factory=dict)
+    """{key: plug-in odometry} measured side by side (consecutive and loop pairs on the images alone)."""
 
 
 def make_odometries(config: StressConfig) -> OdometrySet:
-    """Learned odometry when available (shipped or given models), else the rigid fit, noted."""
+    """Learned odometry when available (shipped or given models), else the rigid fit, noted; plus the
+    plug-ins of ``config.plugins``."""
+    odo = _main_odometries(config)
+    odo.plugins = load_plugins(config.plugins)
+    return odo
+
+
+def plugin_key(name: str) -> str:
+    """A plug-in's name as a column key: lower case letters, digits and ``-``."""
+    import re
+
+    return re.sub(r"[^a-z0-9-]+", "-", str(name).lower()).strip("-") or "plugin"
+
+
+def load_plugins(specs) -> dict:
+    """{key: checked plug-in odometry} of the specs, keys unique and distinct from gt/dis."""
+    from deepslam.slam.plugins import load_odometry
+
+    out: dict = {}
+    for spec in specs:
+        odo = load_odometry(spec)
+        key = plugin_key(odo.name)
+        while key in out or key in ("gt", "dis"):
+            key += "-2"
+        out[key] = odo
+    return out
+
+
+def _main_odometries(config: StressConfig) -> OdometrySet:
     from deepslam.vo.flow_estimators import DISFlow, GroundTruthFlow
 
     flows = {"gt": GroundTruthFlow(), "dis": DISFlow(config.dis_preset)}
@@ -526,6 +564,15 @@ def measure_sequence(seq, odometries: OdometrySet, config: StressConfig, vocabul
         kept = int(np.sum(res.loop_inliers)) if res.loop_inliers is not None else len(loop_edges)
         loops[f] = {"loop_edges": len(loop_edges), "loop_edges_kept": kept}
         timings[f"vo_slam_{f}_s"] = time.perf_counter() - t1
+    for key, odo in odometries.plugins.items():  # side by side: the same stages with the plug-in's motions
+        t1 = time.perf_counter()
+        p_prep = prepare(seq, odo, odo if config.loops else None, pipe, vocabulary, show_progress=False)
+        res, loop_edges = solve(p_prep, params, pipe.graph, first_pose)
+        vo[key] = _metrics(seq.gt, Trajectory(chain(n, p_prep.cons, first_pose), times))
+        slam[key] = _metrics(seq.gt, Trajectory(res.world_from_cam, times))
+        kept = int(np.sum(res.loop_inliers)) if res.loop_inliers is not None else len(loop_edges)
+        loops[key] = {"loop_edges": len(loop_edges), "loop_edges_kept": kept}
+        timings[f"vo_slam_{key}_s"] = time.perf_counter() - t1
     return {"flow": flow, "vo": vo, "slam": slam, "loops": loops, "timings": timings}
 
 
@@ -567,7 +614,7 @@ def run_stress(config: StressConfig, out: str | Path, resume: bool = False, prog
 
 def _run(config: StressConfig, out: Path, resume: bool, progress: bool | None) -> dict:
     from deepslam.core.progress import progress as progress_bar
-    from deepslam.core.sequence import open_sequence
+    from deepslam.core.readers import open_sequence
     from deepslam.slam.pipeline import SlamParams
 
     if out.exists() and not out.is_dir():
@@ -661,6 +708,7 @@ def _config_key(config: StressConfig, odometries: OdometrySet) -> dict:
         d.pop(k, None)
     d["odometry_used"] = odometries.kind
     d["odometry_description"] = odometries.description
+    d["plugin_names"] = {k: o.name for k, o in odometries.plugins.items()}
     return _clean(d)
 
 
@@ -713,7 +761,7 @@ def table_rows(rows: list[dict]) -> list[dict]:
                "deform_m": s["deform_amplitude_m"], "dynamic_pct": 100.0 * f["dynamic_fraction"],
                "epe_static_px": f["static_visible"]["epe_mean_px"], "epe_dynamic_px": f["moving"]["epe_mean_px"],
                "epe_dynamic_p95_px": f["moving"]["epe_p95_px"], "dynamic_pixels_compared": f["moving"]["pixels"]}
-        for flow in ("gt", "dis"):
+        for flow in r["vo"]:
             vo, sl = r["vo"].get(flow), r["slam"].get(flow)
             if vo is None:
                 continue
@@ -795,11 +843,39 @@ def _conclusion_text(c: dict) -> str:
     return text
 
 
+def odometry_columns(odometries: OdometrySet) -> dict:
+    """{column key: label} of every odometry the study measured: the main one on each flow source and
+    each plug-in."""
+    main = "learned" if odometries.kind == "model" else odometries.kind
+    cols = {f: f"{main} on {'ground-truth' if f == 'gt' else 'DIS'} flow" for f in odometries.cons}
+    cols.update({k: f"{o.name} (plug-in)" for k, o in odometries.plugins.items()})
+    return cols
+
+
+def side_by_side(flat: list[dict], odometries: OdometrySet) -> list[dict]:
+    """One entry per setting and odometry (the ``--json`` settings list): ``name``, ``odometry``,
+    ``dynamic_fraction``, ``flow_epe_dynamic_px``, ``vo_ate_m``, ``vo_rpe_t_m``, ``vo_rpe_r_deg``,
+    ``slam_ate_m``, ``loop_edges_kept``."""
+    out = []
+    for r in flat:
+        for key, label in odometry_columns(odometries).items():
+            if r.get(f"vo_ate_{key}_m") is None:
+                continue
+            out.append({"name": r["setting"], "odometry": label, "odometry_key": key,
+                        "dynamic_fraction": r["dynamic_pct"] / 100.0, "flow_epe_dynamic_px": r["epe_dynamic_px"],
+                        "vo_ate_m": r[f"vo_ate_{key}_m"], "vo_rpe_t_m": r.get(f"vo_rpe_t_{key}_m"),
+                        "vo_rpe_r_deg": r.get(f"vo_rpe_r_{key}_deg"), "slam_ate_m": r.get(f"slam_ate_{key}_m"),
+                        "loop_edges_kept": r.get(f"slam_loops_{key}")})
+    return out
+
+
 def build_report(config: StressConfig, settings, rows: list[dict], odometries: OdometrySet, elapsed_s: float,
                  notes: list[str] | None = None) -> dict:
     flat = table_rows(rows)
     return _clean({"format": RESULT_FORMAT, "config": config.to_dict(), "odometry": odometries.kind,
                    "odometry_description": odometries.description, "odometry_note": odometries.note,
+                   "plugins": {k: o.name for k, o in odometries.plugins.items()},
+                   "side_by_side": side_by_side(flat, odometries),
                    "notes": list(notes or []),
                    "settings": [dataclasses.asdict(s) for s in settings], "rows": flat, "results": rows,
                    "conclusion": conclusion(flat), "elapsed_s": elapsed_s})
@@ -838,6 +914,16 @@ def markdown(report: dict) -> str:
         cells += [_fmt(r.get("slam_ate_gt_m")), _fmt(r.get("slam_ate_dis_m")),
                   f"{r.get('slam_loops_gt', 'n/a')}/{r.get('slam_loops_dis', 'n/a')}"]
         lines.append("| " + " | ".join(cells) + " |")
+    if report.get("plugins"):
+        keys = sorted({e["odometry_key"] for e in report["side_by_side"]}, key=lambda k: (k not in ("gt", "dis"), k))
+        labels = {e["odometry_key"]: e["odometry"] for e in report["side_by_side"]}
+        lines += ["", "**Side by side** (VO ATE / SLAM ATE, m, SE3-aligned; plug-ins read the images themselves):", "",
+                  "| setting | dyn % | " + " | ".join(labels[k] for k in keys) + " |", "|---|---|" + "---|" * len(keys)]
+        by = {(e["name"], e["odometry_key"]): e for e in report["side_by_side"]}
+        for r in report["rows"]:
+            cells = [f"{_fmt(by[(r['setting'], k)]['vo_ate_m'])} / {_fmt(by[(r['setting'], k)]['slam_ate_m'])}"
+                     if (r["setting"], k) in by else "n/a" for k in keys]
+            lines.append(f"| {r['setting']} | {r['dynamic_pct']:.2f} | " + " | ".join(cells) + " |")
     lines += ["", "Settings: `kK_sS_aA` = K moving objects scaled by S, flags waving with amplitude A m.", "",
               "![flow EPE](stress_flow_epe.png)", "![VO ATE](stress_vo_ate.png)", "![VO RPE](stress_vo_rpe.png)",
               "![SLAM ATE](stress_slam_ate.png)", ""]
@@ -866,7 +952,7 @@ def plot_error(path: Path, rows: list[dict], ylabel: str, series: list[tuple[str
     fig = Figure(figsize=(7.0, 4.6), dpi=110)
     FigureCanvasAgg(fig)
     ax = fig.add_subplot(1, 1, 1)
-    colours = ["tab:red", "tab:blue", "tab:green", "tab:orange"]
+    colours = ["tab:red", "tab:blue", "tab:green", "tab:orange", "tab:purple", "tab:brown", "tab:pink", "tab:olive"]
     handles = []
     x_all = np.array([r["dynamic_pct"] for r in rows])
     order = np.argsort(x_all, kind="stable")
@@ -902,7 +988,11 @@ def write_outputs(out: Path, report: dict) -> None:
     """stress.json, stress.md and the four plots, each atomically."""
     cfg = report["config"]
     title = f"stress study ({cfg['scene']}, {report['odometry']})"
+    plugins = report.get("plugins", {})
     for name, (ylabel, series, log_y) in PLOTS.items():
+        key = series[0][0]
+        if key.startswith(("vo_", "slam_")) and plugins:
+            series = series + [(key.replace("_gt_", f"_{k}_"), f"{n} (plug-in)") for k, n in plugins.items()]
         plot_error(out / name, report["rows"], ylabel, series, log_y, title)
     atomic.write_json(out / "stress.json", report)
     atomic.write_text(out / "stress.md", markdown(report))

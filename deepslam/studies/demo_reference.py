@@ -1,6 +1,6 @@
 """Scoring of the published reference trajectories of ../shared/data/reference with this project's
-metrics: a table, top-down plots and the KITTI per-length errors. ``make demo`` (deepslam/demo_main.py)
-includes it as the metrics cross-check; ``python -m deepslam.demo_reference`` runs it alone.
+metrics: a table, top-down plots and the KITTI per-length errors. ``make demo`` (deepslam/studies/demo.py)
+includes it as the metrics cross-check; ``python -m deepslam.studies.demo_reference`` runs it alone.
 
 Pairs: ORB-SLAM2 and S-PTAM (stereo) on KITTI 00 against the official poses (the published
 ORB-SLAM2 figures are t_err 0.70 %, r_err 0.25 deg/100 m); an estimate on EuRoC V1_02 (TUM, seconds)
@@ -94,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     from deepslam.core.errors import InputError
     from deepslam.core.paths import out_dir, shared_data_dir
 
-    ap = argparse.ArgumentParser(prog="python -m deepslam.demo_reference", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m deepslam.studies.demo_reference", description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", type=Path, default=None, help="shared data folder (default: ../shared/data)")
     ap.add_argument("--out", type=Path, default=None, help="output folder (default: out/demo)")
     args = ap.parse_args(argv)

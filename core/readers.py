@@ -1,0 +1,34 @@
+"""``open_sequence``: the one entry point that opens any sequence folder deepslam reads.
+
+It dispatches on the folder's content to the readers (:mod:`deepslam.core.ours`,
+:mod:`deepslam.core.euroc`, :mod:`deepslam.core.kitti`), which build :class:`deepslam.core.sequence.Sequence`
+objects; keeping the dispatcher apart from the Sequence class keeps the imports one-way
+(sequence <- readers <- this module).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from deepslam.core.errors import InputError
+from deepslam.core.euroc import read_euroc
+from deepslam.core.kitti import read_kitti
+from deepslam.core.ours import read_ours
+from deepslam.core.sequence import Sequence
+
+
+def open_sequence(path: str | Path) -> Sequence:
+    """Open a KITTI odometry sequence folder (``.../sequences/NN``), an EuRoC ASL folder (holding
+    ``mav0``, or ``mav0`` itself) or a folder in our format (holding ``sequence.json``)."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(path, "sequence folder does not exist")
+    if not path.is_dir():
+        raise InputError(path, "not a folder")
+    if (path / "sequence.json").is_file():
+        return read_ours(path)
+    if (path / "mav0").is_dir() or path.name == "mav0":
+        return read_euroc(path)
+    if (path / "image_0").is_dir() or (path / "image_2").is_dir() or (path / "calib.txt").is_file():
+        return read_kitti(path)
+    raise InputError(path, "not a KITTI sequence (image_0/, calib.txt), EuRoC folder (mav0/) "
+                     "or deepslam sequence (sequence.json)")
