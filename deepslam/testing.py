@@ -51,7 +51,7 @@ def _render(out, scene: str, trajectory: str, frames: int, width, height, moving
 @pytest.fixture(scope="session")
 def sim_sequence(tmp_path_factory):
     """Factory of rendered sequences with ground truth, cached per session per set of arguments."""
-    from deepslam.core.sequence import open_sequence
+    from deepslam.core.readers import open_sequence
 
     cache: dict = {}
 

@@ -5,6 +5,8 @@ Output folder::
     run.json              the resolved configuration, written first (``--resume`` checks it)
     shard-000000.tar      samples [0, S), S = samples_per_shard
     shard-000001.tar      samples [S, 2S) ...
+    ledger.jsonl          while unfinished: {"shard", "sha256"} per shard written (fsynced); ``--resume``
+                          keeps a shard only if its bytes still hash to that record, and rebuilds the rest
     manifest.json         written last: config, seed, counts, sha256 and size of every shard
 
 Shard format (readable without this project; the WebDataset layout, so ``webdataset`` reads it too):
@@ -339,16 +341,31 @@ def _generate_locked(config: GenConfig, out_dir: Path, workers: int, backend: st
     atomic.write_json(run_json, want)
     for stale in out_dir.glob(".*.tmp*"):          # temporary files of a killed run
         stale.unlink(missing_ok=True)
+    recorded_by_manifest: dict[int, str] = {}
+    if resume and (out_dir / "manifest.json").is_file():
+        try:
+            old = json.loads((out_dir / "manifest.json").read_text())
+            recorded_by_manifest = {k: e["sha256"] for k, e in enumerate(old["shards"])}
+        except (OSError, ValueError, KeyError, TypeError):
+            pass
     (out_dir / "manifest.json").unlink(missing_ok=True)
 
+    # Integrity on resume: a shard is kept only when its bytes hash to what this run's ledger recorded
+    # when it wrote it (a damaged or foreign file is rebuilt, never re-hashed into the manifest).
+    ledger_path = out_dir / LEDGER
+    recorded = {**recorded_by_manifest, **_read_ledger(ledger_path)} if resume else {}
+    if not resume:
+        ledger_path.unlink(missing_ok=True)
     done: dict[int, tuple[str, int, int]] = {}
     todo = []
     for shard in range(config.num_shards):
         path = out_dir / SHARD_PATTERN.format(shard)
-        if path.is_file() and _shard_ok(path, config, shard):
-            done[shard] = (_sha256_file(path), len(config.shard_range(shard)), path.stat().st_size)
+        if (path.is_file() and shard in recorded and _shard_ok(path, config, shard)
+                and _sha256_file(path) == recorded[shard]):
+            done[shard] = (recorded[shard], len(config.shard_range(shard)), path.stat().st_size)
         else:
             todo.append(shard)
+    ledger = open(ledger_path, "a", encoding="utf-8")
 
     bar_opts = {} if progress is None else {"disable": not progress}
     bar = progress_bar(total=config.num_samples, unit="sample", desc="gen", **bar_opts)
@@ -356,6 +373,9 @@ def _generate_locked(config: GenConfig, out_dir: Path, workers: int, backend: st
 
     def on_done(shard: int, sha: str, n: int, size: int) -> None:
         done[shard] = (sha, n, size)
+        ledger.write(json.dumps({"shard": shard, "sha256": sha}) + "\n")
+        ledger.flush()
+        os.fsync(ledger.fileno())
         bar.update(n)
 
     try:
@@ -365,6 +385,7 @@ def _generate_locked(config: GenConfig, out_dir: Path, workers: int, backend: st
             _run_ray(config, todo, out_dir, workers, on_done, source_path)
     finally:
         bar.close()
+        ledger.close()
 
     manifest = {
         "format": FORMAT, "version": VERSION,
@@ -381,7 +402,28 @@ def _generate_locked(config: GenConfig, out_dir: Path, workers: int, backend: st
                    for s in range(config.num_shards)],
     }
     atomic.write_json(out_dir / "manifest.json", manifest)
+    ledger_path.unlink(missing_ok=True)  # the manifest now holds the same record
     return manifest
+
+
+LEDGER = "ledger.jsonl"
+"""While a run is unfinished: one line ``{"shard", "sha256"}`` per shard written, fsynced."""
+
+
+def _read_ledger(path: Path) -> dict[int, str]:
+    """{shard: sha256} of a ledger; lines that do not parse (a torn last line) are ignored."""
+    out: dict[int, str] = {}
+    try:
+        lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+    except OSError:
+        return out
+    for line in lines:
+        try:
+            rec = json.loads(line)
+            out[int(rec["shard"])] = str(rec["sha256"])
+        except (ValueError, KeyError, TypeError):
+            continue
+    return out
 
 
 # -------------------------------------------------------------------------------------------- reading
@@ -427,3 +469,51 @@ def verify(out_dir: str | Path) -> dict:
         if _sha256_file(shard) != entry["sha256"]:
             raise InputError(shard, "sha256 differs from the manifest")
     return manifest
+
+
+def load_samples(out_dir: str | Path) -> dict[str, np.ndarray]:
+    """Every sample of a finished ``deepslam gen`` folder, verified against its manifest, as arrays in
+    the layout the network trains on: ``flow`` (N, 2, h, w) float32 px, ``valid`` (N, h, w) bool,
+    ``intrinsics`` (N, 4) float32, ``target`` (N, 6) float32, ``frame`` (N,) int64 source frame.
+
+    Raises:
+        InputError: no manifest (an unfinished run), a damaged or missing shard, a malformed sample.
+    """
+    out_dir = Path(out_dir)
+    manifest = verify(out_dir)
+    flows, valids, intr, target, frames = [], [], [], [], []
+    for entry in manifest["shards"]:
+        shard = out_dir / entry["name"]
+        for s in read_shard(shard):
+            try:
+                flows.append(np.ascontiguousarray(np.moveaxis(s["flow"], -1, 0), dtype=np.float32))
+                valids.append(np.asarray(s["valid"], dtype=bool))
+                intr.append(np.asarray(s["intrinsics"], dtype=np.float32).reshape(4))
+                target.append(np.asarray(s["target"], dtype=np.float32).reshape(6))
+                frames.append(int(s["meta"]["frame"]))
+            except (KeyError, ValueError, TypeError) as e:
+                raise InputError(shard, f"malformed sample ({type(e).__name__}: {e})") from None
+    if not flows:
+        raise InputError(out_dir, "the shards hold no samples")
+    shapes = {f.shape for f in flows}
+    if len(shapes) != 1:
+        raise InputError(out_dir, f"samples of different sizes: {sorted(shapes)}")
+    return {"flow": np.stack(flows), "valid": np.stack(valids), "intrinsics": np.stack(intr),
+            "target": np.stack(target), "frame": np.asarray(frames, dtype=np.int64)}
+
+
+class ShardDataset:
+    """The samples of a ``deepslam gen`` folder as a map-style dataset for a plain
+    ``torch.utils.data.DataLoader`` (``len`` and ``[i]`` -> dict of tensors: ``flow`` (2, h, w),
+    ``valid`` (h, w), ``intrinsics`` (4,), ``target`` (6,)). Loads and verifies everything up front."""
+
+    def __init__(self, out_dir: str | Path):
+        self.arrays = load_samples(out_dir)
+
+    def __len__(self) -> int:
+        return len(self.arrays["target"])
+
+    def __getitem__(self, i: int) -> dict:
+        import torch
+
+        return {k: torch.from_numpy(self.arrays[k][i]) for k in ("flow", "valid", "intrinsics", "target")}

@@ -44,6 +44,10 @@ class SceneConfig:
     """Amplitude of the waving flags in metres; 0 leaves the flags static (part of the static scene)."""
     texture_px_per_m: float | None = None
     """Texel density of the procedural textures, texels per metre (None: street 20, room 100)."""
+    varied_layout: bool = False
+    """Street only: a narrow, crowded variant of the town from the seed (narrower pavements, so
+    facades closer; more parked cars, trees and poles near the kerb), like KITTI's residential
+    streets (:meth:`scenes.street.StreetLayout.varied`). False: the original town."""
 
     def validate(self) -> "SceneConfig":
         if self.name not in SCENE_NAMES:
@@ -69,9 +73,14 @@ def build_scene(config: SceneConfig):
     config.validate()
     rng = np.random.default_rng(config.seed)
     if config.name == "street":
-        from deepslam.scenes.street import build_street as builder
+        from deepslam.scenes.street import StreetLayout, build_street
+
+        layout = StreetLayout.varied(config.seed) if config.varied_layout else StreetLayout()
+        scene = build_street(config.seed, config.px_per_m, config.moving_objects, float(config.deform_amplitude_m), rng,
+                             layout)
     else:
-        from deepslam.scenes.room import build_room as builder
-    scene = builder(config.seed, config.px_per_m, config.moving_objects, float(config.deform_amplitude_m), rng)
+        from deepslam.scenes.room import build_room
+
+        scene = build_room(config.seed, config.px_per_m, config.moving_objects, float(config.deform_amplitude_m), rng)
     scene.config = config
     return scene

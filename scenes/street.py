@@ -16,6 +16,8 @@ the sidewalks on the ego's right, facing the traffic.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from deepslam.core.camera import PinholeCamera
@@ -33,25 +35,57 @@ CAMERA_HEIGHT_M = 1.65
 EGO_CORNER_RADIUS_M = 12.0
 MOVER_CORNER_RADIUS_M = 6.0
 
+@dataclasses.dataclass(frozen=True)
+class StreetLayout:
+    """What lines the road: how far back the facades stand and how densely cars, trees and poles
+    crowd the kerb. The defaults are the original town's (wide pavements, every other parking bay
+    taken); :meth:`varied` draws a KITTI-residential-like variant from a seed."""
+
+    sidewalk_m: float = SIDEWALK_M
+    """Pavement width between the road edge and the facades, metres."""
+    park_offset_m: float = PARK_OFFSET_M
+    """Distance of the parked cars' centres from the road's centreline, metres (>= 3.8 keeps them
+    clear of the cars driving in the lanes)."""
+    park_probability: float = 0.55
+    """Chance that a parking bay holds a car."""
+    park_gap_m: tuple[float, float] = (0.8, 6.0)
+    """Range of the extra gap between parked cars, metres (plus the 4.4 m car)."""
+    tree_offset_m: float = 1.3
+    """Distance of the trees from the road edge, metres."""
+    tree_probability: float = 0.7
+    """Chance of a tree half-way between two poles."""
+    pole_gap_m: tuple[float, float] = (18.0, 30.0)
+    """Range of the distance between lamp poles (a tree or bin half-way), metres."""
+
+    @classmethod
+    def varied(cls, seed: int) -> "StreetLayout":
+        """A narrow, crowded variant (its own random stream: the rest of the town is unchanged)."""
+        rng = np.random.default_rng([int(seed), 0x57EE7])
+        return cls(sidewalk_m=float(rng.uniform(1.5, 3.5)), park_offset_m=float(rng.uniform(3.8, 4.75)),
+                   park_probability=float(rng.uniform(0.7, 0.95)),
+                   park_gap_m=(0.5, float(rng.uniform(1.5, 3.0))), tree_offset_m=float(rng.uniform(0.6, 1.3)),
+                   tree_probability=float(rng.uniform(0.8, 1.0)), pole_gap_m=(10.0, float(rng.uniform(14.0, 20.0))))
+
+
 KITTI_CAMERA = PinholeCamera(1241, 376, 718.856, 718.856, 620.0, 187.5)
 """KITTI-like default: 1241x376, fx = fy = 718.856 (KITTI 00-02), principal point at the centre."""
 KITTI_BASELINE_M = 0.54
 
 
 def build_street(seed: int, px_per_m: float, moving_objects: int, deform_amplitude_m: float,
-                 rng: np.random.Generator) -> Scene:
+                 rng: np.random.Generator, layout: StreetLayout = StreetLayout()) -> Scene:
     bx = float(rng.uniform(56.0, 60.0))
     by = float(rng.uniform(44.0, 46.0))
     sun = np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.6, -0.2), 0.8])
     asm = Assembler(px_per_m, rng, sun_dir=sun, ambient=0.6)
     _roads(asm, bx, by)
-    _sidewalks_and_ground(asm, bx, by)
-    _buildings(asm, bx, by, rng)
-    _parked_cars(asm, bx, by, rng)
+    _sidewalks_and_ground(asm, bx, by, layout)
+    _buildings(asm, bx, by, rng, layout)
+    _parked_cars(asm, bx, by, rng, layout)
     flag_sites = [((0.62 * bx, -ROAD_HALF_M - 0.5), (0, -1)), ((bx + ROAD_HALF_M + 0.5, 0.45 * by), (1, 0)),
                   ((0.38 * bx, by + ROAD_HALF_M + 0.5), (0, 1)), ((-ROAD_HALF_M - 0.5, 0.55 * by), (-1, 0)),
                   ((1.5 * bx, -ROAD_HALF_M - 0.5), (0, -1)), ((2 * bx + ROAD_HALF_M + 0.5, 0.5 * by), (1, 0))]
-    _street_furniture(asm, bx, by, rng, avoid_xy=np.array([p for p, _ in flag_sites]))
+    _street_furniture(asm, bx, by, rng, avoid_xy=np.array([p for p, _ in flag_sites]), layout=layout)
 
     # ego route: loop around block A (counter-clockwise), then around both blocks
     centre_corners = np.array([(0.5 * bx, 0), (bx, 0), (bx, by), (0, by), (0, 0), (2 * bx, 0), (2 * bx, by), (0, by), (0, 0)], float)
@@ -191,8 +225,8 @@ def _slab(asm: Assembler, x0, x1, y0, y1, painter, kerb_faces=(), density=1.0) -
     asm.box(((x0 + x1) / 2, (y0 + y1) / 2, KERB_M / 2), ((x1 - x0) / 2, (y1 - y0) / 2, KERB_M / 2), faces, densities=dens)
 
 
-def _sidewalks_and_ground(asm: Assembler, bx: float, by: float) -> None:
-    r, s = ROAD_HALF_M, SIDEWALK_M
+def _sidewalks_and_ground(asm: Assembler, bx: float, by: float, layout: StreetLayout) -> None:
+    r, s = ROAD_HALF_M, layout.sidewalk_m
     pave = tx.paving()
     ground = tx.grass
     for x0, x1 in ((r, bx - r), (bx + r, 2 * bx - r)):   # block interiors
@@ -248,8 +282,8 @@ def _row(asm: Assembler, a0: float, a1: float, frontage: float, depth: float, al
             a += float(rng.uniform(2.0, 5.0))   # an alley
 
 
-def _buildings(asm: Assembler, bx: float, by: float, rng) -> None:
-    f = ROAD_HALF_M + SIDEWALK_M
+def _buildings(asm: Assembler, bx: float, by: float, rng, layout: StreetLayout) -> None:
+    f = ROAD_HALF_M + layout.sidewalk_m
     for x0, x1 in ((f, bx - f), (bx + f, 2 * bx - f)):   # block interiors
         y0, y1 = f, by - f
         d_bot, d_top, d_side = (float(rng.uniform(8.0, 12.0)) for _ in range(3))
@@ -296,7 +330,7 @@ def _road_segments(bx: float, by: float):
     return segs
 
 
-def _parked_cars(asm: Assembler, bx: float, by: float, rng) -> None:
+def _parked_cars(asm: Assembler, bx: float, by: float, rng, layout: StreetLayout) -> None:
     for (ax, ay), (bx_, by_) in _road_segments(bx, by):
         d = np.array([bx_ - ax, by_ - ay])
         length = float(np.linalg.norm(d))
@@ -305,14 +339,15 @@ def _parked_cars(asm: Assembler, bx: float, by: float, rng) -> None:
         for side in (-1.0, 1.0):
             s = float(rng.uniform(4.0, 10.0))
             while s < length - 6.0:
-                if rng.random() < 0.55:
-                    p = np.array([ax, ay]) + d * s + normal * side * PARK_OFFSET_M
+                if rng.random() < layout.park_probability:
+                    p = np.array([ax, ay]) + d * s + normal * side * layout.park_offset_m
                     yaw = float(np.arctan2(d[1], d[0]) + (0 if side < 0 else np.pi))
                     _car(asm, None, p, yaw + float(rng.normal(0, 0.03)), rng.uniform(20, 235, 3), z0=0.0)
-                s += 4.4 + float(rng.uniform(0.8, 6.0))
+                s += 4.4 + float(rng.uniform(*layout.park_gap_m))
 
 
-def _street_furniture(asm: Assembler, bx: float, by: float, rng, avoid_xy: np.ndarray) -> None:
+def _street_furniture(asm: Assembler, bx: float, by: float, rng, avoid_xy: np.ndarray,
+                      layout: StreetLayout = StreetLayout()) -> None:
     """Lamp poles (some with signs), trees and bins along every sidewalk, none within 3.5 m of
     ``avoid_xy`` (N, 2) (the flags)."""
     r = ROAD_HALF_M
@@ -330,7 +365,7 @@ def _street_furniture(asm: Assembler, bx: float, by: float, rng, avoid_xy: np.nd
             while s < length - 3.0:
                 base = np.array([ax, ay]) + d * s
                 pole = base + normal * side * (r + 0.5)
-                gap = float(rng.uniform(18.0, 30.0))
+                gap = float(rng.uniform(*layout.pole_gap_m))
                 if not free(pole):
                     s += gap
                     continue
@@ -347,10 +382,10 @@ def _street_furniture(asm: Assembler, bx: float, by: float, rng, avoid_xy: np.nd
                             "+y": tx.metal(), "-y": tx.metal(), "+z": tx.metal()}, yaw=yaw_sign, densities={"+x": 3.0, "-x": 3.0})
                 # a tree half-way to the next pole, sometimes a bin
                 t = s + gap / 2
-                tree = np.array([ax, ay]) + d * t + normal * side * (r + 1.3)
+                tree = np.array([ax, ay]) + d * t + normal * side * (r + layout.tree_offset_m)
                 if not free(tree):
                     pass
-                elif t < length - 3.0 and rng.random() < 0.7:
+                elif t < length - 3.0 and rng.random() < layout.tree_probability:
                     asm.box((tree[0], tree[1], KERB_M + 1.4), (0.14, 0.14, 1.4), _all_sides(tx.bark), yaw=float(rng.uniform(0, np.pi)))
                     for _ in range(int(rng.integers(2, 4))):
                         hc = rng.uniform(0.7, 1.4, 3) * [1, 1, 0.8]

@@ -11,7 +11,7 @@ from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
 from deepslam.cli import main
-from deepslam.stress import RigidFitOdometry, Setting, StressConfig, run_stress, setting_scene
+from deepslam.studies.stress import RigidFitOdometry, Setting, StressConfig, run_stress, setting_scene
 
 # room seed 1: the table's flags fill ~6 % of the first frames and 16 flying boxes ~3 %
 TINY = StressConfig(scene="room", seed=1, frames=6, width=96, objects=(0, 16), object_sizes=(1.0,), size_objects=16,
@@ -90,7 +90,7 @@ def test_bad_input_one_line_exit_2(tmp_path, capsys):
     cases = [(["--scene", "moon"], "unknown scene"), (["--objects", ""], "empty"), (["--deform", "-0.1"], "non-negative"),
              (["--deform", "0.2,x"], "not a number"), (["--object-size", "0"], "object size"),
              (["--objects", "1,2.5"], "not an integer"), (["--frames", "2"], "frames"),
-             (["--odometry", "oracle"], "unknown odometry"), (["--deform", "0.5"], "at most"),
+             (["--odometry", "oracle"], "unknown plugin 'oracle'"), (["--deform", "0.5"], "at most"),
              (["--model-cons", str(tmp_path / "missing.pt")], "missing.pt"),
              (["--odometry", "rigid-fit", "--model-cons", "kitti"], "rigid-fit uses no model")]
     for extra, what in cases:
@@ -148,7 +148,7 @@ def test_rigid_fit_recovers_motion_and_is_pulled_by_a_mover():
 
 
 def test_falls_back_to_rigid_fit_with_a_note_when_no_model_is_shipped(tmp_path, monkeypatch):
-    from deepslam.stress import make_odometries
+    from deepslam.studies.stress import make_odometries
     from deepslam.vo import models
 
     monkeypatch.setattr(models, "models_dir", lambda: tmp_path)  # an empty models/ folder

@@ -10,22 +10,20 @@ HELP = "describe a sequence folder (KITTI, EuRoC or deepslam format) and check t
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("sequence", help="sequence folder: KITTI sequences/NN, EuRoC (holding mav0/), or ours")
-    p.add_argument("--check", action="store_true", help="decode every image (finds missing/truncated files)")
+    p.add_argument("--check", action="store_true", help="decode every file of every frame and check it: image sizes against the camera, "
+                   "depth/flow shapes and finite values, mask sizes, increasing timestamps")
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 
 def run(args: argparse.Namespace) -> int:
     from deepslam.core.progress import progress
-    from deepslam.core.sequence import open_sequence
+    from deepslam.core.readers import open_sequence
 
     seq = open_sequence(args.sequence)
     if args.check:
+        seq.check_timestamps()
         for i in progress(range(len(seq)), desc="checking", unit="frame", disable=True if args.json else None):
-            seq.image(i)
-            if seq.right_paths is not None:
-                seq.image_right(i)
-            if seq.has_depth:
-                seq.depth(i)
+            seq.check(i)
     info = {
         "name": seq.name, "kind": seq.kind, "frames": len(seq), "camera": seq.camera.to_dict(),
         "baseline_m": seq.baseline_m, "has_ground_truth": seq.gt is not None,

@@ -27,6 +27,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sequence", default="00", help="KITTI sequence number NN (default 00)")
     p.add_argument("--no-flow", action="store_true", help="skip the ground-truth flow")
     p.add_argument("--resume", action="store_true", help="finish an interrupted render in --out (same settings)")
+    p.add_argument("--varied-layout", action="store_true",
+                   help="street: a narrow, crowded variant of the town from the seed (closer facades, more parked "
+                        "cars and trees by the kerb), like KITTI's residential streets")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -37,7 +40,8 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = SimConfig(
         SceneConfig(name=args.scene, seed=args.seed, moving_objects=args.moving_objects,
-                    deform_amplitude_m=args.deform, texture_px_per_m=args.texture_density),
+                    deform_amplitude_m=args.deform, texture_px_per_m=args.texture_density,
+                    varied_layout=args.varied_layout),
         TrajectoryConfig(kind=args.trajectory, frames=args.frames, rate_hz=args.rate),
         RenderConfig(backend=args.backend, width=args.width, height=args.height,
                      stereo_baseline_m=args.stereo_baseline, flow=not args.no_flow),

@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
 
     from deepslam.core import atomic, metrics, plots
     from deepslam.core.errors import InputError
-    from deepslam.core.sequence import open_sequence
+    from deepslam.core.readers import open_sequence
     from deepslam.core.trajio import write_trajectory
     from deepslam.slam import plugins
     from deepslam.slam.pipeline import PipelineConfig, SlamParams, run_slam

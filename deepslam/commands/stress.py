@@ -4,7 +4,7 @@ Sweeps the number and size of moving objects and the flags' deformation amplitud
 every setting renders a short sequence and measures the synthesized-vs-true flow error on dynamic and
 static pixels, the VO error (learned odometry on ground-truth and on DIS flow) and the SLAM error.
 Writes ``stress.md`` (table + conclusion), ``stress.json``, ``config.json`` and four PNG plots of the
-errors against the fraction of dynamic pixels into ``--out``. See :mod:`deepslam.stress`.
+errors against the fraction of dynamic pixels into ``--out``. See :mod:`deepslam.studies.stress`.
 """
 from __future__ import annotations
 
@@ -34,9 +34,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--combined", action="store_true", help="add a setting with the most of everything")
     p.add_argument("--seed", type=int, default=0, metavar="S", help="scene and trajectory seed (default 0)")
     p.add_argument("--backend", default="mujoco", help="renderer: mujoco (default) or pyrender")
-    p.add_argument("--odometry", default="model",
+    p.add_argument("--odometry", action="append", default=None, metavar="ODOMETRY",
                    help="model (learned NN_cons/NN_loops; falls back to rigid-fit, noted, when none is available) "
-                        "or rigid-fit (least-squares rigid motion from flow + depth over all pixels)")
+                        "or rigid-fit (least-squares rigid motion from flow + depth over all pixels); repeat to add "
+                        "plug-ins measured side by side (MODULE:FACTORY or an entry-point name, e.g. pnp: SIFT + "
+                        "PnP with depth), in one table and one plot")
+    p.add_argument("--json", action="store_true", help="print one JSON object: {\"settings\": [one entry per "
+                   "setting and odometry], \"conclusion\", \"out\"}")
     p.add_argument("--model-cons", default=None, metavar="M", help="NN_cons model file or shipped name (default: shipped)")
     p.add_argument("--model-loops", default=None, metavar="M", help="NN_loops model file or shipped name (default: shipped)")
     p.add_argument("--dis-preset", default="medium", help="DIS optical flow preset: ultrafast, fast, medium (default)")
@@ -68,14 +72,17 @@ def parse_list(text: str, kind, what: str) -> tuple:
 
 
 def config_from_args(args: argparse.Namespace):
-    """The :class:`deepslam.stress.StressConfig` of the command line (validated)."""
-    from deepslam.stress import StressConfig
+    """The :class:`deepslam.studies.stress.StressConfig` of the command line (validated)."""
+    from deepslam.studies.stress import StressConfig
 
     base = StressConfig()
     quick = QUICK if args.quick else {}
+    given = list(args.odometry or [])
+    main_odometry = given.pop(0) if given and given[0] in ("model", "rigid-fit") else "model"
+    plugins = tuple(given)
     kw = {
         "scene": args.scene, "width": args.width, "seed": args.seed, "backend": args.backend,
-        "odometry": args.odometry, "model_cons": args.model_cons, "model_loops": args.model_loops,
+        "odometry": main_odometry, "plugins": plugins, "model_cons": args.model_cons, "model_loops": args.model_loops,
         "dis_preset": args.dis_preset, "slam_params": args.params, "loops": not args.no_loops,
         "keep_sequences": args.keep_sequences, "combined": args.combined, "threads": args.threads,
         "size_objects": args.size_objects,
@@ -101,13 +108,19 @@ def run(args: argparse.Namespace) -> int:
         # of 400 x 400 descriptors) ran 6x faster with one thread than with two on a busy 2-core machine
         os.environ.setdefault("OPENBLAS_NUM_THREADS", str(args.threads))
 
-    from deepslam.stress import run_stress
+    from deepslam.studies.stress import run_stress
 
     config = config_from_args(args)
     t0 = time.perf_counter()
-    report = run_stress(config, args.out, resume=args.resume)
+    report = run_stress(config, args.out, resume=args.resume, progress=False if args.json else None)
     out = Path(args.out)
     rows = report["rows"]
+    if args.json:
+        import json
+
+        print(json.dumps({"settings": report["side_by_side"], "conclusion": report["conclusion"]["text"],
+                          "odometry": report["odometry_description"], "out": str(out)}))
+        return 0
     print(f"{len(rows)} settings in {time.perf_counter() - t0:.0f} s; odometry: {report['odometry_description']}")
     if report.get("odometry_note"):
         print(f"note: {report['odometry_note']}")

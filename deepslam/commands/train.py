@@ -44,6 +44,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.safetensors")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--json", action="store_true", help="no progress; print one JSON object at the end: model, "
+                   "stop_reason, epochs, best_val_loss, holdout_nll, out")
     g = p.add_argument_group("data (synthetic)")
     g.add_argument("--frames", nargs="+", default=[], metavar="DIR",
                    help="sequences whose single frames (with depth) are the training images")
@@ -79,6 +81,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--sample-pool", type=int, default=0, metavar="N",
                    help="make N synthetic samples once and train on passes over them (an epoch is one pass) "
                         "instead of fresh samples every epoch: for an expensive --synthetic-flow (0 = fresh)")
+    g.add_argument("--shards", default=None, metavar="DIR",
+                   help="train on the samples of a finished `deepslam gen` folder (verified against its manifest; "
+                        "flow at the network's input size) instead of synthesizing on the fly")
     g.add_argument("--toy", type=int, default=0, metavar="N",
                    help="instead of frames: N toy samples (flow of random motions over a ground plane)")
     g = p.add_argument_group("data (supervised)")
@@ -177,7 +182,9 @@ def speed_summary(cfg, preset: str, data_meta: dict, n_train: int, n_hold: int) 
 
     net = cfg.net
     threads = cfg.threads or torch.get_num_threads()
-    if "toy_samples" in data_meta:
+    if "shards" in data_meta:
+        source = f"deepslam gen shards in {data_meta['shards']}"
+    elif "toy_samples" in data_meta:
         source = f"{data_meta['toy_samples']} toy ground-plane samples"
     elif "frames" in data_meta:
         flow = data_meta.get("synthetic_flow") or f"exact synthetic flow at {data_meta.get('synth_factor')}x, pooled"
@@ -226,7 +233,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from deepslam.core.errors import InputError
-    from deepslam.core.sequence import open_sequence
+    from deepslam.core.readers import open_sequence
     from deepslam.vo import data
     from deepslam.vo.infer import cpu_has_native_bf16
     from deepslam.vo.train import TrainConfig, TrainingDiverged, train
@@ -242,11 +249,14 @@ def run(args: argparse.Namespace) -> int:
                       bf16=bf16, channels_last=args.channels_last == "on", threads=args.threads)
     if not 0 < args.holdout < 1:
         raise InputError(None, f"--holdout must be in (0, 1), got {args.holdout}")
-    progress = not args.quiet
+    progress = not (args.quiet or args.json)
     h, w = net.input_height, net.input_width
     meta: dict = {"mode": args.mode}
     if args.mode == "synthetic":
-        if args.toy:
+        if args.shards:
+            train_src, hold_src = data.shard_samples(args.shards, args.holdout, args.seed, h, w)
+            meta["data"] = {"shards": str(args.shards), "n_train": len(train_src), "n_holdout": len(hold_src)}
+        elif args.toy:
             from deepslam.core.camera import PinholeCamera
 
             cam = PinholeCamera(1241, 376, 718.856, 718.856, 607.1928, 185.2157).scaled(w, h)
@@ -330,5 +340,12 @@ def run(args: argparse.Namespace) -> int:
     except TrainingDiverged as e:
         print(f"deepslam train: error: {e}", file=sys.stderr)
         return 2
+    if args.json:
+        import json
+
+        print(json.dumps({"model": str(res.model_path), "stop_reason": res.stop_reason,
+                          "epochs": sum(1 for h in res.history if h["stage"] == 1), "best_val_loss": res.best_val_loss,
+                          "holdout_nll": res.holdout_nll, "out": str(args.out)}))
+        return 0
     print(f"model: {res.model_path}")
     return 0

@@ -57,6 +57,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--keyframe-stride", type=int, default=1, metavar="K", help="relocalize every K-th frame")
     p.add_argument("--robust", choices=("none", "huber", "cauchy"), default="cauchy", help="robust kernel on loops")
     p.add_argument("--vocabulary", default=None, metavar="NPZ", help="BoW vocabulary (default: train per sequence)")
+    p.add_argument("--json", action="store_true", help="print one JSON object: c_s, c_r, t_loop, score, best_score, "
+                   "evaluations, method, vo_ate_m (per sequence), out")
     p.add_argument("--odometry", default="model", metavar="MODULE:FACTORY|NAME",
                    help="consecutive-frame odometry: model (default) or a plug-in (see deepslam slam --help)")
     p.add_argument("--odometry-loops", default=None, metavar="MODULE:FACTORY|NAME", help="loop-pair odometry plug-in")
@@ -69,7 +71,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from deepslam.core.errors import InputError
-    from deepslam.core.sequence import open_sequence
+    from deepslam.core.readers import open_sequence
     from deepslam.slam.plugins import odometry_from_args
     from deepslam.slam.pipeline import PipelineConfig, prepare
     from deepslam.slam.posegraph import PoseGraphConfig
@@ -92,10 +94,17 @@ def run(args: argparse.Namespace) -> int:
         odo_cons, odo_loops = odometry_from_args(args, seq)
         prep = prepare(seq, odo_cons, odo_loops, config, vocab)
         problems.append(problem_from_prepared(prep, graph, name=str(path)))
-    res = tune(problems, space, args.method, args.score, show_progress=True)
+    res = tune(problems, space, args.method, args.score, show_progress=not args.json)
     extra = {"tuned_on": [str(s) for s in args.sequence], "vo_ate_m": {p.name: p.vo_ate_m for p in problems},
              "robust": args.robust, "keyframe_stride": args.keyframe_stride, **res.to_dict()}
     res.best.save(args.out, extra)
+    if getattr(args, "json", False):
+        import json
+
+        print(json.dumps({"c_s": res.best.c_s, "c_r": res.best.c_r, "t_loop": res.best.t_loop, "score": res.score,
+                          "best_score": res.best_score, "evaluations": res.evaluations, "method": res.method,
+                          "vo_ate_m": extra["vo_ate_m"], "out": str(args.out)}))
+        return 0
     rows = sorted(res.rows, key=lambda r: r["score"])
     out = [f"{'C_s':>8}{'C_r':>8}{'T_loop':>8}{'score':>12}"]
     for r in rows[:10]:

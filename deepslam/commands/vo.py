@@ -37,6 +37,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--odometry-command", default=None, metavar="'CMD {sequence} {out}'",
                    help="an external program that reads the sequence folder and writes a KITTI or TUM trajectory "
                         "to {out}; its poses become the relative motions")
+    p.add_argument("--json", action="store_true", help="print one JSON object: out, poses, format, model_name, and "
+                   "metrics (ATE, RPE, drift: see deepslam eval --json) when the sequence has ground truth")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -47,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
 
     from deepslam.core import atomic, se3, trajio
     from deepslam.core.errors import InputError
-    from deepslam.core.sequence import open_sequence
+    from deepslam.core.readers import open_sequence
     from deepslam.core.trajectory import Trajectory
     from deepslam.slam import plugins
     from deepslam.vo import flow_estimators, models
@@ -75,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
         estimator = flow_estimators.make(args.flow, **opts)
         bf16 = None if args.bf16 == "auto" else args.bf16 == "on"
         predictor = models.resolve(args.model, seq, flow=estimator, batch_size=args.batch, bf16=bf16)
-        mean6, std6 = predictor.predict_pairs(seq, pairs, estimator, progress=not args.quiet)
+        mean6, std6 = predictor.predict_pairs(seq, pairs, estimator, progress=not (args.quiet or args.json))
         name = predictor.name
     world_from_cam = chain_euler6(mean6)
     est = Trajectory(world_from_cam, seq.timestamps_s[frames])
@@ -98,7 +100,8 @@ def run(args: argparse.Namespace) -> int:
                       model_net=predictor.model.cfg.to_dict(), flow=getattr(estimator, "name", args.flow),
                       bf16=predictor.bf16, batch=args.batch)
     atomic.write_json(Path(f"{stem}.config.json"), config)
-    print(f"wrote {out} ({len(frames)} poses, {fmt}) and {stem}.motions.csv")
+    say = (lambda *a, **k: None) if args.json else print
+    say(f"wrote {out} ({len(frames)} poses, {fmt}) and {stem}.motions.csv")
 
     if seq.gt is not None:
         from deepslam.core import metrics, plots
@@ -116,6 +119,12 @@ def run(args: argparse.Namespace) -> int:
                 f"RPE {res['rpe_t_m']:.3f} m / {res['rpe_r_deg']:.3f} deg per {args.stride} frame(s)")
         if "kitti_t_err_pct" in res:
             line += f", KITTI t_err {res['kitti_t_err_pct']:.2f} %, r_err {res['kitti_r_err_deg_per_100m']:.2f} deg/100 m"
-        print(line)
-        print(f"wrote {stem}.metrics.json and {stem}.png")
+        line += f"; path x{res['path_length_ratio']:.3f}, end-point drift {res['endpoint_drift_pct']:.1f} % of the path"
+        say(line)
+        say(f"wrote {stem}.metrics.json and {stem}.png")
+    if args.json:
+        import json
+
+        print(json.dumps({"out": str(out), "poses": int(len(frames)), "format": fmt, "model_name": name,
+                          "metrics": report if seq.gt is not None else None}))
     return 0

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from deepslam.core import trajio
-from deepslam.core.sequence import open_sequence
+from deepslam.core.readers import open_sequence
 
 PLUGIN = '''
 import numpy as np
@@ -164,3 +164,43 @@ def test_bad_command_is_one_line_exit_2(mode, what, plugin_dir, seq_dir, tmp_pat
         rc, cap = _main([command, "--sequence", seq_dir, "--odometry-command", cmd, "--out", tmp_path / "t.txt"], capsys)
         lines = cap.err.strip().splitlines()
         assert rc == 2 and len(lines) == 1 and what in lines[0], (command, cap.err)
+
+
+@pytest.mark.slow
+def test_stress_compares_the_network_and_the_classical_plugin_side_by_side(tmp_path, capsys):
+    import json
+
+    out = tmp_path / "stress"
+    rc, cap = _main(["stress", "--quick", "--frames", "40", "--objects", "0,8", "--deform", "0", "--no-loops",
+                     "--size-objects", "0", "--odometry", "model", "--odometry", "pnp", "--out", out, "--json"], capsys)
+    assert rc == 0, cap.err
+    doc = json.loads(cap.out.strip().splitlines()[-1])
+    entries = doc["settings"]
+    names = {e["name"] for e in entries}
+    assert names == {"k0_s1_a0", "k8_s1_a0"}
+    for name in names:
+        odos = {e["odometry_key"] for e in entries if e["name"] == name}
+        assert odos == {"gt", "dis", "pnp-sift"}
+    for e in entries:
+        assert set(e) >= {"name", "odometry", "dynamic_fraction", "flow_epe_dynamic_px", "vo_ate_m", "slam_ate_m"}
+        assert e["vo_ate_m"] >= 0 and 0 <= e["dynamic_fraction"] < 1
+    static_pnp = next(e for e in entries if e["name"] == "k0_s1_a0" and e["odometry_key"] == "pnp-sift")
+    assert static_pnp["vo_ate_m"] < 0.5  # SIFT + PnP with exact depth on a static street
+    md = (out / "stress.md").read_text()
+    assert "Side by side" in md and "pnp-sift (plug-in)" in md
+    assert (out / "stress_vo_ate.png").stat().st_size > 0
+
+
+def test_vo_and_train_json(seq_dir, plugin_dir, tmp_path, capsys):
+    import json
+
+    rc, cap = _main(["vo", "--sequence", seq_dir, "--odometry", "user_vo:make", "--out", tmp_path / "t.txt", "--json"],
+                    capsys)
+    assert rc == 0, cap.err
+    doc = json.loads(cap.out)
+    assert doc["poses"] == 8 and doc["metrics"]["ate_m"] < 1e-9 and doc["metrics"]["path_length_ratio"] == pytest.approx(1)
+    rc, cap = _main(["train", "--mode", "synthetic", "--toy", "96", "--net", "tiny", "--batch", "16", "--max-epochs", "1",
+                     "--nll-epochs", "1", "--bf16", "off", "--out", tmp_path / "m", "--json"], capsys)
+    assert rc == 0, cap.err
+    doc = json.loads(cap.out)
+    assert doc["stop_reason"] == "max_epochs" and doc["epochs"] == 1 and doc["model"].endswith("model.safetensors")
