@@ -5,6 +5,7 @@ Pixel centres are at integer coordinates: pixel (u, v) = (column, row) covers [u
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
@@ -47,8 +48,10 @@ class PinholeCamera:
     def __post_init__(self) -> None:
         if self.width <= 0 or self.height <= 0:
             raise ValueError(f"camera size must be positive, got {self.width}x{self.height}")
-        if not (self.fx > 0 and self.fy > 0):
-            raise ValueError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+        if not (self.fx > 0 and self.fy > 0 and math.isfinite(self.fx) and math.isfinite(self.fy)):
+            raise ValueError(f"focal lengths must be positive and finite, got fx={self.fx}, fy={self.fy}")
+        if not (math.isfinite(self.cx) and math.isfinite(self.cy)):
+            raise ValueError(f"principal point must be finite, got cx={self.cx}, cy={self.cy}")
 
     @classmethod
     def from_k(cls, k: np.ndarray, width: int, height: int) -> "PinholeCamera":

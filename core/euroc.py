@@ -24,6 +24,7 @@ import numpy as np
 from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
+from deepslam.core.textio import read_text
 from deepslam.core.sequence import Sequence
 from deepslam.core.trajectory import Trajectory
 from deepslam.core.trajio import ns_to_s
@@ -33,9 +34,7 @@ def read_sensor_yaml(path: Path) -> dict:
     """Parse a EuRoC camera sensor.yaml into {"body_from_cam", "k", "dist", "width", "height", "rate_hz"}."""
     import yaml
 
-    if not path.is_file():
-        raise InputError(path, "sensor.yaml is missing")
-    text = path.read_text()
+    text = read_text(path, "sensor.yaml")
     if text.startswith("%YAML"):
         text = text.split("\n", 1)[1] if "\n" in text else ""
     try:
@@ -74,10 +73,10 @@ def read_sensor_yaml(path: Path) -> dict:
 
 
 def _read_data_csv(path: Path, cam_dir: Path) -> tuple[np.ndarray, list[Path]]:
-    if not path.is_file():
+    if not path.exists():
         raise InputError(path, "data.csv is missing")
     stamps, files = [], []
-    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
+    for lineno, line in enumerate(read_text(path, "data.csv").splitlines(), start=1):
         if not line.strip() or line.startswith("#"):
             continue
         parts = [p.strip() for p in line.split(",")]
@@ -134,7 +133,10 @@ def read_euroc(root: str | Path, gt_path: str | Path | None = None, rectify: boo
     baseline = None
     rect_from_cam0 = np.eye(4)
     maps = {}
-    camera = PinholeCamera.from_k(cam0["k"], *size)
+    try:
+        camera = PinholeCamera.from_k(cam0["k"], *size)
+    except ValueError as e:
+        raise InputError(mav / "cam0" / "sensor.yaml", f"not a usable camera ({e})") from None
     if (mav / "cam1" / "sensor.yaml").is_file():
         cam1 = read_sensor_yaml(mav / "cam1" / "sensor.yaml")
         ns1, files1 = _read_data_csv(mav / "cam1" / "data.csv", mav / "cam1")

@@ -15,16 +15,17 @@ import numpy as np
 from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
+from deepslam.core.textio import read_text
 from deepslam.core.sequence import Sequence, read_image
 from deepslam.core.trajectory import Trajectory
 
 
 def read_calib(path: Path) -> dict[str, np.ndarray]:
     """Parse calib.txt into {"P0": (3,4), ..., "Tr": (3,4)}; InputError names the bad line."""
-    if not path.is_file():
+    if not path.exists():
         raise InputError(path, "calib.txt is missing")
     out: dict[str, np.ndarray] = {}
-    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
+    for lineno, line in enumerate(read_text(path, path.name).splitlines(), start=1):
         if not line.strip():
             continue
         key, sep, rest = line.partition(":")
@@ -42,10 +43,10 @@ def read_calib(path: Path) -> dict[str, np.ndarray]:
 
 
 def _read_times(path: Path) -> np.ndarray:
-    if not path.is_file():
+    if not path.exists():
         raise InputError(path, "times.txt is missing")
     times = []
-    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
+    for lineno, line in enumerate(read_text(path, path.name).splitlines(), start=1):
         if not line.strip():
             continue
         try:
@@ -103,7 +104,10 @@ def read_kitti(seq_dir: str | Path, poses_path: str | Path | None = None) -> Seq
         raise InputError(seq_dir / left / f"{gap:06d}.png", "image is missing (numbering has a gap)")
     first = read_image(left_files[indices[0]])
     height, width = first.shape[:2]
-    camera = PinholeCamera(width, height, float(fx), float(k[1, 1]), float(k[0, 2]), float(k[1, 2]))
+    try:
+        camera = PinholeCamera(width, height, float(fx), float(k[1, 1]), float(k[0, 2]), float(k[1, 2]))
+    except ValueError as e:
+        raise InputError(calib_path, f"{pl} is not a usable camera ({e})") from None
 
     right_paths = None
     baseline = None

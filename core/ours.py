@@ -28,6 +28,7 @@ import numpy as np
 from deepslam.core import atomic
 from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
+from deepslam.core.textio import read_json_object
 from deepslam.core.sequence import Sequence
 from deepslam.core.trajectory import Trajectory
 
@@ -107,10 +108,7 @@ class OursWriter:
 def read_ours(root: str | Path) -> Sequence:
     root = Path(root)
     json_path = root / "sequence.json"
-    try:
-        header = json.loads(json_path.read_text())
-    except (OSError, json.JSONDecodeError) as e:
-        raise InputError(json_path, f"cannot read sequence header ({e})") from None
+    header = read_json_object(json_path, "sequence header")
     if header.get("format") != FORMAT:
         raise InputError(json_path, f"not a {FORMAT} header (format = {header.get('format')!r})")
     if not header.get("complete"):

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import os
 import pkgutil
@@ -19,6 +20,11 @@ def _discover():
         if hasattr(mod, "NAME") and hasattr(mod, "run"):
             mods.append(mod)
     return mods
+
+
+_ENVIRONMENT_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EPERM, errno.EROFS, errno.EIO, errno.EISDIR,
+                       errno.ENOTDIR, errno.ENOENT, errno.ENAMETOOLONG, errno.EMFILE}
+"""errno values that mean the file system refused, not that deepslam is broken."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -50,6 +56,15 @@ def main(argv: list[str] | None = None) -> int:
         return int(args._run(args) or 0)
     except InputError as e:
         print(f"deepslam {args.command}: error: {e.message()}", file=sys.stderr)
+        return 2
+    except OSError as e:
+        # The file system refused (a full disk, no permission, a read-only or failing device, a folder
+        # where a file should be): the environment, not a bug. One line naming the file, exit 2;
+        # every output is written atomically, so nothing half-written is left behind.
+        if e.errno not in _ENVIRONMENT_ERRNOS:
+            raise
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"deepslam {args.command}: error: {where}{e.strerror or e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"deepslam {args.command}: interrupted", file=sys.stderr)

@@ -56,6 +56,10 @@ class StreetLayout:
     """Chance of a tree half-way between two poles."""
     pole_gap_m: tuple[float, float] = (18.0, 30.0)
     """Range of the distance between lamp poles (a tree or bin half-way), metres."""
+    ego_lane_offset_m: float = LANE_OFFSET_M
+    """Distance of the ego car's path right of the road's centreline, metres (1.75: the lane centre;
+    less: nearer the middle of the street, as on KITTI's residential streets with cars parked on both
+    sides)."""
 
     @classmethod
     def varied(cls, seed: int) -> "StreetLayout":
@@ -64,7 +68,8 @@ class StreetLayout:
         return cls(sidewalk_m=float(rng.uniform(1.5, 3.5)), park_offset_m=float(rng.uniform(3.8, 4.75)),
                    park_probability=float(rng.uniform(0.7, 0.95)),
                    park_gap_m=(0.5, float(rng.uniform(1.5, 3.0))), tree_offset_m=float(rng.uniform(0.6, 1.3)),
-                   tree_probability=float(rng.uniform(0.8, 1.0)), pole_gap_m=(10.0, float(rng.uniform(14.0, 20.0))))
+                   tree_probability=float(rng.uniform(0.8, 1.0)), pole_gap_m=(10.0, float(rng.uniform(14.0, 20.0))),
+                   ego_lane_offset_m=float(rng.uniform(0.3, 1.75)))
 
 
 KITTI_CAMERA = PinholeCamera(1241, 376, 718.856, 718.856, 620.0, 187.5)
@@ -89,7 +94,7 @@ def build_street(seed: int, px_per_m: float, moving_objects: int, deform_amplitu
 
     # ego route: loop around block A (counter-clockwise), then around both blocks
     centre_corners = np.array([(0.5 * bx, 0), (bx, 0), (bx, by), (0, by), (0, 0), (2 * bx, 0), (2 * bx, by), (0, by), (0, 0)], float)
-    lane = offset_polyline(centre_corners, LANE_OFFSET_M)
+    lane = offset_polyline(centre_corners, layout.ego_lane_offset_m)
     lane_path = PeriodicPath.from_polyline(lane, EGO_CORNER_RADIUS_M)
 
     # flags on poles over the sidewalk on the ego's right, facing the traffic

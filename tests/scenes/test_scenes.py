@@ -148,3 +148,23 @@ def test_mjcf_compiles_and_keeps_the_geometry(tmp_path):
         assert np.abs(world - want).max() < 1e-4
     path = mjcf.write_mjcf(s, tmp_path)
     assert mujoco.MjModel.from_xml_path(str(path)).ngeom == model.ngeom
+
+
+def test_varied_street_layout_is_deterministic_narrower_and_leaves_the_default_alone():
+    from deepslam.scenes.street import StreetLayout
+
+    default = _build("street", 5)
+    assert StreetLayout() == StreetLayout(sidewalk_m=3.5, park_probability=0.55)  # the original town's numbers
+    varied_cfg = StreetLayout.varied(5)
+    assert varied_cfg == StreetLayout.varied(5) and varied_cfg != StreetLayout.varied(6)
+    assert 1.5 <= varied_cfg.sidewalk_m <= 3.5 and 3.8 <= varied_cfg.park_offset_m <= 4.75
+    assert 0.3 <= varied_cfg.ego_lane_offset_m <= 1.75
+    a = build_street(5, 3.0, 0, 0.0, np.random.default_rng(5), varied_cfg)
+    b = build_street(5, 3.0, 0, 0.0, np.random.default_rng(5), varied_cfg)
+    assert np.array_equal(a.bodies[0].mesh.vertices, b.bodies[0].mesh.vertices)
+    assert not np.array_equal(a.bodies[0].mesh.vertices.shape, default.bodies[0].mesh.vertices.shape) or \
+        not np.allclose(a.bodies[0].mesh.vertices, default.bodies[0].mesh.vertices)
+    via_config = build_scene(SceneConfig(name="street", seed=5, texture_px_per_m=3.0, varied_layout=True))
+    assert np.array_equal(via_config.bodies[0].mesh.vertices, a.bodies[0].mesh.vertices)
+    plain_again = build_scene(SceneConfig(name="street", seed=5, texture_px_per_m=3.0))
+    assert np.array_equal(plain_again.bodies[0].mesh.vertices, default.bodies[0].mesh.vertices)
