@@ -125,6 +125,9 @@ class SequenceDepthFrames(DepthFrames):
         if d.shape != (self.camera.height, self.camera.width):
             raise InputError(self.seq.depth_paths[i], f"depth is {d.shape[1]}x{d.shape[0]}, camera is "
                              f"{self.camera.width}x{self.camera.height}")
+        if not (np.isfinite(d) & (d > 0)).any():
+            raise InputError(self.seq.depth_paths[i], "depth has no valid pixel (all zero, NaN or negative): "
+                                                      "no flow can be made from this frame")
         return d
 
     def describe(self) -> dict:

@@ -40,6 +40,10 @@ FORMAT = "deepslam-motion"
 VERSION = 1
 DOF_NAMES = ("euler_x", "euler_y", "euler_z", "t_x", "t_y", "t_z")
 DOF_UNITS = ("rad", "rad", "rad", "m", "m", "m")
+MAX_ABS_ROTATION_RAD = math.pi
+"""Largest |value| a rotation DoF's parameters may have (a motion between two frames)."""
+MAX_ABS_TRANSLATION_M = 1000.0
+"""Largest |value| a translation DoF's parameters may have, metres."""
 MIN_MOTIONS = 20
 """Fewest motions a Student-t is fitted to."""
 
@@ -253,6 +257,11 @@ def _six_from_dict(d, where: str, bad) -> SixDof:
             raise bad(f"{where}.dofs.{name}.scale must be > 0, got {vals['scale']}")
         if not vals["lo"] < vals["hi"]:
             raise bad(f"{where}.dofs.{name}: lo must be below hi, got {vals['lo']} >= {vals['hi']}")
+        limit = MAX_ABS_ROTATION_RAD if name.startswith("euler") else MAX_ABS_TRANSLATION_M
+        for key in ("loc", "scale", "lo", "hi"):
+            if abs(vals[key]) > limit:
+                raise bad(f"{where}.dofs.{name}.{key} = {vals[key]:g} is beyond {limit:g} "
+                          f"{'rad' if name.startswith('euler') else 'm'}: not a camera motion between two frames")
         dofs.append(StudentT(**vals))
     return SixDof(tuple(dofs), n)
 

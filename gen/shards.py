@@ -383,6 +383,12 @@ def _generate_locked(config: GenConfig, out_dir: Path, workers: int, backend: st
             _run_local(config, todo, out_dir, workers, on_done, source_path)
         else:
             _run_ray(config, todo, out_dir, workers, on_done, source_path)
+    except BaseException:
+        if not done:  # nothing finished: leave nothing behind, so a plain rerun is not refused as "not empty"
+            ledger.close()
+            for name in (LEDGER, "run.json"):
+                (out_dir / name).unlink(missing_ok=True)
+        raise
     finally:
         bar.close()
         ledger.close()

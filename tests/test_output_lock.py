@@ -6,6 +6,7 @@ render processes checks that the one that runs is byte-identical to a lone run.
 from __future__ import annotations
 
 import hashlib
+import shutil
 import os
 import subprocess
 import sys
@@ -95,3 +96,39 @@ def test_two_renders_racing_into_one_folder(tmp_path):
 
     assert main(_render_argv(tmp_path / "lone", winner)) == 0
     assert _tree_digest(out) == _tree_digest(tmp_path / "lone")
+
+
+@pytest.mark.parametrize("command", ["train", "stress"])
+def test_an_unrelated_non_empty_out_is_refused(command, tmp_path, capsys):
+    from deepslam.cli import main
+
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "thesis.tex").write_text("precious")
+    argv = {"train": ["train", "--mode", "synthetic", "--toy", "64", "--net", "tiny", "--quiet", "--out", str(out)],
+            "stress": ["stress", "--quick", "--out", str(out)]}[command]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not empty" in err[0], err
+    assert sorted(p.name for p in out.iterdir()) == ["thesis.tex"]
+
+
+def test_gen_on_a_source_without_valid_depth_fails_and_leaves_nothing(small_sequence, tmp_path, capsys):
+    """All-NaN depth used to give shards with no valid pixel and exit 0; now: exit 2 naming the file,
+    and a plain rerun is not refused as "not empty" (nothing was left behind)."""
+    import numpy as np
+
+    from deepslam.cli import main
+
+    src = tmp_path / "src"
+    shutil.copytree(small_sequence, src)
+    for f in (src / "depth").glob("*.npy"):
+        np.save(f, np.full_like(np.load(f), np.nan))
+    out = tmp_path / "shards"
+    argv = ["gen", "--source", str(src), "--motion", str(REPO / "models" / "motion" / "kitti_s1.json"), "--samples", "8",
+            "--resolution", "24x80", "--out", str(out)]
+    for _ in range(2):
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "no valid pixel" in err[0] and "depth" in err[0], err
+        assert not out.exists()

@@ -346,6 +346,8 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
                          f"once with `deepslam convert-model {out_dir / LEGACY_CHECKPOINT}` (or choose another --out)")
     if not resume and ckpt_path.exists():
         raise InputError(ckpt_path, "a training run is already here; pass --resume to continue it or choose another --out")
+    if not resume and any(out_dir.iterdir()):
+        raise InputError(out_dir, "output folder is not empty and holds no training run; choose another --out")
     model = new_model(cfg)
     if cfg.channels_last:
         model.set_channels_last(True)

@@ -619,6 +619,9 @@ def _run(config: StressConfig, out: Path, resume: bool, progress: bool | None) -
 
     if out.exists() and not out.is_dir():
         raise InputError(out, "output exists and is not a folder")
+    if not resume and out.is_dir() and any(out.iterdir()):
+        raise InputError(out, "output folder is not empty; choose another --out, or pass --resume to reuse the "
+                              "per-setting results of a stress run there")
     settings = config.settings()
     params = SlamParams.load(config.slam_params) if config.slam_params else SlamParams()  # fail early on a bad file
     notes = []

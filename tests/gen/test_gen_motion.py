@@ -131,6 +131,8 @@ def test_json_round_trip(kitti_fit, tmp_path):
     (lambda d: d.__setitem__("stride", 0), "stride"),
     (lambda d: d.__setitem__("format", "something"), "format"),
     (lambda d: d["loop"].pop("max_distance_m"), "missing key 'max_distance_m'"),
+    (lambda d: d["consecutive"]["dofs"]["t_z"].update(lo=-1e300, hi=1e300), "beyond 1000 m"),
+    (lambda d: d["consecutive"]["dofs"]["euler_x"].__setitem__("scale", 7.0), "beyond 3.14159 rad"),
 ])
 def test_malformed_json_names_the_file(kitti_fit, tmp_path, edit, what):
     d = kitti_fit[0].to_dict()
