@@ -322,7 +322,9 @@ def _generate_locked(config: GenConfig, out_dir: Path, workers: int, backend: st
     from deepslam.core.progress import progress as progress_bar
 
     run_json = out_dir / "run.json"
-    want = {"format": FORMAT, "version": VERSION, "config": config.to_dict()}
+    source_path = str(Path(config.source).resolve())
+    want = {"format": FORMAT, "version": VERSION, "config": config.to_dict(),
+            "source_sha256": source_fingerprint(source_path)}
     if any(out_dir.iterdir()):
         if not resume:
             raise InputError(out_dir, "output folder is not empty (pass --resume to finish an interrupted run)")
@@ -330,12 +332,14 @@ def _generate_locked(config: GenConfig, out_dir: Path, workers: int, backend: st
             have = json.loads(run_json.read_text())
         except (OSError, json.JSONDecodeError):
             raise InputError(run_json, "cannot resume: run.json is missing or unreadable") from None
+        if have.get("source_sha256") != want["source_sha256"] and have.get("config") == json.loads(json.dumps(want["config"])):
+            raise InputError(Path(config.source), "cannot resume: the source's content changed since the interrupted "
+                                                  f"run (its files no longer hash to {str(have.get('source_sha256'))[:12]}...)")
         if have != json.loads(json.dumps(want)):
             diff = sorted(k for k in set(have.get("config", {})) | set(want["config"])
                           if have.get("config", {}).get(k) != json.loads(json.dumps(want["config"])).get(k))
             raise InputError(run_json, f"cannot resume: settings differ from the interrupted run ({', '.join(diff) or 'format'})")
     # Fail on a bad source before anything is written (this also fills this process's cache).
-    source_path = str(Path(config.source).resolve())
     ds = make_dataset(config, source_path)
     out_dir.mkdir(parents=True, exist_ok=True)
     atomic.write_json(run_json, want)
@@ -410,6 +414,24 @@ def _generate_locked(config: GenConfig, out_dir: Path, workers: int, backend: st
     atomic.write_json(out_dir / "manifest.json", manifest)
     ledger_path.unlink(missing_ok=True)  # the manifest now holds the same record
     return manifest
+
+
+def source_fingerprint(source: str | Path) -> str:
+    """sha256 over the relative names, sizes and bytes of every file in the source folder (hidden files
+    excluded): a resumed run must read the same content, not only the same path."""
+    root = Path(source)
+    if not root.is_dir():
+        return "missing"
+    h = hashlib.sha256()
+    for p in sorted(root.rglob("*")):
+        rel = p.relative_to(root)
+        if not p.is_file() or any(part.startswith(".") for part in rel.parts):
+            continue
+        h.update(f"{rel.as_posix()}\0{p.stat().st_size}\0".encode())
+        with open(p, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+    return h.hexdigest()
 
 
 LEDGER = "ledger.jsonl"

@@ -236,3 +236,24 @@ def test_resume_rebuilds_damaged_shards_instead_of_keeping_them(config, tmp_path
     generate(config, out, resume=True, progress=False)
     assert _files(out) == _files(ref)
     verify(out)
+
+
+def test_resume_from_a_source_whose_content_changed_is_refused(depth_sequence, config, tmp_path):
+    """Same path, other bytes: the interrupted run's shards came from the old content, so resuming
+    would mix two sources in one dataset."""
+    import shutil
+
+    from deepslam.core.errors import InputError
+
+    src = tmp_path / "src"
+    shutil.copytree(depth_sequence, src)
+    cfg = GenConfig(**{**config.__dict__, "source": str(src)})
+    out = tmp_path / "out"
+    generate(cfg, out, progress=False)
+    (out / "manifest.json").unlink()  # as if interrupted before the end
+    generate(cfg, out, resume=True, progress=False)  # unchanged source: resumes
+    depth = sorted((src / "depth").glob("*.npy"))[0]
+    arr = np.load(depth)
+    np.save(depth, arr * 1.01)
+    with pytest.raises(InputError, match="content changed"):
+        generate(cfg, out, resume=True, progress=False)
