@@ -96,7 +96,7 @@ def markdown(report: dict) -> str:
     lines = ["| model | flow | slice | frames the model saw in training | path est/true | end-point drift | ATE (se3) | target met |",
              "|---|---|---|---|---|---|---|---|"]
     for r in report["rows"]:
-        lines.append(f"| {r['model']} | {r['flow']} | KITTI {r['slice']} ({r['frames']} frames, {r['gt_length_m']:.0f} m) | "
+        lines.append(f"| {r['model']} | {r['flow']} | KITTI {r['slice'].split('/')[-1]} ({r['frames']} frames, {r['gt_length_m']:.0f} m) | "
                      f"{r['seen_in_training']} | {r['path_length_ratio']:.3f} | {r['endpoint_drift_pct']:.1f} % | "
                      f"{r['ate_se3_m']:.2f} m | {'yes' if r['met'] else 'no'} |")
     return "\n".join(lines) + "\n"

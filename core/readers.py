@@ -14,11 +14,13 @@ from deepslam.core.euroc import read_euroc
 from deepslam.core.kitti import read_kitti
 from deepslam.core.ours import read_ours
 from deepslam.core.sequence import Sequence
+from deepslam.core.tum import is_tum, read_tum
 
 
 def open_sequence(path: str | Path) -> Sequence:
     """Open a KITTI odometry sequence folder (``.../sequences/NN``), an EuRoC ASL folder (holding
-    ``mav0``, or ``mav0`` itself) or a folder in our format (holding ``sequence.json``)."""
+    ``mav0``, or ``mav0`` itself), a TUM RGB-D folder (holding ``rgb.txt`` and ``depth.txt``) or a
+    folder in our format (holding ``sequence.json``)."""
     path = Path(path)
     if not path.exists():
         raise InputError(path, "sequence folder does not exist")
@@ -30,5 +32,7 @@ def open_sequence(path: str | Path) -> Sequence:
         return read_euroc(path)
     if (path / "image_0").is_dir() or (path / "image_2").is_dir() or (path / "calib.txt").is_file():
         return read_kitti(path)
-    raise InputError(path, "not a KITTI sequence (image_0/, calib.txt), EuRoC folder (mav0/) "
-                     "or deepslam sequence (sequence.json)")
+    if is_tum(path):
+        return read_tum(path)
+    raise InputError(path, "not a KITTI sequence (image_0/, calib.txt), EuRoC folder (mav0/), TUM RGB-D "
+                     "folder (rgb.txt, depth.txt) or deepslam sequence (sequence.json)")

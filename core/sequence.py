@@ -69,7 +69,7 @@ class Frame:
     @property
     def world_from_cam(self) -> np.ndarray | None:
         """(4, 4) float64 ground-truth pose of the (left) camera, OpenCV axes, or None."""
-        return None if self.sequence.gt is None else self.sequence.gt.world_from_cam[self.index]
+        return self.sequence.gt_pose(self.index)
 
     def image(self) -> np.ndarray:
         return self.sequence.image(self.index)
@@ -105,6 +105,10 @@ class Sequence:
             for the last frame), else None.
         postprocess: function (image, side) -> image applied after loading (EuRoC undistortion and
             rectification); side is "left" or "right".
+        gt_frames: indices of the frames ``gt`` covers, in order, when it does not cover all (TUM's
+            motion capture starts late): ``gt`` then has one pose per entry. None: one per frame.
+        depth_reader: function path -> (H, W) float32 depth_z in metres for depth files that are not
+            this project's .npy (TUM's 16-bit PNGs); None: .npy.
     """
 
     name: str
@@ -121,6 +125,8 @@ class Sequence:
     mask_paths: list[Path] | None = None
     postprocess: Callable[[np.ndarray, str], np.ndarray] | None = None
     meta: dict = dataclasses.field(default_factory=dict)
+    gt_frames: np.ndarray | None = None
+    depth_reader: Callable[[Path], np.ndarray] | None = None
 
     def __len__(self) -> int:
         return len(self.image_paths)
@@ -147,8 +153,18 @@ class Sequence:
         """(H, W) float32 depth_z in metres, 0 where unknown; None when the sequence has no depth."""
         if self.depth_paths is None:
             return None
-        d = read_npy(self.depth_paths[i], np.float32, 2)
-        return d
+        if self.depth_reader is not None:
+            return self.depth_reader(self.depth_paths[i])
+        return read_npy(self.depth_paths[i], np.float32, 2)
+
+    def gt_pose(self, i: int) -> np.ndarray | None:
+        """(4, 4) float64 world_from_cam of frame i, or None where there is no ground truth."""
+        if self.gt is None:
+            return None
+        if self.gt_frames is None:
+            return self.gt.world_from_cam[i]
+        k = int(np.searchsorted(self.gt_frames, i))
+        return self.gt.world_from_cam[k] if k < len(self.gt_frames) and self.gt_frames[k] == i else None
 
     def flow(self, i: int) -> np.ndarray | None:
         """(H, W, 2) float32 flow (du, dv) px from frame i to i+1; None where absent (last frame)."""

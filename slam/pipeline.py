@@ -324,14 +324,17 @@ def run_slam(seq, odo_cons: Odometry, odo_loops: Odometry | None = None, params:
         vocabulary: BoW vocabulary; None trains one on the sequence's keyframes.
 
     Returns:
-        SlamResult; the first pose is the ground truth's first pose when the sequence has one (a gauge
+        SlamResult; the first pose is frame 0's ground-truth pose when the sequence has one (a gauge
         choice only), else the identity.
     """
     params.validate()
     t_start = time.perf_counter()
     prep = prepare(seq, odo_cons, odo_loops, config, vocabulary, show_progress, t_loop=params.t_loop)
-    gt = getattr(seq, "gt", None)
-    first = gt.world_from_cam[0] if gt is not None else None
+    gt_pose, gt = getattr(seq, "gt_pose", None), getattr(seq, "gt", None)
+    if gt_pose is not None:
+        first = gt_pose(0)  # None where the ground truth starts after frame 0 (TUM)
+    else:
+        first = gt.world_from_cam[0] if gt is not None else None
     res, loops = solve(prep, params, config.graph, first, show_progress)
     timings = dict(prep.timings)
     timings["optimize_s"] = res.time_s

@@ -113,3 +113,18 @@ def test_a_cached_render_of_other_settings_is_not_reused(tmp_path):
     assert render_once("street", "car", 3, 40, 1, root, log) == root and log == []   # reused, nothing run
     with pytest.raises(InputError, match="3 frames at 40 px, not 6 at 40"):
         render_once("street", "car", 6, 40, 1, root, log)
+
+
+def test_real_slice_table_says_what_each_model_saw(shared_data, tmp_path):
+    """results_real on the real KITTI slices: the shipped model saw 06's single frames (no poses) and
+    none of 07; the drift figures are those of core.metrics (checked there)."""
+    from bench import results_real
+
+    rep = results_real.run(results_real.SHIPPED, tmp_path, shared_data)
+    by = {r["slice"].split("/")[-1]: r for r in rep["rows"]}
+    assert by["06"]["seen_in_training"] == "single frames, no poses"
+    assert by["07"]["seen_in_training"] == "none"
+    for r in rep["rows"]:
+        assert r["path_length_ratio"] > 0 and r["endpoint_drift_pct"] >= 0
+    md = (tmp_path / "results.md").read_text()
+    assert "frames the model saw in training" in md and "KITTI 07 (160 frames" in md

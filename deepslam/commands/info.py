@@ -27,6 +27,7 @@ def run(args: argparse.Namespace) -> int:
     info = {
         "name": seq.name, "kind": seq.kind, "frames": len(seq), "camera": seq.camera.to_dict(),
         "baseline_m": seq.baseline_m, "has_ground_truth": seq.gt is not None,
+        "ground_truth_frames": 0 if seq.gt is None else (len(seq) if seq.gt_frames is None else int(len(seq.gt_frames))),
         "duration_s": float(seq.timestamps_s[-1] - seq.timestamps_s[0]),
         "path_length_m": None if seq.gt is None else seq.gt.path_length_m(),
         "has_depth": seq.has_depth, "has_flow": seq.flow_paths is not None, "has_mask": seq.mask_paths is not None,
