@@ -548,6 +548,16 @@ def measure_sequence(seq, odometries: OdometrySet, config: StressConfig, vocabul
     first_pose = seq.gt.world_from_cam[0]
     times = np.asarray(seq.timestamps_s, np.float64)
     vo, slam, loops = {}, {}, {}
+
+    def score(key: str, prep_k, t1: float) -> None:
+        """Solve the graph of ``prep_k``; VO (dead reckoning) and SLAM errors under ``key``."""
+        res, loop_edges = solve(prep_k, params, pipe.graph, first_pose)
+        vo[key] = _metrics(seq.gt, Trajectory(chain(n, prep_k.cons, first_pose), times))
+        slam[key] = _metrics(seq.gt, Trajectory(res.world_from_cam, times))
+        kept = int(np.sum(res.loop_inliers)) if res.loop_inliers is not None else len(loop_edges)
+        loops[key] = {"loop_edges": len(loop_edges), "loop_edges_kept": kept}
+        timings[f"vo_slam_{key}_s"] = time.perf_counter() - t1
+
     prep = None
     loop_odo = odometries.loops if config.loops else None
     for f, cons in odometries.cons.items():
@@ -558,21 +568,10 @@ def measure_sequence(seq, odometries: OdometrySet, config: StressConfig, vocabul
             pairs = consecutive_pairs(n)
             mean6, std6 = check_prediction(cons.name, pairs, *cons.predict(seq, pairs))
             prep = dataclasses.replace(base, cons=Edges(np.array(pairs), mean6, std6))
-        res, loop_edges = solve(prep, params, pipe.graph, first_pose)
-        vo[f] = _metrics(seq.gt, Trajectory(chain(n, prep.cons, first_pose), times))
-        slam[f] = _metrics(seq.gt, Trajectory(res.world_from_cam, times))
-        kept = int(np.sum(res.loop_inliers)) if res.loop_inliers is not None else len(loop_edges)
-        loops[f] = {"loop_edges": len(loop_edges), "loop_edges_kept": kept}
-        timings[f"vo_slam_{f}_s"] = time.perf_counter() - t1
+        score(f, prep, t1)
     for key, odo in odometries.plugins.items():  # side by side: the same stages with the plug-in's motions
         t1 = time.perf_counter()
-        p_prep = prepare(seq, odo, odo if config.loops else None, pipe, vocabulary, show_progress=False)
-        res, loop_edges = solve(p_prep, params, pipe.graph, first_pose)
-        vo[key] = _metrics(seq.gt, Trajectory(chain(n, p_prep.cons, first_pose), times))
-        slam[key] = _metrics(seq.gt, Trajectory(res.world_from_cam, times))
-        kept = int(np.sum(res.loop_inliers)) if res.loop_inliers is not None else len(loop_edges)
-        loops[key] = {"loop_edges": len(loop_edges), "loop_edges_kept": kept}
-        timings[f"vo_slam_{key}_s"] = time.perf_counter() - t1
+        score(key, prepare(seq, odo, odo if config.loops else None, pipe, vocabulary, show_progress=False), t1)
     return {"flow": flow, "vo": vo, "slam": slam, "loops": loops, "timings": timings}
 
 
