@@ -132,3 +132,27 @@ def test_gen_on_a_source_without_valid_depth_fails_and_leaves_nothing(small_sequ
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "no valid pixel" in err[0] and "depth" in err[0], err
         assert not out.exists()
+
+
+@pytest.mark.parametrize("argv,what", [
+    (["train", "--mode", "synthetic", "--toy", "64", "--batch", "-4"], "--batch must be > 0"),
+    (["train", "--mode", "synthetic", "--toy", "64", "--batch", "100000000"], "at most 65536"),
+    (["train", "--mode", "synthetic", "--toy", "64", "--width", "100000"], "input_width must be in 1..2048"),
+    (["train", "--mode", "synthetic", "--toy", "64", "--max-minutes", "nan"], "--max-minutes must be >= 0"),
+    (["train", "--mode", "synthetic", "--toy", "64", "--lr-max", "inf"], "--lr-max must be a positive number"),
+    (["gen", "--source", "x", "--motion", "y", "--samples", "0"], "--samples must be in 1.."),
+    (["gen", "--source", "x", "--motion", "y", "--samples", "8", "--resolution", "96x99999"], "--resolution must be"),
+    (["render", "--width", "100000"], "width must be an integer in 1..4096"),
+    (["vo", "--sequence", ".", "--batch", "0"], "--batch must be in 1..4096"),
+])
+def test_numeric_flags_out_of_range_are_one_line_exit_2(argv, what, tmp_path, capsys):
+    from deepslam.cli import main
+
+    out = tmp_path / "out"
+    full = argv + (["--out", str(out)] if argv[0] != "vo" else ["--out", str(tmp_path / "t.txt")])
+    if argv[0] == "vo":
+        full[2] = str(REPO / ".." / "shared" / "data" / "kitti" / "sequences" / "06")
+    assert main(full) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and what in err[0], err
+    assert not out.exists()

@@ -18,6 +18,7 @@ the camera's field of view so that one model can serve several cameras.
 from __future__ import annotations
 
 import dataclasses
+import math
 import json
 
 import torch
@@ -57,9 +58,12 @@ class NetConfig:
         object.__setattr__(self, "strides", tuple(int(s) for s in self.strides))
         if len(self.kernels) != len(self.strides) or not self.kernels:
             raise ValueError(f"kernels {self.kernels} and strides {self.strides} must be equally long and not empty")
-        for name in ("input_height", "input_width", "filters", "hidden_units", "hidden_layers"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        for name, most in (("input_height", 2048), ("input_width", 2048), ("filters", 1024), ("hidden_units", 8192),
+                           ("hidden_layers", 16)):
+            if not 1 <= int(getattr(self, name)) <= most:
+                raise ValueError(f"{name} must be in 1..{most}, got {getattr(self, name)}")
+        if not (math.isfinite(self.flow_scale) and self.flow_scale > 0):
+            raise ValueError(f"flow_scale must be a positive number, got {self.flow_scale}")
 
     @property
     def in_channels(self) -> int:

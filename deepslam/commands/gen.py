@@ -30,14 +30,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--zbuffer", action="store_true", help="mark flow hidden by nearer points as invalid")
 
 
+MAX_SIDE = 4096
+"""Largest output side, pixels (the simulator's too)."""
+MAX_SAMPLES = 100_000_000
+"""Most samples one run writes."""
+
+
 def parse_resolution(text: str | None) -> tuple[int, int] | None:
     from deepslam.core.errors import InputError
 
     if text is None:
         return None
     m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
-    if not m or int(m.group(1)) < 2 or int(m.group(2)) < 2:
-        raise InputError(None, f"--resolution must be HxW with H, W >= 2 (e.g. 96x320), got {text!r}")
+    if not m or not (2 <= int(m.group(1)) <= MAX_SIDE) or not (2 <= int(m.group(2)) <= MAX_SIDE):
+        raise InputError(None, f"--resolution must be HxW with 2 <= H, W <= {MAX_SIDE} (e.g. 96x320), got {text!r}")
     return int(m.group(1)), int(m.group(2))
 
 
@@ -46,19 +52,20 @@ def run(args: argparse.Namespace) -> int:
     from deepslam.gen.motion import MotionModel
     from deepslam.gen.shards import GenConfig, generate
 
-    if args.samples < 1:
-        raise InputError(None, f"--samples must be >= 1, got {args.samples}")
-    if args.shard_size < 1:
-        raise InputError(None, f"--shard-size must be >= 1, got {args.shard_size}")
-    if args.workers < 1:
-        raise InputError(None, f"--workers must be >= 1, got {args.workers}")
+    if not 1 <= args.samples <= MAX_SAMPLES:
+        raise InputError(None, f"--samples must be in 1..{MAX_SAMPLES}, got {args.samples}")
+    if not 1 <= args.shard_size <= 1_000_000:
+        raise InputError(None, f"--shard-size must be in 1..1000000, got {args.shard_size}")
+    if not 1 <= args.workers <= 1024:
+        raise InputError(None, f"--workers must be in 1..1024, got {args.workers}")
     if not 0.0 <= args.loop_fraction <= 1.0:
         raise InputError(None, f"--loop-fraction must be in [0, 1], got {args.loop_fraction}")
+    resolution_hw = parse_resolution(args.resolution)
     motion = MotionModel.load(args.motion)
     if args.loop_fraction > 0 and motion.loop is None:
         raise InputError(args.motion, "--loop-fraction > 0 but the motion model has no loop distribution (fit-motion --loops)")
     config = GenConfig(source=str(args.source), motion=motion.to_dict(), num_samples=args.samples, seed=args.seed,
-                       resolution_hw=parse_resolution(args.resolution), samples_per_shard=args.shard_size,
+                       resolution_hw=resolution_hw, samples_per_shard=args.shard_size,
                        depth_from_stereo=args.depth_from_stereo, loop_fraction=args.loop_fraction,
                        zbuffer=args.zbuffer)
     manifest = generate(config, args.out, workers=args.workers, backend=args.backend, resume=args.resume)

@@ -164,6 +164,8 @@ def _check_ranges(args) -> None:
     for flag, v in positive.items():
         if not (math.isfinite(v) and v > 0):
             raise InputError(None, f"{flag} must be > 0, got {v}")
+    if args.batch > 65536:
+        raise InputError(None, f"--batch must be at most 65536, got {args.batch}")
     for flag, v in non_negative.items():
         if not (math.isfinite(v) and v >= 0):
             raise InputError(None, f"{flag} must be >= 0, got {v}")

@@ -58,6 +58,8 @@ def run(args: argparse.Namespace) -> int:
     seq = open_sequence(args.sequence)
     if args.stride < 1:
         raise InputError(None, f"--stride must be >= 1, got {args.stride}")
+    if not 1 <= args.batch <= 4096:
+        raise InputError(None, f"--batch must be in 1..4096, got {args.batch}")
     end = len(seq) if args.end is None else min(args.end, len(seq))
     if not 0 <= args.start < end:
         raise InputError(None, f"empty frame range [{args.start}, {end}) of a {len(seq)}-frame sequence")
