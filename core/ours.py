@@ -10,7 +10,8 @@ Layout of one sequence folder::
     depth/NNNNNN.npy     float32 HxW depth_z in metres, 0 = no surface
     flow/NNNNNN.npy      float32 HxWx2 (du, dv) pixels from frame NNNNNN to NNNNNN+1 (none for the last)
     mask/NNNNNN.png      uint16 HxW instance ids, 0 = static scene
-    frames/NNNNNN.json   per-frame record {index, timestamp_s, world_from_cam, ...}; written LAST for a
+    frames/NNNNNN.json   per-frame record {index, timestamp_s, world_from_cam, files: {name: sha256}, ...};
+                         ``--resume`` re-renders a frame whose files no longer hash to its record; written LAST for a
                          frame, so its presence means the frame is complete
     poses.txt            KITTI layout (12 numbers per line), world_from_cam, OpenCV axes; written at the end
     times.txt            one timestamp per line, seconds; written at the end
@@ -66,7 +67,21 @@ class OursWriter:
         atomic.write_json(json_path, self.header)
 
     def done(self, i: int) -> bool:
-        return (self.root / "frames" / f"{_name(i)}.json").is_file()
+        """Frame i's record exists and every file it lists still hashes to the digest recorded when it
+        was written (a damaged frame is written again on resume)."""
+        import hashlib
+
+        try:
+            rec = json.loads((self.root / "frames" / f"{_name(i)}.json").read_text())
+        except (OSError, ValueError):
+            return False
+        files = rec.get("files") if isinstance(rec, dict) else None
+        if files is None:  # a record of an older version: no digests to check
+            return isinstance(rec, dict)
+        try:
+            return all(hashlib.sha256((self.root / rel).read_bytes()).hexdigest() == sha for rel, sha in files.items())
+        except OSError:
+            return False
 
     def write_frame(self, i: int, timestamp_s: float, world_from_cam: np.ndarray, rgb: np.ndarray,
                     depth: np.ndarray | None = None, flow: np.ndarray | None = None,
@@ -77,18 +92,22 @@ class OursWriter:
         Args: rgb uint8 (H,W,3); depth float32 (H,W) depth_z m; flow float32 (H,W,2) px to frame i+1;
         mask uint16 (H,W); world_from_cam (4,4) float64 OpenCV axes; extra: JSON-able per-frame data.
         """
+        import hashlib
+
         n = _name(i)
-        atomic.write_png(self.root / "rgb" / f"{n}.png", np.asarray(rgb, np.uint8))
-        if rgb_right is not None:
-            atomic.write_png(self.root / "rgb_right" / f"{n}.png", np.asarray(rgb_right, np.uint8))
-        if depth is not None:
-            atomic.write_npy(self.root / "depth" / f"{n}.npy", np.asarray(depth, np.float32))
-        if flow is not None:
-            atomic.write_npy(self.root / "flow" / f"{n}.npy", np.asarray(flow, np.float32))
-        if mask is not None:
-            atomic.write_png(self.root / "mask" / f"{n}.png", np.asarray(mask, np.uint16))
+        files: dict[str, str] = {}
+        for sub, ext, data in (("rgb", "png", None if rgb is None else np.asarray(rgb, np.uint8)),
+                               ("rgb_right", "png", None if rgb_right is None else np.asarray(rgb_right, np.uint8)),
+                               ("depth", "npy", None if depth is None else np.asarray(depth, np.float32)),
+                               ("flow", "npy", None if flow is None else np.asarray(flow, np.float32)),
+                               ("mask", "png", None if mask is None else np.asarray(mask, np.uint16))):
+            if data is None:
+                continue
+            path = self.root / sub / f"{n}.{ext}"
+            (atomic.write_png if ext == "png" else atomic.write_npy)(path, data)
+            files[f"{sub}/{n}.{ext}"] = hashlib.sha256(path.read_bytes()).hexdigest()
         record = {"index": i, "timestamp_s": float(timestamp_s),
-                  "world_from_cam": np.asarray(world_from_cam, np.float64).tolist(), **(extra or {})}
+                  "world_from_cam": np.asarray(world_from_cam, np.float64).tolist(), **(extra or {}), "files": files}
         atomic.write_json(self.root / "frames" / f"{n}.json", record)
 
     def finish(self) -> None:

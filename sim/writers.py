@@ -71,6 +71,31 @@ def check_output_folder(out: Path, resume: bool) -> None:
         raise InputError(out, f"cannot create the output folder ({parent} is not writable)")
 
 
+def file_digests(paths: list[Path], root: Path) -> dict[str, str]:
+    """{path relative to ``root``: sha256 of its bytes} of files just written."""
+    import hashlib
+
+    return {str(Path(p).relative_to(root)): hashlib.sha256(Path(p).read_bytes()).hexdigest() for p in paths}
+
+
+def record_verifies(record_path: Path, root: Path) -> bool:
+    """True when the frame record parses and every file it lists (relative to ``root``) still hashes to
+    the digest recorded; a record without digests (an older render) counts as done, as before."""
+    import hashlib
+
+    try:
+        rec = json.loads(record_path.read_text())
+    except (OSError, ValueError):
+        return False
+    files = rec.get("files") if isinstance(rec, dict) else None
+    if files is None:
+        return isinstance(rec, dict)
+    try:
+        return all(hashlib.sha256((root / rel).read_bytes()).hexdigest() == sha for rel, sha in files.items())
+    except OSError:
+        return False
+
+
 class _Sink:
     """Base: per-frame records in a hidden folder mark frames done (kitti, euroc)."""
 
@@ -84,11 +109,14 @@ class _Sink:
         raise NotImplementedError
 
     def done(self, i: int) -> bool:
-        return (self._records() / f"{_name(i)}.json").is_file()
+        """Frame i's record exists and every file it lists still has the bytes written (a damaged or
+        replaced file makes the frame be rendered again on --resume)."""
+        return record_verifies(self._records() / f"{_name(i)}.json", self.root)
 
-    def _mark(self, i: int, frame) -> None:
+    def _mark(self, i: int, frame, written: list[Path]) -> None:
         atomic.write_json(self._records() / f"{_name(i)}.json",
-                          {"index": i, "timestamp_s": frame.timestamp_s, "world_from_cam": frame.world_from_cam.tolist()})
+                          {"index": i, "timestamp_s": frame.timestamp_s, "world_from_cam": frame.world_from_cam.tolist(),
+                           "files": file_digests(written, self.root)})
 
     def _meta(self, fmt: str, complete: bool, extra: dict) -> dict:
         sim = self.sim
@@ -182,16 +210,22 @@ class KittiSink(_Sink):
         import cv2
 
         n = _name(i)
-        atomic.write_png(self.seq / "image_0" / f"{n}.png", cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY))
-        atomic.write_png(self.seq / "image_2" / f"{n}.png", frame.rgb)
+        written = []
+
+        def put(write, path: Path, data) -> None:
+            write(path, data)
+            written.append(path)
+
+        put(atomic.write_png, self.seq / "image_0" / f"{n}.png", cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY))
+        put(atomic.write_png, self.seq / "image_2" / f"{n}.png", frame.rgb)
         if frame.rgb_right is not None:
-            atomic.write_png(self.seq / "image_1" / f"{n}.png", cv2.cvtColor(frame.rgb_right, cv2.COLOR_RGB2GRAY))
-            atomic.write_png(self.seq / "image_3" / f"{n}.png", frame.rgb_right)
-        atomic.write_npy(self.seq / "depth" / f"{n}.npy", frame.depth_z.astype(np.float32))
+            put(atomic.write_png, self.seq / "image_1" / f"{n}.png", cv2.cvtColor(frame.rgb_right, cv2.COLOR_RGB2GRAY))
+            put(atomic.write_png, self.seq / "image_3" / f"{n}.png", frame.rgb_right)
+        put(atomic.write_npy, self.seq / "depth" / f"{n}.npy", frame.depth_z.astype(np.float32))
         if frame.flow is not None and i < self.n - 1:
-            atomic.write_npy(self.seq / "flow" / f"{n}.npy", frame.flow.astype(np.float32))
-        atomic.write_png(self.seq / "mask" / f"{n}.png", frame.mask.astype(np.uint16))
-        self._mark(i, frame)
+            put(atomic.write_npy, self.seq / "flow" / f"{n}.npy", frame.flow.astype(np.float32))
+        put(atomic.write_png, self.seq / "mask" / f"{n}.png", frame.mask.astype(np.uint16))
+        self._mark(i, frame, written)
 
     def finish(self) -> None:
         if self.complete:
@@ -260,15 +294,21 @@ class EurocSink(_Sink):
         import cv2
 
         n, ns = _name(i), self.ns(i)
-        atomic.write_png(self.mav / "cam0" / "data" / f"{ns}.png", cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY))
+        written = []
+
+        def put(write, path: Path, data) -> None:
+            write(path, data)
+            written.append(path)
+
+        put(atomic.write_png, self.mav / "cam0" / "data" / f"{ns}.png", cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY))
         if frame.rgb_right is not None:
-            atomic.write_png(self.mav / "cam1" / "data" / f"{ns}.png", cv2.cvtColor(frame.rgb_right, cv2.COLOR_RGB2GRAY))
+            put(atomic.write_png, self.mav / "cam1" / "data" / f"{ns}.png", cv2.cvtColor(frame.rgb_right, cv2.COLOR_RGB2GRAY))
         cam0 = self.mav / "cam0"
-        atomic.write_npy(cam0 / "depth" / f"{n}.npy", frame.depth_z.astype(np.float32))
+        put(atomic.write_npy, cam0 / "depth" / f"{n}.npy", frame.depth_z.astype(np.float32))
         if frame.flow is not None and i < self.n - 1:
-            atomic.write_npy(cam0 / "flow" / f"{n}.npy", frame.flow.astype(np.float32))
-        atomic.write_png(cam0 / "mask" / f"{n}.png", frame.mask.astype(np.uint16))
-        self._mark(i, frame)
+            put(atomic.write_npy, cam0 / "flow" / f"{n}.npy", frame.flow.astype(np.float32))
+        put(atomic.write_png, cam0 / "mask" / f"{n}.png", frame.mask.astype(np.uint16))
+        self._mark(i, frame, written)
 
     def finish(self) -> None:
         if self.complete:
