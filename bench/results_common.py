@@ -32,8 +32,11 @@ def results_main(name: str, doc: str, config, quick_config, out_name: str,
     ap.add_argument("--quick", action="store_true", help="small sizes (a smoke run)")
     args = ap.parse_args(argv)
     out = args.out or out_dir() / "results" / (f"{out_name}_quick" if args.quick else out_name)
+    from deepslam.core.lock import output_lock
+
     try:
-        report = run(quick_config if args.quick else config, out, args.data or shared_data_dir())
+        with output_lock(out):  # one writer per results folder
+            report = run(quick_config if args.quick else config, out, args.data or shared_data_dir())
     except InputError as e:
         print(f"{name}: error: {e.message()}", file=sys.stderr)
         return 2

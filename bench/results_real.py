@@ -121,8 +121,12 @@ def main(argv: list[str] | None = None) -> int:
         name, _, rest = spec.partition("=")
         path, _, flow = rest.partition("@")
         cands.append(Candidate(name, path, flow or "dis"))
+    from deepslam.core.lock import output_lock
+
+    out = args.out or out_dir() / "results" / "real"
     try:
-        report = run(tuple(cands), args.out or out_dir() / "results" / "real", args.data or shared_data_dir())
+        with output_lock(out):  # one writer per results folder
+            report = run(tuple(cands), out, args.data or shared_data_dir())
     except InputError as e:
         print(f"results_real: error: {e.message()}", file=sys.stderr)
         return 2
