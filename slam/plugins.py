@@ -17,7 +17,6 @@ attribute, an exception, wrong shapes, NaN, a std <= 0) into an InputError namin
 """
 from __future__ import annotations
 
-import importlib
 import shlex
 import subprocess
 import tempfile
@@ -28,12 +27,11 @@ import numpy as np
 
 from deepslam.core import se3
 from deepslam.core.errors import InputError
+from deepslam.core.plugins import ENTRY_POINT_GROUPS, load_factory
 from deepslam.slam.odometry import check_prediction
 
-ENTRY_POINT_GROUP = "deepslam.odometry"
+ENTRY_POINT_GROUP = ENTRY_POINT_GROUPS["odometry"]
 """Entry-point group of odometry plugins (``NAME = "module:factory"``)."""
-FLOW_ENTRY_POINT_GROUP = "deepslam.flow"
-"""Entry-point group of flow-estimator plugins (``NAME = "module:factory"``; see deepslam.vo.flow_estimators)."""
 DEFAULT_COMMAND_STD6 = (0.002, 0.002, 0.002, 0.05, 0.05, 0.05)
 """Std of an external command's relative motions when it writes none (rad x3, m x3)."""
 
@@ -69,43 +67,9 @@ def checked(odometry, label: str) -> CheckedOdometry:
     return CheckedOdometry(odometry, label)
 
 
-def _entry_point(name: str, group: str):
-    from importlib.metadata import entry_points
-
-    found = [ep for ep in entry_points(group=group) if ep.name == name]
-    return found[0] if found else None
-
-
-def load_factory(spec: str, group: str = ENTRY_POINT_GROUP):
-    """The callable named by ``MODULE:FACTORY`` or by an entry point NAME of ``group``."""
-    if ":" in spec:
-        mod_name, _, attr = spec.partition(":")
-        try:
-            mod = importlib.import_module(mod_name)
-        except Exception as e:  # noqa: BLE001 - ImportError, or the module's own error at import
-            raise InputError(None, f"plugin {spec}: cannot import {mod_name} ({type(e).__name__}: {e})") from None
-        obj = mod
-        for part in attr.split("."):
-            if not hasattr(obj, part):
-                raise InputError(None, f"plugin {spec}: {mod_name} has no attribute {attr!r}")
-            obj = getattr(obj, part)
-    else:
-        ep = _entry_point(spec, group)
-        if ep is None:
-            raise InputError(None, f"unknown plugin {spec!r}: neither MODULE:FACTORY nor an installed entry point "
-                                   f"of group {group}")
-        try:
-            obj = ep.load()
-        except Exception as e:  # noqa: BLE001
-            raise InputError(None, f"plugin {spec} ({ep.value}): cannot load ({type(e).__name__}: {e})") from None
-    if not callable(obj):
-        raise InputError(None, f"plugin {spec}: {type(obj).__name__} is not callable")
-    return obj
-
-
 def load_odometry(spec: str) -> CheckedOdometry:
     """An odometry from ``MODULE:FACTORY`` or an entry-point NAME (the factory is called with no arguments)."""
-    factory = load_factory(spec)
+    factory = load_factory(spec, ENTRY_POINT_GROUP)
     try:
         odo = factory()
     except Exception as e:  # noqa: BLE001

@@ -42,9 +42,9 @@ def installed(tmp_path_factory) -> dict:
     return {"python": py, "site": site_dir, "work": work}
 
 
-def _run(installed: dict, *args: str, **kw) -> subprocess.CompletedProcess:
+def _run(installed: dict, *args: str, extra_env: dict | None = None, **kw) -> subprocess.CompletedProcess:
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME")}
-    env.update(MUJOCO_GL="egl", PYOPENGL_PLATFORM="egl", DEEPSLAM_PROGRESS="0")
+    env.update(MUJOCO_GL="egl", PYOPENGL_PLATFORM="egl", DEEPSLAM_PROGRESS="0", **(extra_env or {}))
     return subprocess.run([str(installed["python"]), *args], capture_output=True, text=True, cwd=installed["work"],
                           env=env, timeout=600, **kw)
 
@@ -75,3 +75,62 @@ def test_render_then_vo_with_the_shipped_model_from_any_folder(installed):
     assert len(rows) == 6
     r = _run(installed, "-m", "deepslam", "vo", "--sequence", "missing", "--out", "vo2.txt")
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+USER_CONFTEST = 'pytest_plugins = ["deepslam.testing"]\n'
+USER_TEST = '''
+from deepslam.testing import assert_trajectory_close
+
+def test_ground_truth_against_itself(sim_sequence):
+    seq = sim_sequence(scene="street", frames=3, width=96, seed=2)
+    assert len(seq) == 3 and seq.depth(0).shape == (seq.camera.height, 96)
+    assert_trajectory_close(seq.gt.world_from_cam, seq.gt.world_from_cam, ate_m=1e-9)
+'''
+USER_ODOMETRY = """
+import numpy as np
+from deepslam.core import se3
+
+class Gt:
+    name = "user-gt"
+    def predict(self, seq, pairs):
+        p = np.asarray(pairs).reshape(-1, 2); w = seq.gt.world_from_cam
+        return se3.to_euler6(se3.relative(w[p[:, 1]], w[p[:, 0]])).reshape(-1, 6), np.full((len(p), 6), 0.01)
+
+def make():
+    return Gt()
+"""
+USER_COMMAND = """
+import sys
+from pathlib import Path
+Path(sys.argv[2]).write_text((Path(sys.argv[1]) / "poses.txt").read_text())
+"""
+
+
+@pytest.mark.slow
+def test_a_user_project_against_the_install(installed):
+    """The pytest plugin, a Python odometry plug-in and an external command, from a user's folder."""
+    work = installed["work"]
+    (work / "conftest.py").write_text(USER_CONFTEST)
+    (work / "test_user.py").write_text(USER_TEST)
+    (work / "user_odometry.py").write_text(USER_ODOMETRY)
+    (work / "writer.py").write_text(USER_COMMAND)
+    r = _run(installed, "-m", "pytest", "-q", "-p", "no:cacheprovider", "test_user.py")
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    if not (work / "seq").exists():
+        assert _run(installed, "-m", "deepslam", "render", "--scene", "street", "--frames", "6", "--width", "320",
+                    "--out", "seq", "--quiet").returncode == 0
+    env_py = {"PYTHONPATH": str(work)}
+    r = _run(installed, "-m", "deepslam", "vo", "--sequence", "seq", "--odometry", "user_odometry:make",
+             "--out", "plugin.txt", "--json", extra_env=env_py)
+    assert r.returncode == 0, r.stderr
+    import json
+
+    assert json.loads(r.stdout)["metrics"]["ate_m"] < 1e-9
+    cmd = f"{installed['python']} writer.py {{sequence}} {{out}}"
+    r = _run(installed, "-m", "deepslam", "vo", "--sequence", "seq", "--odometry-command", cmd, "--out", "cmd.txt")
+    assert r.returncode == 0 and "ATE 0.000 m" in r.stdout, r.stderr
+    r = _run(installed, "-m", "deepslam", "stress", "--quick", "--frames", "30", "--objects", "0", "--deform", "0",
+             "--size-objects", "0", "--no-loops", "--odometry", "rigid-fit", "--odometry", "user_odometry:make",
+             "--out", "stress", "--json", extra_env=env_py)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert '"odometry_key": "user-gt"' in r.stdout

@@ -216,10 +216,31 @@ def names() -> list[str]:
 
 
 def make(name: str, **options) -> FlowEstimator:
-    """An estimator by registry name; ``options`` go to its factory (``preset`` for ``dis``)."""
-    if name not in _REGISTRY:
-        raise InputError(None, f"unknown flow estimator {name!r} (one of {', '.join(names())})")
-    return _REGISTRY[name](**options)
+    """An estimator by registry name (``options`` go to its factory: ``preset`` for ``dis``), or a
+    plug-in: ``MODULE:FACTORY`` or a name registered under the entry-point group ``deepslam.flow``
+    (called with no arguments; the object needs ``name``, ``estimate(img0, img1)`` and
+    ``pair_flow(seq, i, j)``, see :class:`FlowEstimator`)."""
+    if name in _REGISTRY:
+        return _REGISTRY[name](**options)
+    from importlib.metadata import entry_points
+
+    from deepslam.core.plugins import ENTRY_POINT_GROUPS, load_factory
+
+    group = ENTRY_POINT_GROUPS["flow"]
+    if ":" not in name and not any(ep.name == name for ep in entry_points(group=group)):
+        raise InputError(None, f"unknown flow estimator {name!r} (one of {', '.join(names())}, MODULE:FACTORY, or "
+                               f"an entry point of group {group})")
+    factory = load_factory(name, group)
+    try:
+        est = factory()
+    except Exception as e:  # noqa: BLE001 - a user's plug-in
+        raise InputError(None, f"flow plugin {name}: the factory failed ({type(e).__name__}: {e})") from None
+    missing = [m for m in ("estimate", "pair_flow") if not callable(getattr(est, m, None))]
+    if missing:
+        raise InputError(None, f"flow plugin {name}: the estimator has no {' or '.join(missing)} method")
+    if not hasattr(est, "name"):
+        est.name = name
+    return est
 
 
 def resize_flow(flow: np.ndarray, width: int, height: int) -> np.ndarray:

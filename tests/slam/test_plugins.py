@@ -44,6 +44,16 @@ def make_shape(): return Bad("shape")
 def make_nan(): return Bad("nan")
 def make_std(): return Bad("std")
 def make_raise(): return Bad("raise")
+class MyFlow:
+    """A user's flow estimator: DIS fast under another name."""
+    name = "my-dis"
+    def __init__(self):
+        from deepslam.vo.flow_estimators import make
+        self.inner = make("dis", preset="fast")
+    def estimate(self, a, b): return self.inner.estimate(a, b)
+    def pair_flow(self, seq, i, j): return self.inner.pair_flow(seq, i, j)
+
+def make_flow(): return MyFlow()
 def make_nothing(): return 42
 def make_failing(): raise ValueError("no weights here")
 NOT_CALLABLE = 3
@@ -204,3 +214,17 @@ def test_vo_and_train_json(seq_dir, plugin_dir, tmp_path, capsys):
     assert rc == 0, cap.err
     doc = json.loads(cap.out)
     assert doc["stop_reason"] == "max_epochs" and doc["epochs"] == 1 and doc["model"].endswith("model.safetensors")
+
+
+def test_flow_plugin_in_vo(plugin_dir, seq_dir, tmp_path, capsys):
+    import json
+
+    rc, cap = _main(["vo", "--sequence", seq_dir, "--flow", "user_vo:make_flow", "--out", tmp_path / "t.txt"], capsys)
+    assert rc == 0, cap.err
+    assert json.loads((tmp_path / "t.config.json").read_text())["flow"] == "my-dis"
+    rc, cap = _main(["vo", "--sequence", seq_dir, "--flow", "user_vo:make_nothing", "--out", tmp_path / "u.txt"], capsys)
+    lines = cap.err.strip().splitlines()
+    assert rc == 2 and len(lines) == 1 and "no estimate or pair_flow method" in lines[0], cap.err
+    rc, cap = _main(["vo", "--sequence", seq_dir, "--flow", "nosuchflow", "--out", tmp_path / "v.txt"], capsys)
+    assert rc == 2 and "unknown flow estimator 'nosuchflow'" in cap.err
+
