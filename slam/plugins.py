@@ -196,12 +196,14 @@ def odometry_from_args(args, seq):
         loops_spec = getattr(args, "odometry_loops", None)
         loops = load_odometry(loops_spec) if loops_spec else cons
         return cons, loops
+    from deepslam.gen.device import resolve_device
     from deepslam.vo import flow_estimators, models
 
     flow = flow_estimators.make(args.flow)
-    cons = models.resolve(args.model_cons, seq, "cons", flow).as_odometry(flow)
+    device = resolve_device(getattr(args, "device", "cpu"))
+    cons = models.resolve(args.model_cons, seq, "cons", flow, device=device).as_odometry(flow)
     loops = None
     if not args.no_loops:
         loops_spec = args.model_loops
-        loops = models.resolve(loops_spec, seq, "loops", flow).as_odometry(flow)
+        loops = models.resolve(loops_spec, seq, "loops", flow, device=device).as_odometry(flow)
     return cons, loops

@@ -34,19 +34,24 @@ class VOPredictor:
         name: short name shown in logs (the model file's stem).
         meta: what the model file says about its training.
         batch_size: flows per forward pass.
-        bf16: run under bfloat16 autocast (None = when the CPU has native bf16).
+        bf16: run under bfloat16 autocast (None = on CUDA, or when the CPU has native bf16).
+        device: torch device to run on (a ``torch.device`` or its name; default the CPU).
         channels_last: NHWC convolutions (faster on this CPU).
     """
 
     def __init__(self, model: FlowPoseNet, name: str = "vo", meta: dict | None = None, batch_size: int = 64,
-                 bf16: bool | None = None, channels_last: bool = True):
+                 bf16: bool | None = None, channels_last: bool = True, device: str | torch.device = "cpu"):
         self.model = model.eval()
         if channels_last:
             self.model.set_channels_last(True)
         self.name = name
         self.meta = meta or {}
         self.batch_size = int(batch_size)
-        self.bf16 = cpu_has_native_bf16() if bf16 is None else bool(bf16)
+        self.device = torch.device(device)
+        self.model = self.model.to(self.device)
+        if bf16 is None:
+            bf16 = True if self.device.type == "cuda" else cpu_has_native_bf16()
+        self.bf16 = bool(bf16)
 
     @classmethod
     def from_file(cls, path: str | Path, **kwargs) -> "VOPredictor":
@@ -79,10 +84,10 @@ class VOPredictor:
             raise ValueError(f"flow (B, 2, h, w) and intrinsics (B, 4) expected, got {tuple(flow.shape)}, {tuple(intr.shape)}")
         means, log_stds = [], []
         for s in range(0, len(flow), self.batch_size):
-            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=self.bf16):
-                m, ls = self.model(flow[s:s + self.batch_size], intr[s:s + self.batch_size])
-            means.append(m.double())
-            log_stds.append(ls.double())
+            with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.bf16):
+                m, ls = self.model(flow[s:s + self.batch_size].to(self.device), intr[s:s + self.batch_size].to(self.device))
+            means.append(m.double().cpu())
+            log_stds.append(ls.double().cpu())
         if not means:
             return np.zeros((0, 6)), np.zeros((0, 6))
         return torch.cat(means).numpy(), torch.cat(log_stds).exp().numpy()

@@ -96,6 +96,10 @@ class TrainConfig:
     """Keep convolution weights and inputs channels-last (NHWC)."""
     threads: int = 0
     """torch intra-op threads (0 = leave torch's default)."""
+    device: str = "cpu"
+    """torch device the network trains on ("cpu", "cuda", "cuda:N"; the command's ``--device auto``
+    resolves to one). Weights are stored on the CPU, so a model trained on one device loads on any;
+    the data is made on the CPU and each batch moved to the device (pinned memory where CUDA)."""
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
@@ -139,7 +143,15 @@ def new_model(cfg: TrainConfig) -> FlowPoseNet:
 
 
 def _autocast(cfg: TrainConfig):
-    return torch.autocast("cpu", dtype=torch.bfloat16, enabled=cfg.bf16)
+    return torch.autocast(torch.device(cfg.device).type, dtype=torch.bfloat16, enabled=cfg.bf16)
+
+
+def _on(cfg: TrainConfig, b: dict) -> dict:
+    """A batch on the training device (pinned and non-blocking to CUDA; untouched on the CPU)."""
+    dev = torch.device(cfg.device)
+    if dev.type == "cpu":
+        return b
+    return {k: v.pin_memory().to(dev, non_blocking=True) for k, v in b.items()}
 
 
 def _step_size(cfg: TrainConfig, n_train: int) -> int:
@@ -194,12 +206,13 @@ def evaluate(model: FlowPoseNet, source: Source, cfg: TrainConfig) -> dict:
     model.eval()
     n, loss, nll, se = 0, 0.0, 0.0, torch.zeros(6, dtype=torch.float64)
     for b in source.batches(0, cfg.batch_size):
+        b = _on(cfg, b)
         with _autocast(cfg):
             mean, log_std = model(b["flow"], b["intrinsics"])
         k = len(b["target"])
         loss += float(pose_loss(mean, b["target"], cfg.rot_weight)) * k
         nll += float(gaussian_nll(mean, log_std, b["target"])) * k
-        se += ((mean.double() - b["target"].double()) ** 2).sum(0)
+        se += ((mean.double() - b["target"].double()) ** 2).sum(0).cpu()
         n += k
     return {"loss": loss / max(n, 1), "nll": nll / max(n, 1), "rmse6": (se / max(n, 1)).sqrt().tolist()}
 
@@ -228,6 +241,7 @@ def head_inputs(model: FlowPoseNet, source: Source, cfg: TrainConfig) -> HeadInp
     model.eval()
     parts: list[tuple[torch.Tensor, ...]] = []
     for b in source.batches(0, cfg.batch_size):
+        b = _on(cfg, b)
         with _autocast(cfg):
             hr, ht = model.trunk(b["flow"], b["intrinsics"])
         parts.append((hr, ht, model.mean_head(hr, ht), b["target"].float()))
@@ -238,7 +252,7 @@ def head_inputs(model: FlowPoseNet, source: Source, cfg: TrainConfig) -> HeadInp
 def evaluate_heads(model: FlowPoseNet, hi: HeadInputs, cfg: TrainConfig) -> dict:
     """:func:`evaluate`'s figures from cached trunk features."""
     log_std = model.log_std_head(hi.hr, hi.ht)
-    se = ((hi.mean.double() - hi.target.double()) ** 2).mean(0)
+    se = ((hi.mean.double() - hi.target.double()) ** 2).mean(0).cpu()
     return {"loss": float(pose_loss(hi.mean, hi.target, cfg.rot_weight)),
             "nll": float(gaussian_nll(hi.mean, log_std, hi.target)), "rmse6": se.sqrt().tolist()}
 
@@ -253,7 +267,7 @@ def uncertainty_epoch(model: FlowPoseNet, hi: HeadInputs, cfg: TrainConfig, opt:
     """
     model.train()
     g = torch.Generator().manual_seed(_seed(cfg.seed, epoch, 0x2))
-    order = torch.randperm(len(hi), generator=g)
+    order = torch.randperm(len(hi), generator=g).to(hi.target.device)
     nll_sum, n_seen = 0.0, 0
     for step, s in enumerate(range(0, len(hi), cfg.batch_size)):
         idx = order[s:s + cfg.batch_size]
@@ -287,7 +301,7 @@ def fit_uncertainty(model: FlowPoseNet, source: Source, cfg: TrainConfig, epochs
 @torch.no_grad()
 def init_log_std(model: FlowPoseNet, hi: HeadInputs) -> list[float]:
     """Start stage 2 from a calibrated constant: log-std heads' weights 0, biases log(held-out RMSE)."""
-    rmse = ((hi.mean.double() - hi.target.double()) ** 2).mean(0).sqrt().float().clamp_min(1e-5)
+    rmse = ((hi.mean.double() - hi.target.double()) ** 2).mean(0).sqrt().float().clamp_min(1e-5).to(hi.mean.device)
     for head, part in ((model.rot_log_std, rmse[:3]), (model.trans_log_std, rmse[3:])):
         head.weight.zero_()
         head.bias.copy_(part.log())
@@ -348,7 +362,7 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
         raise InputError(ckpt_path, "a training run is already here; pass --resume to continue it or choose another --out")
     if not resume and any(out_dir.iterdir()):
         raise InputError(out_dir, "output folder is not empty and holds no training run; choose another --out")
-    model = new_model(cfg)
+    model = new_model(cfg).to(torch.device(cfg.device))
     if cfg.channels_last:
         model.set_channels_last(True)
     n_train = len(train_source)
@@ -364,7 +378,7 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
         ck = load_checkpoint(ckpt_path)
         old, new = ck.get("config") or {}, cfg.to_dict()
         diff = sorted(k for k in set(old) | set(new)
-                      if old.get(k) != new.get(k) and k not in ("max_epochs", "max_minutes", "max_samples", "threads"))
+                      if old.get(k) != new.get(k) and k not in ("max_epochs", "max_minutes", "max_samples", "threads", "device"))
         if diff:
             raise InputError(ckpt_path, f"cannot resume: settings differ from the checkpoint's ({', '.join(diff)})")
         state = ck["train_state"]
@@ -434,6 +448,7 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
         bar = tqdm(total=planned, desc=f"epoch {epoch + 1}", unit="sample", disable=not progress, leave=False,
                    dynamic_ncols=True)
         for step, b in enumerate(train_source.batches(epoch, cfg.batch_size)):
+            b = _on(cfg, b)
             with _autocast(cfg):
                 mean, _ = model(b["flow"], b["intrinsics"])
             loss = pose_loss(mean, b["target"], cfg.rot_weight)

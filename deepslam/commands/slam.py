@@ -44,6 +44,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="consecutive-frame odometry: model (the network, default) or a plug-in: a factory returning "
                         "an object with name and predict(seq, pairs) -> (mean6, std6), or an entry-point name of group "
                         "deepslam.odometry")
+    p.add_argument("--device", default="auto", help="where the network runs: auto (CUDA when torch sees one, else "
+                   "the CPU), cpu, cuda or cuda:N")
     p.add_argument("--odometry-loops", default=None, metavar="MODULE:FACTORY|NAME",
                    help="loop-pair odometry plug-in (default: the --odometry plug-in, or NN_loops with the network)")
     p.add_argument("--odometry-command", default=None, metavar="'CMD {sequence} {out}'",

@@ -126,6 +126,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--bf16", choices=("auto", "on", "off"), default="auto", help="bf16 autocast (auto: native bf16 CPUs)")
     g.add_argument("--channels-last", choices=("on", "off"), default="on")
     g.add_argument("--threads", type=int, default=0, help="torch threads (0 = default)")
+    g.add_argument("--device", default="auto", help="auto (CUDA when torch sees one, else the CPU), cpu, cuda or "
+                   "cuda:N; bf16 autocast by default on CUDA")
     g.add_argument("--half-weights", action="store_true", help="store model.safetensors's weights as float16")
 
 
@@ -197,7 +199,7 @@ def speed_summary(cfg, preset: str, data_meta: dict, n_train: int, n_hold: int) 
     caps = [f"{cfg.max_epochs} epochs"] + ([f"{cfg.max_samples} samples"] if cfg.max_samples else []) \
         + ([f"{cfg.max_minutes:g} min"] if cfg.max_minutes else [])
     return (f"network: {preset} preset, input {net.input_height}x{net.input_width}, {net.filters} filters, "
-            f"{net.hidden_units} units; batch {cfg.batch_size}; torch threads {threads}; "
+            f"{net.hidden_units} units; batch {cfg.batch_size}; device {cfg.device}; torch threads {threads}; "
             f"bf16 {'on' if cfg.bf16 else 'off'}; channels-last {'on' if cfg.channels_last else 'off'}\n"
             f"data: {source}; {n_train} training + {n_hold} held-out samples per epoch; "
             f"stops at {' / '.join(caps)} (whichever first), or when the learning rate falls below {cfg.lr_stop:g}")
@@ -241,14 +243,20 @@ def run(args: argparse.Namespace) -> int:
     from deepslam.vo.train import TrainConfig, TrainingDiverged, train
 
     _check_ranges(args)
+    from deepslam.gen.device import resolve_device
+
+    device = resolve_device(args.device)
     net = net_config(args)
-    bf16 = cpu_has_native_bf16() if args.bf16 == "auto" else args.bf16 == "on"
+    if args.bf16 == "auto":
+        bf16 = True if device.type == "cuda" else cpu_has_native_bf16()
+    else:
+        bf16 = args.bf16 == "on"
     cfg = TrainConfig(net=net, batch_size=args.batch, lr_min=args.lr_min, lr_max=args.lr_max,
                       lr_half_cycle_steps=args.half_cycle_steps, patience_epochs=args.patience, lr_stop=args.lr_stop,
                       max_epochs=args.max_epochs, max_minutes=args.max_minutes, max_samples=args.max_samples,
                       rot_weight=args.rot_weight,
                       holdout_fraction=args.holdout, nll_epochs=args.nll_epochs, nll_lr=args.nll_lr, seed=args.seed,
-                      bf16=bf16, channels_last=args.channels_last == "on", threads=args.threads)
+                      bf16=bf16, channels_last=args.channels_last == "on", threads=args.threads, device=str(device))
     if not 0 < args.holdout < 1:
         raise InputError(None, f"--holdout must be in (0, 1), got {args.holdout}")
     progress = not (args.quiet or args.json)

@@ -61,6 +61,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "evaluations, method, vo_ate_m (per sequence), out")
     p.add_argument("--odometry", default="model", metavar="MODULE:FACTORY|NAME",
                    help="consecutive-frame odometry: model (default) or a plug-in (see deepslam slam --help)")
+    p.add_argument("--device", default="auto", help="where the network runs: auto (CUDA when torch sees one, else "
+                   "the CPU), cpu, cuda or cuda:N")
     p.add_argument("--odometry-loops", default=None, metavar="MODULE:FACTORY|NAME", help="loop-pair odometry plug-in")
     p.add_argument("--odometry-command", default=None, metavar="'CMD {sequence} {out}'",
                    help="an external program writing a trajectory to {out} (see deepslam slam --help)")

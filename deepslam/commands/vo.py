@@ -28,6 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--start", type=int, default=0, help="first frame")
     p.add_argument("--end", type=int, default=None, help="one past the last frame (default: all)")
     p.add_argument("--batch", type=int, default=64, help="flows per forward pass")
+    p.add_argument("--device", default="auto", help="auto (CUDA when torch sees one, else the CPU), cpu, cuda or cuda:N")
     p.add_argument("--bf16", choices=("auto", "on", "off"), default="auto",
                    help="bfloat16 inference (auto: when the CPU computes bf16 natively)")
     p.add_argument("--odometry", default=None, metavar="MODULE:FACTORY|NAME",
@@ -78,7 +79,10 @@ def run(args: argparse.Namespace) -> int:
         opts = {"preset": args.dis_preset} if args.flow == "dis" else {}
         estimator = flow_estimators.make(args.flow, **opts)
         bf16 = None if args.bf16 == "auto" else args.bf16 == "on"
-        predictor = models.resolve(args.model, seq, flow=estimator, batch_size=args.batch, bf16=bf16)
+        from deepslam.gen.device import resolve_device
+
+        predictor = models.resolve(args.model, seq, flow=estimator, batch_size=args.batch, bf16=bf16,
+                                   device=resolve_device(args.device))
         mean6, std6 = predictor.predict_pairs(seq, pairs, estimator, progress=not (args.quiet or args.json))
         name = predictor.name
     world_from_cam = chain_euler6(mean6)
@@ -100,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         config.update(model=args.model or f"shipped:{models.kind_for_sequence(seq)}_cons", model_name=name,
                       model_net=predictor.model.cfg.to_dict(), flow=getattr(estimator, "name", args.flow),
-                      bf16=predictor.bf16, batch=args.batch)
+                      bf16=predictor.bf16, batch=args.batch, device=str(predictor.device))
     atomic.write_json(Path(f"{stem}.config.json"), config)
     say = (lambda *a, **k: None) if args.json else print
     say(f"wrote {out} ({len(frames)} poses, {fmt}) and {stem}.motions.csv")

@@ -319,3 +319,20 @@ def test_speed_sweep_of_a_perfect_reader_is_flat(plane_sequence):
     assert [r.ratio_median for r in reads[1:]] == pytest.approx([1.0, 1.0])
     assert reads[2].true_m == pytest.approx(2.0)
     assert scale_sweep.flatness(reads) == {"ratio_min": 1.0, "ratio_max": 1.0, "read_at_rest_m": 0.0, "min_speed_mps": 2.0}
+
+
+@pytest.mark.parametrize("keep_sky", [True, False])
+def test_fill_depth_holes_fills_inner_holes_and_leaves_the_sky_at_infinity(keep_sky):
+    """Stereo holes inside the scene (a textureless patch, an occlusion shadow) take the nearest known
+    depth; the hole touching the top border is the sky and stays 0 (at infinity) unless told otherwise."""
+    d = np.full((8, 10), 5.0, np.float32)
+    d[:2, :] = 0.0            # sky: the top rows
+    d[5, 4:6] = 0.0           # an inner hole
+    d[4, 0] = np.nan          # a bad value inside the scene (not connected to the sky)
+    out = data.fill_depth_holes(d, keep_sky=keep_sky)
+    assert (out[5, 4:6] == 5.0).all() and out[4, 0] == 5.0
+    if keep_sky:
+        assert (out[:2] == 0).all()
+    else:
+        assert (out[:2] == 5.0).all()
+    assert np.array_equal(out[out > 0] > 0, np.ones((out > 0).sum(), bool))

@@ -220,3 +220,30 @@ def test_cached_stage_two_figures_match_a_full_forward(trained, toy):
     assert cached["loss"] == pytest.approx(full["loss"], rel=1e-5)
     assert cached["nll"] == pytest.approx(full["nll"], rel=1e-5, abs=1e-6)
     np.testing.assert_allclose(cached["rmse6"], full["rmse6"], rtol=1e-5)
+
+
+def test_device_flag_resolves_and_refuses_what_is_not_here(capsys):
+    from deepslam.cli import main
+    from deepslam.core.errors import InputError
+    from deepslam.gen.device import resolve_device
+
+    assert resolve_device("cpu").type == "cpu"
+    assert resolve_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
+    with pytest.raises(InputError, match="not auto, cpu, cuda or cuda:N"):
+        resolve_device("tpu")
+    if torch.cuda.is_available():
+        pytest.skip("a CUDA device is present: the refusal below is for machines without one")
+    assert main(["train", "--mode", "synthetic", "--toy", "64", "--net", "tiny", "--device", "cuda", "--out", "x"]) == 2
+    assert "no CUDA device here" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device on this machine (the CPU path is tested above)")
+def test_cuda_training_matches_the_cpu_within_tolerance(toy, tmp_path):
+    """The same seed on CPU and GPU: the same data and initial weights; float32 results agree to a few
+    percent of the held-out loss (cuDNN and the CPU sum in different orders)."""
+    cfg = _cfg(max_epochs=2, nll_epochs=1, bf16=False)
+    cpu = train(cfg, *toy, tmp_path / "cpu", progress=False)
+    gpu = train(dataclasses.replace(cfg, device="cuda"), *toy, tmp_path / "gpu", progress=False)
+    assert gpu.best_val_loss == pytest.approx(cpu.best_val_loss, rel=0.05)
+    a, _ = load_model(gpu.model_path)  # trained on the GPU, loads on the CPU
+    assert next(a.parameters()).device.type == "cpu"
