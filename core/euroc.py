@@ -196,10 +196,17 @@ def read_euroc(root: str | Path, gt_path: str | Path | None = None, rectify: boo
     flow_paths = beside("flow", ".npy")
     if flow_paths is not None:
         flow_paths = flow_paths[:-1] + [None]
+    back_paths = beside("flow_backward", ".npy")
+    if back_paths is not None:
+        back_paths = [None] + back_paths[1:]
+    occ_paths = beside("occlusion", ".png")
+    if occ_paths is not None:
+        occ_paths = occ_paths[:-1] + [None]
     return Sequence(
         name=f"euroc/{root.name}", kind="euroc", root=root, camera=camera, timestamps_s=times,
         image_paths=files0, right_paths=right_paths, baseline_m=baseline, gt=gt,
         depth_paths=beside("depth", ".npy"), flow_paths=flow_paths, mask_paths=beside("mask", ".png"),
+        flow_backward_paths=back_paths, occlusion_paths=occ_paths,
         postprocess=postprocess if maps else None,
         meta={"timestamps_ns": ns.tolist(), "rect_from_cam0": rect_from_cam0.tolist(),
               "body_from_cam0": cam0["body_from_cam"].tolist(), "gt_path": None if gt_file is None else str(gt_file)},

@@ -86,11 +86,13 @@ class OursWriter:
     def write_frame(self, i: int, timestamp_s: float, world_from_cam: np.ndarray, rgb: np.ndarray,
                     depth: np.ndarray | None = None, flow: np.ndarray | None = None,
                     mask: np.ndarray | None = None, rgb_right: np.ndarray | None = None,
-                    extra: dict | None = None) -> None:
+                    extra: dict | None = None, flow_backward: np.ndarray | None = None,
+                    occlusion: np.ndarray | None = None) -> None:
         """Write frame i's files, then its record (which marks it complete).
 
         Args: rgb uint8 (H,W,3); depth float32 (H,W) depth_z m; flow float32 (H,W,2) px to frame i+1;
-        mask uint16 (H,W); world_from_cam (4,4) float64 OpenCV axes; extra: JSON-able per-frame data.
+        mask uint16 (H,W); world_from_cam (4,4) float64 OpenCV axes; extra: JSON-able per-frame data;
+        flow_backward float32 (H,W,2) px to frame i-1; occlusion bool (H,W), True = not visible in i+1.
         """
         import hashlib
 
@@ -100,7 +102,9 @@ class OursWriter:
                                ("rgb_right", "png", None if rgb_right is None else np.asarray(rgb_right, np.uint8)),
                                ("depth", "npy", None if depth is None else np.asarray(depth, np.float32)),
                                ("flow", "npy", None if flow is None else np.asarray(flow, np.float32)),
-                               ("mask", "png", None if mask is None else np.asarray(mask, np.uint16))):
+                               ("mask", "png", None if mask is None else np.asarray(mask, np.uint16)),
+                               ("flow_backward", "npy", None if flow_backward is None else np.asarray(flow_backward, np.float32)),
+                               ("occlusion", "png", None if occlusion is None else (np.asarray(occlusion) > 0).astype(np.uint8) * 255)):
             if data is None:
                 continue
             path = self.root / sub / f"{n}.{ext}"
@@ -150,6 +154,9 @@ def read_ours(root: str | Path) -> Sequence:
         depth_paths=[root / "depth" / f"{s}.npy" for s in names] if has.get("depth") else None,
         flow_paths=([root / "flow" / f"{s}.npy" for s in names[:-1]] + [None]) if has.get("flow") else None,
         mask_paths=[root / "mask" / f"{s}.png" for s in names] if has.get("mask") else None,
+        flow_backward_paths=([None] + [root / "flow_backward" / f"{s}.npy" for s in names[1:]])
+        if has.get("flow_backward") else None,
+        occlusion_paths=([root / "occlusion" / f"{s}.png" for s in names[:-1]] + [None]) if has.get("occlusion") else None,
         meta=header,
     )
 

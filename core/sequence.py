@@ -109,6 +109,8 @@ class Sequence:
             motion capture starts late): ``gt`` then has one pose per entry. None: one per frame.
         depth_reader: function path -> (H, W) float32 depth_z in metres for depth files that are not
             this project's .npy (TUM's 16-bit PNGs); None: .npy.
+        flow_backward_paths / occlusion_paths: per-frame paths of the backward flow (None for frame 0)
+            and the occlusion masks (None for the last frame), where the data has them.
     """
 
     name: str
@@ -127,6 +129,8 @@ class Sequence:
     meta: dict = dataclasses.field(default_factory=dict)
     gt_frames: np.ndarray | None = None
     depth_reader: Callable[[Path], np.ndarray] | None = None
+    flow_backward_paths: list[Path | None] | None = None
+    occlusion_paths: list[Path | None] | None = None
 
     def __len__(self) -> int:
         return len(self.image_paths)
@@ -171,6 +175,19 @@ class Sequence:
         if self.flow_paths is None or self.flow_paths[i] is None:
             return None
         return read_npy(self.flow_paths[i], np.float32, 3)
+
+    def flow_backward(self, i: int) -> np.ndarray | None:
+        """(H, W, 2) float32 flow (du, dv) px from frame i to i-1; None where absent (frame 0)."""
+        if self.flow_backward_paths is None or self.flow_backward_paths[i] is None:
+            return None
+        return read_npy(self.flow_backward_paths[i], np.float32, 3)
+
+    def occlusion(self, i: int) -> np.ndarray | None:
+        """(H, W) bool, True where the surface seen at a pixel of frame i is not visible in frame i+1
+        (hidden, or outside the image); None where absent (the last frame)."""
+        if self.occlusion_paths is None or self.occlusion_paths[i] is None:
+            return None
+        return read_image(self.occlusion_paths[i]) > 0
 
     def mask(self, i: int) -> np.ndarray | None:
         """(H, W) uint16 instance ids, 0 = static scene; None when absent."""

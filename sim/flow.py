@@ -12,8 +12,10 @@ For each pixel (u, v) of frame t with depth_z > 0 and scene body b (from the seg
 
 Pixels where nothing is hit (sky, depth 0) get the flow of a point at infinity in that direction
 (rotation only), which is what the background at infinity does. A point that ends up behind the
-camera at t+1 has no projection: its flow is NaN. Occlusion at t+1 is not handled: the flow says
-where the surface point goes, whether or not it is visible there.
+camera at t+1 has no projection: its flow is NaN. The flow says where the surface point goes,
+whether or not it is visible there; :func:`occlusion_mask` says whether it is (the depth of the
+moved point against frame t+1's rendered depth). Backward flow is the same computation from frame
+t to the state of frame t-1.
 """
 from __future__ import annotations
 
@@ -54,6 +56,13 @@ class FlowComputer:
             depth_z: (H, W) float32 metres, 0 = nothing hit.
             body: (H, W) int scene-body index per pixel, -1 = nothing hit.
         """
+        return self.flow_and_depth(scene, depth_z, body, s0, s1)[0]
+
+    def flow_and_depth(self, scene: Scene, depth_z: np.ndarray, body: np.ndarray, s0: WorldState,
+                       s1: WorldState) -> tuple[np.ndarray, np.ndarray]:
+        """(flow, z1): the flow of :meth:`flow` (s1 may be earlier than s0: backward flow) and z1 (H, W)
+        float32, the depth_z in camera s1 of each pixel's moved surface point (inf where nothing is
+        hit: the point at infinity; NaN where it is behind camera s1)."""
         cam = self.camera
         h, w = depth_z.shape
         cam1_from_world = se3.inverse(s1.world_from_cam)
@@ -86,4 +95,35 @@ class FlowComputer:
         flow = np.empty((h, w, 2), np.float32)
         flow[..., 0] = (p1[0] * inv).reshape(h, w) * np.float32(cam.fx) + self._du
         flow[..., 1] = (p1[1] * inv).reshape(h, w) * np.float32(cam.fy) + self._dv
-        return flow
+        z1 = np.where(hit, np.where(zc > 1e-9, zc, np.nan), np.inf).astype(np.float32).reshape(h, w)
+        return flow, z1
+
+
+def occlusion_mask(flow: np.ndarray, z1: np.ndarray, depth1: np.ndarray, rel_tol: float = 0.02,
+                   abs_tol_m: float = 0.02) -> np.ndarray:
+    """(H, W) bool: True where the surface seen at a pixel of frame t is NOT visible in frame t+1.
+
+    A pixel's point moved to t+1 (``flow`` (H, W, 2) px, ``z1`` its depth_z in camera t+1 from
+    :meth:`FlowComputer.flow_and_depth`) is visible when it lands inside the image and, at one of the
+    (up to) four pixels around where it lands, frame t+1's rendered depth ``depth1`` is not nearer than
+    ``z1`` (within ``rel_tol`` x z1 + ``abs_tol_m``). A point at infinity (sky) is visible where t+1
+    sees nothing (depth 0) there. A point behind camera t+1, or whose flow is not finite, is hidden.
+    """
+    h, w = z1.shape
+    v, u = np.mgrid[0:h, 0:w].astype(np.float32)
+    u1, v1 = u + flow[..., 0], v + flow[..., 1]
+    finite = np.isfinite(u1) & np.isfinite(v1) & ~np.isnan(z1)
+    inside = finite & (u1 > -0.5) & (u1 < w - 0.5) & (v1 > -0.5) & (v1 < h - 0.5)
+    visible = np.zeros((h, w), bool)
+    u0 = np.floor(np.where(inside, u1, 0)).astype(np.int64)
+    v0 = np.floor(np.where(inside, v1, 0)).astype(np.int64)
+    sky = np.isinf(z1)
+    z_ok = np.where(sky, 0.0, z1)  # no surface to compare for the point at infinity
+    for du in (0, 1):
+        for dv in (0, 1):
+            uu, vv = np.clip(u0 + du, 0, w - 1), np.clip(v0 + dv, 0, h - 1)
+            d1 = depth1[vv, uu]
+            surface_ok = ~sky & (d1 > 0) & (d1 >= z_ok - (rel_tol * z_ok + abs_tol_m))
+            sky_ok = sky & (d1 <= 0)
+            visible |= inside & (surface_ok | sky_ok)
+    return ~visible

@@ -11,7 +11,7 @@ from deepslam.core.trajectory import Trajectory
 from deepslam.scenes import SceneConfig, build_scene
 from deepslam.scenes.spec import Scene
 from deepslam.sim.config import SimConfig, camera_for
-from deepslam.sim.flow import FlowComputer
+from deepslam.sim.flow import FlowComputer, occlusion_mask
 from deepslam.sim.trajectories import make_motion
 from deepslam.sim.world import WorldState, separate_movers, world_state
 
@@ -38,6 +38,10 @@ class SimFrame:
         depth_right: (H, W) float32 depth_z of the right image, or None (only when asked for).
         baseline_m: the stereo baseline, or None.
         instance_poses: {instance id: (4, 4) world_from_body at this frame} of the rigid movers.
+        flow_backward: (H, W, 2) float32 (du, dv) pixels from this frame to frame index - 1 (the
+            same exact computation backwards in time), or None (frame 0, or not asked for).
+        occlusion: (H, W) bool, True where the surface seen at a pixel is not visible in frame
+            index + 1 (hidden by something nearer, outside the image, or behind the camera), or None.
     """
 
     index: int
@@ -53,6 +57,8 @@ class SimFrame:
     depth_right: np.ndarray | None = None
     baseline_m: float | None = None
     instance_poses: dict = dataclasses.field(default_factory=dict)
+    flow_backward: np.ndarray | None = None
+    occlusion: np.ndarray | None = None
 
     @property
     def world_from_cam_right(self) -> np.ndarray | None:
@@ -138,13 +144,17 @@ class Simulator:
         """Ground-truth world_from_cam of the left camera at the frame times (OpenCV axes)."""
         return Trajectory(self.motion.world_from_cam(self.timestamps_s), self.timestamps_s.copy())
 
-    def frame(self, i: int, *, right: bool | None = None, flow: bool | None = None, depth_right: bool = False) -> SimFrame:
+    def frame(self, i: int, *, right: bool | None = None, flow: bool | None = None, depth_right: bool = False,
+              backward: bool | None = None, occlusion: bool | None = None) -> SimFrame:
         """Render frame i (0 <= i; frames past ``num_frames`` are allowed too).
 
         Args:
             right: render the right image (default: when the baseline is set).
             flow: compute the flow to frame i+1 (default: ``config.render.flow``).
             depth_right: also render the right camera's depth.
+            backward: compute the backward flow to frame i-1 (default: with the config's flow, i > 0).
+            occlusion: compute the occlusion mask against frame i+1 (default: when the forward flow is
+                computed; costs one depth-only render of frame i+1).
         """
         if i < 0:
             raise IndexError(f"frame {i} < 0")
@@ -154,13 +164,20 @@ class Simulator:
         self.backend.set_state(s0)
         left = self.backend.render("left", colour=True, depth=True)
         r = self.backend.render("right", colour=True, depth=depth_right) if right else {}
-        fl = None
+        fl = occ = back = None
         if flow:
-            fl = self._flow.flow(self.scene, left["depth_z"], left["body"], s0, self.state(i + 1))
+            fl, z1 = self._flow.flow_and_depth(self.scene, left["depth_z"], left["body"], s0, self.state(i + 1))
+            if occlusion is None or occlusion:
+                self.backend.set_state(self.state(i + 1))
+                depth1 = self.backend.render("left", colour=False, depth=True)["depth_z"]
+                occ = occlusion_mask(fl, z1, depth1)
+        if (self.config.render.flow if backward is None else backward) and i > 0:
+            back = self._flow.flow(self.scene, left["depth_z"], left["body"], s0, self.state(i - 1))
         mask = self._inst[left["body"] + 1]
         poses = {b.instance_id: s0.world_from_body[k] for k, b in enumerate(self.scene.bodies) if b.kind == "rigid"}
         return SimFrame(i, self.time(i), self.camera, s0.world_from_cam, left["rgb"], left["depth_z"], fl, mask,
-                        left["body"], r.get("rgb"), r.get("depth_z"), self.baseline_m if right else None, poses)
+                        left["body"], r.get("rgb"), r.get("depth_z"), self.baseline_m if right else None, poses,
+                        back, occ)
 
     def close(self) -> None:
         if getattr(self, "backend", None) is not None:

@@ -154,7 +154,8 @@ class OursSink:
                   "stereo_baseline_m": sim.baseline_m, "scene": sim.scene.name,
                   "trajectory": getattr(sim.motion, "name", None), "seed": config.scene.seed, "backend": sim.backend_name,
                   "config": sim.resolved_config.to_dict(), "instances": _instances(sim),
-                  "has": {"rgb_right": bool(sim.baseline_m), "depth": True, "flow": bool(config.render.flow), "mask": True}}
+                  "has": {"rgb_right": bool(sim.baseline_m), "depth": True, "flow": bool(config.render.flow), "mask": True,
+                          "flow_backward": bool(config.render.flow), "occlusion": bool(config.render.flow)}}
         self.complete = False
         if resume and (root / "sequence.json").is_file():
             try:
@@ -173,7 +174,8 @@ class OursSink:
     def write(self, i: int, frame) -> None:
         flow = frame.flow if i < self.n - 1 else None
         self.writer.write_frame(i, frame.timestamp_s, frame.world_from_cam, frame.rgb, frame.depth_z, flow, frame.mask,
-                                frame.rgb_right, extra={"instance_poses": {str(k): v.tolist() for k, v in frame.instance_poses.items()}})
+                                frame.rgb_right, extra={"instance_poses": {str(k): v.tolist() for k, v in frame.instance_poses.items()}},
+                                flow_backward=frame.flow_backward, occlusion=frame.occlusion if i < self.n - 1 else None)
 
     def finish(self) -> None:
         if not self.complete:
@@ -224,6 +226,10 @@ class KittiSink(_Sink):
         put(atomic.write_npy, self.seq / "depth" / f"{n}.npy", frame.depth_z.astype(np.float32))
         if frame.flow is not None and i < self.n - 1:
             put(atomic.write_npy, self.seq / "flow" / f"{n}.npy", frame.flow.astype(np.float32))
+        if frame.occlusion is not None and i < self.n - 1:
+            put(atomic.write_png, self.seq / "occlusion" / f"{n}.png", frame.occlusion.astype(np.uint8) * 255)
+        if frame.flow_backward is not None:
+            put(atomic.write_npy, self.seq / "flow_backward" / f"{n}.npy", frame.flow_backward.astype(np.float32))
         put(atomic.write_png, self.seq / "mask" / f"{n}.png", frame.mask.astype(np.uint16))
         self._mark(i, frame, written)
 
@@ -307,6 +313,10 @@ class EurocSink(_Sink):
         put(atomic.write_npy, cam0 / "depth" / f"{n}.npy", frame.depth_z.astype(np.float32))
         if frame.flow is not None and i < self.n - 1:
             put(atomic.write_npy, cam0 / "flow" / f"{n}.npy", frame.flow.astype(np.float32))
+        if frame.occlusion is not None and i < self.n - 1:
+            put(atomic.write_png, cam0 / "occlusion" / f"{n}.png", frame.occlusion.astype(np.uint8) * 255)
+        if frame.flow_backward is not None:
+            put(atomic.write_npy, cam0 / "flow_backward" / f"{n}.npy", frame.flow_backward.astype(np.float32))
         put(atomic.write_png, cam0 / "mask" / f"{n}.png", frame.mask.astype(np.uint16))
         self._mark(i, frame, written)
 
