@@ -331,6 +331,7 @@ def test_fill_depth_holes_fills_inner_holes_and_leaves_the_sky_at_infinity(keep_
     d[4, 0] = np.nan          # a bad value inside the scene (not connected to the sky)
     out = data.fill_depth_holes(d, keep_sky=keep_sky)
     assert (out[5, 4:6] == 5.0).all() and out[4, 0] == 5.0
+    assert np.array_equal(data.fill_depth_holes(d), data.fill_depth_holes(d, keep_sky=False))  # the default
     if keep_sky:
         assert (out[:2] == 0).all()
     else:
