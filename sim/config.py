@@ -57,6 +57,9 @@ class RenderConfig:
     """Image height in pixels (None: the scene camera's, or from width keeping its aspect ratio)."""
     stereo_baseline_m: float | None = None
     """Right camera at +baseline along the camera x axis, metres (None: the scene's default; 0: mono)."""
+    focal_px: float | None = None
+    """Focal length fx = fy in pixels (e.g. a Kinect's 537 at 640x480); None keeps the scene camera's
+    vertical field of view. The renderers take square pixels and a centred principal point."""
     flow: bool = True
     """Compute the forward ground-truth optical flow."""
 
@@ -66,6 +69,8 @@ class RenderConfig:
         for name, v in (("width", self.width), ("height", self.height)):
             if v is not None and (not isinstance(v, int) or v < 1 or v > MAX_SIDE_PX):
                 raise InputError(None, f"{name} must be an integer in 1..{MAX_SIDE_PX}, got {v}")
+        if self.focal_px is not None and not (np.isfinite(self.focal_px) and 1.0 <= self.focal_px <= 100_000.0):
+            raise InputError(None, f"focal length must be in [1, 100000] px, got {self.focal_px}")
         if self.stereo_baseline_m is not None and not (np.isfinite(self.stereo_baseline_m) and 0 <= self.stereo_baseline_m <= 10):
             raise InputError(None, f"stereo baseline must be in [0, 10] m, got {self.stereo_baseline_m}")
         return self
@@ -99,17 +104,20 @@ class SimConfig:
         return SimConfig(SceneConfig(**d["scene"]), TrajectoryConfig(**d["trajectory"]), RenderConfig(**d["render"]))
 
 
-def camera_for(default: PinholeCamera, width: int | None, height: int | None) -> PinholeCamera:
+def camera_for(default: PinholeCamera, width: int | None, height: int | None,
+               focal_px: float | None = None) -> PinholeCamera:
     """The scene camera at another image size, with square pixels and the principal point at the
     centre, as MuJoCo renders it: the vertical field of view is kept (``fy`` scales with the height),
     ``fx = fy``, ``cx = (W - 1) / 2``, ``cy = (H - 1) / 2``. A missing side follows the default's aspect
     ratio. With the default's aspect ratio this equals ``default.scaled(width, height)`` up to the
-    rounding of the size."""
-    if width is None and height is None:
+    rounding of the size. ``focal_px`` sets fx = fy instead of keeping the field of view."""
+    if width is None and height is None and focal_px is None:
         return default
+    if width is None and height is None:
+        width, height = default.width, default.height
     if width is None:
         width = max(1, int(round(height * default.width / default.height)))
     if height is None:
         height = max(1, int(round(width * default.height / default.width)))
-    f = default.fy * height / default.height
+    f = float(focal_px) if focal_px is not None else default.fy * height / default.height
     return PinholeCamera(int(width), int(height), f, f, (width - 1) / 2.0, (height - 1) / 2.0)

@@ -112,7 +112,7 @@ class Simulator:
         duration = (self.num_frames + 1) / self.rate_hz
         self.scene = separate_movers(base, motion, duration, np.random.default_rng([tseed, 2]))
         rcfg = config.render
-        self.camera = camera_for(self.scene.camera, rcfg.width, rcfg.height)
+        self.camera = camera_for(self.scene.camera, rcfg.width, rcfg.height, rcfg.focal_px)
         b = self.scene.stereo_baseline_m if rcfg.stereo_baseline_m is None else rcfg.stereo_baseline_m
         self.baseline_m = float(b) if b else None
         self.backend_name = rcfg.backend

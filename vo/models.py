@@ -1,7 +1,7 @@
 """The models shipped in ``<repo>/models/`` (see models/README.md for the commands that make them).
 
-Files are named ``<kind>_<which>.safetensors``: kind ``kitti`` (street cameras, 96 x 320-like input) or
-``euroc`` (indoor MAV cameras); which ``cons`` (NN_cons: the motion distribution of consecutive
+Files are named ``<kind>_<which>.safetensors``: kind ``kitti`` (street cameras, 96 x 320-like input),
+``euroc`` (indoor MAV cameras) or ``tum`` (640x480 hand-held RGB-D cameras); which ``cons`` (NN_cons: the motion distribution of consecutive
 frames, for odometry) or ``loops`` (NN_loops: the wide distribution of loop-closure pairs).
 
 Each is trained on exact synthetic flow (the paper). Where a flow estimator's errors matter, a
@@ -15,8 +15,9 @@ from pathlib import Path
 
 from deepslam.core.errors import InputError
 
-KINDS = ("kitti", "euroc")
-"""Camera kinds with a shipped model."""
+KINDS = ("kitti", "euroc", "tum")
+"""Camera kinds with a shipped model: KITTI-like street cameras, EuRoC-like MAV cameras, and 640x480
+hand-held RGB-D cameras (TUM RGB-D)."""
 WHICH = ("cons", "loops")
 """NN_cons (consecutive frames) and NN_loops (loop pairs)."""
 FLOW_VARIANTS = ("dis",)
@@ -67,7 +68,7 @@ def load_shipped(kind: str, which: str = "cons", flow=None, **kwargs):
 
 
 def kind_for_sequence(seq) -> str:
-    """The shipped-model kind that suits a sequence: its reader's kind for KITTI/EuRoC; for our format
+    """The shipped-model kind that suits a sequence: its reader's kind for KITTI/EuRoC/TUM; for our format
     the scene's kind when sequence.json names one (``street`` -> kitti, ``room``/``indoor`` -> euroc),
     else by the image's aspect ratio (wider than 2:1 -> kitti)."""
     if seq.kind in KINDS:

@@ -27,6 +27,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sequence", default="00", help="KITTI sequence number NN (default 00)")
     p.add_argument("--no-flow", action="store_true", help="skip the ground-truth flow")
     p.add_argument("--resume", action="store_true", help="finish an interrupted render in --out (same settings)")
+    p.add_argument("--focal-px", type=float, default=None, metavar="F",
+                   help="focal length fx = fy in pixels (e.g. 537 for a Kinect at 640x480); default: the scene "
+                        "camera's field of view")
     p.add_argument("--varied-layout", action="store_true",
                    help="street: a narrow, crowded variant of the town from the seed (closer facades, more parked "
                         "cars and trees by the kerb), like KITTI's residential streets")
@@ -44,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
                     varied_layout=args.varied_layout),
         TrajectoryConfig(kind=args.trajectory, frames=args.frames, rate_hz=args.rate),
         RenderConfig(backend=args.backend, width=args.width, height=args.height,
-                     stereo_baseline_m=args.stereo_baseline, flow=not args.no_flow),
+                     stereo_baseline_m=args.stereo_baseline, focal_px=args.focal_px, flow=not args.no_flow),
     ).validate()
     path = render_sequence(cfg, args.out, fmt=args.format, resume=args.resume, progress=not args.quiet,
                            sequence=args.sequence)

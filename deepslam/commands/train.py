@@ -60,8 +60,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="draw the forward speed uniformly in MIN:MAX m/s (at --rate-hz) instead of from the motion "
                         "model, keeping its other DoFs: the network must read speed from the flow, not a prior")
     g.add_argument("--rate-hz", type=float, default=10.0, help="frame rate of the motion model, for --speed-range")
-    g.add_argument("--missing-depth", choices=("infinity", "invalid"), default="infinity",
-                   help="pixels without depth: points at infinity (rotation-only flow; sky) or flow 0")
+    g.add_argument("--missing-depth", choices=("infinity", "invalid"), default=None,
+                   help="pixels without depth: points at infinity (rotation-only flow; a render's sky) or left out "
+                        "(flow 0, never made-up geometry). Default: invalid when a sequence has sensor depth "
+                        "(TUM RGB-D: a hole is a missing reading, not the sky), else infinity")
     g.add_argument("--samples-per-epoch", type=int, default=20000)
     g.add_argument("--holdout-samples", type=int, default=0,
                    help="fixed held-out samples from the held-out frames (0 = holdout fraction x samples per epoch)")
@@ -290,6 +292,8 @@ def run(args: argparse.Namespace) -> int:
                 speed_range = [lo, hi, args.rate_hz]
             f = max(1, args.synth_factor)
             seqs = [open_sequence(d) for d in args.frames]
+            if args.missing_depth is None:
+                args.missing_depth = "invalid" if any(sq.kind == "tum" for sq in seqs) else "infinity"
             n_hold = args.holdout_samples or max(args.batch, int(round(args.holdout * args.samples_per_epoch)))
             if args.synthetic_flow == "exact":
                 frames = data.load_frames(seqs, w * f, h * f, args.frame_step, args.depth, args.max_frames, progress)

@@ -121,8 +121,9 @@ def test_shipped_model_names(monkeypatch, tmp_path, plane_sequence):
     assert models.kind_for_sequence(seq) == "kitti"  # scene "test-street-plane"
 
     assert models.shipped_path("kitti", "cons").name == "kitti_cons.safetensors"
+    assert models.shipped_path("tum", "cons").name == "tum_cons.safetensors"
     with pytest.raises(InputError):
-        models.shipped_path("tum", "cons")
+        models.shipped_path("lidar", "cons")
     with pytest.raises(InputError):
         models.shipped_path("kitti", "sometimes")
 
@@ -144,3 +145,16 @@ def test_shipped_models_follow_the_flow_estimator(monkeypatch, tmp_path, street_
     assert models.shipped_path("kitti", "loops", "dis").name == "kitti_loops.safetensors"   # no variant: the plain one
     assert models.resolve("kitti", None, "cons", "dis").name == "kitti_cons_dis"
     assert models.resolve(str(tmp_path / "kitti_cons.safetensors"), None, "cons", "dis").name != "kitti_cons_dis"
+
+
+def test_vo_picks_the_rgbd_model_for_a_tum_sequence(shared_data, tmp_path):
+    """No flags: a TUM RGB-D folder gets the shipped tum_cons (640x480 hand-held cameras), and the
+    metrics are scored on the frames the ground truth covers."""
+    import json
+
+    assert _vo("--sequence", shared_data / "tum" / "rgbd_dataset_freiburg3_teddy", "--end", "24",
+               "--out", tmp_path / "t.txt", "--quiet") == 0
+    cfg = json.loads((tmp_path / "t.config.json").read_text())
+    assert cfg["model_name"] == "tum_cons" and cfg["model"] == "shipped:tum_cons"
+    metrics = json.loads((tmp_path / "t.metrics.json").read_text())
+    assert metrics["frames_scored"] < metrics["frames"] == 24  # the motion capture starts late
