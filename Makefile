@@ -40,6 +40,7 @@ results: $(STAMP)
 	$(PY) -m bench.results_vo
 	$(PY) -m bench.results_speed
 	$(PY) -m bench.results_real
+	$(PY) -m bench.results_tum
 
 # Every command of the README's examples block, in order, in a temporary folder: exit status and wall
 # time of each against the time the README states (out/readme_check.md). Not part of `make test`.

@@ -87,7 +87,7 @@ class OursWriter:
                     depth: np.ndarray | None = None, flow: np.ndarray | None = None,
                     mask: np.ndarray | None = None, rgb_right: np.ndarray | None = None,
                     extra: dict | None = None, flow_backward: np.ndarray | None = None,
-                    occlusion: np.ndarray | None = None) -> None:
+                    occlusion: np.ndarray | None = None, depth_exact: np.ndarray | None = None) -> None:
         """Write frame i's files, then its record (which marks it complete).
 
         Args: rgb uint8 (H,W,3); depth float32 (H,W) depth_z m; flow float32 (H,W,2) px to frame i+1;
@@ -104,7 +104,8 @@ class OursWriter:
                                ("flow", "npy", None if flow is None else np.asarray(flow, np.float32)),
                                ("mask", "png", None if mask is None else np.asarray(mask, np.uint16)),
                                ("flow_backward", "npy", None if flow_backward is None else np.asarray(flow_backward, np.float32)),
-                               ("occlusion", "png", None if occlusion is None else (np.asarray(occlusion) > 0).astype(np.uint8) * 255)):
+                               ("occlusion", "png", None if occlusion is None else (np.asarray(occlusion) > 0).astype(np.uint8) * 255),
+                               ("depth_exact", "npy", None if depth_exact is None else np.asarray(depth_exact, np.float32))):
             if data is None:
                 continue
             path = self.root / sub / f"{n}.{ext}"

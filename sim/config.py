@@ -62,6 +62,11 @@ class RenderConfig:
     vertical field of view. The renderers take square pixels and a centred principal point."""
     flow: bool = True
     """Compute the forward ground-truth optical flow."""
+    depth_noise: str | None = None
+    """None: the depth written is exact. "kinect": a structured-light sensor's errors
+    (:func:`sim.sensor.kinect_depth`: range, depth-dependent noise, disparity quantisation, missing
+    readings at edges and grazing angles) are applied to the depth written to ``depth/``; the exact
+    depth goes to ``depth_exact/`` and every other ground truth stays exact."""
 
     def validate(self) -> "RenderConfig":
         if self.backend not in BACKENDS:
@@ -69,6 +74,8 @@ class RenderConfig:
         for name, v in (("width", self.width), ("height", self.height)):
             if v is not None and (not isinstance(v, int) or v < 1 or v > MAX_SIDE_PX):
                 raise InputError(None, f"{name} must be an integer in 1..{MAX_SIDE_PX}, got {v}")
+        if self.depth_noise not in (None, "kinect"):
+            raise InputError(None, f"unknown depth noise model {self.depth_noise!r} (kinect, or none)")
         if self.focal_px is not None and not (np.isfinite(self.focal_px) and 1.0 <= self.focal_px <= 100_000.0):
             raise InputError(None, f"focal length must be in [1, 100000] px, got {self.focal_px}")
         if self.stereo_baseline_m is not None and not (np.isfinite(self.stereo_baseline_m) and 0 <= self.stereo_baseline_m <= 10):

@@ -42,6 +42,8 @@ class SimFrame:
             same exact computation backwards in time), or None (frame 0, or not asked for).
         occlusion: (H, W) bool, True where the surface seen at a pixel is not visible in frame
             index + 1 (hidden by something nearer, outside the image, or behind the camera), or None.
+        depth_sensor: (H, W) float32 depth_z as a sensor would report it (config ``depth_noise``; 0 =
+            no reading), or None.
     """
 
     index: int
@@ -59,6 +61,7 @@ class SimFrame:
     instance_poses: dict = dataclasses.field(default_factory=dict)
     flow_backward: np.ndarray | None = None
     occlusion: np.ndarray | None = None
+    depth_sensor: np.ndarray | None = None
 
     @property
     def world_from_cam_right(self) -> np.ndarray | None:
@@ -173,11 +176,17 @@ class Simulator:
                 occ = occlusion_mask(fl, z1, depth1)
         if (self.config.render.flow if backward is None else backward) and i > 0:
             back = self._flow.flow(self.scene, left["depth_z"], left["body"], s0, self.state(i - 1))
+        sensor = None
+        if self.config.render.depth_noise == "kinect":
+            from deepslam.sim.sensor import kinect_depth
+
+            seed = self.config.trajectory.seed if self.config.trajectory.seed is not None else self.config.scene.seed
+            sensor = kinect_depth(left["depth_z"], self.camera, np.random.default_rng([int(seed), 0x5E75, int(i)]))
         mask = self._inst[left["body"] + 1]
         poses = {b.instance_id: s0.world_from_body[k] for k, b in enumerate(self.scene.bodies) if b.kind == "rigid"}
         return SimFrame(i, self.time(i), self.camera, s0.world_from_cam, left["rgb"], left["depth_z"], fl, mask,
                         left["body"], r.get("rgb"), r.get("depth_z"), self.baseline_m if right else None, poses,
-                        back, occ)
+                        back, occ, sensor)
 
     def close(self) -> None:
         if getattr(self, "backend", None) is not None:

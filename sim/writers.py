@@ -173,9 +173,12 @@ class OursSink:
 
     def write(self, i: int, frame) -> None:
         flow = frame.flow if i < self.n - 1 else None
-        self.writer.write_frame(i, frame.timestamp_s, frame.world_from_cam, frame.rgb, frame.depth_z, flow, frame.mask,
+        sensor = frame.depth_sensor is not None
+        self.writer.write_frame(i, frame.timestamp_s, frame.world_from_cam, frame.rgb,
+                                frame.depth_sensor if sensor else frame.depth_z, flow, frame.mask,
                                 frame.rgb_right, extra={"instance_poses": {str(k): v.tolist() for k, v in frame.instance_poses.items()}},
-                                flow_backward=frame.flow_backward, occlusion=frame.occlusion if i < self.n - 1 else None)
+                                flow_backward=frame.flow_backward, occlusion=frame.occlusion if i < self.n - 1 else None,
+                                depth_exact=frame.depth_z if sensor else None)
 
     def finish(self) -> None:
         if not self.complete:
@@ -223,7 +226,10 @@ class KittiSink(_Sink):
         if frame.rgb_right is not None:
             put(atomic.write_png, self.seq / "image_1" / f"{n}.png", cv2.cvtColor(frame.rgb_right, cv2.COLOR_RGB2GRAY))
             put(atomic.write_png, self.seq / "image_3" / f"{n}.png", frame.rgb_right)
-        put(atomic.write_npy, self.seq / "depth" / f"{n}.npy", frame.depth_z.astype(np.float32))
+        put(atomic.write_npy, self.seq / "depth" / f"{n}.npy",
+            (frame.depth_sensor if frame.depth_sensor is not None else frame.depth_z).astype(np.float32))
+        if frame.depth_sensor is not None:
+            put(atomic.write_npy, self.seq / "depth_exact" / f"{n}.npy", frame.depth_z.astype(np.float32))
         if frame.flow is not None and i < self.n - 1:
             put(atomic.write_npy, self.seq / "flow" / f"{n}.npy", frame.flow.astype(np.float32))
         if frame.occlusion is not None and i < self.n - 1:
@@ -310,7 +316,10 @@ class EurocSink(_Sink):
         if frame.rgb_right is not None:
             put(atomic.write_png, self.mav / "cam1" / "data" / f"{ns}.png", cv2.cvtColor(frame.rgb_right, cv2.COLOR_RGB2GRAY))
         cam0 = self.mav / "cam0"
-        put(atomic.write_npy, cam0 / "depth" / f"{n}.npy", frame.depth_z.astype(np.float32))
+        put(atomic.write_npy, cam0 / "depth" / f"{n}.npy",
+            (frame.depth_sensor if frame.depth_sensor is not None else frame.depth_z).astype(np.float32))
+        if frame.depth_sensor is not None:
+            put(atomic.write_npy, cam0 / "depth_exact" / f"{n}.npy", frame.depth_z.astype(np.float32))
         if frame.flow is not None and i < self.n - 1:
             put(atomic.write_npy, cam0 / "flow" / f"{n}.npy", frame.flow.astype(np.float32))
         if frame.occlusion is not None and i < self.n - 1:

@@ -128,3 +128,17 @@ def test_real_slice_table_says_what_each_model_saw(shared_data, tmp_path):
         assert r["path_length_ratio"] > 0 and r["endpoint_drift_pct"] >= 0
     md = (tmp_path / "results.md").read_text()
     assert "frames the model saw in training" in md and "KITTI 07 (160 frames" in md
+
+
+def test_tum_results_quick_rows_and_baselines(shared_data, tmp_path):
+    """results_tum --quick: every row scored, the standing-still baseline is the ground truth's spread,
+    the classical baseline with sensor depth beats it."""
+    from bench import results_tum
+
+    rep = results_tum.run(results_tum.QUICK, tmp_path, shared_data)
+    rows = {(r["odometry"].split(" ")[0], r["kind"]): r for r in rep["rows"]}
+    assert {("standing", "baseline"), ("pnp", "VO"), ("tum_cons", "VO"), ("tum_cons", "SLAM"),
+            ("tum_cons_teddy", "VO")} <= set(rows)
+    assert rows[("pnp", "VO")]["ate_se3_m"] < rows[("standing", "baseline")]["ate_se3_m"]
+    assert rows[("tum_cons_teddy", "VO")]["frames_seen_in_training"] == "single frames, no poses"
+    assert (tmp_path / "trajectories.png").stat().st_size > 0

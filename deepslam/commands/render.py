@@ -30,6 +30,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--focal-px", type=float, default=None, metavar="F",
                    help="focal length fx = fy in pixels (e.g. 537 for a Kinect at 640x480); default: the scene "
                         "camera's field of view")
+    p.add_argument("--depth-noise", choices=("none", "kinect"), default="none",
+                   help="kinect: write depth/ as a structured-light sensor reports it (range 0.5-4.5 m, noise "
+                        "growing with depth^2, disparity quantisation, missing readings at edges and grazing "
+                        "angles); the exact depth goes to depth_exact/ and the other ground truth stays exact")
     p.add_argument("--varied-layout", action="store_true",
                    help="street: a narrow, crowded variant of the town from the seed (closer facades, more parked "
                         "cars and trees by the kerb), like KITTI's residential streets")
@@ -47,7 +51,8 @@ def run(args: argparse.Namespace) -> int:
                     varied_layout=args.varied_layout),
         TrajectoryConfig(kind=args.trajectory, frames=args.frames, rate_hz=args.rate),
         RenderConfig(backend=args.backend, width=args.width, height=args.height,
-                     stereo_baseline_m=args.stereo_baseline, focal_px=args.focal_px, flow=not args.no_flow),
+                     stereo_baseline_m=args.stereo_baseline, focal_px=args.focal_px, flow=not args.no_flow,
+                     depth_noise=None if args.depth_noise == "none" else args.depth_noise),
     ).validate()
     path = render_sequence(cfg, args.out, fmt=args.format, resume=args.resume, progress=not args.quiet,
                            sequence=args.sequence)

@@ -1,0 +1,133 @@
+"""RGB-D odometry on the TUM fr3/teddy slice: the shipped learned models against two baselines.
+
+Rows: (a) ``tum_cons`` (simulated rooms only; never saw a frame of teddy), (b) ``tum_cons_teddy``
+(the paper's unsupervised adaptation: teddy's single frames, no poses), each as VO and as SLAM
+(with ``tum_loops``), all on DIS flow; baselines measured in the same run: standing still (every
+pose the first) and the classical plug-in ``pnp`` (SIFT + PnP-RANSAC with the sensor depth). ATE
+after se3 and sim3 alignment (evo's definition), RPE per frame, on the frames the ground truth
+covers. Targets (issue 14): VO ATE <= 0.05 m, SLAM no worse than VO. Writes results.json,
+results.md and trajectories.png into ``out/results/tum`` (``python -m bench.results_tum``, about 2
+minutes).
+"""
+from __future__ import annotations
+
+import dataclasses
+import sys
+from pathlib import Path
+
+import numpy as np
+
+TEDDY = "tum/rgbd_dataset_freiburg3_teddy"
+
+
+@dataclasses.dataclass(frozen=True)
+class ResultsTumConfig:
+    """What to run."""
+
+    flow: str = "dis"
+    """Flow estimator of the learned models."""
+    end: int = 0
+    """Use frames [0, end) (0 = all)."""
+
+
+QUICK = ResultsTumConfig(end=40)
+
+
+def _scored(seq, world_from_cam: np.ndarray, frames: np.ndarray) -> dict:
+    from deepslam.core import metrics, se3
+    from deepslam.core.trajectory import Trajectory
+
+    idx = [k for k, f in enumerate(frames) if seq.gt_pose(int(f)) is not None]
+    g = np.stack([seq.gt_pose(int(frames[k])) for k in idx])
+    t = seq.timestamps_s[frames[idx]]
+    gt = Trajectory(se3.inverse(g[0]) @ g, t)
+    est = Trajectory(se3.inverse(world_from_cam[idx[0]]) @ world_from_cam[idx], t)
+    se3_res = metrics.evaluate(gt, est, align="se3")
+    sim3_res = metrics.evaluate(gt, est, align="sim3")
+    return {"ate_se3_m": se3_res["ate_m"], "ate_sim3_m": sim3_res["ate_m"], "rpe_t_m": se3_res["rpe_t_m"],
+            "rpe_r_deg": se3_res["rpe_r_deg"], "frames_scored": len(idx), "_positions": est.positions,
+            "_gt_positions": gt.positions}
+
+
+def run(cfg: ResultsTumConfig, out: Path, data: Path) -> dict:
+    from deepslam.core import atomic, plots
+    from deepslam.core.readers import open_sequence
+    from deepslam.slam.pipeline import PipelineConfig, SlamParams, run_slam
+    from deepslam.slam.plugins import load_odometry
+    from deepslam.vo import flow_estimators, models
+    from deepslam.vo.infer import chain_euler6
+
+    seq = open_sequence(data / TEDDY)
+    n = len(seq) if cfg.end <= 0 else min(cfg.end, len(seq))
+    frames = np.arange(n)
+    pairs = np.stack([frames[:-1], frames[1:]], axis=1)
+    est = flow_estimators.make(cfg.flow, **({"preset": "medium"} if cfg.flow == "dis" else {}))
+    rows, tracks = [], {}
+
+    def add(name: str, seen: str, world_from_cam: np.ndarray, kind: str) -> None:
+        r = _scored(seq, world_from_cam, frames)
+        tracks["ground truth"] = r.pop("_gt_positions")
+        tracks[f"{name} ({kind})"] = r.pop("_positions")
+        rows.append({"odometry": name, "kind": kind, "frames_seen_in_training": seen, **r})
+
+    add("standing still", "-", np.repeat(np.eye(4)[None], n, 0), "baseline")
+    pnp = load_odometry("pnp")
+    add("pnp (SIFT + PnP with sensor depth)", "-", chain_euler6(pnp.predict(seq, pairs)[0]), "VO")
+    sub = seq if n == len(seq) else _head(seq, n)
+    for name, seen in (("tum_cons", "none"), ("tum_cons_teddy", "single frames, no poses")):
+        cons = _load(models, name)
+        mean6, _ = cons.predict_pairs(seq, pairs, est, progress=False)
+        add(name, seen, chain_euler6(mean6), "VO")
+        loops = _load(models, "tum_loops")
+        res = run_slam(sub, cons.as_odometry(est, progress=False), loops.as_odometry(est, progress=False),
+                       SlamParams(), PipelineConfig(), show_progress=False)
+        add(name, seen, res.slam.world_from_cam, "SLAM")
+    report = {"config": dataclasses.asdict(cfg), "frames": int(n), "rows": rows,
+              "targets": {"vo_ate_m": 0.05, "slam_no_worse_than_vo": True}}
+    out.mkdir(parents=True, exist_ok=True)
+    atomic.write_json(out / "results.json", report)
+    atomic.write_text(out / "results.md", markdown(report))
+    plots.plot_trajectories_topdown(out / "trajectories.png", tracks, title=f"TUM fr3/teddy, {n} frames")
+    return report
+
+
+def _load(models, name: str):
+    from deepslam.vo.infer import VOPredictor
+
+    return VOPredictor.from_file(models.models_dir() / f"{name}.safetensors")
+
+
+def _head(seq, n: int):
+    """The first n frames of a sequence (for --quick)."""
+    import dataclasses as dc
+
+    keep = seq.gt_frames[seq.gt_frames < n] if seq.gt_frames is not None else None
+    gt = None
+    if seq.gt is not None:
+        from deepslam.core.trajectory import Trajectory
+
+        k = len(keep) if keep is not None else n
+        gt = Trajectory(seq.gt.world_from_cam[:k], seq.gt.timestamps_s[:k])
+    return dc.replace(seq, timestamps_s=seq.timestamps_s[:n], image_paths=seq.image_paths[:n],
+                      depth_paths=None if seq.depth_paths is None else seq.depth_paths[:n], gt=gt, gt_frames=keep)
+
+
+def markdown(report: dict) -> str:
+    lines = [f"TUM fr3/teddy, {report['frames']} frames (scored where the ground truth covers them); DIS flow for the "
+             "learned models; targets: VO ATE <= 0.05 m, SLAM no worse than VO.", "",
+             "| odometry | as | frames of teddy seen in training | ATE se3 m | ATE sim3 m | RPE m / deg per frame |",
+             "|---|---|---|---|---|---|"]
+    for r in report["rows"]:
+        lines.append(f"| {r['odometry']} | {r['kind']} | {r['frames_seen_in_training']} | {r['ate_se3_m']:.3f} | "
+                     f"{r['ate_sim3_m']:.3f} | {r['rpe_t_m']:.4f} / {r['rpe_r_deg']:.3f} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    from bench.results_common import results_main
+
+    return results_main("results_tum", __doc__, ResultsTumConfig(), QUICK, "tum", run, markdown, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
