@@ -1,4 +1,4 @@
-"""``make demo`` / ``python -m deepslam.studies.demo``: the whole harness end to end, in about 13 minutes on 2 cores (15 at most).
+"""``make demo`` / ``python -m deepslam.studies.demo``: the whole harness end to end, in about 11 minutes on 2 cores (15 at most).
 
 1. render a simulated street for training (single frames + depth) and a held-out street sequence
    that closes a loop (another seed: other buildings, other parked cars);
@@ -31,7 +31,7 @@ from deepslam.core.errors import InputError
 
 @dataclasses.dataclass(frozen=True)
 class DemoConfig:
-    """Sizes of the demo; the defaults take about 13 minutes on 2 cores (the budget is 15)."""
+    """Sizes of the demo; the defaults take about 11 minutes on 2 cores (the budget is 15)."""
 
     width: int = 414
     """Rendered image width in pixels (KITTI's 1241 / 3; the height follows KITTI's aspect)."""
@@ -45,18 +45,21 @@ class DemoConfig:
     """Frames of the held-out sequence (the car route closes its loop within 300 frames)."""
     moving_objects: int = 0
     """Moving cars in the held-out sequence (0: the rigid scene the method assumes)."""
-    train_minutes_cons: float = 3.0
-    """Training budget of NN_cons, minutes (stage 1; the uncertainty stage adds a little)."""
-    train_minutes_loops: float = 2.0
-    """Training budget of NN_loops, minutes."""
+    train_samples_cons: int = 196_608
+    """Training budget of NN_cons in samples (stage 1; 48 epochs of 4096, about 3 minutes here): a
+    sample count, not minutes, so that the demo's numbers are the same run to run and machine to machine."""
+    train_samples_loops: int = 131_072
+    """Training budget of NN_loops in samples (32 epochs)."""
     dis_pool: int = 8192
     """Samples of the DIS-flow training pool (second views rendered from the single frames, DIS on each pair)."""
-    train_minutes_cons_dis: float = 2.5
-    """Training budget of NN_cons on DIS flow, minutes (after its pool is made)."""
-    train_minutes_loops_dis: float = 1.5
-    """Training budget of NN_loops on DIS flow, minutes."""
+    train_samples_cons_dis: int = 204_800
+    """Training budget of NN_cons on DIS flow in samples (25 passes over its pool of 8192)."""
+    train_samples_loops_dis: int = 122_880
+    """Training budget of NN_loops on DIS flow in samples (15 passes)."""
     samples_per_epoch: int = 4096
-    """Synthetic samples per epoch (the time cap is checked between epochs)."""
+    """Synthetic samples per epoch."""
+    threads: int = 2
+    """torch threads of the training runs (fixed: bf16 sums depend on the thread count)."""
     nll_epochs: int = 4
     """Epochs of the second (uncertainty) stage on the held-out 10 %."""
     net: str = "cpu"
@@ -138,16 +141,17 @@ def run(cfg: DemoConfig, out: Path, data: Path) -> Path:
     # 4. NN_cons and NN_loops from single frames + depth + motion model: on exact synthetic flow (the
     #    paper), and on the flow DIS gives for a second view rendered from each single frame
     models = {}
-    for which, minutes, spec, dis in (("cons", cfg.train_minutes_cons, str(motion), False),
-                                      ("loops", cfg.train_minutes_loops, f"{motion}:loops", False),
-                                      ("cons_dis", cfg.train_minutes_cons_dis, str(motion), True),
-                                      ("loops_dis", cfg.train_minutes_loops_dis, f"{motion}:loops", True)):
+    for which, budget, spec, dis in (("cons", cfg.train_samples_cons, str(motion), False),
+                                     ("loops", cfg.train_samples_loops, f"{motion}:loops", False),
+                                     ("cons_dis", cfg.train_samples_cons_dis, str(motion), True),
+                                     ("loops_dis", cfg.train_samples_loops_dis, f"{motion}:loops", True)):
         d = out / f"nn_{which}"
         models[which] = d / "model.safetensors"
         if not models[which].is_file():
             extra = ["--synthetic-flow", "dis", "--sample-pool", str(cfg.dis_pool)] if dis else []
             run_command(["train", "--mode", "synthetic", "--frames", *train_dirs, "--motion", spec, "--net", cfg.net,
-                         "--max-minutes", str(minutes), "--samples-per-epoch", str(cfg.samples_per_epoch),
+                         "--max-samples", str(budget), "--threads", str(cfg.threads),
+                         "--samples-per-epoch", str(cfg.samples_per_epoch),
                          "--nll-epochs", str(cfg.nll_epochs), "--seed", str(cfg.seed), "--out", str(d), *extra]
                         + (["--resume"] if (d / "checkpoint.safetensors").is_file() else []), log)
 
@@ -232,7 +236,8 @@ def main(argv: list[str] | None = None) -> int:
     cfg = DemoConfig()
     if args.quick:
         cfg = dataclasses.replace(cfg, width=207, train_seeds=(1,), train_frames=40, heldout_frames=300,
-                                  train_minutes_cons=0.3, train_minutes_loops=0.2,
+                                  train_samples_cons=2048, train_samples_loops=1024, train_samples_cons_dis=1024,
+                                  train_samples_loops_dis=1024, dis_pool=512,
                                   samples_per_epoch=512, nll_epochs=1)
     data = args.data or shared_data_dir()
     out = args.out or out_dir() / "demo"
