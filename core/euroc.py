@@ -25,7 +25,7 @@ from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
 from deepslam.core.textio import read_text
-from deepslam.core.sequence import Sequence
+from deepslam.core.sequence import Sequence, ground_truth_files
 from deepslam.core.trajectory import Trajectory
 from deepslam.core.trajio import ns_to_s
 
@@ -193,20 +193,10 @@ def read_euroc(root: str | Path, gt_path: str | Path | None = None, rectify: boo
     def beside(folder: str, suffix: str) -> list[Path] | None:
         return [cam_dir / folder / f"{i:06d}{suffix}" for i in range(len(files0))] if (cam_dir / folder).is_dir() else None
 
-    flow_paths = beside("flow", ".npy")
-    if flow_paths is not None:
-        flow_paths = flow_paths[:-1] + [None]
-    back_paths = beside("flow_backward", ".npy")
-    if back_paths is not None:
-        back_paths = [None] + back_paths[1:]
-    occ_paths = beside("occlusion", ".png")
-    if occ_paths is not None:
-        occ_paths = occ_paths[:-1] + [None]
     return Sequence(
         name=f"euroc/{root.name}", kind="euroc", root=root, camera=camera, timestamps_s=times,
         image_paths=files0, right_paths=right_paths, baseline_m=baseline, gt=gt,
-        depth_paths=beside("depth", ".npy"), flow_paths=flow_paths, mask_paths=beside("mask", ".png"),
-        flow_backward_paths=back_paths, occlusion_paths=occ_paths,
+        **ground_truth_files(beside),
         postprocess=postprocess if maps else None,
         meta={"timestamps_ns": ns.tolist(), "rect_from_cam0": rect_from_cam0.tolist(),
               "body_from_cam0": cam0["body_from_cam"].tolist(), "gt_path": None if gt_file is None else str(gt_file)},

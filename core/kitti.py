@@ -16,7 +16,7 @@ from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
 from deepslam.core.textio import read_text
-from deepslam.core.sequence import Sequence, read_image
+from deepslam.core.sequence import Sequence, ground_truth_files, read_image
 from deepslam.core.trajectory import Trajectory
 
 
@@ -144,19 +144,9 @@ def read_kitti(seq_dir: str | Path, poses_path: str | Path | None = None) -> Seq
     def beside(folder: str, suffix: str) -> list[Path] | None:
         return [seq_dir / folder / f"{i:06d}{suffix}" for i in indices] if (seq_dir / folder).is_dir() else None
 
-    flow_paths = beside("flow", ".npy")
-    if flow_paths is not None:
-        flow_paths = flow_paths[:-1] + [None]
-    back_paths = beside("flow_backward", ".npy")
-    if back_paths is not None:
-        back_paths = [None] + back_paths[1:]
-    occ_paths = beside("occlusion", ".png")
-    if occ_paths is not None:
-        occ_paths = occ_paths[:-1] + [None]
     return Sequence(
         name=f"kitti/{seq_dir.name}", kind="kitti", root=seq_dir, camera=camera, timestamps_s=times,
         image_paths=[left_files[i] for i in indices], right_paths=right_paths, baseline_m=baseline, gt=gt,
-        depth_paths=beside("depth", ".npy"), flow_paths=flow_paths, mask_paths=beside("mask", ".png"),
-        flow_backward_paths=back_paths, occlusion_paths=occ_paths,
+        **ground_truth_files(beside),
         meta={"calib": {k2: v.tolist() for k2, v in calib.items()}, "first_index": indices[0]},
     )

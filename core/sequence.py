@@ -56,6 +56,18 @@ def read_npy(path: str | Path, dtype: np.dtype, ndim: int) -> np.ndarray:
     return arr.astype(dtype, copy=False)
 
 
+def ground_truth_files(beside: Callable[[str, str], list[Path] | None]) -> dict:
+    """The Sequence fields of the ground-truth folders that sit beside a layout's images
+    (``depth/``, ``flow/``, ``flow_backward/``, ``occlusion/``, ``mask/``, one file per frame in the
+    images' numbering), from ``beside(folder, suffix)`` -> per-frame paths or None when the folder is
+    absent. Forward flow and occlusion have no file for the last frame, backward flow none for the first."""
+    flow, back, occ = beside("flow", ".npy"), beside("flow_backward", ".npy"), beside("occlusion", ".png")
+    return {"depth_paths": beside("depth", ".npy"), "mask_paths": beside("mask", ".png"),
+            "flow_paths": None if flow is None else flow[:-1] + [None],
+            "flow_backward_paths": None if back is None else [None] + back[1:],
+            "occlusion_paths": None if occ is None else occ[:-1] + [None]}
+
+
 @dataclasses.dataclass(frozen=True)
 class Frame:
     """One frame of a sequence; its arrays load when asked for."""
