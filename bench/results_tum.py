@@ -34,18 +34,13 @@ QUICK = ResultsTumConfig(end=40)
 
 
 def _scored(seq, world_from_cam: np.ndarray, frames: np.ndarray) -> dict:
-    from deepslam.core import metrics, se3
-    from deepslam.core.trajectory import Trajectory
+    from deepslam.core import metrics
 
-    idx = [k for k, f in enumerate(frames) if seq.gt_pose(int(f)) is not None]
-    g = np.stack([seq.gt_pose(int(frames[k])) for k in idx])
-    t = seq.timestamps_s[frames[idx]]
-    gt = Trajectory(se3.inverse(g[0]) @ g, t)
-    est = Trajectory(se3.inverse(world_from_cam[idx[0]]) @ world_from_cam[idx], t)
+    gt, est = metrics.on_covered_frames(seq, world_from_cam, frames)
     se3_res = metrics.evaluate(gt, est, align="se3")
     sim3_res = metrics.evaluate(gt, est, align="sim3")
     return {"ate_se3_m": se3_res["ate_m"], "ate_sim3_m": sim3_res["ate_m"], "rpe_t_m": se3_res["rpe_t_m"],
-            "rpe_r_deg": se3_res["rpe_r_deg"], "frames_scored": len(idx), "_positions": est.positions,
+            "rpe_r_deg": se3_res["rpe_r_deg"], "frames_scored": len(gt), "_positions": est.positions,
             "_gt_positions": gt.positions}
 
 

@@ -299,6 +299,28 @@ def drift(gt, est) -> dict:
             "endpoint_drift_pct": 100.0 * end / g_len if g_len > 0 else float("nan")}
 
 
+def on_covered_frames(seq, world_from_cam: np.ndarray, frames: np.ndarray) -> tuple[Trajectory, Trajectory]:
+    """(ground truth, estimate) on the frames of ``frames`` that ``seq``'s ground truth covers, both
+    expressed relative to the first of them (an odometry starts at the identity).
+
+    Args:
+        seq: a :class:`core.sequence.Sequence` with ground truth (``seq.gt_pose(i)``).
+        world_from_cam: (len(frames), 4, 4) estimated poses of those frames.
+        frames: (F,) frame indices into ``seq``.
+
+    Raises:
+        InputError: the ground truth covers fewer than two of the frames.
+    """
+    scored = [k for k, f in enumerate(frames) if seq.gt_pose(int(f)) is not None]
+    if len(scored) < 2:
+        raise InputError(getattr(seq, "root", None), "the ground truth covers fewer than two of the frames")
+    gt_poses = np.stack([seq.gt_pose(int(frames[k])) for k in scored])
+    times = np.asarray(seq.timestamps_s)[np.asarray(frames)[scored]]
+    gt = Trajectory(se3.inverse(gt_poses[0]) @ gt_poses, times)
+    est = Trajectory(se3.inverse(world_from_cam[scored[0]]) @ world_from_cam[scored], times)
+    return gt, est
+
+
 def evaluate(gt: Trajectory, est: Trajectory, align: str = "se3", rpe_delta: int = 1, max_diff_s: float = 0.01,
              gt_path: str | Path | None = None, est_path: str | Path | None = None) -> dict:
     """All metrics of an estimate against ground truth.

@@ -29,6 +29,7 @@ import numpy as np
 from deepslam.core import atomic
 from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
+from deepslam.core.integrity import file_digests, record_files_match
 from deepslam.core.textio import read_json_object
 from deepslam.core.sequence import Sequence
 from deepslam.core.trajectory import Trajectory
@@ -69,19 +70,7 @@ class OursWriter:
     def done(self, i: int) -> bool:
         """Frame i's record exists and every file it lists still hashes to the digest recorded when it
         was written (a damaged frame is written again on resume)."""
-        import hashlib
-
-        try:
-            rec = json.loads((self.root / "frames" / f"{_name(i)}.json").read_text())
-        except (OSError, ValueError):
-            return False
-        files = rec.get("files") if isinstance(rec, dict) else None
-        if files is None:  # a record of an older version: no digests to check
-            return isinstance(rec, dict)
-        try:
-            return all(hashlib.sha256((self.root / rel).read_bytes()).hexdigest() == sha for rel, sha in files.items())
-        except OSError:
-            return False
+        return record_files_match(self.root / "frames" / f"{_name(i)}.json", self.root)
 
     def write_frame(self, i: int, timestamp_s: float, world_from_cam: np.ndarray, rgb: np.ndarray,
                     depth: np.ndarray | None = None, flow: np.ndarray | None = None,
@@ -94,10 +83,8 @@ class OursWriter:
         mask uint16 (H,W); world_from_cam (4,4) float64 OpenCV axes; extra: JSON-able per-frame data;
         flow_backward float32 (H,W,2) px to frame i-1; occlusion bool (H,W), True = not visible in i+1.
         """
-        import hashlib
-
         n = _name(i)
-        files: dict[str, str] = {}
+        written = []
         for sub, ext, data in (("rgb", "png", None if rgb is None else np.asarray(rgb, np.uint8)),
                                ("rgb_right", "png", None if rgb_right is None else np.asarray(rgb_right, np.uint8)),
                                ("depth", "npy", None if depth is None else np.asarray(depth, np.float32)),
@@ -110,9 +97,10 @@ class OursWriter:
                 continue
             path = self.root / sub / f"{n}.{ext}"
             (atomic.write_png if ext == "png" else atomic.write_npy)(path, data)
-            files[f"{sub}/{n}.{ext}"] = hashlib.sha256(path.read_bytes()).hexdigest()
+            written.append(path)
         record = {"index": i, "timestamp_s": float(timestamp_s),
-                  "world_from_cam": np.asarray(world_from_cam, np.float64).tolist(), **(extra or {}), "files": files}
+                  "world_from_cam": np.asarray(world_from_cam, np.float64).tolist(), **(extra or {}),
+                  "files": file_digests(written, self.root)}
         atomic.write_json(self.root / "frames" / f"{n}.json", record)
 
     def finish(self) -> None:

@@ -49,6 +49,7 @@ import numpy as np
 
 from deepslam.core import atomic
 from deepslam.core.errors import InputError
+from deepslam.core.integrity import sha256_file
 from deepslam.core.lock import output_lock
 
 FORMAT = "deepslam-flow-shards"
@@ -232,14 +233,6 @@ def _shard_ok(path: Path, config: GenConfig, shard: int) -> bool:
     return names == want
 
 
-def _sha256_file(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 # ------------------------------------------------------------------------------------------- running
 
 def _local_worker_init() -> None:
@@ -365,7 +358,7 @@ def _generate_locked(config: GenConfig, out_dir: Path, workers: int, backend: st
     for shard in range(config.num_shards):
         path = out_dir / SHARD_PATTERN.format(shard)
         if (path.is_file() and shard in recorded and _shard_ok(path, config, shard)
-                and _sha256_file(path) == recorded[shard]):
+                and sha256_file(path) == recorded[shard]):
             done[shard] = (recorded[shard], len(config.shard_range(shard)), path.stat().st_size)
         else:
             todo.append(shard)
@@ -494,7 +487,7 @@ def verify(out_dir: str | Path) -> dict:
         shard = out_dir / entry["name"]
         if not shard.is_file():
             raise InputError(shard, "shard listed in the manifest is missing")
-        if _sha256_file(shard) != entry["sha256"]:
+        if sha256_file(shard) != entry["sha256"]:
             raise InputError(shard, "sha256 differs from the manifest")
     return manifest
 

@@ -34,6 +34,7 @@ import numpy as np
 
 from deepslam.core import atomic, se3
 from deepslam.core.errors import InputError
+from deepslam.core.integrity import file_digests, record_files_match
 from deepslam.core.lock import output_lock
 from deepslam.sim.config import FORMATS, SimConfig
 
@@ -71,31 +72,6 @@ def check_output_folder(out: Path, resume: bool) -> None:
         raise InputError(out, f"cannot create the output folder ({parent} is not writable)")
 
 
-def file_digests(paths: list[Path], root: Path) -> dict[str, str]:
-    """{path relative to ``root``: sha256 of its bytes} of files just written."""
-    import hashlib
-
-    return {str(Path(p).relative_to(root)): hashlib.sha256(Path(p).read_bytes()).hexdigest() for p in paths}
-
-
-def record_verifies(record_path: Path, root: Path) -> bool:
-    """True when the frame record parses and every file it lists (relative to ``root``) still hashes to
-    the digest recorded; a record without digests (an older render) counts as done, as before."""
-    import hashlib
-
-    try:
-        rec = json.loads(record_path.read_text())
-    except (OSError, ValueError):
-        return False
-    files = rec.get("files") if isinstance(rec, dict) else None
-    if files is None:
-        return isinstance(rec, dict)
-    try:
-        return all(hashlib.sha256((root / rel).read_bytes()).hexdigest() == sha for rel, sha in files.items())
-    except OSError:
-        return False
-
-
 class _Sink:
     """Base: per-frame records in a hidden folder mark frames done (kitti, euroc)."""
 
@@ -111,7 +87,7 @@ class _Sink:
     def done(self, i: int) -> bool:
         """Frame i's record exists and every file it lists still has the bytes written (a damaged or
         replaced file makes the frame be rendered again on --resume)."""
-        return record_verifies(self._records() / f"{_name(i)}.json", self.root)
+        return record_files_match(self._records() / f"{_name(i)}.json", self.root)
 
     def _mark(self, i: int, frame, written: list[Path]) -> None:
         atomic.write_json(self._records() / f"{_name(i)}.json",

@@ -30,10 +30,6 @@ import torch
 from deepslam.core import atomic
 from deepslam.core.errors import InputError
 
-SAFETENSORS_SUFFIX = ".safetensors"
-"""Suffix of every model and checkpoint file deepslam writes."""
-
-
 def _encode(node: Any, tensors: dict[str, torch.Tensor], path: str) -> Any:
     if torch.is_tensor(node):
         key = path or "root"

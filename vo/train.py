@@ -36,6 +36,7 @@ import torch
 
 from deepslam.core import atomic
 from deepslam.vo import modelfile
+from deepslam.vo.data import epoch_seed
 from deepslam.vo.net import FlowPoseNet, NetConfig, gaussian_nll, pose_loss
 
 CHECKPOINT = "checkpoint.safetensors"
@@ -234,6 +235,10 @@ class HeadInputs:
     def __len__(self) -> int:
         return len(self.target)
 
+    def rmse6(self) -> torch.Tensor:
+        """(6,) float64 root-mean-square error of ``mean`` against ``target`` per DoF, on their device."""
+        return ((self.mean.double() - self.target.double()) ** 2).mean(0).sqrt()
+
 
 @torch.no_grad()
 def head_inputs(model: FlowPoseNet, source: Source, cfg: TrainConfig) -> HeadInputs:
@@ -252,9 +257,8 @@ def head_inputs(model: FlowPoseNet, source: Source, cfg: TrainConfig) -> HeadInp
 def evaluate_heads(model: FlowPoseNet, hi: HeadInputs, cfg: TrainConfig) -> dict:
     """:func:`evaluate`'s figures from cached trunk features."""
     log_std = model.log_std_head(hi.hr, hi.ht)
-    se = ((hi.mean.double() - hi.target.double()) ** 2).mean(0).cpu()
     return {"loss": float(pose_loss(hi.mean, hi.target, cfg.rot_weight)),
-            "nll": float(gaussian_nll(hi.mean, log_std, hi.target)), "rmse6": se.sqrt().tolist()}
+            "nll": float(gaussian_nll(hi.mean, log_std, hi.target)), "rmse6": hi.rmse6().cpu().tolist()}
 
 
 def uncertainty_epoch(model: FlowPoseNet, hi: HeadInputs, cfg: TrainConfig, opt: torch.optim.Optimizer, epoch: int,
@@ -266,7 +270,7 @@ def uncertainty_epoch(model: FlowPoseNet, hi: HeadInputs, cfg: TrainConfig, opt:
         (mean NLL over the batches run, whether ``deadline`` (time.perf_counter()) cut the epoch short).
     """
     model.train()
-    g = torch.Generator().manual_seed(_seed(cfg.seed, epoch, 0x2))
+    g = torch.Generator().manual_seed(epoch_seed(cfg.seed, epoch, 0x2))
     order = torch.randperm(len(hi), generator=g).to(hi.target.device)
     nll_sum, n_seen = 0.0, 0
     for step, s in enumerate(range(0, len(hi), cfg.batch_size)):
@@ -283,12 +287,6 @@ def uncertainty_epoch(model: FlowPoseNet, hi: HeadInputs, cfg: TrainConfig, opt:
     return nll_sum / max(n_seen, 1), False
 
 
-def _seed(seed: int, *more: int) -> int:
-    from deepslam.vo.data import epoch_seed
-
-    return epoch_seed(seed, *more)
-
-
 def fit_uncertainty(model: FlowPoseNet, source: Source, cfg: TrainConfig, epochs: int) -> list[float]:
     """The whole second stage on a trained model: freeze all but the log-std heads, start them at
     log(held-out RMSE), train them ``epochs`` epochs with the NLL. Returns the NLL per epoch."""
@@ -301,11 +299,24 @@ def fit_uncertainty(model: FlowPoseNet, source: Source, cfg: TrainConfig, epochs
 @torch.no_grad()
 def init_log_std(model: FlowPoseNet, hi: HeadInputs) -> list[float]:
     """Start stage 2 from a calibrated constant: log-std heads' weights 0, biases log(held-out RMSE)."""
-    rmse = ((hi.mean.double() - hi.target.double()) ** 2).mean(0).sqrt().float().clamp_min(1e-5).to(hi.mean.device)
+    rmse = hi.rmse6().float().clamp_min(1e-5)
     for head, part in ((model.rot_log_std, rmse[:3]), (model.trans_log_std, rmse[3:])):
         head.weight.zero_()
         head.bias.copy_(part.log())
     return rmse.tolist()
+
+
+CAPS = ("max_epochs", "max_minutes", "max_samples")
+"""The stage-1 caps, in the order they are reported when several are reached at once."""
+
+
+def _caps_reached(cfg: TrainConfig, state: dict, elapsed_s: float) -> list[str]:
+    """The stage-1 caps of ``cfg`` that a run at ``state`` (epochs, samples) and ``elapsed_s`` seconds
+    of training has reached, in :data:`CAPS` order."""
+    hit = {"max_epochs": state["epoch"] >= cfg.max_epochs,
+           "max_minutes": cfg.max_minutes > 0 and elapsed_s >= 60.0 * cfg.max_minutes,
+           "max_samples": cfg.max_samples > 0 and state["samples"] >= cfg.max_samples}
+    return [c for c in CAPS if hit[c]]
 
 
 def _check_finite(loss: torch.Tensor, stage: str, epoch: int, step: int, lr: float) -> None:
@@ -384,11 +395,7 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
         state = ck["train_state"]
         stage1_saved = ck.get("stage1")
         stopped = str(state["stop_reason"]).partition(";")[0]
-        cap_raised = ((stopped == "max_epochs" and state["epoch"] < cfg.max_epochs)
-                      or (stopped == "max_minutes"
-                          and (cfg.max_minutes <= 0 or state["elapsed_s"] < 60.0 * cfg.max_minutes))
-                      or (stopped == "max_samples"
-                          and (cfg.max_samples <= 0 or state.get("samples", 0) < cfg.max_samples)))
+        cap_raised = stopped in CAPS and stopped not in _caps_reached(cfg, state, state["elapsed_s"])
         if cap_raised and stage1_saved is not None:
             # stage 1 stopped at a cap that is now higher: go back to its end and carry on
             state["stage"], state["nll_epoch"], state["stop_reason"] = 1, 0, None
@@ -428,15 +435,8 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
 
     # ---------------- stage 1: motion
     while state["stage"] == 1:
-        reason = None
-        if state["epoch"] >= cfg.max_epochs:
-            reason = "max_epochs"
-        elif elapsed() >= limit_s:
-            reason = "max_minutes"
-        elif cfg.max_samples > 0 and state.get("samples", 0) >= cfg.max_samples:
-            reason = "max_samples"
-        elif sched.base_lrs[0] < cfg.lr_stop:
-            reason = "lr_below_stop"
+        reached = _caps_reached(cfg, state, elapsed())
+        reason = reached[0] if reached else ("lr_below_stop" if sched.base_lrs[0] < cfg.lr_stop else None)
         if reason is not None:
             state["stop_reason"] = reason
             break
@@ -444,7 +444,7 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
         model.train()
         t0 = time.perf_counter()
         n_seen, loss_sum = 0, 0.0
-        planned = n_train if cfg.max_samples <= 0 else min(n_train, cfg.max_samples - state.get("samples", 0))
+        planned = n_train if cfg.max_samples <= 0 else min(n_train, cfg.max_samples - state["samples"])
         bar = tqdm(total=planned, desc=f"epoch {epoch + 1}", unit="sample", disable=not progress, leave=False,
                    dynamic_ncols=True)
         for step, b in enumerate(train_source.batches(epoch, cfg.batch_size)):
@@ -460,7 +460,7 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
             k = len(b["target"])
             n_seen += k
             loss_sum += float(loss.detach()) * k
-            state["samples"] = state.get("samples", 0) + k
+            state["samples"] += k
             sps = n_seen / (time.perf_counter() - t0)
             # time left for training once the last held-out evaluation and stage 2 are paid for:
             # each is about one forward pass over the held-out set (forward ~3x a training step)
@@ -547,7 +547,7 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
     final = evaluate_heads(model, hi, cfg)
     summary = {"stop_reason": state["stop_reason"], "epochs": state["epoch"], "nll_epochs": state["nll_epoch"],
                "best_val_loss": state["best_val"], "holdout": final, "lr_halvings": state["halvings"],
-               "train_seconds": elapsed(), "train_samples": state.get("samples", 0)}
+               "train_seconds": elapsed(), "train_samples": state["samples"]}
     meta_out = {**meta, "train": cfg.to_dict(), "summary": summary}
     model_path = out_dir / MODEL
     save_model(model_path, model, meta_out, half=half_weights)

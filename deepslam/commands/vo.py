@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from deepslam.core import atomic, se3, trajio
+    from deepslam.core import atomic, trajio
     from deepslam.core.errors import InputError
     from deepslam.core.readers import open_sequence
     from deepslam.core.trajectory import Trajectory
@@ -112,18 +112,12 @@ def run(args: argparse.Namespace) -> int:
     if seq.gt is not None:
         from deepslam.core import metrics, plots
 
-        scored = [k for k, f in enumerate(frames) if seq.gt_pose(int(f)) is not None]
-        if len(scored) < 2:
-            raise InputError(args.sequence, "the ground truth covers fewer than two of the frames")
-        gt_poses = np.stack([seq.gt_pose(int(frames[k])) for k in scored])
-        # both expressed relative to the first scored frame (the odometry starts at the identity)
-        gt = Trajectory(se3.inverse(gt_poses[0]) @ gt_poses, seq.timestamps_s[frames[scored]])
-        est_scored = Trajectory(se3.inverse(world_from_cam[scored[0]]) @ world_from_cam[scored], gt.timestamps_s)
+        gt, est_scored = metrics.on_covered_frames(seq, world_from_cam, frames)
         res = metrics.evaluate(gt, est_scored, align="se3")
         res_none = metrics.evaluate(gt, est_scored, align="none")
         report = {k: v for k, v in res.items() if not k.startswith("_")}
         report["ate_unaligned_m"] = res_none["ate_m"]
-        report["frames_scored"], report["frames"] = len(scored), int(len(frames))
+        report["frames_scored"], report["frames"] = len(gt), int(len(frames))
         atomic.write_json(Path(f"{stem}.metrics.json"), report)
         plots.plot_trajectories_topdown(Path(f"{stem}.png"), {"ground truth": gt.positions, name: est_scored.positions},
                                         title=f"{seq.name}: {name}" + (f" ({config['flow']})" if "flow" in config else ""))
@@ -132,8 +126,8 @@ def run(args: argparse.Namespace) -> int:
         if "kitti_t_err_pct" in res:
             line += f", KITTI t_err {res['kitti_t_err_pct']:.2f} %, r_err {res['kitti_r_err_deg_per_100m']:.2f} deg/100 m"
         line += f"; path x{res['path_length_ratio']:.3f}, end-point drift {res['endpoint_drift_pct']:.1f} % of the path"
-        if len(scored) < len(frames):
-            line += f" (scored on the {len(scored)} of {len(frames)} frames the ground truth covers)"
+        if len(gt) < len(frames):
+            line += f" (scored on the {len(gt)} of {len(frames)} frames the ground truth covers)"
         say(line)
         say(f"wrote {stem}.metrics.json and {stem}.png")
     if args.json:
