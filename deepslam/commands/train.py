@@ -60,6 +60,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="draw the forward speed uniformly in MIN:MAX m/s (at --rate-hz) instead of from the motion "
                         "model, keeping its other DoFs: the network must read speed from the flow, not a prior")
     g.add_argument("--rate-hz", type=float, default=10.0, help="frame rate of the motion model, for --speed-range")
+    g.add_argument("--camera-tilt-deg", default=None, metavar="PMIN:PMAX[:ROLL]",
+                   help="rotate each sample's camera by a pitch drawn uniformly in [PMIN, PMAX] degrees (positive: "
+                        "looking down) and a roll in [-ROLL, ROLL], exactly from the single frame (vo.data.CameraTilt); "
+                        "the road then sits at other rows, as under another camera mounting (KITTI's looks ~1 deg down)")
     g.add_argument("--missing-depth", choices=("infinity", "invalid"), default=None,
                    help="pixels without depth: points at infinity (rotation-only flow; a render's sky) or left out "
                         "(flow 0, never made-up geometry). Default: invalid when a sequence has sensor depth "
@@ -290,6 +294,7 @@ def run(args: argparse.Namespace) -> int:
                     raise InputError(None, f"--speed-range must be MIN:MAX in m/s, got {args.speed_range!r}") from None
                 sampler = data.FlatSpeed(sampler, lo, hi, args.rate_hz)
                 speed_range = [lo, hi, args.rate_hz]
+            tilt = data.CameraTilt.parse(args.camera_tilt_deg) if args.camera_tilt_deg else None
             f = max(1, args.synth_factor)
             seqs = [open_sequence(d) for d in args.frames]
             if args.missing_depth is None:
@@ -300,7 +305,7 @@ def run(args: argparse.Namespace) -> int:
                 train_frames, hold_frames = frames.split(args.holdout, args.seed)
 
                 def source(fr, n, seed):
-                    return data.SyntheticSource(fr, sampler, n, seed, f, args.missing_depth)
+                    return data.SyntheticSource(fr, sampler, n, seed, f, args.missing_depth, tilt=tilt)
             else:
                 opts = {"preset": args.dis_preset} if args.synthetic_flow == "dis" else {}
                 frames = data.load_image_frames(seqs, args.frame_step, args.depth, args.max_frames, progress,
@@ -309,7 +314,7 @@ def run(args: argparse.Namespace) -> int:
 
                 def source(fr, n, seed):
                     return data.EstimatedFlowSource(fr, sampler, args.synthetic_flow, w, h, n, seed, args.data_threads, opts,
-                                                    args.appearance_noise)
+                                                    args.appearance_noise, tilt=tilt)
             hold_src = source(hold_frames, n_hold, args.seed + 1).materialize(n_hold, args.seed + 1, progress)
             train_src = source(train_frames, args.samples_per_epoch, args.seed)
             estimator_name = getattr(train_src, "estimator_name", None)  # None: exact synthetic flow
@@ -319,7 +324,8 @@ def run(args: argparse.Namespace) -> int:
                             "n_frames": len(frames), "n_train_frames": len(train_frames), "n_holdout_frames": len(hold_frames),
                             "motion": [m[2] for m in motions], "samples_per_epoch": args.samples_per_epoch,
                             "holdout_samples": n_hold, "synth_factor": f, "missing_depth": args.missing_depth,
-                            "sample_pool": args.sample_pool, "speed_range_mps_at_hz": speed_range}
+                            "sample_pool": args.sample_pool, "speed_range_mps_at_hz": speed_range,
+                            "camera_tilt": tilt.to_dict() if tilt else None}
             if estimator_name is not None:
                 meta["data"].update(synth_factor=None, missing_depth=None, frame_scales=list(args.frame_scales),
                                     appearance_noise=args.appearance_noise, synthetic_flow=estimator_name)
