@@ -139,6 +139,9 @@ class OursSink:
             except (OSError, json.JSONDecodeError):
                 self.complete = False
         self.writer = OursWriter(root, header, resume=resume)
+        # a finished render keeps its records: it counts as complete only while every frame still hashes
+        # to its record (a damaged or missing frame is rendered again and the sequence files rewritten)
+        self.complete = self.complete and all(self.writer.done(i) for i in range(self.n))
         if self.complete:
             self.writer.header["complete"] = True
             atomic.write_json(root / "sequence.json", self.writer.header)
