@@ -11,8 +11,10 @@ The ego route (for the ``car`` trajectory, right-hand traffic, lane centre 1.75 
 centreline) goes counter-clockwise around block A (a closed loop of about 215 m), then around both
 blocks (about 360 m), and repeats: the bottom and left roads of block A are driven twice per lap
 in the same direction (a revisited stretch), and the loop around block A closes after about 22 s.
-Moving cars (``moving_objects``) drive the other way round, in the opposite lane; flags hang over
-the sidewalks on the ego's right, facing the traffic.
+Moving cars (``moving_objects``) drive the other way round in the opposite lane, and every third
+drives ahead of the ego on its own route, a little faster; the simulator starts each where the
+camera sees it (:func:`sim.world.separate_movers`). Flags hang over the sidewalks on the ego's right,
+facing the traffic.
 """
 from __future__ import annotations
 
@@ -111,14 +113,17 @@ def build_street(seed: int, px_per_m: float, moving_objects: int, deform_amplitu
                             phase=float(rng.uniform(0, 2 * np.pi)), tilt_rad_per_m=float(rng.uniform(0.3, 0.9)))
         asm.flag(f"flag{k}", world_from_flag, deform, flag_painter(rng.spawn(1)[0]), dynamic=deform_amplitude_m > 0)
 
-    # movers: clockwise around block A or around both blocks, in the other lane
+    # movers: oncoming traffic clockwise around block A or around both blocks in the other lane, and
+    # (every third) traffic ahead on the ego's own route, a little faster than the ego; where each
+    # starts is chosen by the simulator (sim.world.separate_movers: in view, clear of the camera)
     loops = [np.array([(0, 0), (0, by), (2 * bx, by), (2 * bx, 0)], float),
              np.array([(0, 0), (0, by), (bx, by), (bx, 0)], float)]
     paths = [PeriodicPath.from_polyline(offset_polyline(c, LANE_OFFSET_M), MOVER_CORNER_RADIUS_M) for c in loops]
     for k in range(moving_objects):
-        path = paths[k % 2]
-        cruise = float(rng.uniform(7.0, 11.0))
-        prof = speed_profile(path, cruise, lat_accel_mps2=2.5, long_accel_mps2=1.5)
+        ahead = k % 3 == 2
+        path = lane_path if ahead else paths[k % 2]
+        cruise = float(rng.uniform(7.0, 11.0)) + (6.0 if ahead else 0.0)
+        prof = speed_profile(path, cruise, lat_accel_mps2=3.6 if ahead else 2.5, long_accel_mps2=1.5)
         c0 = float((k // 2) * path.length / max(1, (moving_objects + 1) // 2) + rng.uniform(0, 20))
         motion = PathFollower(PathProgress(path, prof, c0), z_m=0.0)
         b = asm.dynamic_builder(f"car{k}", RIGID, motion)

@@ -31,18 +31,45 @@ def world_state(scene: Scene, motion, t: float) -> WorldState:
     return WorldState(float(t), motion.world_from_cam(t)[0], poses, verts)
 
 
-def separate_movers(scene: Scene, motion, duration_s: float, rng: np.random.Generator) -> Scene:
-    """Shift the start of path-following movers (cars) until, within [0, duration_s], the camera
-    stays ``layout['mover_clearance_m']`` away from every mover's footprint (its bounding box in the
-    ground plane) and mover centres stay ``layout['mover_mover_clearance_m']`` apart, or else keeps
-    the best of 40 tries (with many cars on long sequences the clearances are not always all met);
-    returns a new Scene (the input is not modified). Movers that do not follow a path (flying boxes) are left
+def view_fraction(body: Body, poses: np.ndarray, world_from_cam: np.ndarray, camera) -> np.ndarray:
+    """(T,) float64: the share of the image covered by the bounding rectangle of ``body``'s bounding
+    box (its mesh's, in the body frame) seen from ``world_from_cam`` (T, 4, 4) at poses (T, 4, 4),
+    clipped to the image; 0 where any corner is behind 0.5 m (an estimate: the renders' masks give the
+    exact per-frame fraction)."""
+    v = body.mesh.vertices
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    cam_from_body = np.linalg.inv(world_from_cam) @ poses
+    p = np.einsum("tij,kj->tki", cam_from_body, corners)[..., :3]
+    z = p[..., 2]
+    front = (z > 0.5).all(axis=1)
+    zs = np.where(z > 0.5, z, 1.0)
+    u = camera.fx * p[..., 0] / zs + camera.cx
+    w = camera.fy * p[..., 1] / zs + camera.cy
+    du = np.clip(u.max(1), 0, camera.width) - np.clip(u.min(1), 0, camera.width)
+    dv = np.clip(w.max(1), 0, camera.height) - np.clip(w.min(1), 0, camera.height)
+    return np.where(front, du * dv / float(camera.width * camera.height), 0.0)
+
+
+def separate_movers(scene: Scene, motion, duration_s: float, rng: np.random.Generator, candidates: int = 64) -> Scene:
+    """Place the path-following movers (cars) where the camera sees them, clear of it and of each other.
+
+    For each mover, ``candidates`` start points along its path are tried (its own first, then spread
+    evenly round the path with a random jitter); among those that keep, within [0, duration_s], the
+    camera ``layout['mover_clearance_m']`` away from the mover's footprint (its bounding box in the
+    ground plane) and mover centres ``layout['mover_mover_clearance_m']`` apart, the one the camera
+    sees most of is kept (the mean over the sequence of :func:`view_fraction` with the scene's
+    camera, the first seconds weighted up to 4x); where none keeps the clearances, the one that comes nearest to keeping them. So movers are
+    in view from the first frames on: oncoming cars, cars driving ahead, crossing traffic. Returns a
+    new Scene (the input is not modified). Movers that do not follow a path (flying boxes) are left
     alone (their space is separated by construction)."""
     cam_clear = float(scene.layout.get("mover_clearance_m", 0.0))
     pair_clear = float(scene.layout.get("mover_mover_clearance_m", 0.0))
     rate = 4.0 * float(getattr(motion, "rate_hz", 10.0))
     times = np.arange(0.0, duration_s + 1.0 / rate, 1.0 / rate)
-    cam_xy = motion.world_from_cam(times)[:, :2, 3]
+    world_from_cam = motion.world_from_cam(times)
+    cam_xy = world_from_cam[:, :2, 3]
+    weights = 1.0 + 3.0 * np.exp(-times / 2.0)  # the first seconds count more: movers in view from the start
 
     def footprint_distance(body: Body, poses: np.ndarray) -> float:
         v = body.mesh.vertices[:, :2]
@@ -58,20 +85,22 @@ def separate_movers(scene: Scene, motion, duration_s: float, rng: np.random.Gene
         if b.kind != RIGID or not isinstance(b.motion, PathFollower):
             continue
         prog = b.motion.progress
-        best, best_score = b, -np.inf
         c0 = float(prog.c(0.0)[0])
-        for attempt in range(40):
+        length = prog.path.length
+        best, best_key = b, (-np.inf, -np.inf)
+        for attempt in range(candidates):
+            shift = (attempt + float(rng.uniform(0.0, 1.0))) * length / candidates
             cand = b if attempt == 0 else dataclasses.replace(
-                b, motion=PathFollower(_shifted(prog, c0 + float(rng.uniform(5.0, prog.path.length - 5.0))), b.motion.z_m))
+                b, motion=PathFollower(_shifted(prog, c0 + shift), b.motion.z_m))
             poses = cand.motion.world_from_body(times)
             xy = poses[:, :2, 3]
             d_cam = footprint_distance(cand, poses) - cam_clear
             d_pair = min([np.min(np.linalg.norm(xy - p, axis=1)) - pair_clear for p in placed], default=np.inf)
-            score = min(d_cam, d_pair)
-            if score > best_score:
-                best, best_score = cand, score
-            if score >= 0:
-                break
+            clear = min(d_cam, d_pair)
+            seen = float(np.average(view_fraction(cand, poses, world_from_cam, scene.camera), weights=weights))
+            key = (0.0, seen) if clear >= 0 else (clear, seen)
+            if key > best_key:
+                best, best_key = cand, key
         if best is not b:
             changed = True
         bodies[i] = best
@@ -83,4 +112,4 @@ def _shifted(prog: PathProgress, c0: float) -> PathProgress:
     return PathProgress(prog.path, prog.speed, c0=c0, ramp_s=prog.ramp_s)
 
 
-__all__ = ["WorldState", "world_state", "separate_movers", "Body"]
+__all__ = ["WorldState", "world_state", "separate_movers", "view_fraction", "Body"]

@@ -54,6 +54,20 @@ def _name(i: int) -> str:
     return f"{i:06d}"
 
 
+DYNAMIC_FRACTION_FILE = "dynamic_fraction.txt"
+"""Per-frame share of the image (0-1) covered by dynamic surfaces (mask > 0: movers, waving flags),
+one line per frame, written beside the images' times in every layout."""
+
+
+def dynamic_fraction(mask: np.ndarray) -> float:
+    """Share (0-1) of the pixels of an instance mask (H, W) that show a dynamic surface (id > 0)."""
+    return float(np.count_nonzero(mask)) / float(mask.size)
+
+
+def _write_dynamic_fraction(path: Path, values) -> None:
+    atomic.write_text(path, "".join(f"{float(v):.6f}\n" for v in values))
+
+
 def check_output_folder(out: Path, resume: bool) -> None:
     """InputError (before anything is written) when ``out`` cannot be used: a file, a non-empty
     folder without ``resume``, or a place where nothing can be created."""
@@ -92,7 +106,7 @@ class _Sink:
     def _mark(self, i: int, frame, written: list[Path]) -> None:
         atomic.write_json(self._records() / f"{_name(i)}.json",
                           {"index": i, "timestamp_s": frame.timestamp_s, "world_from_cam": frame.world_from_cam.tolist(),
-                           "files": file_digests(written, self.root)})
+                           "dynamic_fraction": dynamic_fraction(frame.mask), "files": file_digests(written, self.root)})
 
     def _meta(self, fmt: str, complete: bool, extra: dict) -> dict:
         sim = self.sim
@@ -155,12 +169,15 @@ class OursSink:
         sensor = frame.depth_sensor is not None
         self.writer.write_frame(i, frame.timestamp_s, frame.world_from_cam, frame.rgb,
                                 frame.depth_sensor if sensor else frame.depth_z, flow, frame.mask,
-                                frame.rgb_right, extra={"instance_poses": {str(k): v.tolist() for k, v in frame.instance_poses.items()}},
+                                frame.rgb_right, extra={"instance_poses": {str(k): v.tolist() for k, v in frame.instance_poses.items()},
+                                                        "dynamic_fraction": dynamic_fraction(frame.mask)},
                                 flow_backward=frame.flow_backward, occlusion=frame.occlusion if i < self.n - 1 else None,
                                 depth_exact=frame.depth_z if sensor else None)
 
     def finish(self) -> None:
         if not self.complete:
+            recs = [json.loads((self.path / "frames" / f"{_name(i)}.json").read_text()) for i in range(self.n)]
+            _write_dynamic_fraction(self.path / DYNAMIC_FRACTION_FILE, [r["dynamic_fraction"] for r in recs])
             self.writer.finish()
 
 
@@ -225,6 +242,7 @@ class KittiSink(_Sink):
         poses = np.array([r["world_from_cam"] for r in recs])[:, :3, :].reshape(self.n, 12)
         atomic.write_text(self.poses_path, "".join(" ".join(f"{x:.12e}" for x in row) + "\n" for row in poses))
         atomic.write_text(self.seq / "times.txt", "".join(f"{r['timestamp_s']:.9e}\n" for r in recs))
+        _write_dynamic_fraction(self.seq / DYNAMIC_FRACTION_FILE, [r["dynamic_fraction"] for r in recs])
         self.meta["complete"] = True
         atomic.write_json(self.meta_path, self.meta)
         shutil.rmtree(self._records(), ignore_errors=True)
@@ -311,6 +329,8 @@ class EurocSink(_Sink):
     def finish(self) -> None:
         if self.complete:
             return
+        recs = [json.loads((self._records() / f"{_name(i)}.json").read_text()) for i in range(self.n)]
+        _write_dynamic_fraction(self.mav / "cam0" / DYNAMIC_FRACTION_FILE, [r["dynamic_fraction"] for r in recs])
         rows = "".join(f"{self.ns(i)},{self.ns(i)}.png\n" for i in range(self.n))
         atomic.write_text(self.mav / "cam0" / "data.csv", "#timestamp [ns],filename\n" + rows)
         if self.sim.baseline_m:
