@@ -71,7 +71,10 @@ class TensorSamples:
         return TensorSamples(self.flow[idx].numpy(), self.intrinsics[idx].numpy(), self.target[idx].numpy(),
                              self.seed, self.shuffle if shuffle is None else shuffle)
 
-    def batches(self, epoch: int, batch_size: int) -> Iterator[Batch]:
+    def batches(self, epoch: int, batch_size: int, rank: int = 0, world: int = 1) -> Iterator[Batch]:
+        """The epoch's batches of ``batch_size`` in a seeded order; with ``world`` > 1 (data-parallel
+        training) this rank's share ``rank::world`` of each batch, so the ranks together see every
+        sample of the batch once (a last batch smaller than ``world`` is dropped on every rank)."""
         n = len(self)
         if self.shuffle:
             g = torch.Generator().manual_seed(epoch_seed(self.seed, epoch))
@@ -80,6 +83,10 @@ class TensorSamples:
             order = torch.arange(n)
         for s in range(0, n, batch_size):
             idx = order[s:s + batch_size]
+            if world > 1:
+                if len(idx) < world:
+                    break
+                idx = idx[rank::world]
             yield {"flow": self.flow[idx], "intrinsics": self.intrinsics[idx], "target": self.target[idx]}
 
     def split(self, holdout_fraction: float, seed: int) -> tuple["TensorSamples", "TensorSamples"]:
@@ -560,11 +567,18 @@ class _OnTheFlySource:
     def make_batch(self, rng: np.random.Generator, n: int) -> Batch:
         raise NotImplementedError
 
-    def batches(self, epoch: int, batch_size: int) -> Iterator[Batch]:
+    def batches(self, epoch: int, batch_size: int, rank: int = 0, world: int = 1) -> Iterator[Batch]:
+        """The epoch's batches; with ``world`` > 1 this rank makes only its share of each batch
+        (``len(range(rank, n, world))`` samples) from its own stream, seeded by (seed, epoch, batch,
+        rank, world): no rank draws another's samples (a last batch smaller than ``world`` is dropped)."""
         n_batches = -(-self.samples_per_epoch // batch_size)
         for b in range(n_batches):
             n = min(batch_size, self.samples_per_epoch - b * batch_size)
-            yield self.make_batch(np.random.default_rng(epoch_seed(self.seed, epoch, b)), n)
+            if world <= 1:
+                yield self.make_batch(np.random.default_rng(epoch_seed(self.seed, epoch, b)), n)
+            elif n >= world:
+                yield self.make_batch(np.random.default_rng(epoch_seed(self.seed, epoch, b, rank, world)),
+                                      len(range(rank, n, world)))
 
     def materialize(self, n: int, seed: int, progress: bool = False) -> TensorSamples:
         """A fixed set of ``n`` samples (a validation / NLL set, or a pool to train on), in order."""

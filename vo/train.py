@@ -123,7 +123,7 @@ class Source(Protocol):
 
     def __len__(self) -> int: ...
 
-    def batches(self, epoch: int, batch_size: int) -> Iterator[dict[str, torch.Tensor]]: ...
+    def batches(self, epoch: int, batch_size: int, rank: int = 0, world: int = 1) -> Iterator[dict[str, torch.Tensor]]: ...
 
 
 @dataclasses.dataclass
@@ -345,14 +345,21 @@ def train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_di
         TrainingDiverged: a non-finite loss.
         core.errors.InputError: ``resume`` with a checkpoint of another configuration.
     """
+    import contextlib
+
     from deepslam.core.lock import output_lock
+    from deepslam.vo.distributed import world
 
     threads_before = torch.get_num_threads()
     if cfg.threads > 0:
         torch.set_num_threads(cfg.threads)
+    rank, _ = world()
     try:
-        with output_lock(out_dir):  # one writer: a second run into this folder is refused while this one runs
-            return _train(cfg, train_source, holdout_source, Path(out_dir), resume, progress, meta, half_weights)
+        # one writer: a second run into this folder is refused while this one runs (data-parallel:
+        # rank 0 is the writer, the other ranks only train)
+        with output_lock(out_dir) if rank == 0 else contextlib.nullcontext():
+            return _train(cfg, train_source, holdout_source, Path(out_dir), resume, progress and rank == 0, meta,
+                          half_weights)
     finally:
         torch.set_num_threads(threads_before)
 
@@ -362,20 +369,39 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
     from tqdm import tqdm
 
     from deepslam.core.errors import InputError
+    from deepslam.vo.distributed import agree, world
 
-    out_dir.mkdir(parents=True, exist_ok=True)
+    rank, n_ranks = world()
+    writer = rank == 0
+    if writer:
+        out_dir.mkdir(parents=True, exist_ok=True)
     meta = dict(meta or {})
     ckpt_path = out_dir / CHECKPOINT
-    if (out_dir / LEGACY_CHECKPOINT).is_file() and not ckpt_path.exists():
+    if not writer:
+        pass  # rank 0 checks the folder; the others follow it (or are stopped with it by torchrun)
+    elif (out_dir / LEGACY_CHECKPOINT).is_file() and not ckpt_path.exists():
         raise InputError(out_dir / LEGACY_CHECKPOINT, "a pickle-based checkpoint of an older version; convert it "
                          f"once with `deepslam convert-model {out_dir / LEGACY_CHECKPOINT}` (or choose another --out)")
-    if not resume and ckpt_path.exists():
+    if writer and not resume and ckpt_path.exists():
         raise InputError(ckpt_path, "a training run is already here; pass --resume to continue it or choose another --out")
-    if not resume and any(out_dir.iterdir()):
+    if writer and not resume and any(out_dir.iterdir()):
         raise InputError(out_dir, "output folder is not empty and holds no training run; choose another --out")
     model = new_model(cfg).to(torch.device(cfg.device))
     if cfg.channels_last:
         model.set_channels_last(True)
+    if n_ranks > 1:
+        import torch.distributed as dist
+
+        dist.barrier()  # rank 0 has checked the folder
+        # stage 1 trains the motion only: the log-std heads stay out of DDP's gradient reduction
+        for p in model.uncertainty_parameters():
+            p.requires_grad_(False)
+        step_model = torch.nn.parallel.DistributedDataParallel(
+            model, device_ids=[torch.device(cfg.device).index] if torch.device(cfg.device).type == "cuda" else None)
+        for p in model.uncertainty_parameters():
+            p.requires_grad_(True)
+    else:
+        step_model = model
     n_train = len(train_source)
     if n_train == 0 or len(holdout_source) == 0:
         raise InputError(None, f"no training data ({n_train} training and {len(holdout_source)} held-out samples)")
@@ -413,17 +439,20 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
             print(f"resuming {ckpt_path}: stage {state['stage']}, epoch {state['epoch']}, "
                   f"{state['nll_epoch']} NLL epochs", flush=True)
     config_doc = {"train": cfg.to_dict(), "data": meta, "torch": torch.__version__,
-                  "threads": torch.get_num_threads()}
-    atomic.write_json(out_dir / CONFIG, config_doc)
+                  "threads": torch.get_num_threads(), "data_parallel_ranks": n_ranks}
+    if writer:
+        atomic.write_json(out_dir / CONFIG, config_doc)
 
     def checkpoint(opt_, sched_):
         nonlocal stage1_saved
         if state["stage"] == 1:
             stage1_saved = {"model": model.state_dict(), "optimizer": opt_.state_dict(), "scheduler": sched_.state_dict()}
+        if not writer:
+            return
         save_checkpoint(ckpt_path, {"config": cfg.to_dict(), "model": model.state_dict(), "train_state": state,
                                     "optimizer": opt_.state_dict(), "scheduler": sched_.state_dict() if sched_ else None,
                                     "stage1": stage1_saved, "torch_rng": torch.get_rng_state(), "meta": meta})
-        atomic.write_json(out_dir / HISTORY, state["history"])
+        atomic.write_json(out_dir / HISTORY, state["history"])  # (rank 0 only: see above)
 
     clock0 = time.perf_counter() - state["elapsed_s"]  # training time so far, over resumes
 
@@ -443,37 +472,39 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
         epoch = state["epoch"]
         model.train()
         t0 = time.perf_counter()
-        n_seen, loss_sum = 0, 0.0
+        n_seen, n_local, loss_sum = 0, 0, 0.0
         planned = n_train if cfg.max_samples <= 0 else min(n_train, cfg.max_samples - state["samples"])
         bar = tqdm(total=planned, desc=f"epoch {epoch + 1}", unit="sample", disable=not progress, leave=False,
                    dynamic_ncols=True)
-        for step, b in enumerate(train_source.batches(epoch, cfg.batch_size)):
+        for step, b in enumerate(train_source.batches(epoch, cfg.batch_size, rank, n_ranks)):
             b = _on(cfg, b)
             with _autocast(cfg):
-                mean, _ = model(b["flow"], b["intrinsics"])
+                mean, _ = step_model(b["flow"], b["intrinsics"])
             loss = pose_loss(mean, b["target"], cfg.rot_weight)
             _check_finite(loss, "stage-1", epoch, step, sched.get_last_lr()[0])
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
             sched.step()
-            k = len(b["target"])
-            n_seen += k
-            loss_sum += float(loss.detach()) * k
-            state["samples"] += k
-            sps = n_seen / (time.perf_counter() - t0)
+            k_local = len(b["target"])
+            n_local += k_local
+            loss_sum += float(loss.detach()) * k_local  # this rank's samples (the bar shows rank 0's loss)
+            sps = (n_seen + k_local * n_ranks) / (time.perf_counter() - t0)
             # time left for training once the last held-out evaluation and stage 2 are paid for:
             # each is about one forward pass over the held-out set (forward ~3x a training step)
             eval_s = state.get("eval_s") or n_hold / (3.0 * sps)
             left_s = limit_s - elapsed() - 2.2 * eval_s - 3.0
-            if cfg.max_samples > 0 and state["samples"] >= cfg.max_samples:
-                reason = "max_samples"
-            elif left_s <= 0:
-                reason = "max_minutes"
+            samples_after = state["samples"] + k_local * n_ranks  # exact once the ranks agree below
+            stop = (cfg.max_samples > 0 and samples_after >= cfg.max_samples) or left_s <= 0
+            k, stop = agree(k_local, stop, torch.device(cfg.device))  # every rank stops at the same step
+            n_seen += k
+            state["samples"] += k
+            if stop:
+                reason = "max_samples" if cfg.max_samples > 0 and state["samples"] >= cfg.max_samples else "max_minutes"
             if math.isfinite(left_s):  # the bar ends where the time cap will end the epoch
                 bar.total = max(n_seen, min(planned, n_seen + int(sps * max(left_s, 0.0))))
             bar.update(k)
-            bar.set_postfix(loss=f"{loss_sum / n_seen:.4g}", sps=f"{sps:.0f}", lr=f"{sched.get_last_lr()[0]:.2g}")
+            bar.set_postfix(loss=f"{loss_sum / max(n_local, 1):.4g}", sps=f"{sps:.0f}", lr=f"{sched.get_last_lr()[0]:.2g}")
             if reason is not None:
                 break
         bar.close()
@@ -498,7 +529,7 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
                 state["halvings"] += 1
         state["epoch"] = epoch + 1
         state["elapsed_s"] = elapsed()
-        row = {"stage": 1, "epoch": epoch + 1, "train_loss": loss_sum / max(n_seen, 1), "val_loss": val["loss"],
+        row = {"stage": 1, "epoch": epoch + 1, "train_loss": loss_sum / max(n_local, 1), "val_loss": val["loss"],
                "val_rmse6": val["rmse6"], "lr_min": sched.base_lrs[0], "lr_max": sched.max_lrs[0],
                "samples_per_s": n_seen / dt, "seconds": dt, "samples": n_seen, "partial": n_seen < n_train}
         state["history"].append(row)
@@ -550,9 +581,10 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
                "train_seconds": elapsed(), "train_samples": state["samples"]}
     meta_out = {**meta, "train": cfg.to_dict(), "summary": summary}
     model_path = out_dir / MODEL
-    save_model(model_path, model, meta_out, half=half_weights)
-    atomic.write_json(out_dir / "summary.json", summary)
-    _plot_history(out_dir / "loss.png", state["history"])
+    if writer:
+        save_model(model_path, model, meta_out, half=half_weights)
+        atomic.write_json(out_dir / "summary.json", summary)
+        _plot_history(out_dir / "loss.png", state["history"])
     if progress:
         print(f"stopped: {_why(state['stop_reason'])} after {state['epoch']} epochs ({state.get('samples', 0)} samples, "
               f"{elapsed() / 60:.1f} min); held-out loss {final['loss']:.4g}, NLL {final['nll']:.4g}; wrote {model_path}",

@@ -48,6 +48,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-loops", action="store_true", help="SLAM without loop closure")
     p.add_argument("--quick", action="store_true", help="a small sweep (about a minute): 100 frames, 4 settings")
     p.add_argument("--resume", action="store_true", help="reuse the per-setting results already in --out")
+    p.add_argument("--device", default="auto", help="torch device of the learned odometry: auto (CUDA when torch "
+                                                    "sees one, else the CPU), cpu, cuda or cuda:N")
     p.add_argument("--threads", type=int, default=1, metavar="N",
                    help="CPU threads for torch, OpenCV and OpenBLAS (default 1: fastest on a busy 2-core machine)")
     p.add_argument("--keep-sequences", action="store_true", help="keep the rendered sequences under DIR/sequences")
@@ -84,7 +86,7 @@ def config_from_args(args: argparse.Namespace):
         "scene": args.scene, "width": args.width, "seed": args.seed, "backend": args.backend,
         "odometry": main_odometry, "plugins": plugins, "model_cons": args.model_cons, "model_loops": args.model_loops,
         "dis_preset": args.dis_preset, "slam_params": args.params, "loops": not args.no_loops,
-        "keep_sequences": args.keep_sequences, "combined": args.combined, "threads": args.threads,
+        "keep_sequences": args.keep_sequences, "combined": args.combined, "threads": args.threads, "device": args.device,
         "size_objects": args.size_objects,
         "frames": args.frames if args.frames is not None else quick.get("frames", base.frames),
         "objects": (parse_list(args.objects, int, "objects") if args.objects is not None

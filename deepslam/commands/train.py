@@ -251,7 +251,10 @@ def run(args: argparse.Namespace) -> int:
     _check_ranges(args)
     from deepslam.gen.device import resolve_device
 
-    device = resolve_device(args.device)
+    from deepslam.vo.distributed import finish, init_from_env, world
+
+    device = init_from_env(resolve_device(args.device))  # torchrun: one rank per process, one device each
+    rank, n_ranks = world()
     net = net_config(args)
     if args.bf16 == "auto":
         bf16 = True if device.type == "cuda" else cpu_has_native_bf16()
@@ -265,7 +268,7 @@ def run(args: argparse.Namespace) -> int:
                       bf16=bf16, channels_last=args.channels_last == "on", threads=args.threads, device=str(device))
     if not 0 < args.holdout < 1:
         raise InputError(None, f"--holdout must be in (0, 1), got {args.holdout}")
-    progress = not (args.quiet or args.json)
+    progress = not (args.quiet or args.json) and rank == 0
     h, w = net.input_height, net.input_width
     meta: dict = {"mode": args.mode}
     if args.mode == "synthetic":
@@ -360,6 +363,9 @@ def run(args: argparse.Namespace) -> int:
     except TrainingDiverged as e:
         print(f"deepslam train: error: {e}", file=sys.stderr)
         return 2
+    finish()
+    if rank != 0:
+        return 0
     if args.json:
         import json
 

@@ -134,6 +134,8 @@ class StressConfig:
     """Resize factor of the images before SIFT (the study's images are already small)."""
     vocabulary_size: int = 200
     """Visual words of the BoW vocabulary trained on the first setting's keyframes (shared by all)."""
+    device: str = "auto"
+    """Torch device of the learned odometry: ``auto`` (CUDA when torch sees one), ``cpu``, ``cuda[:N]``."""
     threads: int = 1
     """CPU threads of torch and OpenCV during the study (restored after). The study's arrays are small, and
     on a busy 2-core machine one thread was 2-4x faster than two (thread contention)."""
@@ -460,8 +462,11 @@ def _main_odometries(config: StressConfig) -> OdometrySet:
             from deepslam.vo import models
 
             # shipped models follow the flow they are given (a DIS-trained variant where one is shipped)
-            cons = {f: models.resolve(config.model_cons or kind, None, "cons", est) for f, est in flows.items()}
-            loops = models.resolve(config.model_loops or f"{kind}:loops", None, "loops", flows["dis"])
+            from deepslam.gen.device import resolve_device
+
+            dev = resolve_device(config.device)
+            cons = {f: models.resolve(config.model_cons or kind, None, "cons", est, device=dev) for f, est in flows.items()}
+            loops = models.resolve(config.model_loops or f"{kind}:loops", None, "loops", flows["dis"], device=dev)
         except InputError as e:
             if config.model_cons or config.model_loops:
                 raise  # a model the user named is missing or broken: bad input
