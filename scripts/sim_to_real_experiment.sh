@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Issue 12's sim-to-real experiment (README "Sim-to-real"): four DIS-flow NN_cons recipes, then the
-# real KITTI slices. About 35 minutes on 2 cores; resumable (finished steps are skipped).
+# real KITTI slices. About 50 minutes on 2 cores; resumable (finished steps are skipped).
 #   A: 3 default streets   B: 3 varied streets   C: 3 default + 6 varied   D: C + KITTI 06's single frames
+#   F: C with the training cameras tilted (pitch -1..3 deg, roll +-1 deg)   G: F + KITTI 06's single frames
 # KITTI 06 is the validation slice of A-C (they never see a real frame); 07 is never trained on.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -21,6 +22,9 @@ train $D/A_default --sample-pool 20000 --frames $D/street_s1 $D/street_s2 $D/str
 train $D/B_varied --sample-pool 20000 --frames $D/varied_s1 $D/varied_s2 $D/varied_s3
 train $D/C_mixed --sample-pool 20000 --frames $MIX
 train $D/D_mixed_06 --sample-pool 30000 --frames $MIX $K06
+train $D/F_tilt --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $MIX
+train $D/G_tilt_06 --sample-pool 30000 --camera-tilt-deg=-1:3:1 --frames $MIX $K06
 .venv/bin/python -m bench.results_real --out $D/real \
   --model "A=$D/A_default/model.safetensors" --model "B=$D/B_varied/model.safetensors" \
-  --model "C=$D/C_mixed/model.safetensors" --model "D=$D/D_mixed_06/model.safetensors"
+  --model "C=$D/C_mixed/model.safetensors" --model "D=$D/D_mixed_06/model.safetensors" \
+  --model "F=$D/F_tilt/model.safetensors" --model "G=$D/G_tilt_06/model.safetensors"
