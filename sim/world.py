@@ -62,7 +62,11 @@ def separate_movers(scene: Scene, motion, duration_s: float, rng: np.random.Gene
     camera, the first seconds weighted up to 4x); where none keeps the clearances, the one that comes nearest to keeping them. So movers are
     in view from the first frames on: oncoming cars, cars driving ahead, crossing traffic. Returns a
     new Scene (the input is not modified). Movers that do not follow a path (flying boxes) are left
-    alone (their space is separated by construction)."""
+    alone (their space is separated by construction). A scene whose layout says ``movers_placed`` (what
+    this function returns) is returned as it is, so a placement can be made once and kept (the stress
+    study's scaled movers)."""
+    if scene.layout.get("movers_placed"):
+        return scene
     cam_clear = float(scene.layout.get("mover_clearance_m", 0.0))
     pair_clear = float(scene.layout.get("mover_mover_clearance_m", 0.0))
     rate = 4.0 * float(getattr(motion, "rate_hz", 10.0))
@@ -80,7 +84,6 @@ def separate_movers(scene: Scene, motion, duration_s: float, rng: np.random.Gene
         return float(np.min(np.linalg.norm(gap, axis=1)))
     bodies = list(scene.bodies)
     placed: list[np.ndarray] = []
-    changed = False
     for i, b in enumerate(bodies):
         if b.kind != RIGID or not isinstance(b.motion, PathFollower):
             continue
@@ -101,11 +104,9 @@ def separate_movers(scene: Scene, motion, duration_s: float, rng: np.random.Gene
             key = (0.0, seen) if clear >= 0 else (clear, seen)
             if key > best_key:
                 best, best_key = cand, key
-        if best is not b:
-            changed = True
         bodies[i] = best
         placed.append(best.motion.world_from_body(times)[:, :2, 3])
-    return dataclasses.replace(scene, bodies=bodies) if changed else scene
+    return dataclasses.replace(scene, bodies=bodies, layout={**scene.layout, "movers_placed": True})
 
 
 def _shifted(prog: PathProgress, c0: float) -> PathProgress:

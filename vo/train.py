@@ -476,7 +476,10 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
         planned = n_train if cfg.max_samples <= 0 else min(n_train, cfg.max_samples - state["samples"])
         bar = tqdm(total=planned, desc=f"epoch {epoch + 1}", unit="sample", disable=not progress, leave=False,
                    dynamic_ncols=True)
-        for step, b in enumerate(train_source.batches(epoch, cfg.batch_size, rank, n_ranks)):
+        # (a source of one's own needs the rank arguments only for data-parallel training)
+        epoch_batches = (train_source.batches(epoch, cfg.batch_size) if n_ranks == 1
+                         else train_source.batches(epoch, cfg.batch_size, rank, n_ranks))
+        for step, b in enumerate(epoch_batches):
             b = _on(cfg, b)
             with _autocast(cfg):
                 mean, _ = step_model(b["flow"], b["intrinsics"])

@@ -261,7 +261,7 @@ def setting_scene(config: StressConfig, setting: Setting):
 
     With a scale other than 1 the movers are first placed exactly as the simulator places them for
     the unscaled scene (:func:`sim.world.separate_movers` with the simulator's own generator
-    ``[trajectory seed, 2]``), then scaled, and the scene's clearances are set to 0 so that the
+    ``[trajectory seed, 2]``), then scaled; the placed scene says ``movers_placed`` so that the
     simulator keeps that placement: a size setting differs from its unscaled twin in the size of the
     movers only, not in where they drive (bigger cars would otherwise be pushed away from the camera
     by the clearance rule and the sweep would measure fewer dynamic pixels for bigger objects).
@@ -279,8 +279,7 @@ def setting_scene(config: StressConfig, setting: Setting):
     motion = make_motion(base, tcfg.resolved_kind(base.name), np.random.default_rng([tseed, 1]), tcfg.rate_hz)
     placed = separate_movers(base, motion, (tcfg.frames + 1) / float(motion.rate_hz), np.random.default_rng([tseed, 2]))
     scaled = scaled_movers(placed, setting.object_scale)
-    layout = {**scaled.layout, "mover_clearance_m": 0.0, "mover_mover_clearance_m": 0.0}
-    return cfg, dataclasses.replace(scaled, layout=layout)
+    return cfg, scaled
 
 
 def render_setting(config: StressConfig, setting: Setting, out_dir: Path, progress: bool = False) -> Path:
