@@ -15,7 +15,7 @@ from deepslam.studies.stress import RigidFitOdometry, Setting, StressConfig, run
 
 # room seed 1: the table's flags fill ~6 % of the first frames and 16 flying boxes ~3 %
 TINY = StressConfig(scene="room", seed=1, frames=6, width=96, objects=(0, 16), object_sizes=(1.0,), size_objects=16,
-                    deform_amplitudes_m=(0.1, 0.3), odometry="rigid-fit", validation_frames=5)
+                    deform_amplitudes_m=(0.1, 0.3), odometry="rigid-fit", validation_frames=5, combined=False)
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,7 @@ NAME = "stress"
 HELP = ("stress study: sweep moving objects (count, size) and deformation in simulation; flow, VO and SLAM "
         "errors against the fraction of dynamic pixels")
 
-QUICK = {"frames": 100, "objects": (0, 8), "object_sizes": (2.0,), "deform_amplitudes_m": (0.3,)}
+QUICK = {"frames": 100, "objects": (0, 8), "object_sizes": (2.0,), "deform_amplitudes_m": (0.3,), "combined": False}
 """What ``--quick`` changes (only where the option is not given)."""
 
 
@@ -31,7 +31,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="number of moving objects in the size sweep (default 8)")
     p.add_argument("--deform", default=None, metavar="LIST",
                    help="flag deformation amplitudes in metres, comma-separated (default 0,0.15,0.3; --quick 0.3)")
-    p.add_argument("--combined", action="store_true", help="add a setting with the most of everything")
+    p.add_argument("--no-combined", dest="combined", action="store_false",
+                   help="leave out the setting with the most of everything (largest count, size and amplitude)")
     p.add_argument("--seed", type=int, default=0, metavar="S", help="scene and trajectory seed (default 0)")
     p.add_argument("--backend", default="mujoco", help="renderer: mujoco (default) or pyrender")
     p.add_argument("--odometry", action="append", default=None, metavar="ODOMETRY",
@@ -86,7 +87,7 @@ def config_from_args(args: argparse.Namespace):
         "scene": args.scene, "width": args.width, "seed": args.seed, "backend": args.backend,
         "odometry": main_odometry, "plugins": plugins, "model_cons": args.model_cons, "model_loops": args.model_loops,
         "dis_preset": args.dis_preset, "slam_params": args.params, "loops": not args.no_loops,
-        "keep_sequences": args.keep_sequences, "combined": args.combined, "threads": args.threads, "device": args.device,
+        "keep_sequences": args.keep_sequences, "combined": args.combined and quick.get("combined", True), "threads": args.threads, "device": args.device,
         "size_objects": args.size_objects,
         "frames": args.frames if args.frames is not None else quick.get("frames", base.frames),
         "objects": (parse_list(args.objects, int, "objects") if args.objects is not None
