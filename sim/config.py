@@ -67,6 +67,24 @@ class RenderConfig:
     (:func:`sim.sensor.kinect_depth`: range, depth-dependent noise, disparity quantisation, missing
     readings at edges and grazing angles) are applied to the depth written to ``depth/``; the exact
     depth goes to ``depth_exact/`` and every other ground truth stays exact."""
+    exposure_ms: float = 0.0
+    """Exposure time in milliseconds for motion blur (0: a sharp image). The image is the mean of
+    ``blur_samples`` renders spread evenly over the exposure, centred on the frame time, so the
+    frame's pose, depth, flow and masks (all at the frame time) are those of mid-exposure."""
+    blur_samples: int = 8
+    """Renders averaged per image when ``exposure_ms`` > 0."""
+    sensor_noise: float = 0.0
+    """Std of Gaussian noise added to every image channel, grey levels (0: none)."""
+    exposure_jitter: float = 0.0
+    """Per-frame brightness gain drawn log-uniformly in [1 / (1 + j), 1 + j] (0: none), as auto-exposure
+    does between frames."""
+    white_balance_jitter: float = 0.0
+    """Per-frame gain of each colour channel drawn uniformly in [1 - w, 1 + w] (0: none)."""
+
+    @property
+    def photometric(self) -> bool:
+        """Whether any image-only effect (noise, exposure, white balance) is on."""
+        return self.sensor_noise > 0 or self.exposure_jitter > 0 or self.white_balance_jitter > 0
 
     def validate(self) -> "RenderConfig":
         if self.backend not in BACKENDS:
@@ -80,6 +98,12 @@ class RenderConfig:
             raise InputError(None, f"focal length must be in [1, 100000] px, got {self.focal_px}")
         if self.stereo_baseline_m is not None and not (np.isfinite(self.stereo_baseline_m) and 0 <= self.stereo_baseline_m <= 10):
             raise InputError(None, f"stereo baseline must be in [0, 10] m, got {self.stereo_baseline_m}")
+        for name, v, hi in (("exposure (ms)", self.exposure_ms, 1000.0), ("sensor noise", self.sensor_noise, 100.0),
+                            ("exposure jitter", self.exposure_jitter, 4.0), ("white-balance jitter", self.white_balance_jitter, 0.9)):
+            if not (np.isfinite(v) and 0.0 <= v <= hi):
+                raise InputError(None, f"{name} must be in [0, {hi:g}], got {v}")
+        if not isinstance(self.blur_samples, int) or not 2 <= self.blur_samples <= 64:
+            raise InputError(None, f"blur samples must be an integer in [2, 64], got {self.blur_samples}")
         return self
 
 

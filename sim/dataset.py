@@ -82,6 +82,14 @@ class DatasetConfig:
     """Renderer: ``mujoco`` or ``pyrender``."""
     flow: bool = True
     """Write forward/backward flow and occlusion ground truth."""
+    exposure_ms: tuple[float, float] = (0.0, 0.0)
+    """Motion-blur exposure per sequence, milliseconds, uniform in this range (0: sharp)."""
+    sensor_noise: float = 0.0
+    """Gaussian image noise, grey levels (every sequence)."""
+    exposure_jitter: float = 0.0
+    """Per-frame brightness gain, log-uniform in [1 / (1 + j), 1 + j] (every sequence)."""
+    white_balance_jitter: float = 0.0
+    """Per-frame colour channel gains, uniform in [1 - w, 1 + w] (every sequence)."""
 
     def validate(self) -> "DatasetConfig":
         """Self, or InputError naming the bad field."""
@@ -100,6 +108,9 @@ class DatasetConfig:
             raise InputError(None, f"varied_layout_fraction must be in [0, 1], got {self.varied_layout_fraction}")
         if self.format not in FORMATS:
             raise InputError(None, f"format must be one of {', '.join(FORMATS)}, got {self.format!r}")
+        ex = self.exposure_ms
+        if len(ex) != 2 or not np.isfinite(ex).all() or not 0 <= ex[0] <= ex[1] <= 1000:
+            raise InputError(None, f"exposure_ms must be [MIN, MAX] with 0 <= MIN <= MAX <= 1000, got {list(ex)}")
         if self.render_backend not in ("mujoco", "pyrender"):
             raise InputError(None, f"render_backend must be mujoco or pyrender, got {self.render_backend!r}")
         return self
@@ -148,10 +159,13 @@ def plan(cfg: DatasetConfig) -> list[PlannedSequence]:
         movers = int(rng.integers(cfg.moving_objects[0], cfg.moving_objects[1] + 1))
         deform = round(float(rng.uniform(*cfg.deform_amplitude_m)), 4)
         varied = bool(rng.random() < cfg.varied_layout_fraction) and scene == "street"
+        exposure = round(float(rng.uniform(*cfg.exposure_ms)), 3)
         sim = SimConfig(SceneConfig(name=scene, seed=scene_seed, moving_objects=movers, deform_amplitude_m=deform,
                                     varied_layout=varied),
                         TrajectoryConfig(kind="auto", frames=cfg.frames),
-                        RenderConfig(backend=cfg.render_backend, width=cfg.width, height=cfg.height, flow=cfg.flow))
+                        RenderConfig(backend=cfg.render_backend, width=cfg.width, height=cfg.height, flow=cfg.flow,
+                                     exposure_ms=exposure, sensor_noise=cfg.sensor_noise,
+                                     exposure_jitter=cfg.exposure_jitter, white_balance_jitter=cfg.white_balance_jitter))
         out.append(PlannedSequence(k, f"seq_{k:04d}", sim.to_dict()))
     return out
 
@@ -200,7 +214,8 @@ def render_planned(entry: dict, out_root: str, fmt: str) -> dict:
     sc = entry["sim"]["scene"]
     return {"name": entry["name"], "index": entry["index"],
             "settings": {"scene": sc["name"], "seed": sc["seed"], "moving_objects": sc["moving_objects"],
-                         "deform_amplitude_m": sc["deform_amplitude_m"], "varied_layout": sc["varied_layout"]},
+                         "deform_amplitude_m": sc["deform_amplitude_m"], "varied_layout": sc["varied_layout"],
+                         "exposure_ms": entry["sim"]["render"]["exposure_ms"]},
             "frames": entry["sim"]["trajectory"]["frames"], "files": files, "bytes": size, "sha256": sha,
             "seconds": round(time.perf_counter() - t0, 3),
             "peak_rss_mib": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)}

@@ -184,9 +184,50 @@ class Simulator:
             sensor = kinect_depth(left["depth_z"], self.camera, np.random.default_rng([int(seed), 0x5E75, int(i)]))
         mask = self._inst[left["body"] + 1]
         poses = {b.instance_id: s0.world_from_body[k] for k, b in enumerate(self.scene.bodies) if b.kind == "rigid"}
-        return SimFrame(i, self.time(i), self.camera, s0.world_from_cam, left["rgb"], left["depth_z"], fl, mask,
-                        left["body"], r.get("rgb"), r.get("depth_z"), self.baseline_m if right else None, poses,
+        rgb, rgb_right = left["rgb"], r.get("rgb")
+        rcfg = self.config.render
+        if rcfg.exposure_ms > 0:
+            rgb, rgb_right = self._motion_blur(i, right)
+        if rcfg.photometric:
+            rgb, rgb_right = self._photometric(i, rgb, rgb_right)
+        return SimFrame(i, self.time(i), self.camera, s0.world_from_cam, rgb, left["depth_z"], fl, mask,
+                        left["body"], rgb_right, r.get("depth_z"), self.baseline_m if right else None, poses,
                         back, occ, sensor)
+
+    def _motion_blur(self, i: int, right: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        """The left (and right) image averaged over the exposure, centred on frame i's time."""
+        rcfg = self.config.render
+        n = rcfg.blur_samples
+        exposure_s = rcfg.exposure_ms * 1e-3
+        acc = {"left": None, "right": None}
+        for k in range(n):
+            t = self.time(i) + ((k + 0.5) / n - 0.5) * exposure_s
+            self.backend.set_state(world_state(self.scene, self.motion, t))
+            for side in ("left", "right") if right else ("left",):
+                img = self.backend.render(side, colour=True, depth=False)["rgb"].astype(np.float32)
+                acc[side] = img if acc[side] is None else acc[side] + img
+        out = {k: None if v is None else np.clip(np.rint(v / n), 0, 255).astype(np.uint8) for k, v in acc.items()}
+        return out["left"], out["right"]
+
+    def _photometric(self, i: int, rgb: np.ndarray, rgb_right: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+        """Exposure gain, white balance (the same for both cameras of a frame) and sensor noise, from the
+        trajectory seed and the frame index (same seed, same bytes)."""
+        rcfg = self.config.render
+        seed = self.config.trajectory.seed if self.config.trajectory.seed is not None else self.config.scene.seed
+        rng = np.random.default_rng([int(seed), 0xC0102, int(i)])
+        j = np.log1p(rcfg.exposure_jitter)
+        gain = float(np.exp(rng.uniform(-j, j)))
+        wb = 1.0 + rng.uniform(-rcfg.white_balance_jitter, rcfg.white_balance_jitter, 3)
+        out = []
+        for img in (rgb, rgb_right):
+            if img is None:
+                out.append(None)
+                continue
+            x = img.astype(np.float32) * (gain * wb).astype(np.float32)
+            if rcfg.sensor_noise > 0:
+                x += rng.normal(0.0, rcfg.sensor_noise, x.shape).astype(np.float32)
+            out.append(np.clip(np.rint(x), 0, 255).astype(np.uint8))
+        return out[0], out[1]
 
     def close(self) -> None:
         if getattr(self, "backend", None) is not None:

@@ -37,6 +37,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--varied-layout", action="store_true",
                    help="street: a narrow, crowded variant of the town from the seed (closer facades, more parked "
                         "cars and trees by the kerb), like KITTI's residential streets")
+    p.add_argument("--exposure-ms", type=float, default=0.0, metavar="MS",
+                   help="motion blur: the image averaged over this exposure, centred on the frame time (whose pose, "
+                        "depth, flow and masks stay exact: they are mid-exposure's); 0 = sharp")
+    p.add_argument("--blur-samples", type=int, default=8, help="renders averaged per blurred image (default 8)")
+    p.add_argument("--sensor-noise", type=float, default=0.0, metavar="STD", help="Gaussian image noise, grey levels")
+    p.add_argument("--exposure-jitter", type=float, default=0.0, metavar="J",
+                   help="per-frame brightness gain, log-uniform in [1/(1+J), 1+J] (auto-exposure)")
+    p.add_argument("--white-balance-jitter", type=float, default=0.0, metavar="W",
+                   help="per-frame colour channel gains, uniform in [1-W, 1+W]")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -52,7 +61,9 @@ def run(args: argparse.Namespace) -> int:
         TrajectoryConfig(kind=args.trajectory, frames=args.frames, rate_hz=args.rate),
         RenderConfig(backend=args.backend, width=args.width, height=args.height,
                      stereo_baseline_m=args.stereo_baseline, focal_px=args.focal_px, flow=not args.no_flow,
-                     depth_noise=None if args.depth_noise == "none" else args.depth_noise),
+                     depth_noise=None if args.depth_noise == "none" else args.depth_noise,
+                     exposure_ms=args.exposure_ms, blur_samples=args.blur_samples, sensor_noise=args.sensor_noise,
+                     exposure_jitter=args.exposure_jitter, white_balance_jitter=args.white_balance_jitter),
     ).validate()
     path = render_sequence(cfg, args.out, fmt=args.format, resume=args.resume, progress=not args.quiet,
                            sequence=args.sequence)
