@@ -48,6 +48,8 @@ class SceneConfig:
     """Street only: a narrow, crowded variant of the town from the seed (narrower pavements, so
     facades closer; more parked cars, trees and poles near the kerb), like KITTI's residential
     streets (:meth:`scenes.street.StreetLayout.varied`). False: the original town."""
+    scene_file: str | None = None
+    """A scene file adding your own meshes to this scene (:mod:`scenes.custom`), or None."""
 
     def validate(self) -> "SceneConfig":
         if self.name not in SCENE_NAMES:
@@ -82,5 +84,12 @@ def build_scene(config: SceneConfig):
         from deepslam.scenes.room import build_room
 
         scene = build_room(config.seed, config.px_per_m, config.moving_objects, float(config.deform_amplitude_m), rng)
+    if config.scene_file:
+        from deepslam.scenes.custom import add_user_meshes, load_scene_file
+
+        spec = load_scene_file(config.scene_file)
+        if spec.base != config.name:
+            raise InputError(spec.path, f"the file's base scene is {spec.base!r}, the config's {config.name!r}")
+        scene = add_user_meshes(scene, spec)
     scene.config = config
     return scene

@@ -8,7 +8,9 @@ HELP = "render a simulated sequence (street/room, car/drone) with exact depth, f
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scene", default="street", help="street (KITTI-like town) or room (EuRoC-like hall); default street")
+    p.add_argument("--scene", default="street",
+                   help="street (KITTI-like town), room (EuRoC-like hall), or a scene file (.yaml/.json) adding your "
+                        "own OBJ/GLB/PLY meshes to one of them (README: Your own meshes); default street")
     p.add_argument("--trajectory", default="auto", help="car, drone or auto (street: car, room: drone); default auto")
     p.add_argument("--frames", type=int, default=300, help="number of frames (default 300)")
     p.add_argument("--out", required=True, help="output folder (must not exist or be empty, unless --resume)")
@@ -20,7 +22,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="right camera at +B metres along x; 0 = mono (default: the scene's, street 0.54, room 0.11)")
     p.add_argument("--moving-objects", type=int, default=0, metavar="K", help="moving cars (street) or flying boxes (room)")
     p.add_argument("--deform", type=float, default=0.0, metavar="A", help="amplitude of the waving flags in metres (0 = static)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the scene and trajectory (default 0)")
+    p.add_argument("--seed", type=int, default=None, help="seed of the scene and trajectory (default: the scene "
+                                                              "file's, else 0)")
     p.add_argument("--rate", type=float, default=None, help="frame rate in Hz (default: car 10, drone 20)")
     p.add_argument("--texture-density", type=float, default=None, metavar="PX_PER_M",
                    help="texels per metre of the procedural textures (default: street 20, room 100)")
@@ -54,8 +57,15 @@ def run(args: argparse.Namespace) -> int:
     from deepslam.sim.config import RenderConfig, SimConfig, TrajectoryConfig
     from deepslam.sim.writers import render_sequence
 
+    scene_name, scene_file, seed = args.scene, None, args.seed
+    from deepslam.scenes.custom import is_scene_file, load_scene_file
+
+    if is_scene_file(args.scene):
+        spec = load_scene_file(args.scene)
+        scene_name, scene_file = spec.base, str(spec.path)
+        seed = seed if seed is not None else spec.seed
     cfg = SimConfig(
-        SceneConfig(name=args.scene, seed=args.seed, moving_objects=args.moving_objects,
+        SceneConfig(name=scene_name, seed=0 if seed is None else seed, moving_objects=args.moving_objects, scene_file=scene_file,
                     deform_amplitude_m=args.deform, texture_px_per_m=args.texture_density,
                     varied_layout=args.varied_layout),
         TrajectoryConfig(kind=args.trajectory, frames=args.frames, rate_hz=args.rate),
