@@ -9,6 +9,8 @@ Estimators are made by name from a registry (:func:`make`, :func:`register`, :fu
 - ``dis``: OpenCV's DIS optical flow (Kroeger et al., 2016), the default; preset ``ultrafast``,
   ``fast`` or ``medium`` (the default: on KITTI 06 its median end-point error against flow from
   stereo depth + ground-truth motion is 1.3 px vs 2.4 px for ``ultrafast``, at ~10x the time).
+- ``learned``: the compact PWC-style network the harness trains on its own renders
+  (:mod:`vo.flownet`, ``deepslam train-flow``; shipped as ``models/flow_learned.safetensors``).
 - ``gt``: the simulator's exact flow. Consecutive frames read the flow the sequence stores
   (``flow/NNNNNN.npy``, frame i to i+1: exact for static, moving and deforming surfaces). Pairs
   further apart (loop pairs) are computed from geometry (:func:`exact_pair_flow`: frame i's depth, the
@@ -206,8 +208,22 @@ def register(name: str) -> Callable[[Callable[..., FlowEstimator]], Callable[...
     return deco
 
 
+def _learned(path=None, threads: int = 0, **_ignored):
+    """The shipped learned estimator (:class:`vo.flownet.LearnedFlow`), or the model file ``path``."""
+    from pathlib import Path
+
+    from deepslam.vo.flownet import LearnedFlow
+    from deepslam.vo.models import models_dir
+
+    p = Path(path) if path else models_dir() / "flow_learned.safetensors"
+    if not p.is_file():
+        raise InputError(p, "no learned flow model here (train one with `deepslam train-flow`; README: Learned flow)")
+    return LearnedFlow(p, threads=threads)
+
+
 register("dis")(DISFlow)
 register("gt")(GroundTruthFlow)
+register("learned")(_learned)
 
 
 def names() -> list[str]:

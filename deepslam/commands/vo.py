@@ -21,8 +21,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="trajectory file to write")
     p.add_argument("--format", choices=("kitti", "tum"), default=None,
                    help="trajectory format (default: kitti for KITTI sequences, tum otherwise)")
-    p.add_argument("--flow", default="dis", help="flow estimator: dis (OpenCV DIS, default) or gt (the sequence's "
-                   "ground-truth flow, our format)")
+    p.add_argument("--flow", default="dis", help="flow estimator: dis (OpenCV DIS, default), learned (the network "
+                   "`deepslam train-flow` trains on renders), gt (the sequence's ground-truth flow, our format), or a "
+                   "plug-in MODULE:FACTORY")
     p.add_argument("--dis-preset", default="medium", choices=("ultrafast", "fast", "medium"), help="DIS preset (default medium)")
     p.add_argument("--stride", type=int, default=1, help="frame gap k: predict cam_{t+k}_from_cam_t for t = 0, k, 2k, ...")
     p.add_argument("--start", type=int, default=0, help="first frame")

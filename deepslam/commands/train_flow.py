@@ -1,0 +1,63 @@
+"""``deepslam train-flow``: train the compact learned flow estimator on rendered pairs with exact flow."""
+from __future__ import annotations
+
+import argparse
+
+NAME = "train-flow"
+HELP = "train the learned optical-flow estimator (--flow learned) on rendered sequences with exact flow"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--sequences", nargs="+", required=True, metavar="DIR",
+                   help="rendered sequences with flow/ (and flow_backward/): ours, KITTI or EuRoC layout, or a "
+                        "`deepslam dataset` folder (all its sequences)")
+    p.add_argument("--out", required=True, help="output folder (checkpoint.safetensors, flow.safetensors, history.json)")
+    p.add_argument("--max-steps", type=int, default=20000, help="training steps, the learning-rate schedule's length (20000)")
+    p.add_argument("--max-minutes", type=float, default=0.0, help="stop after this much training time (0: no cap)")
+    p.add_argument("--batch", type=int, default=8, help="pairs per step (8)")
+    p.add_argument("--crop", default="128x320", metavar="HxW", help="training crop, multiples of 32 (128x320)")
+    p.add_argument("--lr", type=float, default=3e-4, help="Adam learning rate (3e-4, cosine decay)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--threads", type=int, default=2, help="torch CPU threads (2)")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _sequence_dirs(paths: list[str]) -> list[str]:
+    from pathlib import Path
+
+    out = []
+    for p in paths:
+        root = Path(p)
+        if (root / "manifest.json").is_file() and (root / "dataset.json").is_file():
+            out.extend(str(d) for d in sorted(root.glob("seq_*")) if d.is_dir())
+        else:
+            out.append(str(root))
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    from deepslam.core.errors import InputError
+    from deepslam.core.readers import open_sequence
+    from deepslam.vo.flownet import FlowPairs, FlowTrainConfig, train_flow
+
+    try:
+        ch, cw = (int(x) for x in args.crop.lower().split("x"))
+    except ValueError:
+        raise InputError(None, f"--crop must be HxW, got {args.crop!r}") from None
+    if ch % 32 or cw % 32 or not (32 <= ch <= 1024 and 32 <= cw <= 2048):
+        raise InputError(None, f"--crop must be multiples of 32 within 1024x2048, got {args.crop}")
+    for name, v, lo, hi in (("--max-steps", args.max_steps, 1, 10_000_000), ("--batch", args.batch, 1, 1024),
+                            ("--threads", args.threads, 1, 256)):
+        if not lo <= v <= hi:
+            raise InputError(None, f"{name} must be in [{lo}, {hi}], got {v}")
+    if not (args.lr > 0 and args.lr < 1) or not (args.max_minutes >= 0):
+        raise InputError(None, "--lr must be in (0, 1) and --max-minutes >= 0")
+    seqs = [open_sequence(d) for d in _sequence_dirs(args.sequences)]
+    pairs = FlowPairs(seqs, progress=not args.quiet)
+    cfg = FlowTrainConfig(crop=(ch, cw), batch_size=args.batch, lr=args.lr, max_steps=args.max_steps,
+                          max_minutes=args.max_minutes, seed=args.seed, threads=args.threads)
+    meta = {"sequences": [str(s.root) for s in seqs], "pairs": len(pairs)}
+    path = train_flow(cfg, pairs, args.out, resume=args.resume, progress=not args.quiet, meta=meta)
+    print(f"model: {path}")
+    return 0

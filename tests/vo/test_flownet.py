@@ -1,0 +1,112 @@
+"""The learned flow estimator's parts (vo.flownet): cost volume, warping, loss, metrics, files, training."""
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from deepslam.core.errors import InputError
+from deepslam.vo.flownet import (FlowNet, FlowNetConfig, FlowTrainConfig, LearnedFlow, correlation, endpoint_error,
+                                 load_flow_model, multiscale_loss, train_flow, warp)
+
+SMALL = FlowNetConfig(channels=(8, 12, 16), estimator_channels=(16,), finest_level=1, work_width=128, search_px=2)
+
+
+@pytest.mark.parametrize("dx,dy", [(0, 0), (1, 0), (-2, 1), (2, -2)])
+def test_correlation_peaks_at_the_shift(dx, dy):
+    g = torch.Generator().manual_seed(0)
+    f1 = torch.randn(1, 8, 12, 16, generator=g)
+    f2 = torch.roll(f1, shifts=(dy, dx), dims=(2, 3))  # f2(x + d) = f1(x)
+    c = correlation(f1, f2, 2)[0, :, 4:-4, 4:-4].mean((1, 2))
+    k = int(torch.argmax(c))
+    assert (k // 5 - 2, k % 5 - 2) == (dy, dx)
+
+
+def test_warp_by_an_integer_flow_shifts_the_image():
+    x = torch.arange(5 * 7, dtype=torch.float32).view(1, 1, 5, 7)
+    flow = torch.zeros(1, 2, 5, 7)
+    flow[:, 0] = 2.0  # sample two pixels to the right
+    out = warp(x, flow)
+    assert torch.equal(out[0, 0, :, :5], x[0, 0, :, 2:])
+    assert (out[0, 0, :, 5:] == 0).all()
+
+
+def test_endpoint_error_and_fl_all_follow_kitti_2015():
+    gt = np.zeros((2, 2, 2), np.float32)
+    gt[..., 0] = 100.0
+    pred = gt.copy()
+    pred[0, 0, 0] += 4.0   # 4 px: > 3 px but only 4 % of 100 px: not an outlier
+    pred[0, 1, 0] += 6.0   # 6 px and 6 %: an outlier
+    gt[1, 1] = np.nan      # no label
+    r = endpoint_error(pred, gt)
+    assert r["pixels"] == 3 and r["fl_all"] == pytest.approx(1 / 3) and r["epe"] == pytest.approx(10 / 3)
+
+
+def test_loss_is_zero_for_the_label_and_skips_nan_labels():
+    gt = torch.randn(2, 2, 32, 64)
+    outs = [torch.nn.functional.avg_pool2d(gt, 4) / 4, torch.nn.functional.avg_pool2d(gt, 2) / 2]
+    assert float(multiscale_loss(outs, gt, (1.0, 1.0))) < 1e-2
+    gt_nan = gt.clone()
+    gt_nan[:, :, :16] = float("nan")
+    assert torch.isfinite(multiscale_loss(outs, gt_nan, (1.0, 1.0)))
+
+
+class _Shifted:
+    """Pairs of random texture shifted by a known (du, dv): a flow the network can learn in seconds."""
+
+    def __init__(self):
+        self.rng = np.random.default_rng(0)
+
+    def __len__(self):
+        return 1
+
+    def batch(self, rng, n, crop):
+        h, w = crop
+        i0, i1, fl = [], [], []
+        for _ in range(n):
+            base = rng.random((h // 4 + 4, w // 4 + 4)).astype(np.float32)
+            big = np.kron(base, np.ones((4, 4), np.float32))
+            du, dv = int(rng.integers(-3, 4)), int(rng.integers(-3, 4))
+            i0.append(big[8:8 + h, 8:8 + w])
+            i1.append(big[8 + dv:8 + dv + h, 8 + du:8 + du + w])  # img1(x - d) = img0(x): flow is -d
+            fl.append(np.stack([np.full((h, w), -du, np.float32), np.full((h, w), -dv, np.float32)]))
+        return {"img0": torch.from_numpy(np.stack(i0)[:, None]), "img1": torch.from_numpy(np.stack(i1)[:, None]),
+                "flow": torch.from_numpy(np.stack(fl))}
+
+
+def test_training_learns_a_translation_and_the_model_file_loads(tmp_path):
+    cfg = FlowTrainConfig(net=SMALL, crop=(64, 128), batch_size=8, lr=1e-3, max_steps=600, level_weights=(1.0, 0.5, 0.25),
+                          checkpoint_steps=200, threads=2)
+    path = train_flow(cfg, _Shifted(), tmp_path / "run", progress=False)
+    model, meta = load_flow_model(path)
+    assert meta["steps"] == 600
+    b = _Shifted().batch(np.random.default_rng(99), 8, (64, 128))
+    with torch.no_grad():
+        pred = model(b["img0"], b["img1"])[-1]
+    gt = torch.nn.functional.avg_pool2d(b["flow"], 2) / 2
+    err = (pred - gt)[:, :, 4:-4, 4:-4].norm(dim=1).mean()
+    zero = gt[:, :, 4:-4, 4:-4].norm(dim=1).mean()
+    assert float(err) < 0.6 * float(zero)
+    # the estimator interface: full-resolution (H, W, 2) float32 px for two uint8 images
+    est = LearnedFlow(path)
+    img = (np.random.default_rng(1).random((60, 150)) * 255).astype(np.uint8)
+    f = est.estimate(img, img)
+    assert f.shape == (60, 150, 2) and f.dtype == np.float32
+    # resume continues the same run; a finished run is refused without --resume
+    with pytest.raises(InputError):
+        train_flow(cfg, _Shifted(), tmp_path / "run", progress=False)
+    hist = json.loads((tmp_path / "run" / "history.json").read_text())
+    assert [h["step"] for h in hist] == [200, 400, 600]
+
+
+def test_a_pickle_is_refused_as_a_flow_model(tmp_path):
+    p = tmp_path / "evil.safetensors"
+    torch.save({"net": {}}, p)
+    with pytest.raises(InputError):
+        load_flow_model(p)
+
+
+def test_the_shipped_estimator_is_registered():
+    from deepslam.vo import flow_estimators
+
+    assert "learned" in flow_estimators.names()

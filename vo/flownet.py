@@ -1,0 +1,430 @@
+"""A compact learned optical-flow estimator, trained only on the simulator's renders (issue 12, item 1).
+
+Architecture (PWC-Net's coarse-to-fine scheme, Sun et al. 2018, made small for 2 CPU cores): a shared
+feature pyramid of grey images at 1/2 ... 1/32 of the input; at the coarsest level a cost volume
+(correlation of the two images' features over +-``search_px`` feature pixels) and a small conv stack
+give a flow; at each finer level the second image's features are warped by the upsampled flow, a new
+cost volume is built, and the stack predicts a residual. The finest estimate (1/4 of the input) is
+upsampled bilinearly. Input: grey images, resized so their width is ``work_width`` (the height keeps
+the aspect and is padded to a multiple of 32); output: flow (H, W, 2) float32 px at the images' own
+resolution, the project's convention ``flow[v, u] = (du, dv)`` from the first image to the second.
+
+Training (:func:`train_flow`): pairs of rendered frames (i -> i+1 with the stored forward flow, and
+i+1 -> i with the stored backward flow, so both directions are seen), random crops, horizontal flips,
+and photometric augmentation drawn per image (brightness, contrast, gamma, Gaussian noise), a
+multi-scale end-point-error loss against the exact flow (robust: Charbonnier). Checkpoints every
+``checkpoint_steps`` (safetensors, :mod:`vo.modelfile`), ``--resume``, step and time caps.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+from deepslam.core.errors import InputError
+
+MODEL_FORMAT = "deepslam-flow-model"
+CHECKPOINT_FORMAT = "deepslam-flow-checkpoint"
+
+
+@dataclasses.dataclass(frozen=True)
+class FlowNetConfig:
+    """The flow network's shape."""
+
+    channels: tuple[int, ...] = (16, 32, 48, 64, 96)
+    """Feature channels at 1/2, 1/4, 1/8, 1/16, 1/32 of the input."""
+    search_px: int = 3
+    """Cost-volume search radius in feature pixels at every level ((2r+1)^2 correlation channels)."""
+    estimator_channels: tuple[int, ...] = (64, 48, 32)
+    """Hidden channels of each level's flow estimator."""
+    finest_level: int = 2
+    """Finest level with an estimate: 1 = 1/2, 2 = 1/4 of the input (then upsampled)."""
+    work_width: int = 640
+    """Images are resized to this width for the network (the height keeps the aspect)."""
+
+    def to_dict(self) -> dict:
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "FlowNetConfig":
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+
+def _conv(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
+    return nn.Sequential(nn.Conv2d(cin, cout, 3, stride, 1), nn.LeakyReLU(0.1, inplace=True))
+
+
+def correlation(f1: torch.Tensor, f2: torch.Tensor, radius: int) -> torch.Tensor:
+    """(B, (2r+1)^2, H, W) mean over channels of f1 * f2 shifted by (dx, dy) in [-r, r]^2 (zero outside)."""
+    b, c, h, w = f1.shape
+    pad = F.pad(f2, (radius, radius, radius, radius))
+    out = []
+    for dy in range(2 * radius + 1):
+        for dx in range(2 * radius + 1):
+            out.append((f1 * pad[:, :, dy:dy + h, dx:dx + w]).mean(1, keepdim=True))
+    return F.leaky_relu(torch.cat(out, 1), 0.1)
+
+
+def warp(x: torch.Tensor, flow: torch.Tensor) -> torch.Tensor:
+    """``x`` (B, C, H, W) sampled at pixel + flow (B, 2, H, W) px, bilinear, zeros outside."""
+    b, _, h, w = x.shape
+    gy, gx = torch.meshgrid(torch.arange(h, dtype=x.dtype, device=x.device),
+                            torch.arange(w, dtype=x.dtype, device=x.device), indexing="ij")
+    u = (gx + flow[:, 0]) * (2.0 / max(w - 1, 1)) - 1.0
+    v = (gy + flow[:, 1]) * (2.0 / max(h - 1, 1)) - 1.0
+    return F.grid_sample(x, torch.stack([u, v], -1), mode="bilinear", padding_mode="zeros", align_corners=True)
+
+
+class FlowNet(nn.Module):
+    """See the module docstring. ``forward(img0, img1)`` with (B, 1, H, W) float images in [0, 1] (H, W
+    multiples of 32) returns the flow estimates (B, 2, H / 2^l, W / 2^l) in pixels of that level, finest
+    last."""
+
+    def __init__(self, cfg: FlowNetConfig = FlowNetConfig()):
+        super().__init__()
+        self.cfg = cfg
+        ch = (1,) + tuple(cfg.channels)
+        self.pyramid = nn.ModuleList([nn.Sequential(_conv(ch[i], ch[i + 1], 2), _conv(ch[i + 1], ch[i + 1]))
+                                      for i in range(len(cfg.channels))])
+        n_corr = (2 * cfg.search_px + 1) ** 2
+        self.estimators = nn.ModuleList()
+        for lvl in range(len(cfg.channels), cfg.finest_level - 1, -1):
+            cin = n_corr + cfg.channels[lvl - 1] + (0 if lvl == len(cfg.channels) else 2)
+            layers, c = [], cin
+            for e in cfg.estimator_channels:
+                layers.append(_conv(c, e))
+                c = e
+            layers.append(nn.Conv2d(c, 2, 3, 1, 1))
+            self.estimators.append(nn.Sequential(*layers))
+
+    def features(self, img: torch.Tensor) -> list[torch.Tensor]:
+        out, x = [], img
+        for stage in self.pyramid:
+            x = stage(x)
+            out.append(x)
+        return out  # level 1 (1/2) first
+
+    def forward(self, img0: torch.Tensor, img1: torch.Tensor) -> list[torch.Tensor]:
+        f0, f1 = self.features(img0), self.features(img1)
+        n = len(self.cfg.channels)
+        flow, outs = None, []
+        for k, lvl in enumerate(range(n, self.cfg.finest_level - 1, -1)):
+            a, b = f0[lvl - 1], f1[lvl - 1]
+            if flow is None:
+                x = torch.cat([correlation(a, b, self.cfg.search_px), a], 1)
+                flow = self.estimators[k](x)
+            else:
+                flow = 2.0 * F.interpolate(flow, size=a.shape[-2:], mode="bilinear", align_corners=False)
+                x = torch.cat([correlation(a, warp(b, flow), self.cfg.search_px), a, flow], 1)
+                flow = flow + self.estimators[k](x)
+            outs.append(flow)
+        return outs
+
+
+def _prepare(grey: np.ndarray, width: int) -> tuple[torch.Tensor, float, float, int, int]:
+    """A grey uint8 image (H, W) resized to ``width`` and zero-padded to multiples of 32: (1, 1, Hp, Wp)
+    float in [0, 1], the x and y scale factors, and the resized (h, w)."""
+    import cv2
+
+    h0, w0 = grey.shape
+    h = max(32, int(round(h0 * width / w0)))
+    img = cv2.resize(grey, (width, h), interpolation=cv2.INTER_AREA if width < w0 else cv2.INTER_LINEAR)
+    hp, wp = -(-h // 32) * 32, -(-width // 32) * 32
+    t = torch.zeros(1, 1, hp, wp)
+    t[0, 0, :h, :width] = torch.from_numpy(img.astype(np.float32) / 255.0)
+    return t, width / w0, h / h0, h, width
+
+
+class LearnedFlow:
+    """A trained :class:`FlowNet` behind the :mod:`vo.flow_estimators` interface (``name``,
+    ``estimate``, ``pair_flow``).
+
+    Args:
+        path: a ``flow.safetensors`` model file (default: the shipped ``models/flow_learned.safetensors``).
+        threads: torch CPU threads (0: torch's default).
+    """
+
+    def __init__(self, path: str | Path | None = None, threads: int = 0):
+        if path is None:
+            from deepslam.vo.models import models_dir
+
+            path = models_dir() / "flow_learned.safetensors"
+        self.model, self.meta = load_flow_model(path)
+        self.threads = int(threads)
+        self.name = "learned"
+        self._cache: dict[str, np.ndarray] = {}
+
+    @torch.inference_mode()
+    def estimate(self, img0: np.ndarray, img1: np.ndarray) -> np.ndarray:
+        from deepslam.vo.flow_estimators import resize_flow, to_grey
+
+        g0, g1 = to_grey(img0), to_grey(img1)
+        if g0.shape != g1.shape:
+            raise ValueError(f"images differ in size: {g0.shape} vs {g1.shape}")
+        before = torch.get_num_threads()
+        if self.threads > 0:
+            torch.set_num_threads(self.threads)
+        try:
+            t0, sx, sy, h, w = _prepare(g0, self.model.cfg.work_width)
+            t1 = _prepare(g1, self.model.cfg.work_width)[0]
+            flow = self.model(t0, t1)[-1]
+            f = 2 ** self.model.cfg.finest_level
+            up = f * F.interpolate(flow, scale_factor=f, mode="bilinear", align_corners=False)
+        finally:
+            torch.set_num_threads(before)
+        work = up[0, :, :h, :w].permute(1, 2, 0).numpy()
+        return resize_flow(work, g0.shape[1], g0.shape[0])
+
+    def pair_flow(self, seq, i: int, j: int) -> np.ndarray:
+        return self.estimate(self._image(seq, i), self._image(seq, j))
+
+    def _image(self, seq, i: int) -> np.ndarray:
+        from deepslam.vo.flow_estimators import to_grey
+
+        key = str(seq.image_paths[i])
+        img = self._cache.get(key)
+        if img is None:
+            img = to_grey(seq.image(i))
+            if len(self._cache) >= 2:
+                self._cache.pop(next(iter(self._cache)))
+            self._cache[key] = img
+        return img
+
+
+def load_flow_model(path: str | Path) -> tuple[FlowNet, dict]:
+    """(FlowNet in eval mode, meta) from a flow model or training checkpoint file; InputError otherwise."""
+    from deepslam.vo import modelfile
+
+    path = Path(path)
+    kind, d = modelfile.load(path, (MODEL_FORMAT, CHECKPOINT_FORMAT))
+    try:
+        cfg = FlowNetConfig.from_dict(d["net"])
+        sd = d["state_dict"]
+        model = FlowNet(cfg)
+        model.load_state_dict({k: v.float() for k, v in sd.items()})
+    except (KeyError, TypeError, ValueError, RuntimeError) as e:
+        raise InputError(path, f"malformed flow model ({type(e).__name__}: {e})") from None
+    return model.eval(), d.get("meta", {})
+
+
+# ---------------------------------------------------------------------------------------------------
+# training
+
+
+@dataclasses.dataclass(frozen=True)
+class FlowTrainConfig:
+    """How the flow network is trained."""
+
+    net: FlowNetConfig = FlowNetConfig()
+    """The network."""
+    crop: tuple[int, int] = (128, 320)
+    """Training crop (height, width) in pixels of the renders, multiples of 32."""
+    batch_size: int = 8
+    """Pairs per step."""
+    lr: float = 3e-4
+    """Adam learning rate (cosine decay to 1/20 of it over ``max_steps``)."""
+    max_steps: int = 20000
+    """Steps to train (the schedule's length)."""
+    max_minutes: float = 0.0
+    """Stop after this much training time (0: no cap); the schedule still spans ``max_steps``."""
+    level_weights: tuple[float, ...] = (0.32, 0.08, 0.02, 0.01)
+    """Loss weight of each estimate, finest first (PWC-Net's, per pixel of that level)."""
+    seed: int = 0
+    """Seed of the crops, flips and photometric draws."""
+    checkpoint_steps: int = 250
+    """Write a checkpoint every this many steps."""
+    threads: int = 2
+    """torch CPU threads."""
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["net"] = self.net.to_dict()
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
+
+
+class FlowPairs:
+    """Rendered frame pairs with exact flow, in memory: (grey0, grey1, flow) uint8, uint8, float16.
+
+    Every consecutive pair (i, i+1) of each sequence gives two samples: forward with ``flow/``, and
+    backward (i+1 -> i) with ``flow_backward/`` where the sequence has it. Non-finite flow (a point
+    behind the next camera) is stored as NaN and left out of the loss.
+    """
+
+    def __init__(self, sequences, progress: bool = True):
+        from tqdm import tqdm
+
+        from deepslam.vo.flow_estimators import to_grey
+
+        self.grey0, self.grey1, self.flow, self.names = [], [], [], []
+        for seq in sequences:
+            if seq.flow_paths is None:
+                raise InputError(seq.root, "sequence has no ground-truth flow (render it with flow)")
+            greys = [to_grey(seq.image(i)) for i in tqdm(range(len(seq)), desc=f"images {seq.name}", leave=False,
+                                                          disable=not progress)]
+            for i in range(len(seq) - 1):
+                f = seq.flow(i)
+                if f is not None:
+                    self._add(greys[i], greys[i + 1], f, f"{seq.name}:{i}>{i + 1}")
+                b = seq.flow_backward(i + 1) if seq.flow_backward_paths is not None else None
+                if b is not None:
+                    self._add(greys[i + 1], greys[i], b, f"{seq.name}:{i + 1}>{i}")
+        if not self.flow:
+            raise InputError(None, "no frame pairs with flow to train on")
+
+    def _add(self, g0, g1, flow, name):
+        self.grey0.append(g0)
+        self.grey1.append(g1)
+        self.flow.append(np.asarray(flow, np.float16))
+        self.names.append(name)
+
+    def __len__(self) -> int:
+        return len(self.flow)
+
+    def batch(self, rng: np.random.Generator, n: int, crop: tuple[int, int]) -> dict[str, torch.Tensor]:
+        """``n`` augmented crops: img0, img1 (n, 1, h, w) float in [0, 1], flow (n, 2, h, w) px (NaN: no label)."""
+        ch, cw = crop
+        i0, i1, fl = [], [], []
+        for k in rng.integers(0, len(self), n):
+            g0, g1, f = self.grey0[k], self.grey1[k], self.flow[k]
+            h, w = g0.shape
+            if h < ch or w < cw:
+                raise InputError(None, f"frames {h}x{w} are smaller than the crop {ch}x{cw}")
+            y, x = int(rng.integers(0, h - ch + 1)), int(rng.integers(0, w - cw + 1))
+            a = g0[y:y + ch, x:x + cw].astype(np.float32) / 255.0
+            b = g1[y:y + ch, x:x + cw].astype(np.float32) / 255.0
+            ff = f[y:y + ch, x:x + cw].astype(np.float32).transpose(2, 0, 1).copy()
+            if rng.random() < 0.5:  # mirror: u flips sign
+                a, b, ff = a[:, ::-1], b[:, ::-1], ff[:, :, ::-1]
+                ff[0] = -ff[0]
+            i0.append(_photometric(a, rng))
+            i1.append(_photometric(b, rng))
+            fl.append(np.ascontiguousarray(ff))
+        return {"img0": torch.from_numpy(np.stack(i0)[:, None]), "img1": torch.from_numpy(np.stack(i1)[:, None]),
+                "flow": torch.from_numpy(np.stack(fl))}
+
+
+def _photometric(img: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Brightness x[0.7, 1.3], contrast about the mean x[0.7, 1.3], gamma [0.7, 1.5], noise std [0, 0.02]."""
+    x = img * rng.uniform(0.7, 1.3)
+    m = x.mean()
+    x = (x - m) * rng.uniform(0.7, 1.3) + m
+    x = np.clip(x, 0.0, 1.0) ** rng.uniform(0.7, 1.5)
+    x = x + rng.normal(0.0, rng.uniform(0.0, 0.02), x.shape)
+    return np.ascontiguousarray(np.clip(x, 0.0, 1.0), dtype=np.float32)
+
+
+def multiscale_loss(outs: list[torch.Tensor], flow_gt: torch.Tensor, weights) -> torch.Tensor:
+    """Sum over levels of weight * mean Charbonnier end-point error against the label averaged down
+    to that level (its values scaled to that level's pixels); NaN labels are left out."""
+    valid = torch.isfinite(flow_gt).all(1, keepdim=True).float()
+    gt = torch.nan_to_num(flow_gt, nan=0.0)
+    total = flow_gt.new_zeros(())
+    for out, wgt in zip(reversed(outs), weights):  # finest first
+        h, w = out.shape[-2:]
+        s = flow_gt.shape[-1] / w
+        v = F.adaptive_avg_pool2d(valid, (h, w))
+        g = F.adaptive_avg_pool2d(gt * valid, (h, w)) / v.clamp_min(1e-6) / s
+        epe = torch.sqrt(((out - g) ** 2).sum(1, keepdim=True) + 1e-6)
+        m = (v > 0.5).float()
+        total = total + wgt * (epe * m).sum() / m.sum().clamp_min(1.0) * (h * w) ** 0.5 / 16.0
+    return total
+
+
+def endpoint_error(pred: np.ndarray, gt: np.ndarray) -> dict:
+    """EPE (mean, px) and Fl-all (KITTI 2015: share of pixels with EPE > 3 px and > 5 % of |gt|) over
+    pixels with a finite label; ``pred``, ``gt`` (H, W, 2) float px."""
+    ok = np.isfinite(gt).all(-1)
+    e = np.linalg.norm(pred[ok] - gt[ok], axis=-1)
+    mag = np.linalg.norm(gt[ok], axis=-1)
+    return {"epe": float(e.mean()), "fl_all": float(np.mean((e > 3.0) & (e > 0.05 * mag))), "pixels": int(ok.sum())}
+
+
+def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resume: bool = False,
+               progress: bool = True, meta: dict | None = None) -> Path:
+    """Train, checkpointing to ``out_dir/checkpoint.safetensors``; writes ``flow.safetensors`` at the end
+    (or when a cap stops it) and ``history.json``. Returns the model file's path."""
+    from tqdm import tqdm
+
+    from deepslam.core import atomic
+    from deepslam.core.lock import output_lock
+    from deepslam.vo import modelfile
+
+    out = Path(out_dir)
+    before = torch.get_num_threads()
+    torch.set_num_threads(max(1, cfg.threads))
+    with output_lock(out):
+        ck = out / "checkpoint.safetensors"
+        if ck.exists() and not resume:
+            raise InputError(ck, "a flow training run is already here; pass --resume or choose another --out")
+        if not resume and any(p for p in out.iterdir()):
+            raise InputError(out, "output folder is not empty; choose another --out")
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(cfg.seed)
+            model = FlowNet(cfg.net)
+        opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
+        sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.max_steps, eta_min=cfg.lr / 20)
+        state = {"step": 0, "seconds": 0.0, "history": []}
+        if resume and ck.is_file():
+            _, d = modelfile.load(ck, (CHECKPOINT_FORMAT,))
+            if d["config"] != json.loads(json.dumps(cfg.to_dict())):
+                diff = sorted(k for k in d["config"] if d["config"][k] != cfg.to_dict().get(k))
+                if any(k not in ("max_minutes", "threads") for k in diff):
+                    raise InputError(ck, f"cannot resume: settings differ ({', '.join(diff)})")
+            model.load_state_dict(d["state_dict"])
+            opt.load_state_dict(d["optimizer"])
+            sched.load_state_dict(d["scheduler"])
+            state = d["state"]
+        atomic.write_json(out / "config.json", {"train": cfg.to_dict(), "meta": meta or {}, "pairs": len(pairs)})
+
+        def save(kind: str, path: Path) -> None:
+            tree = {"net": cfg.net.to_dict(), "state_dict": model.state_dict(), "meta": {**(meta or {}), "train": cfg.to_dict(),
+                    "steps": state["step"], "train_seconds": state["seconds"]}}
+            if kind == CHECKPOINT_FORMAT:
+                tree.update(config=cfg.to_dict(), optimizer=opt.state_dict(), scheduler=sched.state_dict(), state=state)
+            modelfile.save(path, kind, tree)
+            atomic.write_json(out / "history.json", state["history"])
+
+        limit = cfg.max_minutes * 60 if cfg.max_minutes > 0 else math.inf
+        bar = tqdm(total=cfg.max_steps, initial=state["step"], desc="flow training", unit="step", disable=not progress,
+                   dynamic_ncols=True)
+        t_start = time.perf_counter() - state["seconds"]
+        run_loss, run_n = 0.0, 0
+        model.train()
+        while state["step"] < cfg.max_steps and time.perf_counter() - t_start < limit:
+            rng = np.random.default_rng([cfg.seed, state["step"]])
+            b = pairs.batch(rng, cfg.batch_size, cfg.crop)
+            with torch.autocast("cpu", dtype=torch.bfloat16):
+                outs = model(b["img0"], b["img1"])
+            loss = multiscale_loss([o.float() for o in outs], b["flow"], cfg.level_weights)
+            if not torch.isfinite(loss):
+                raise RuntimeError(f"non-finite flow loss at step {state['step']}")
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
+            opt.step()
+            sched.step()
+            state["step"] += 1
+            state["seconds"] = time.perf_counter() - t_start
+            run_loss += float(loss.detach())
+            run_n += 1
+            bar.update(1)
+            if state["step"] % 50 == 0:
+                bar.set_postfix(loss=f"{run_loss / run_n:.3g}")
+            if state["step"] % cfg.checkpoint_steps == 0:
+                state["history"].append({"step": state["step"], "loss": run_loss / max(run_n, 1), "seconds": state["seconds"]})
+                run_loss, run_n = 0.0, 0
+                save(CHECKPOINT_FORMAT, ck)
+        bar.close()
+        save(CHECKPOINT_FORMAT, ck)
+        model_path = out / "flow.safetensors"
+        model.eval()
+        save(MODEL_FORMAT, model_path)
+    torch.set_num_threads(before)
+    return model_path
