@@ -62,6 +62,24 @@ def to_grey(img: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(img)
 
 
+class GreyCache:
+    """Grey image i of a sequence, decoded once for the consecutive pairs (i-1, i), (i, i+1): the last
+    two are kept, keyed by the image file (an object id could be reused by the next sequence)."""
+
+    def __init__(self):
+        self._cache: dict[str, np.ndarray] = {}
+
+    def __call__(self, seq, i: int) -> np.ndarray:
+        key = str(seq.image_paths[i])
+        img = self._cache.get(key)
+        if img is None:
+            img = to_grey(seq.image(i))
+            if len(self._cache) >= 2:
+                self._cache.pop(next(iter(self._cache)))
+            self._cache[key] = img
+        return img
+
+
 class DISFlow:
     """OpenCV DIS optical flow on grey images.
 
@@ -79,7 +97,7 @@ class DISFlow:
         code = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
                 "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}[preset]
         self._dis = cv2.DISOpticalFlow_create(code)
-        self._grey_cache: dict[str, np.ndarray] = {}
+        self._grey = GreyCache()
 
     def estimate(self, img0: np.ndarray, img1: np.ndarray) -> np.ndarray:
         g0, g1 = to_grey(img0), to_grey(img1)
@@ -90,18 +108,6 @@ class DISFlow:
 
     def pair_flow(self, seq, i: int, j: int) -> np.ndarray:
         return self.estimate(self._grey(seq, i), self._grey(seq, j))
-
-    def _grey(self, seq, i: int) -> np.ndarray:
-        """Grey image i, decoded once for the consecutive pairs (i-1, i), (i, i+1): the last two are kept,
-        keyed by the image file (an object id could be reused by the next sequence)."""
-        key = str(seq.image_paths[i])
-        img = self._grey_cache.get(key)
-        if img is None:
-            img = to_grey(seq.image(i))
-            if len(self._grey_cache) >= 2:
-                self._grey_cache.pop(next(iter(self._grey_cache)))
-            self._grey_cache[key] = img
-        return img
 
 
 class GroundTruthFlow:

@@ -159,7 +159,9 @@ class LearnedFlow:
         self.model, self.meta = load_flow_model(path)
         self.threads = int(threads)
         self.name = "learned"
-        self._cache: dict[str, np.ndarray] = {}
+        from deepslam.vo.flow_estimators import GreyCache
+
+        self._grey = GreyCache()
 
     @torch.inference_mode()
     def estimate(self, img0: np.ndarray, img1: np.ndarray) -> np.ndarray:
@@ -183,19 +185,7 @@ class LearnedFlow:
         return resize_flow(work, g0.shape[1], g0.shape[0])
 
     def pair_flow(self, seq, i: int, j: int) -> np.ndarray:
-        return self.estimate(self._image(seq, i), self._image(seq, j))
-
-    def _image(self, seq, i: int) -> np.ndarray:
-        from deepslam.vo.flow_estimators import to_grey
-
-        key = str(seq.image_paths[i])
-        img = self._cache.get(key)
-        if img is None:
-            img = to_grey(seq.image(i))
-            if len(self._cache) >= 2:
-                self._cache.pop(next(iter(self._cache)))
-            self._cache[key] = img
-        return img
+        return self.estimate(self._grey(seq, i), self._grey(seq, j))
 
 
 def load_flow_model(path: str | Path) -> tuple[FlowNet, dict]:
