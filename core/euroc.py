@@ -68,8 +68,17 @@ def read_sensor_yaml(path: Path) -> dict:
         raise InputError(path, "non-finite number in T_BS, intrinsics or distortion_coefficients")
     if se3.orthonormality_error(body_from_cam[:3, :3]) > 1e-4:
         raise InputError(path, "T_BS rotation is not orthonormal")
+    k_und = None
+    und = y.get("undistorted_intrinsics")  # deepslam's simulator: the pinhole camera its ground truth is in
+    if und is not None:
+        try:
+            k_und = np.array([[und[0], 0, und[2]], [0, und[1], und[3]], [0, 0, 1]], dtype=np.float64)
+        except (TypeError, ValueError, IndexError, KeyError):
+            raise InputError(path, "undistorted_intrinsics must be [fu, fv, cu, cv]") from None
+        if not np.isfinite(k_und).all():
+            raise InputError(path, "non-finite number in undistorted_intrinsics")
     return {"body_from_cam": body_from_cam, "k": k, "dist": dist, "width": int(res[0]), "height": int(res[1]),
-            "rate_hz": float(y.get("rate_hz", 20.0))}
+            "rate_hz": float(y.get("rate_hz", 20.0)), "k_undistorted": k_und}
 
 
 def _read_data_csv(path: Path, cam_dir: Path) -> tuple[np.ndarray, list[Path]]:
@@ -150,10 +159,18 @@ def read_euroc(root: str | Path, gt_path: str | Path | None = None, rectify: boo
         cam1_from_cam0 = se3.inverse(cam1["body_from_cam"]) @ cam0["body_from_cam"]
         # Already a rectified, undistorted pair (as the simulator exports): serve it as it is, so
         # that depth/, flow/ and mask/ beside the images stay aligned with them.
-        already = (not cam0["dist"].any() and not cam1["dist"].any() and np.allclose(cam0["k"], cam1["k"])
-                   and np.allclose(cam1_from_cam0[:3, :3], np.eye(3), atol=1e-9)
-                   and np.allclose(cam1_from_cam0[1:3, 3], 0.0, atol=1e-9))
+        rectified = (np.allclose(cam0["k"], cam1["k"]) and np.allclose(cam1_from_cam0[:3, :3], np.eye(3), atol=1e-9)
+                     and np.allclose(cam1_from_cam0[1:3, 3], 0.0, atol=1e-9))
+        already = rectified and not cam0["dist"].any() and not cam1["dist"].any()
         if already:
+            baseline = float(-cam1_from_cam0[0, 3])
+        elif rectify and rectified and cam0["k_undistorted"] is not None and cam1["k_undistorted"] is not None:
+            # a rectified pair behind distorting lenses (the simulator's): undistort each to the pinhole
+            # camera its ground truth is in
+            for side, cam in (("left", cam0), ("right", cam1)):
+                maps[side] = cv2.initUndistortRectifyMap(cam["k"], cam["dist"], None, cam["k_undistorted"], size,
+                                                         cv2.CV_32FC1)
+            camera = PinholeCamera.from_k(cam0["k_undistorted"], *size)
             baseline = float(-cam1_from_cam0[0, 3])
         elif rectify:
             r1, r2, p1, p2, _, _, _ = cv2.stereoRectify(
@@ -167,7 +184,9 @@ def read_euroc(root: str | Path, gt_path: str | Path | None = None, rectify: boo
         else:
             baseline = float(np.linalg.norm(cam1_from_cam0[:3, 3]))
     elif rectify and cam0["dist"].any():
-        new_k, _ = cv2.getOptimalNewCameraMatrix(cam0["k"], cam0["dist"], size, 0, size)
+        new_k = cam0["k_undistorted"]
+        if new_k is None:
+            new_k, _ = cv2.getOptimalNewCameraMatrix(cam0["k"], cam0["dist"], size, 0, size)
         maps["left"] = cv2.initUndistortRectifyMap(cam0["k"], cam0["dist"], None, new_k, size, cv2.CV_32FC1)
         camera = PinholeCamera.from_k(new_k, *size)
 

@@ -80,6 +80,10 @@ class RenderConfig:
     does between frames."""
     white_balance_jitter: float = 0.0
     """Per-frame gain of each colour channel drawn uniformly in [1 - w, 1 + w] (0: none)."""
+    distortion: tuple[float, float, float, float] | None = None
+    """Lens distortion (k1, k2, p1, p2), OpenCV's radial-tangential model, applied to the images only
+    (EuRoC layout: written to sensor.yaml, and the readers undistort back to the render's pinhole
+    camera, in which depth, flow and masks stay exact); None: a pinhole image."""
 
     @property
     def photometric(self) -> bool:
@@ -102,6 +106,10 @@ class RenderConfig:
                             ("exposure jitter", self.exposure_jitter, 4.0), ("white-balance jitter", self.white_balance_jitter, 0.9)):
             if not (np.isfinite(v) and 0.0 <= v <= hi):
                 raise InputError(None, f"{name} must be in [0, {hi:g}], got {v}")
+        if self.distortion is not None:
+            d = tuple(self.distortion)
+            if len(d) != 4 or not np.isfinite(d).all() or abs(d[0]) > 1 or abs(d[1]) > 1 or max(abs(d[2]), abs(d[3])) > 0.05:
+                raise InputError(None, f"distortion must be k1 k2 p1 p2 with |k| <= 1 and |p| <= 0.05, got {list(d)}")
         if not isinstance(self.blur_samples, int) or not 2 <= self.blur_samples <= 64:
             raise InputError(None, f"blur samples must be an integer in [2, 64], got {self.blur_samples}")
         return self

@@ -190,6 +190,9 @@ class Simulator:
             rgb, rgb_right = self._motion_blur(i, right)
         if rcfg.photometric:
             rgb, rgb_right = self._photometric(i, rgb, rgb_right)
+        if rcfg.distortion is not None and any(rcfg.distortion):
+            rgb = self._distort(rgb)
+            rgb_right = None if rgb_right is None else self._distort(rgb_right)
         return SimFrame(i, self.time(i), self.camera, s0.world_from_cam, rgb, left["depth_z"], fl, mask,
                         left["body"], rgb_right, r.get("depth_z"), self.baseline_m if right else None, poses,
                         back, occ, sensor)
@@ -208,6 +211,21 @@ class Simulator:
                 acc[side] = img if acc[side] is None else acc[side] + img
         out = {k: None if v is None else np.clip(np.rint(v / n), 0, 255).astype(np.uint8) for k, v in acc.items()}
         return out["left"], out["right"]
+
+    def _distort(self, img: np.ndarray) -> np.ndarray:
+        """The image a lens with ``render.distortion`` would give: pixel x_d of the distorted image shows
+        what the pinhole render shows at undistort(x_d) (OpenCV's model, iterative inverse; bilinear)."""
+        import cv2
+
+        if getattr(self, "_distort_maps", None) is None:
+            cam = self.camera
+            u, v = np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64))
+            pts = np.stack([u.ravel(), v.ravel()], -1).reshape(-1, 1, 2)
+            und = cv2.undistortPointsIter(pts, cam.k, np.asarray(self.config.render.distortion, np.float64), None, cam.k,
+                                          (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-6))
+            und = und.reshape(cam.height, cam.width, 2).astype(np.float32)
+            self._distort_maps = (und[..., 0].copy(), und[..., 1].copy())
+        return cv2.remap(img, *self._distort_maps, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
     def _photometric(self, i: int, rgb: np.ndarray, rgb_right: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
         """Exposure gain, white balance (the same for both cameras of a frame) and sensor noise, from the

@@ -248,7 +248,7 @@ class KittiSink(_Sink):
         shutil.rmtree(self._records(), ignore_errors=True)
 
 
-def _sensor_yaml(comment: str, body_from_cam: np.ndarray, rate_hz: float, cam) -> str:
+def _sensor_yaml(comment: str, body_from_cam: np.ndarray, rate_hz: float, cam, distortion=None) -> str:
     d = body_from_cam.ravel()
     rows = [", ".join(repr(float(x)) for x in d[k:k + 4]) for k in range(0, 16, 4)]
     data = (",\n         ".join(rows))
@@ -258,7 +258,11 @@ def _sensor_yaml(comment: str, body_from_cam: np.ndarray, rate_hz: float, cam) -
             f"  data: [{data}]\n\n# Camera specific definitions.\nrate_hz: {rate}\n"
             f"resolution: [{cam.width}, {cam.height}]\ncamera_model: pinhole\n"
             f"intrinsics: [{cam.fx!r}, {cam.fy!r}, {cam.cx!r}, {cam.cy!r}] #fu, fv, cu, cv\n"
-            "distortion_model: radial-tangential\ndistortion_coefficients: [0.0, 0.0, 0.0, 0.0]\n")
+            "distortion_model: radial-tangential\n"
+            f"distortion_coefficients: [{', '.join(repr(float(x)) for x in (distortion or (0.0, 0.0, 0.0, 0.0)))}]\n"
+            + ("" if not distortion or not any(distortion) else
+               "# deepslam: the pinhole camera the images undistort to; depth/, flow/, mask/ are in it\n"
+               f"undistorted_intrinsics: [{cam.fx!r}, {cam.fy!r}, {cam.cx!r}, {cam.cy!r}]\n"))
 
 
 _GT_HEADER = ("#timestamp, p_RS_R_x [m], p_RS_R_y [m], p_RS_R_z [m], q_RS_w [], q_RS_x [], q_RS_y [], q_RS_z [], "
@@ -283,10 +287,14 @@ class EurocSink(_Sink):
         if not self.complete:
             atomic.write_json(self.meta_path, self.meta)
             cam, b = sim.camera, sim.baseline_m
-            atomic.write_text(self.mav / "cam0" / "sensor.yaml", _sensor_yaml("deepslam simulator cam0 (rectified pinhole)", BODY_FROM_CAM0, sim.rate_hz, cam))
+            dist = config.render.distortion
+            what = "rectified pinhole" if not dist or not any(dist) else "rectified, radial-tangential distortion"
+            atomic.write_text(self.mav / "cam0" / "sensor.yaml",
+                              _sensor_yaml(f"deepslam simulator cam0 ({what})", BODY_FROM_CAM0, sim.rate_hz, cam, dist))
             if b:
                 body_from_cam1 = BODY_FROM_CAM0 @ se3.from_rt(np.eye(3), [b, 0.0, 0.0])
-                atomic.write_text(self.mav / "cam1" / "sensor.yaml", _sensor_yaml("deepslam simulator cam1 (rectified pinhole)", body_from_cam1, sim.rate_hz, cam))
+                atomic.write_text(self.mav / "cam1" / "sensor.yaml",
+                                  _sensor_yaml(f"deepslam simulator cam1 ({what})", body_from_cam1, sim.rate_hz, cam, dist))
             atomic.write_text(self.mav / "body.yaml", "%YAML:1.0\ncomment: deepslam simulated body (camera rig)\n")
             atomic.write_text(self.mav / "state_groundtruth_estimate0" / "sensor.yaml", _GT_SENSOR_YAML)
 
@@ -380,6 +388,10 @@ def render_sequence(config: SimConfig, out_dir, fmt: str = "ours", resume: bool 
     """
     if fmt not in FORMATS:
         raise InputError(None, f"unknown format {fmt!r} (choose from {', '.join(FORMATS)})")
+    dist = getattr(config.render, "distortion", None)
+    if dist is not None and any(dist) and fmt != "euroc":
+        raise InputError(None, f"lens distortion needs --format euroc (its sensor.yaml carries the calibration); "
+                               f"{fmt} images are rectified pinhole images")
     if fmt == "kitti" and not (sequence.isdigit() and len(sequence) == 2):
         raise InputError(None, f"KITTI sequence name must be two digits, got {sequence!r}")
     config = config.validate() if simulator is None else config

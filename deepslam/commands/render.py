@@ -49,7 +49,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="per-frame brightness gain, log-uniform in [1/(1+J), 1+J] (auto-exposure)")
     p.add_argument("--white-balance-jitter", type=float, default=0.0, metavar="W",
                    help="per-frame colour channel gains, uniform in [1-W, 1+W]")
+    p.add_argument("--distortion", default=None, metavar="K1,K2,P1,P2",
+                   help="lens distortion of the images (OpenCV radial-tangential), --format euroc only: written to "
+                        "sensor.yaml; the reader undistorts back to the render's pinhole camera, where depth, flow and "
+                        "masks are")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _distortion(text: str | None):
+    from deepslam.core.errors import InputError
+
+    if text is None:
+        return None
+    try:
+        d = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise InputError(None, f"--distortion must be K1,K2,P1,P2, got {text!r}") from None
+    if len(d) != 4:
+        raise InputError(None, f"--distortion must be four numbers K1,K2,P1,P2, got {text!r}")
+    return d
 
 
 def run(args: argparse.Namespace) -> int:
@@ -73,7 +91,8 @@ def run(args: argparse.Namespace) -> int:
                      stereo_baseline_m=args.stereo_baseline, focal_px=args.focal_px, flow=not args.no_flow,
                      depth_noise=None if args.depth_noise == "none" else args.depth_noise,
                      exposure_ms=args.exposure_ms, blur_samples=args.blur_samples, sensor_noise=args.sensor_noise,
-                     exposure_jitter=args.exposure_jitter, white_balance_jitter=args.white_balance_jitter),
+                     exposure_jitter=args.exposure_jitter, white_balance_jitter=args.white_balance_jitter,
+                     distortion=_distortion(args.distortion)),
     ).validate()
     path = render_sequence(cfg, args.out, fmt=args.format, resume=args.resume, progress=not args.quiet,
                            sequence=args.sequence)

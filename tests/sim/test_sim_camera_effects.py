@@ -68,3 +68,42 @@ def test_noise_exposure_and_white_balance_are_seeded_and_bounded(sharp):
 def test_bad_camera_effects_are_refused(field, value):
     with pytest.raises(InputError):
         RenderConfig(**{field: value}).validate()
+
+
+@pytest.mark.parametrize("baseline", [0.0, 0.11])
+def test_a_distorted_euroc_export_reads_back_to_the_pinhole_render(tmp_path, baseline):
+    """The images on disk are distorted (EuRoC-like radial-tangential); the reader undistorts them back to
+    the render's pinhole camera, in which depth and flow are."""
+    from deepslam.core.readers import open_sequence
+    from deepslam.sim.writers import render_sequence
+
+    cfg = SimConfig(SceneConfig(name="room", seed=3), TrajectoryConfig(frames=3), RenderConfig(width=240, stereo_baseline_m=baseline))
+    dist = (-0.28, 0.07, 2e-4, 2e-5)  # EuRoC cam0's
+    plain = open_sequence(render_sequence(cfg, tmp_path / "plain", fmt="euroc", progress=False))
+    bent = open_sequence(render_sequence(_cfg_with(cfg, distortion=dist), tmp_path / "bent", fmt="euroc", progress=False))
+    assert bent.camera == plain.camera
+    import cv2
+
+    raw0 = cv2.imread(str(bent.image_paths[1]), cv2.IMREAD_GRAYSCALE).astype(np.float32)
+    want = plain.image(1).astype(np.float32)
+    got = bent.image(1).astype(np.float32)
+    h, w = want.shape[:2]
+    inner = (slice(h // 6, h - h // 6), slice(w // 6, w - w // 6))
+    assert np.abs(raw0 - want)[inner].mean() > 3 * np.abs(got - want)[inner].mean()  # the files are distorted
+    assert np.median(np.abs(got - want)[inner]) <= 2.0
+    np.testing.assert_array_equal(bent.depth(1), plain.depth(1))
+    if baseline:
+        assert bent.baseline_m == pytest.approx(plain.baseline_m)
+        assert np.median(np.abs(bent.image_right(1).astype(np.float32) - plain.image_right(1).astype(np.float32))[inner]) <= 2.0
+
+
+def _cfg_with(cfg, **render):
+    return dataclasses.replace(cfg, render=dataclasses.replace(cfg.render, **render))
+
+
+def test_distortion_needs_the_euroc_layout(tmp_path):
+    from deepslam.sim.writers import render_sequence
+
+    with pytest.raises(InputError, match="euroc"):
+        render_sequence(_with(distortion=(-0.2, 0.05, 0.0, 0.0)), tmp_path / "o", fmt="ours", progress=False)
+    assert not (tmp_path / "o").exists()
