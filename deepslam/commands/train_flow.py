@@ -16,7 +16,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-minutes", type=float, default=0.0, help="stop after this much training time (0: no cap)")
     p.add_argument("--batch", type=int, default=8, help="pairs per step (8)")
     p.add_argument("--crop", default="128x320", metavar="HxW", help="training crop, multiples of 32 (128x320)")
-    p.add_argument("--lr", type=float, default=3e-4, help="Adam learning rate (3e-4, cosine decay)")
+    p.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate (1e-3, cosine decay)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=2, help="torch CPU threads (2)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
