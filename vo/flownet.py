@@ -133,9 +133,9 @@ class FlowNet(nn.Module):
         return outs
 
 
-def _prepare(grey: np.ndarray, width: int) -> tuple[torch.Tensor, float, float, int, int]:
+def _prepare(grey: np.ndarray, width: int) -> tuple[torch.Tensor, int, int]:
     """A grey uint8 image (H, W) resized to ``width`` and zero-padded to multiples of 32: (1, 1, Hp, Wp)
-    float in [0, 1], the x and y scale factors, and the resized (h, w)."""
+    float32 in [0, 1], and the resized (h, w) before padding."""
     import cv2
 
     h0, w0 = grey.shape
@@ -144,7 +144,7 @@ def _prepare(grey: np.ndarray, width: int) -> tuple[torch.Tensor, float, float, 
     hp, wp = -(-h // 32) * 32, -(-width // 32) * 32
     t = torch.zeros(1, 1, hp, wp)
     t[0, 0, :h, :width] = torch.from_numpy(img.astype(np.float32) / 255.0)
-    return t, width / w0, h / h0, h, width
+    return t, h, width
 
 
 class LearnedFlow:
@@ -170,6 +170,9 @@ class LearnedFlow:
 
     @torch.inference_mode()
     def estimate(self, img0: np.ndarray, img1: np.ndarray) -> np.ndarray:
+        """Flow (H, W, 2) float32 px from ``img0`` to ``img1`` (uint8 (H, W) grey or (H, W, 3) RGB), at the
+        images' own resolution: estimated at ``work_width``, upsampled from the finest level and resized
+        back (:func:`vo.flow_estimators.resize_flow`)."""
         from deepslam.vo.flow_estimators import resize_flow, to_grey
 
         g0, g1 = to_grey(img0), to_grey(img1)
@@ -179,7 +182,7 @@ class LearnedFlow:
         if self.threads > 0:
             torch.set_num_threads(self.threads)
         try:
-            t0, sx, sy, h, w = _prepare(g0, self.model.cfg.work_width)
+            t0, h, w = _prepare(g0, self.model.cfg.work_width)
             t1 = _prepare(g1, self.model.cfg.work_width)[0]
             flow = self.model(t0, t1)[-1]
             f = 2 ** self.model.cfg.finest_level
@@ -229,6 +232,9 @@ class FlowTrainConfig:
     """Steps to train (the schedule's length)."""
     max_minutes: float = 0.0
     """Stop after this much training time (0: no cap); the schedule still spans ``max_steps``."""
+    stop_after_steps: int = 0
+    """Stop after this many steps (0: at ``max_steps``); the schedule still spans ``max_steps``. A step
+    count, unlike minutes, gives the same model on every machine."""
     level_weights: tuple[float, ...] = (0.32, 0.08, 0.02, 0.01)
     """Loss weight of each estimate, finest first (PWC-Net's, per pixel of that level)."""
     seed: int = 0
@@ -378,7 +384,7 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
             _, d = modelfile.load(ck, (CHECKPOINT_FORMAT,))
             if d["config"] != json.loads(json.dumps(cfg.to_dict())):
                 diff = sorted(k for k in d["config"] if d["config"][k] != cfg.to_dict().get(k))
-                if any(k not in ("max_minutes", "threads") for k in diff):
+                if any(k not in ("max_minutes", "threads", "stop_after_steps") for k in diff):
                     raise InputError(ck, f"cannot resume: settings differ ({', '.join(diff)})")
             model.load_state_dict(d["state_dict"])
             opt.load_state_dict(d["optimizer"])
@@ -400,7 +406,8 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
         t_start = time.perf_counter() - state["seconds"]
         run_loss, run_n = 0.0, 0
         model.train()
-        while state["step"] < cfg.max_steps and time.perf_counter() - t_start < limit:
+        last = cfg.stop_after_steps if 0 < cfg.stop_after_steps < cfg.max_steps else cfg.max_steps
+        while state["step"] < last and time.perf_counter() - t_start < limit:
             rng = np.random.default_rng([cfg.seed, state["step"]])
             b = pairs.batch(rng, cfg.batch_size, cfg.crop)
             with torch.autocast("cpu", dtype=torch.bfloat16):

@@ -14,6 +14,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output folder (checkpoint.safetensors, flow.safetensors, history.json)")
     p.add_argument("--max-steps", type=int, default=20000, help="training steps, the learning-rate schedule's length (20000)")
     p.add_argument("--max-minutes", type=float, default=0.0, help="stop after this much training time (0: no cap)")
+    p.add_argument("--stop-after", type=int, default=0, metavar="STEPS",
+                   help="stop after this many steps, the schedule still spanning --max-steps (0: at --max-steps)")
     p.add_argument("--batch", type=int, default=8, help="pairs per step (8)")
     p.add_argument("--crop", default="128x320", metavar="HxW", help="training crop, multiples of 32 (128x320)")
     p.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate (1e-3, cosine decay)")
@@ -56,7 +58,8 @@ def run(args: argparse.Namespace) -> int:
     seqs = [open_sequence(d) for d in _sequence_dirs(args.sequences)]
     pairs = FlowPairs(seqs, progress=not args.quiet)
     cfg = FlowTrainConfig(crop=(ch, cw), batch_size=args.batch, lr=args.lr, max_steps=args.max_steps,
-                          max_minutes=args.max_minutes, seed=args.seed, threads=args.threads)
+                          max_minutes=args.max_minutes, stop_after_steps=args.stop_after, seed=args.seed,
+                          threads=args.threads)
     meta = {"sequences": [str(s.root) for s in seqs], "pairs": len(pairs)}
     path = train_flow(cfg, pairs, args.out, resume=args.resume, progress=not args.quiet, meta=meta)
     print(f"model: {path}")
