@@ -288,6 +288,10 @@ class FlowPairs:
     def __len__(self) -> int:
         return len(self.flow)
 
+    def min_size(self) -> tuple[int, int]:
+        """(height, width) of the smallest frame, pixels."""
+        return min(g.shape[0] for g in self.grey0), min(g.shape[1] for g in self.grey0)
+
     def batch(self, rng: np.random.Generator, n: int, crop: tuple[int, int]) -> dict[str, torch.Tensor]:
         """``n`` augmented crops: img0, img1 (n, 1, h, w) float in [0, 1], flow (n, 2, h, w) px (NaN: no label)."""
         ch, cw = crop
@@ -366,6 +370,10 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
     from deepslam.vo import modelfile
 
     out = Path(out_dir)
+    min_size = getattr(pairs, "min_size", None)
+    if min_size is not None and (min_size()[0] < cfg.crop[0] or min_size()[1] < cfg.crop[1]):
+        raise InputError(None, f"the training crop {cfg.crop[0]}x{cfg.crop[1]} is larger than the smallest frame "
+                               f"({min_size()[0]}x{min_size()[1]}); choose a smaller --crop")
     before = torch.get_num_threads()
     torch.set_num_threads(max(1, cfg.threads))
     with output_lock(out):

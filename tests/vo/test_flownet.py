@@ -110,3 +110,13 @@ def test_the_shipped_estimator_is_registered():
     from deepslam.vo import flow_estimators
 
     assert "learned" in flow_estimators.names()
+
+
+def test_a_crop_larger_than_the_frames_is_refused_before_anything_is_written(tmp_path):
+    class _Tiny(_Shifted):
+        def min_size(self):
+            return (60, 200)
+
+    with pytest.raises(InputError, match="crop"):
+        train_flow(FlowTrainConfig(net=SMALL, crop=(64, 128)), _Tiny(), tmp_path / "run", progress=False)
+    assert not (tmp_path / "run").exists()
