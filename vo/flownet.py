@@ -243,6 +243,8 @@ class FlowTrainConfig:
     """Write a checkpoint every this many steps."""
     threads: int = 2
     """torch CPU threads."""
+    device: str = "cpu"
+    """Torch device to train on (``cpu``, ``cuda``, ``cuda:N``); bf16 autocast on either."""
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
@@ -385,6 +387,8 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(cfg.seed)
             model = FlowNet(cfg.net)
+        dev = torch.device(cfg.device)
+        model = model.to(dev)
         opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.max_steps, eta_min=cfg.lr / 20)
         state = {"step": 0, "seconds": 0.0, "history": []}
@@ -392,9 +396,9 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
             _, d = modelfile.load(ck, (CHECKPOINT_FORMAT,))
             if d["config"] != json.loads(json.dumps(cfg.to_dict())):
                 diff = sorted(k for k in d["config"] if d["config"][k] != cfg.to_dict().get(k))
-                if any(k not in ("max_minutes", "threads", "stop_after_steps") for k in diff):
+                if any(k not in ("max_minutes", "threads", "stop_after_steps", "device") for k in diff):
                     raise InputError(ck, f"cannot resume: settings differ ({', '.join(diff)})")
-            model.load_state_dict(d["state_dict"])
+            model.load_state_dict({k: v.to(dev) for k, v in d["state_dict"].items()})
             opt.load_state_dict(d["optimizer"])
             sched.load_state_dict(d["scheduler"])
             state = d["state"]
@@ -418,7 +422,9 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
         while state["step"] < last and time.perf_counter() - t_start < limit:
             rng = np.random.default_rng([cfg.seed, state["step"]])
             b = pairs.batch(rng, cfg.batch_size, cfg.crop)
-            with torch.autocast("cpu", dtype=torch.bfloat16):
+            if dev.type != "cpu":
+                b = {k: v.pin_memory().to(dev, non_blocking=True) for k, v in b.items()}
+            with torch.autocast(dev.type, dtype=torch.bfloat16):
                 outs = model(b["img0"], b["img1"])
             loss = multiscale_loss([o.float() for o in outs], b["flow"], cfg.level_weights)
             if not torch.isfinite(loss):

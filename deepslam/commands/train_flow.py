@@ -21,6 +21,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate (1e-3, cosine decay)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=2, help="torch CPU threads (2)")
+    p.add_argument("--device", default="auto", help="auto (CUDA when torch sees one, else the CPU), cpu, cuda or cuda:N")
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -41,6 +42,7 @@ def _sequence_dirs(paths: list[str]) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     from deepslam.core.errors import InputError
     from deepslam.core.readers import open_sequence
+    from deepslam.gen.device import resolve_device
     from deepslam.vo.flownet import FlowPairs, FlowTrainConfig, train_flow
 
     try:
@@ -55,11 +57,12 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(None, f"{name} must be in [{lo}, {hi}], got {v}")
     if not (args.lr > 0 and args.lr < 1) or not (args.max_minutes >= 0):
         raise InputError(None, "--lr must be in (0, 1) and --max-minutes >= 0")
+    device = resolve_device(args.device)
     seqs = [open_sequence(d) for d in _sequence_dirs(args.sequences)]
     pairs = FlowPairs(seqs, progress=not args.quiet)
     cfg = FlowTrainConfig(crop=(ch, cw), batch_size=args.batch, lr=args.lr, max_steps=args.max_steps,
                           max_minutes=args.max_minutes, stop_after_steps=args.stop_after, seed=args.seed,
-                          threads=args.threads)
+                          threads=args.threads, device=str(device))
     meta = {"sequences": [str(s.root) for s in seqs], "pairs": len(pairs)}
     path = train_flow(cfg, pairs, args.out, resume=args.resume, progress=not args.quiet, meta=meta)
     print(f"model: {path}")
