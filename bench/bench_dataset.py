@@ -63,8 +63,8 @@ def run(quick: bool = False) -> list[dict]:
                      "baseline_value": round(3600 * n_seq / t_local, 1), "ratio": t_local / t_ray,
                      "target": "same bytes", "met": ray["sha256"] == local["sha256"]})
         short, long_ = (20, 200) if quick else (100, 1000)
-        m_short = _peak_rss_mib(short, Path(tmp) / "rss")
-        m_long = _peak_rss_mib(long_, Path(tmp) / "rss")
+        m_short = _peak_rss_mib(short, Path(tmp) / "rss_short")
+        m_long = _peak_rss_mib(long_, Path(tmp) / "rss_long")
         rows.append({"name": f"worker peak resident memory, {long_}- vs {short}-frame sequence (96 px)",
                      "value": m_long, "unit": "MiB", "baseline": f"{short} frames", "baseline_value": m_short,
                      "ratio": m_long / m_short, "target": "<= 1.2x", "met": m_long / m_short <= 1.2})
