@@ -252,6 +252,4 @@ def add_user_meshes(scene, spec: SceneFile):
                 raise InputError(spec.path, f"meshes[{k}].path: not a usable closed path ({e})") from None
             bodies.append(Body(name, mesh, RIGID, next_id, PathFollower(PathProgress(path, prof, 0.0), m.z_m)))
             next_id += 1
-    out = dataclasses.replace(scene, atlas=new_atlas, bodies=bodies)
-    out.config = getattr(scene, "config", None)
-    return out
+    return dataclasses.replace(scene, atlas=new_atlas, bodies=bodies)

@@ -86,6 +86,11 @@ class RenderConfig:
     camera, in which depth, flow and masks stay exact); None: a pinhole image."""
 
     @property
+    def distorted(self) -> bool:
+        """Whether the images get a lens distortion (``distortion`` set and not all zero)."""
+        return self.distortion is not None and any(self.distortion)
+
+    @property
     def photometric(self) -> bool:
         """Whether any image-only effect (noise, exposure, white balance) is on."""
         return self.sensor_noise > 0 or self.exposure_jitter > 0 or self.white_balance_jitter > 0

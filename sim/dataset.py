@@ -170,27 +170,14 @@ def plan(cfg: DatasetConfig) -> list[PlannedSequence]:
     return out
 
 
-def _sim_config(d: dict):
-    from deepslam.scenes import SceneConfig
-    from deepslam.sim.config import RenderConfig, SimConfig, TrajectoryConfig
+def tree_digest(root: Path) -> tuple[str, int, int]:
+    """(sha256, files, bytes) of every file under ``root`` (see the module docstring)."""
+    from deepslam.core.integrity import file_digests
 
-    return SimConfig(SceneConfig(**d["scene"]), TrajectoryConfig(**d["trajectory"]), RenderConfig(**d["render"])).validate()
-
-
-def tree_digest(root: Path, exclude: tuple[str, ...] = ()) -> tuple[str, int, int]:
-    """(sha256, files, bytes) of every file under ``root`` (see the module docstring), skipping top-level
-    names in ``exclude``."""
-    from deepslam.core.integrity import sha256_file
-
-    lines, n, size = [], 0, 0
-    for p in sorted(root.rglob("*")):
-        rel = p.relative_to(root).as_posix()
-        if not p.is_file() or rel.split("/")[0] in exclude:
-            continue
-        lines.append(f"{sha256_file(p)}  {rel}\n")
-        n += 1
-        size += p.stat().st_size
-    return hashlib.sha256("".join(lines).encode()).hexdigest(), n, size
+    files = sorted(p for p in root.rglob("*") if p.is_file())
+    digests = file_digests(files, root)
+    lines = "".join(f"{sha}  {rel}\n" for rel, sha in digests.items())
+    return hashlib.sha256(lines.encode()).hexdigest(), len(files), sum(p.stat().st_size for p in files)
 
 
 def render_planned(entry: dict, out_root: str, fmt: str) -> dict:
@@ -203,13 +190,14 @@ def render_planned(entry: dict, out_root: str, fmt: str) -> dict:
     """
     import resource
 
+    from deepslam.sim.config import SimConfig
     from deepslam.sim.writers import render_sequence
 
     os.environ.setdefault("MUJOCO_GL", "egl")
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
     t0 = time.perf_counter()
     folder = Path(out_root) / entry["name"]
-    render_sequence(_sim_config(entry["sim"]), folder, fmt=fmt, resume=True, progress=False)
+    render_sequence(SimConfig.from_dict(entry["sim"]).validate(), folder, fmt=fmt, resume=True, progress=False)
     sha, files, size = tree_digest(folder)
     sc = entry["sim"]["scene"]
     return {"name": entry["name"], "index": entry["index"],

@@ -106,6 +106,8 @@ class Simulator:
         base = scene if scene is not None else build_scene(config.scene)
         tcfg = config.trajectory
         tseed = tcfg.seed if tcfg.seed is not None else (config.scene.seed if scene is None else base.seed)
+        # seed of the per-frame image and sensor effects (noise, exposure, Kinect depth): the trajectory's, else the scene config's
+        self._effects_seed = int(tcfg.seed if tcfg.seed is not None else config.scene.seed)
         if motion is None:
             motion = make_motion(base, tcfg.resolved_kind(base.name), np.random.default_rng([tseed, 1]), tcfg.rate_hz)
         self.motion = motion
@@ -129,6 +131,7 @@ class Simulator:
         """The config with every default filled in (image size, baseline, rate, trajectory kind and seed)."""
         self.backend = make_backend(rcfg.backend, self.scene, self.camera, self.baseline_m)
         self._flow = FlowComputer(self.camera)
+        self._distort_maps: tuple[np.ndarray, np.ndarray] | None = None  # made on the first distorted frame
         self._inst = np.zeros(len(self.scene.bodies) + 1, np.uint16)  # body index + 1 -> instance id
         for i, body in enumerate(self.scene.bodies):
             self._inst[i + 1] = body.instance_id
@@ -180,8 +183,7 @@ class Simulator:
         if self.config.render.depth_noise == "kinect":
             from deepslam.sim.sensor import kinect_depth
 
-            seed = self.config.trajectory.seed if self.config.trajectory.seed is not None else self.config.scene.seed
-            sensor = kinect_depth(left["depth_z"], self.camera, np.random.default_rng([int(seed), 0x5E75, int(i)]))
+            sensor = kinect_depth(left["depth_z"], self.camera, np.random.default_rng([self._effects_seed, 0x5E75, int(i)]))
         mask = self._inst[left["body"] + 1]
         poses = {b.instance_id: s0.world_from_body[k] for k, b in enumerate(self.scene.bodies) if b.kind == "rigid"}
         rgb, rgb_right = left["rgb"], r.get("rgb")
@@ -190,7 +192,7 @@ class Simulator:
             rgb, rgb_right = self._motion_blur(i, right)
         if rcfg.photometric:
             rgb, rgb_right = self._photometric(i, rgb, rgb_right)
-        if rcfg.distortion is not None and any(rcfg.distortion):
+        if rcfg.distorted:
             rgb = self._distort(rgb)
             rgb_right = None if rgb_right is None else self._distort(rgb_right)
         return SimFrame(i, self.time(i), self.camera, s0.world_from_cam, rgb, left["depth_z"], fl, mask,
@@ -217,7 +219,7 @@ class Simulator:
         what the pinhole render shows at undistort(x_d) (OpenCV's model, iterative inverse; bilinear)."""
         import cv2
 
-        if getattr(self, "_distort_maps", None) is None:
+        if self._distort_maps is None:
             cam = self.camera
             u, v = np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64))
             pts = np.stack([u.ravel(), v.ravel()], -1).reshape(-1, 1, 2)
@@ -231,8 +233,7 @@ class Simulator:
         """Exposure gain, white balance (the same for both cameras of a frame) and sensor noise, from the
         trajectory seed and the frame index (same seed, same bytes)."""
         rcfg = self.config.render
-        seed = self.config.trajectory.seed if self.config.trajectory.seed is not None else self.config.scene.seed
-        rng = np.random.default_rng([int(seed), 0xC0102, int(i)])
+        rng = np.random.default_rng([self._effects_seed, 0xC0102, int(i)])
         j = np.log1p(rcfg.exposure_jitter)
         gain = float(np.exp(rng.uniform(-j, j)))
         wb = 1.0 + rng.uniform(-rcfg.white_balance_jitter, rcfg.white_balance_jitter, 3)

@@ -31,15 +31,15 @@ def world_state(scene: Scene, motion, t: float) -> WorldState:
     return WorldState(float(t), motion.world_from_cam(t)[0], poses, verts)
 
 
-def view_fraction(body: Body, poses: np.ndarray, world_from_cam: np.ndarray, camera) -> np.ndarray:
+def view_fraction(body: Body, poses: np.ndarray, cam_from_world: np.ndarray, camera) -> np.ndarray:
     """(T,) float64: the share of the image covered by the bounding rectangle of ``body``'s bounding
-    box (its mesh's, in the body frame) seen from ``world_from_cam`` (T, 4, 4) at poses (T, 4, 4),
-    clipped to the image; 0 where any corner is behind 0.5 m (an estimate: the renders' masks give the
-    exact per-frame fraction)."""
+    box (its mesh's, in the body frame) at ``poses`` (T, 4, 4) world_from_body, seen by the camera at
+    ``cam_from_world`` (T, 4, 4), clipped to the image; 0 where any corner is behind 0.5 m (an
+    estimate: the renders' masks give the exact per-frame fraction)."""
     v = body.mesh.vertices
     lo, hi = v.min(axis=0), v.max(axis=0)
     corners = np.array([[x, y, z, 1.0] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    cam_from_body = np.linalg.inv(world_from_cam) @ poses
+    cam_from_body = cam_from_world @ poses
     p = np.einsum("tij,kj->tki", cam_from_body, corners)[..., :3]
     z = p[..., 2]
     front = (z > 0.5).all(axis=1)
@@ -72,6 +72,7 @@ def separate_movers(scene: Scene, motion, duration_s: float, rng: np.random.Gene
     rate = 4.0 * float(getattr(motion, "rate_hz", 10.0))
     times = np.arange(0.0, duration_s + 1.0 / rate, 1.0 / rate)
     world_from_cam = motion.world_from_cam(times)
+    cam_from_world = np.linalg.inv(world_from_cam)  # once: every candidate of every mover is seen from it
     cam_xy = world_from_cam[:, :2, 3]
     weights = 1.0 + 3.0 * np.exp(-times / 2.0)  # the first seconds count more: movers in view from the start
 
@@ -100,7 +101,7 @@ def separate_movers(scene: Scene, motion, duration_s: float, rng: np.random.Gene
             d_cam = footprint_distance(cand, poses) - cam_clear
             d_pair = min([np.min(np.linalg.norm(xy - p, axis=1)) - pair_clear for p in placed], default=np.inf)
             clear = min(d_cam, d_pair)
-            seen = float(np.average(view_fraction(cand, poses, world_from_cam, scene.camera), weights=weights))
+            seen = float(np.average(view_fraction(cand, poses, cam_from_world, scene.camera), weights=weights))
             key = (0.0, seen) if clear >= 0 else (clear, seen)
             if key > best_key:
                 best, best_key = cand, key

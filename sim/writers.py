@@ -103,6 +103,24 @@ class _Sink:
         replaced file makes the frame be rendered again on --resume)."""
         return record_files_match(self._records() / f"{_name(i)}.json", self.root)
 
+    def _put_ground_truth(self, put, folder: Path, i: int, frame) -> None:
+        """Frame i's ground truth beside the images, numbered like them: ``depth/`` (the sensor's when
+        simulated, the exact one then in ``depth_exact/``), ``flow/`` and ``occlusion/`` (none for the
+        last frame), ``flow_backward/``, ``mask/``; ``put(write, path, data)`` writes and lists a file."""
+        n = _name(i)
+        last = i >= self.n - 1
+        sensor = frame.depth_sensor is not None
+        put(atomic.write_npy, folder / "depth" / f"{n}.npy", (frame.depth_sensor if sensor else frame.depth_z).astype(np.float32))
+        if sensor:
+            put(atomic.write_npy, folder / "depth_exact" / f"{n}.npy", frame.depth_z.astype(np.float32))
+        if frame.flow is not None and not last:
+            put(atomic.write_npy, folder / "flow" / f"{n}.npy", frame.flow.astype(np.float32))
+        if frame.occlusion is not None and not last:
+            put(atomic.write_png, folder / "occlusion" / f"{n}.png", frame.occlusion.astype(np.uint8) * 255)
+        if frame.flow_backward is not None:
+            put(atomic.write_npy, folder / "flow_backward" / f"{n}.npy", frame.flow_backward.astype(np.float32))
+        put(atomic.write_png, folder / "mask" / f"{n}.png", frame.mask.astype(np.uint16))
+
     def _mark(self, i: int, frame, written: list[Path]) -> None:
         atomic.write_json(self._records() / f"{_name(i)}.json",
                           {"index": i, "timestamp_s": frame.timestamp_s, "world_from_cam": frame.world_from_cam.tolist(),
@@ -222,17 +240,7 @@ class KittiSink(_Sink):
         if frame.rgb_right is not None:
             put(atomic.write_png, self.seq / "image_1" / f"{n}.png", cv2.cvtColor(frame.rgb_right, cv2.COLOR_RGB2GRAY))
             put(atomic.write_png, self.seq / "image_3" / f"{n}.png", frame.rgb_right)
-        put(atomic.write_npy, self.seq / "depth" / f"{n}.npy",
-            (frame.depth_sensor if frame.depth_sensor is not None else frame.depth_z).astype(np.float32))
-        if frame.depth_sensor is not None:
-            put(atomic.write_npy, self.seq / "depth_exact" / f"{n}.npy", frame.depth_z.astype(np.float32))
-        if frame.flow is not None and i < self.n - 1:
-            put(atomic.write_npy, self.seq / "flow" / f"{n}.npy", frame.flow.astype(np.float32))
-        if frame.occlusion is not None and i < self.n - 1:
-            put(atomic.write_png, self.seq / "occlusion" / f"{n}.png", frame.occlusion.astype(np.uint8) * 255)
-        if frame.flow_backward is not None:
-            put(atomic.write_npy, self.seq / "flow_backward" / f"{n}.npy", frame.flow_backward.astype(np.float32))
-        put(atomic.write_png, self.seq / "mask" / f"{n}.png", frame.mask.astype(np.uint16))
+        self._put_ground_truth(put, self.seq, i, frame)
         self._mark(i, frame, written)
 
     def finish(self) -> None:
@@ -260,7 +268,7 @@ def _sensor_yaml(comment: str, body_from_cam: np.ndarray, rate_hz: float, cam, d
             f"intrinsics: [{cam.fx!r}, {cam.fy!r}, {cam.cx!r}, {cam.cy!r}] #fu, fv, cu, cv\n"
             "distortion_model: radial-tangential\n"
             f"distortion_coefficients: [{', '.join(repr(float(x)) for x in (distortion or (0.0, 0.0, 0.0, 0.0)))}]\n"
-            + ("" if not distortion or not any(distortion) else
+            + ("" if distortion is None else
                "# deepslam: the pinhole camera the images undistort to; depth/, flow/, mask/ are in it\n"
                f"undistorted_intrinsics: [{cam.fx!r}, {cam.fy!r}, {cam.cx!r}, {cam.cy!r}]\n"))
 
@@ -287,8 +295,8 @@ class EurocSink(_Sink):
         if not self.complete:
             atomic.write_json(self.meta_path, self.meta)
             cam, b = sim.camera, sim.baseline_m
-            dist = config.render.distortion
-            what = "rectified pinhole" if not dist or not any(dist) else "rectified, radial-tangential distortion"
+            dist = config.render.distortion if config.render.distorted else None
+            what = "rectified, radial-tangential distortion" if dist else "rectified pinhole"
             atomic.write_text(self.mav / "cam0" / "sensor.yaml",
                               _sensor_yaml(f"deepslam simulator cam0 ({what})", BODY_FROM_CAM0, sim.rate_hz, cam, dist))
             if b:
@@ -310,7 +318,7 @@ class EurocSink(_Sink):
     def write(self, i: int, frame) -> None:
         import cv2
 
-        n, ns = _name(i), self.ns(i)
+        ns = self.ns(i)
         written = []
 
         def put(write, path: Path, data) -> None:
@@ -320,18 +328,7 @@ class EurocSink(_Sink):
         put(atomic.write_png, self.mav / "cam0" / "data" / f"{ns}.png", cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY))
         if frame.rgb_right is not None:
             put(atomic.write_png, self.mav / "cam1" / "data" / f"{ns}.png", cv2.cvtColor(frame.rgb_right, cv2.COLOR_RGB2GRAY))
-        cam0 = self.mav / "cam0"
-        put(atomic.write_npy, cam0 / "depth" / f"{n}.npy",
-            (frame.depth_sensor if frame.depth_sensor is not None else frame.depth_z).astype(np.float32))
-        if frame.depth_sensor is not None:
-            put(atomic.write_npy, cam0 / "depth_exact" / f"{n}.npy", frame.depth_z.astype(np.float32))
-        if frame.flow is not None and i < self.n - 1:
-            put(atomic.write_npy, cam0 / "flow" / f"{n}.npy", frame.flow.astype(np.float32))
-        if frame.occlusion is not None and i < self.n - 1:
-            put(atomic.write_png, cam0 / "occlusion" / f"{n}.png", frame.occlusion.astype(np.uint8) * 255)
-        if frame.flow_backward is not None:
-            put(atomic.write_npy, cam0 / "flow_backward" / f"{n}.npy", frame.flow_backward.astype(np.float32))
-        put(atomic.write_png, cam0 / "mask" / f"{n}.png", frame.mask.astype(np.uint16))
+        self._put_ground_truth(put, self.mav / "cam0", i, frame)
         self._mark(i, frame, written)
 
     def finish(self) -> None:
@@ -388,8 +385,7 @@ def render_sequence(config: SimConfig, out_dir, fmt: str = "ours", resume: bool 
     """
     if fmt not in FORMATS:
         raise InputError(None, f"unknown format {fmt!r} (choose from {', '.join(FORMATS)})")
-    dist = getattr(config.render, "distortion", None)
-    if dist is not None and any(dist) and fmt != "euroc":
+    if config.render.distorted and fmt != "euroc":
         raise InputError(None, f"lens distortion needs --format euroc (its sensor.yaml carries the calibration); "
                                f"{fmt} images are rectified pinhole images")
     if fmt == "kitti" and not (sequence.isdigit() and len(sequence) == 2):

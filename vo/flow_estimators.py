@@ -214,7 +214,7 @@ def register(name: str) -> Callable[[Callable[..., FlowEstimator]], Callable[...
     return deco
 
 
-def _learned(path=None, threads: int = 0, **_ignored):
+def _learned(path=None, threads: int = 0):
     """The shipped learned estimator (:class:`vo.flownet.LearnedFlow`), or the model file ``path``."""
     from pathlib import Path
 

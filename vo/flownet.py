@@ -382,7 +382,7 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
         ck = out / "checkpoint.safetensors"
         if ck.exists() and not resume:
             raise InputError(ck, "a flow training run is already here; pass --resume or choose another --out")
-        if not resume and any(p for p in out.iterdir()):
+        if not resume and any(out.iterdir()):
             raise InputError(out, "output folder is not empty; choose another --out")
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(cfg.seed)

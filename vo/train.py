@@ -377,15 +377,14 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
         out_dir.mkdir(parents=True, exist_ok=True)
     meta = dict(meta or {})
     ckpt_path = out_dir / CHECKPOINT
-    if not writer:
-        pass  # rank 0 checks the folder; the others follow it (or are stopped with it by torchrun)
-    elif (out_dir / LEGACY_CHECKPOINT).is_file() and not ckpt_path.exists():
-        raise InputError(out_dir / LEGACY_CHECKPOINT, "a pickle-based checkpoint of an older version; convert it "
-                         f"once with `deepslam convert-model {out_dir / LEGACY_CHECKPOINT}` (or choose another --out)")
-    if writer and not resume and ckpt_path.exists():
-        raise InputError(ckpt_path, "a training run is already here; pass --resume to continue it or choose another --out")
-    if writer and not resume and any(out_dir.iterdir()):
-        raise InputError(out_dir, "output folder is not empty and holds no training run; choose another --out")
+    if writer:  # rank 0 checks the folder; the others follow it (or are stopped with it by torchrun)
+        if (out_dir / LEGACY_CHECKPOINT).is_file() and not ckpt_path.exists():
+            raise InputError(out_dir / LEGACY_CHECKPOINT, "a pickle-based checkpoint of an older version; convert it "
+                             f"once with `deepslam convert-model {out_dir / LEGACY_CHECKPOINT}` (or choose another --out)")
+        if not resume and ckpt_path.exists():
+            raise InputError(ckpt_path, "a training run is already here; pass --resume to continue it or choose another --out")
+        if not resume and any(out_dir.iterdir()):
+            raise InputError(out_dir, "output folder is not empty and holds no training run; choose another --out")
     model = new_model(cfg).to(torch.device(cfg.device))
     if cfg.channels_last:
         model.set_channels_last(True)

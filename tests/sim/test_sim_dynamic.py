@@ -47,6 +47,7 @@ def test_placement_keeps_the_camera_clear_and_prefers_movers_in_view():
     placed = separate_movers(base, motion, duration, np.random.default_rng([0, 2]))
     t = np.arange(0.0, duration, 0.05)
     cam = motion.world_from_cam(t)
+    cam_from_world = np.linalg.inv(cam)
     seen_before = seen_after = 0.0
     for before, after in zip(base.bodies, placed.bodies):
         if before.motion is None or not hasattr(before.motion, "progress"):
@@ -54,6 +55,6 @@ def test_placement_keeps_the_camera_clear_and_prefers_movers_in_view():
         poses = after.motion.world_from_body(t)
         # the camera stays clear of the mover (its centre at least half a car length plus the clearance away)
         assert np.min(np.linalg.norm(poses[:, :2, 3] - cam[:, :2, 3], axis=1)) > 2.2 + 0.8
-        seen_after += view_fraction(after, poses, cam, base.camera).mean()
-        seen_before += view_fraction(before, before.motion.world_from_body(t), cam, base.camera).mean()
+        seen_after += view_fraction(after, poses, cam_from_world, base.camera).mean()
+        seen_before += view_fraction(before, before.motion.world_from_body(t), cam_from_world, base.camera).mean()
     assert seen_after > 3 * seen_before
