@@ -271,6 +271,10 @@ def run(args: argparse.Namespace) -> int:
     progress = not (args.quiet or args.json) and rank == 0
     h, w = net.input_height, net.input_width
     meta: dict = {"mode": args.mode}
+    tilt = data.CameraTilt.parse(args.camera_tilt_deg) if args.camera_tilt_deg else None
+    if tilt is not None and (args.mode != "synthetic" or args.shards or args.toy):
+        raise InputError(None, "--camera-tilt-deg rotates single frames: it needs --mode synthetic with --frames "
+                               "(not --toy, --shards or supervised pairs)")
     if args.mode == "synthetic":
         if args.shards:
             train_src, hold_src = data.shard_samples(args.shards, args.holdout, args.seed, h, w)
@@ -297,7 +301,6 @@ def run(args: argparse.Namespace) -> int:
                     raise InputError(None, f"--speed-range must be MIN:MAX in m/s, got {args.speed_range!r}") from None
                 sampler = data.FlatSpeed(sampler, lo, hi, args.rate_hz)
                 speed_range = [lo, hi, args.rate_hz]
-            tilt = data.CameraTilt.parse(args.camera_tilt_deg) if args.camera_tilt_deg else None
             f = max(1, args.synth_factor)
             seqs = [open_sequence(d) for d in args.frames]
             if args.missing_depth is None:

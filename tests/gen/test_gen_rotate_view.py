@@ -92,3 +92,16 @@ def test_tilted_synthetic_source_is_seeded_and_zero_tilt_matches_none():
     np.testing.assert_allclose(zero["flow"].numpy(), plain["flow"].numpy(), atol=1e-3)
     # a tilted sample's target is the drive seen from the tilted camera: forward gains a vertical part
     assert not np.allclose(a["target"].numpy()[:, 4], plain["target"].numpy()[:, 4], atol=1e-3)
+
+
+@pytest.mark.parametrize("flag,what", [("--camera-tilt-deg=5:1", "bad camera tilt"),
+                                       ("--camera-tilt-deg=1:3", "needs --mode synthetic with --frames")])
+def test_train_refuses_a_bad_or_unusable_tilt_before_writing(tmp_path, flag, what):
+    """A tilt is validated up front, and refused where nothing would be tilted (toy samples)."""
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "deepslam", "train", "--mode", "synthetic", "--toy", "50", flag,
+                        "--out", str(tmp_path / "o")], capture_output=True, text=True)
+    assert r.returncode == 2 and what in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "o").exists()
