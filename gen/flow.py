@@ -148,6 +148,15 @@ class _Workspace(threading.local):
                                  "ab": torch.empty(n, 2, h, w, **f32)}
         return self.buffers[key]
 
+    def depth1(self, device: torch.device, n: int, h: int, w: int) -> torch.Tensor:
+        """A reused (n, H, W) float32 buffer for the moved points' depths."""
+        key = ("depth1", str(device), n, h, w)
+        if key not in self.buffers:
+            if len(self.buffers) > 8:
+                self.buffers.clear()
+            self.buffers[key] = torch.empty(n, h, w, dtype=torch.float32, device=device)
+        return self.buffers[key]
+
 
 _WS = _Workspace()
 
@@ -215,9 +224,14 @@ _ZB_KERNEL = None
 
 
 def _zbuffer_kernel():
-    """The compiled z-buffer test of :func:`visible_after_motion` (numba; None where it is missing):
-    the same splat and test, one sample per thread, no temporaries beyond one buffer per sample.
-    No fastmath: the comparisons must round as the torch path's do."""
+    """The compiled z-buffer test of :func:`visible_after_motion` (numba; None where it is missing),
+    applied in place. The samples are split into one chunk per thread; each thread works through its
+    samples in its own cache-sized scratch: (1) the landing points and depths copied into
+    NaN-bordered arrays (NaN = not valid), (2) the footprint half-widths and depth margins in
+    branch-free row loops (they vectorise), (3) the splat, with a fast path for the common point whose
+    footprint covers only its nearest pixel, (4) the test, clearing ``valid``, ``flow`` and ``depth1``
+    where a point is hidden. No fastmath: the comparisons round as the torch path's do (tested: the
+    same bits)."""
     global _ZB_KERNEL
     if _ZB_KERNEL is None:
         if _numba_kernel() is None:  # also sets the fork-safe threading layer
@@ -226,86 +240,131 @@ def _zbuffer_kernel():
         import numba
 
         @numba.njit(cache=True, inline="always")
-        def msd(a, i, n, stride, base):  # pragma: no cover - compiled
-            """min one-sided |difference| of a[base + k*stride] at k = i over k in 0..n-1 (NaN = invalid,
+        def msd(left, c, right):  # pragma: no cover - compiled
+            """min one-sided |difference| of c to its neighbours (NaN = not valid or outside the image,
             then inf; 1 where no valid neighbour), as _min_one_sided_abs_diff."""
             inf = np.float32(np.inf)
-            if n < 2:
-                return np.float32(1.0)
-            best = inf
-            c = a[base + i * stride]
-            if i > 0:
-                d = abs(c - a[base + (i - 1) * stride])
-                best = d if d == d else inf
-            if i < n - 1:
-                d = abs(a[base + (i + 1) * stride] - c)
-                d = d if d == d else inf
-                best = d if d < best else best
-            return np.float32(1.0) if best == inf else best
+            a = abs(c - left)
+            b = abs(right - c)
+            a = a if a == a else inf
+            b = b if b == b else inf
+            m = a if a < b else b
+            return np.float32(1.0) if m == inf else m
 
         @numba.njit(parallel=True, cache=True)
-        def kernel(flow, valid, depth1, tol, out, x1s, y1s, zzs, zbufs, centres):  # pragma: no cover - compiled
+        def kernel(flow, valid, depth1, tol, n_chunks, padded, flat, centres):  # pragma: no cover - compiled
             b_n, _, h, w = flow.shape
             nan, inf = np.float32(np.nan), np.float32(np.inf)
-            half, one_half, one = np.float32(0.5), np.float32(1.5), np.float32(1.0)
-            for b in numba.prange(b_n):
-                x1, y1, zz, zbuf, centre = x1s[b], y1s[b], zzs[b], zbufs[b], centres[b]
-                for v in range(h):
-                    for u in range(w):
-                        k = v * w + u
-                        if valid[b, v, u]:
-                            x1[k] = flow[b, 0, v, u] + np.float32(u)
-                            y1[k] = flow[b, 1, v, u] + np.float32(v)
-                            zz[k] = depth1[b, v, u]
-                        else:
-                            x1[k] = nan
-                            y1[k] = nan
-                            zz[k] = nan
-                zbuf[:] = inf
-                for v in range(h):
-                    for u in range(w):
-                        k = v * w + u
-                        if not valid[b, v, u]:
-                            continue
-                        rx = half * (msd(x1, u, w, 1, v * w) + msd(x1, v, h, w, u))
-                        ry = half * (msd(y1, u, w, 1, v * w) + msd(y1, v, h, w, u))
-                        rx = min(max(rx, half), one_half)
-                        ry = min(max(ry, half), one_half)
-                        xr, yr = np.rint(x1[k]), np.rint(y1[k])
-                        dx, dy = x1[k] - xr, y1[k] - yr
-                        xn = min(max(int(xr), 0), w - 1)
-                        yn = min(max(int(yr), 0), h - 1)
-                        c = yn * w + xn
-                        centre[k] = c
-                        z = zz[k]
-                        if z < zbuf[c]:
-                            zbuf[c] = z
-                        inx_p = (one - dx <= rx) and (xn + 1 < w)
-                        inx_m = (one + dx <= rx) and (xn > 0)
-                        iny_p = (one - dy <= ry) and (yn + 1 < h)
-                        iny_m = (one + dy <= ry) and (yn > 0)
-                        for kx in range(-1, 2):
-                            for ky in range(-1, 2):
-                                if kx == 0 and ky == 0:
-                                    continue
-                                mx = inx_p if kx == 1 else inx_m
-                                my = iny_p if ky == 1 else iny_m
-                                m = mx if ky == 0 else (my if kx == 0 else (mx and my))
-                                if m:
-                                    t = c + ky * w + kx
-                                    if z < zbuf[t]:
-                                        zbuf[t] = z
-                for v in range(h):
-                    for u in range(w):
-                        k = v * w + u
-                        if not valid[b, v, u]:
-                            out[b, v, u] = False
-                            continue
-                        slack = msd(zz, u, w, 1, v * w) + msd(zz, v, h, w, u) + np.float32(tol) * zz[k]
-                        out[b, v, u] = zz[k] - zbuf[centre[k]] <= slack
+            half, one_half, one, zero = np.float32(0.5), np.float32(1.5), np.float32(1.0), np.float32(0.0)
+            ftol = np.float32(tol)
+            wp = w + 2
+            hw = h * w
+            per = (b_n + n_chunks - 1) // n_chunks
+            for t in numba.prange(n_chunks):
+                xp, yp, zp = padded[t, 0], padded[t, 1], padded[t, 2]  # (H + 2) x (W + 2), NaN border
+                rxa, rya, sla, zbuf = flat[t, 0], flat[t, 1], flat[t, 2], flat[t, 3]
+                centre = centres[t]
+                xp[:] = nan
+                yp[:] = nan
+                zp[:] = nan
+                for b in range(t * per, min(b_n, (t + 1) * per)):
+                    fx, fy, vb, zb = flow[b, 0], flow[b, 1], valid[b], depth1[b]
+                    for v in range(h):
+                        o = (v + 1) * wp + 1
+                        fv = np.float32(v)
+                        xr_, yr_, zr_ = xp[o: o + w], yp[o: o + w], zp[o: o + w]
+                        fxr, fyr, vr, zbr_ = fx[v], fy[v], vb[v], zb[v]
+                        for u in range(w):
+                            ok = vr[u]
+                            xr_[u] = fxr[u] + np.float32(u) if ok else nan
+                            yr_[u] = fyr[u] + fv if ok else nan
+                            zr_[u] = zbr_[u] if ok else nan
+                    zbuf[:] = inf
+                    for v in range(h):
+                        o = (v + 1) * wp + 1
+                        q = v * w
+                        # rows v - 1, v, v + 1 of the padded arrays, from their left border: column u + 1
+                        # is pixel u (non-negative indices only: the loop vectorises)
+                        xa, xc, xb = xp[o - 1 - wp: o - 1], xp[o - 1: o - 1 + wp], xp[o - 1 + wp: o - 1 + 2 * wp]
+                        ya, yc, yb = yp[o - 1 - wp: o - 1], yp[o - 1: o - 1 + wp], yp[o - 1 + wp: o - 1 + 2 * wp]
+                        za, zc, zd = zp[o - 1 - wp: o - 1], zp[o - 1: o - 1 + wp], zp[o - 1 + wp: o - 1 + 2 * wp]
+                        rxr, ryr, slr = rxa[:w], rya[:w], sla[q: q + w]  # this row's radii, all margins
+                        for u in range(w):
+                            r = half * (msd(xc[u], xc[u + 1], xc[u + 2]) + msd(xa[u + 1], xc[u + 1], xb[u + 1]))
+                            rxr[u] = min(max(r, half), one_half)
+                            r = half * (msd(yc[u], yc[u + 1], yc[u + 2]) + msd(ya[u + 1], yc[u + 1], yb[u + 1]))
+                            ryr[u] = min(max(r, half), one_half)
+                            slr[u] = msd(zc[u], zc[u + 1], zc[u + 2]) + msd(za[u + 1], zc[u + 1], zd[u + 1]) + ftol * zc[u + 1]
+                        xc, yc, cr = xp[o: o + w], yp[o: o + w], centre[q: q + w]
+                        # nearest pixel of each landing point (h * w: not valid, a spare cell), and whether
+                        # its footprint box holds another pixel centre (then the sign bit is set)
+                        for u in range(w):
+                            x, y = xc[u], yc[u]
+                            xr, yr = np.rint(x), np.rint(y)
+                            ok = x == x
+                            xn = min(max(int(xr if ok else zero), 0), w - 1)
+                            yn = min(max(int(yr if ok else zero), 0), h - 1)
+                            alone = (one - abs(x - xr) > rxr[u]) & (one - abs(y - yr) > ryr[u])
+                            cr[u] = (yn * w + xn if alone else ~(yn * w + xn)) if ok else hw
+                        zr = zp[o: o + w]
+                        for u in range(w):  # nearest pixels: branch-free
+                            c = cr[u]
+                            c = c if c >= 0 else ~c
+                            z = zr[u]
+                            old = zbuf[c]
+                            zbuf[c] = z if z < old else old  # NaN (not valid: the spare cell) never writes
+                        for u in range(w):  # the footprints that reach into the 3x3 block
+                            c = cr[u]
+                            if c >= 0:
+                                continue
+                            c = ~c
+                            cr[u] = c
+                            z = zr[u]
+                            x, y = xc[u], yc[u]
+                            xr, yr = np.rint(x), np.rint(y)
+                            rx, ry = rxr[u], ryr[u]
+                            dx, dy = x - xr, y - yr
+                            xn = min(max(int(xr), 0), w - 1)
+                            yn = min(max(int(yr), 0), h - 1)
+                            xp_ = (one - dx <= rx) & (xn + 1 < w)
+                            xm_ = (one + dx <= rx) & (xn > 0)
+                            yp_ = (one - dy <= ry) & (yn + 1 < h)
+                            ym_ = (one + dy <= ry) & (yn > 0)
+                            # the eight neighbours, branch-free: an unselected one is written back as read
+                            # (at a clamped index; each thread owns its z-buffer)
+                            for kx, ky, sel in ((1, 0, xp_), (-1, 0, xm_), (0, 1, yp_), (0, -1, ym_),
+                                                (1, 1, xp_ & yp_), (-1, 1, xm_ & yp_), (1, -1, xp_ & ym_),
+                                                (-1, -1, xm_ & ym_)):
+                                t2 = min(max(c + ky * w + kx, 0), hw)
+                                old = zbuf[t2]
+                                zbuf[t2] = z if (sel & (z < old)) else old
+                    for v in range(h):
+                        o = (v + 1) * wp + 1
+                        q = v * w
+                        zr, cr, slr = zp[o: o + w], centre[q: q + w], sla[q: q + w]
+                        for u in range(w):
+                            z = zr[u]
+                            if z == z and not (z - zbuf[cr[u]] <= slr[u]):  # valid and hidden
+                                vb[v, u] = False
+                                fx[v, u] = zero
+                                fy[v, u] = zero
+                                zb[v, u] = zero
 
         _ZB_KERNEL = kernel
     return _ZB_KERNEL or None
+
+def _zbuffer_scratch(n_chunks: int, h: int, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The numba z-buffer's per-thread scratch (reused): (n, 3, (H + 2) * (W + 2)) float32 NaN-bordered
+    landing points and depths; (n, 4, H * W + 1) float32: one row's footprint radii (x, y), the depth
+    margins, the z-buffer (with a spare cell for points that are not valid); (n, H * W) int32 nearest
+    pixels."""
+    key = ("zb", n_chunks, h, w)
+    if key not in _WS.buffers:
+        if len(_WS.buffers) > 8:
+            _WS.buffers.clear()
+        _WS.buffers[key] = (np.empty((n_chunks, 3, (h + 2) * (w + 2)), np.float32),
+                            np.empty((n_chunks, 4, h * w + 1), np.float32), np.empty((n_chunks, h * w), np.int32))
+    return _WS.buffers[key]
 
 
 def _synthesize_numba(z: torch.Tensor, mn: np.ndarray, flow_chw: torch.Tensor, valid: torch.Tensor,
@@ -390,7 +449,7 @@ def synthesize(depth_z: Any, camera: Any, cam1_from_cam0: Any, zbuffer: bool = F
             depths are splatted into frame 1 (each over its own moved footprint) with
             ``scatter_reduce(amin)``, and a point is hidden when the minimum at its nearest pixel is
             nearer than its own depth by more than a margin (:func:`visible_after_motion`; on the CPU
-            the same test compiled with numba, a few times the cost of the plain synthesis).
+            the same test compiled with numba, about six times the cost of the plain synthesis).
         occlusion_rel_tol: see :data:`DEFAULT_OCCLUSION_REL_TOL`.
         out: optional ``(flow_chw, valid)`` buffers to write into and reuse across calls: (B, 2, H, W)
             float32 and (B, H, W) bool, contiguous, on the depth's device. A fresh 30 MB result costs
@@ -429,8 +488,12 @@ def synthesize(depth_z: Any, camera: Any, cam1_from_cam0: Any, zbuffer: bool = F
                 or flow_chw.device != device or valid.device != device):
             raise ValueError(f"out must be ((B, 2, H, W) float32, (B, H, W) bool) contiguous on {device} "
                              f"for B, H, W = {bsz}, {h}, {w}")
-    need_z1 = zbuffer or return_depth1
-    depth1 = torch.empty(bsz, h, w, **f32) if need_z1 else None
+    if return_depth1:
+        depth1 = torch.empty(bsz, h, w, **f32)
+    elif zbuffer:  # scratch only: reused (a fresh buffer costs page faults)
+        depth1 = _WS.depth1(device, bsz, h, w)
+    else:
+        depth1 = None
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
     use_numba = backend == "numba" or (backend == "auto" and device.type == "cpu" and _numba_kernel() is not None)
@@ -444,20 +507,19 @@ def synthesize(depth_z: Any, camera: Any, cam1_from_cam0: Any, zbuffer: bool = F
             if zb is not None:
                 import numba
 
-                visible = torch.empty_like(valid)
-                scratch = _WS.get(torch.device("cpu"), bsz, h, w)  # reused float32 buffers
                 with _KERNEL_LOCK:
-                    numba.set_num_threads(max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)))
-                    zb(flow_chw.numpy(), valid.numpy(), depth1.numpy(), float(occlusion_rel_tol), visible.numpy(),
-                       scratch["b"].numpy().reshape(bsz, h * w), scratch["t"].numpy().reshape(bsz, h * w),
-                       scratch["w"].numpy().reshape(bsz, h * w), scratch["p"].numpy().reshape(bsz, -1)[:, : h * w],
-                       scratch["ab"].numpy().reshape(bsz, -1).view(np.int32)[:, : h * w])
+                    n_threads = max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS))
+                    numba.set_num_threads(n_threads)
+                    n_chunks = min(n_threads, bsz)
+                    padded, flat, centres = _zbuffer_scratch(n_chunks, h, w)
+                    zb(flow_chw.numpy(), valid.numpy(), depth1.numpy(), float(occlusion_rel_tol), n_chunks,
+                       padded, flat, centres)
             else:
                 visible = visible_after_motion(flow_chw, valid, depth1, occlusion_rel_tol)
-            hidden = valid & ~visible
-            valid.copy_(visible)
-            flow_chw.masked_fill_(hidden.unsqueeze(1), 0.0)
-        if depth1 is not None:
+                hidden = valid & ~visible
+                valid.copy_(visible)
+                flow_chw.masked_fill_(hidden.unsqueeze(1), 0.0)
+        if depth1 is not None and not use_numba:  # the numba kernels write 0 where not valid
             depth1.masked_fill_(~valid, 0.0)
 
     flow = flow_chw.permute(0, 2, 3, 1)

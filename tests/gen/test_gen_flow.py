@@ -173,6 +173,31 @@ def test_zbuffer_matches_reference_on_random_scenes():
         assert (valid.numpy() != ref_valid).mean() < 2e-3
 
 
+@pytest.mark.parametrize("threads", [1, 2])
+@pytest.mark.parametrize("batch", [1, 3])
+def test_zbuffer_kernel_is_the_torch_test_bit_for_bit(batch, threads):
+    """The compiled z-buffer (chunked per thread, fast paths) decides exactly as visible_after_motion
+    on the numba path's own flow: boxes, holes, big sideways and forward motions, points landing on
+    the border, one or more samples per thread."""
+    rng = np.random.default_rng(11)
+    depth = np.stack([box_scene(CAM, rng.uniform(4, 20), rng.uniform(1.0, 3.0)) for _ in range(batch)])
+    depth[:, 5:9, 40:44] = 0.0                                   # a hole
+    motions = random_motions(rng, batch, 0.08, 1.5)
+    old = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        flow0, valid0, z1 = synthesize(depth, CAM, motions, return_depth1=True, backend="numba")
+        flow, valid, z1_zb = synthesize(depth, CAM, motions, zbuffer=True, return_depth1=True, backend="numba")
+    finally:
+        torch.set_num_threads(old)
+    expected = visible_after_motion(flow0.permute(0, 3, 1, 2).contiguous(), valid0, z1)
+    assert torch.equal(valid, expected)
+    assert bool((valid0 & ~valid).any())                          # something was hidden
+    hidden = valid0 & ~valid
+    assert float(flow[hidden].abs().max()) == 0.0 and float(z1_zb[hidden].abs().max()) == 0.0
+    assert torch.equal(flow[valid], flow0[valid]) and torch.equal(z1_zb[valid], z1[valid])
+
+
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_depth1_out_buffers_and_single_input(backend):
     rng = np.random.default_rng(4)
