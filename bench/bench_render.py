@@ -140,6 +140,47 @@ def run(quick: bool) -> list[dict]:
         rows.append({"name": f"{backend} flow computation per frame", "value": round(1000 * (t_flow - t_noflow), 2), "unit": "ms",
                      "baseline": "frame without flow", "baseline_value": round(1000 * t_noflow, 2),
                      "ratio": round(t_flow / t_noflow, 3), "target": None, "met": None})
+    rows.extend(_options(quick))
+    return rows
+
+
+OPTIONS = {
+    "motion blur (--exposure-ms 20, 8 renders)": dict(exposure_ms=20.0, blur_samples=8),
+    "rolling shutter (--rolling-shutter-ms 30, 32 bands)": dict(rolling_shutter_ms=30.0, rolling_shutter_bands=32),
+    "sensor noise + exposure + white balance": dict(sensor_noise=3.0, exposure_jitter=0.3, white_balance_jitter=0.1),
+    "lens distortion (EuRoC-like k1..p2)": dict(distortion=(-0.28, 0.07, 2e-4, 2e-5)),
+}
+"""Camera options timed against the plain render (same scene, same frames, interleaved)."""
+
+
+def _options(quick: bool) -> list[dict]:
+    """Frames/s of each camera option against the plain MuJoCo render with flow, same run."""
+    import dataclasses
+
+    from deepslam.scenes import SceneConfig
+    from deepslam.sim import RenderConfig, SimConfig, Simulator, TrajectoryConfig
+
+    n = 4 if quick else 12
+    indices = list(range(40, 40 + n + 1))
+    base = SimConfig(SceneConfig(name="street", seed=0, moving_objects=3), TrajectoryConfig(frames=40 + n + 2),
+                     RenderConfig(width=640, height=480, stereo_baseline_m=0))
+    variants = {"plain": base, **{k: dataclasses.replace(base, render=dataclasses.replace(base.render, **v))
+                                  for k, v in OPTIONS.items()},
+                "random lighting (--random-lighting)": dataclasses.replace(
+                    base, scene=dataclasses.replace(base.scene, random_lighting=True))}
+    sims = {k: Simulator(c) for k, c in variants.items()}
+    try:
+        t = _interleaved({k: (lambda i, s=s: s.frame(i, right=False)) for k, s in sims.items()}, indices)
+    finally:
+        for s in sims.values():
+            s.close()
+    rows = []
+    for k in variants:
+        if k == "plain":
+            continue
+        rows.append({"name": f"render 640x480 with {k}", "value": round(1.0 / t[k], 2), "unit": "frames/s",
+                     "baseline": "plain render with flow (mujoco, same frames)", "baseline_value": round(1.0 / t["plain"], 2),
+                     "ratio": round(t["plain"] / t[k], 3), "target": None, "met": None})
     return rows
 
 

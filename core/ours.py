@@ -10,6 +10,8 @@ Layout of one sequence folder::
     depth/NNNNNN.npy     float32 HxW depth_z in metres, 0 = no surface
     flow/NNNNNN.npy      float32 HxWx2 (du, dv) pixels from frame NNNNNN to NNNNNN+1 (none for the last)
     mask/NNNNNN.png      uint16 HxW instance ids, 0 = static scene
+    row_poses/NNNNNN.npy float64 Hx4x4 world_from_cam of each image row (rolling shutter only; the header's
+                         ``rolling_shutter`` holds each row's capture time minus the frame time)
     frames/NNNNNN.json   per-frame record {index, timestamp_s, world_from_cam, files: {name: sha256}, ...};
                          ``--resume`` re-renders a frame whose files no longer hash to its record; written LAST for a
                          frame, so its presence means the frame is complete
@@ -76,12 +78,14 @@ class OursWriter:
                     depth: np.ndarray | None = None, flow: np.ndarray | None = None,
                     mask: np.ndarray | None = None, rgb_right: np.ndarray | None = None,
                     extra: dict | None = None, flow_backward: np.ndarray | None = None,
-                    occlusion: np.ndarray | None = None, depth_exact: np.ndarray | None = None) -> None:
+                    occlusion: np.ndarray | None = None, depth_exact: np.ndarray | None = None,
+                    row_poses: np.ndarray | None = None) -> None:
         """Write frame i's files, then its record (which marks it complete).
 
         Args: rgb uint8 (H,W,3); depth float32 (H,W) depth_z m; flow float32 (H,W,2) px to frame i+1;
         mask uint16 (H,W); world_from_cam (4,4) float64 OpenCV axes; extra: JSON-able per-frame data;
-        flow_backward float32 (H,W,2) px to frame i-1; occlusion bool (H,W), True = not visible in i+1.
+        flow_backward float32 (H,W,2) px to frame i-1; occlusion bool (H,W), True = not visible in i+1;
+        row_poses float64 (H,4,4) world_from_cam of each image row (rolling shutter).
         """
         n = _name(i)
         written = []
@@ -92,7 +96,8 @@ class OursWriter:
                                ("mask", "png", None if mask is None else np.asarray(mask, np.uint16)),
                                ("flow_backward", "npy", None if flow_backward is None else np.asarray(flow_backward, np.float32)),
                                ("occlusion", "png", None if occlusion is None else (np.asarray(occlusion) > 0).astype(np.uint8) * 255),
-                               ("depth_exact", "npy", None if depth_exact is None else np.asarray(depth_exact, np.float32))):
+                               ("depth_exact", "npy", None if depth_exact is None else np.asarray(depth_exact, np.float32)),
+                               ("row_poses", "npy", None if row_poses is None else np.asarray(row_poses, np.float64))):
             if data is None:
                 continue
             path = self.root / sub / f"{n}.{ext}"
@@ -146,6 +151,7 @@ def read_ours(root: str | Path) -> Sequence:
         flow_backward_paths=([None] + [root / "flow_backward" / f"{s}.npy" for s in names[1:]])
         if has.get("flow_backward") else None,
         occlusion_paths=([root / "occlusion" / f"{s}.png" for s in names[:-1]] + [None]) if has.get("occlusion") else None,
+        row_pose_paths=[root / "row_poses" / f"{s}.npy" for s in names] if has.get("row_poses") else None,
         meta=header,
     )
 

@@ -58,14 +58,15 @@ def read_npy(path: str | Path, dtype: np.dtype, ndim: int) -> np.ndarray:
 
 def ground_truth_files(beside: Callable[[str, str], list[Path] | None]) -> dict:
     """The Sequence fields of the ground-truth folders that sit beside a layout's images
-    (``depth/``, ``flow/``, ``flow_backward/``, ``occlusion/``, ``mask/``, one file per frame in the
+    (``depth/``, ``flow/``, ``flow_backward/``, ``occlusion/``, ``mask/``, ``row_poses/``, one file per frame in the
     images' numbering), from ``beside(folder, suffix)`` -> per-frame paths or None when the folder is
     absent. Forward flow and occlusion have no file for the last frame, backward flow none for the first."""
     flow, back, occ = beside("flow", ".npy"), beside("flow_backward", ".npy"), beside("occlusion", ".png")
     return {"depth_paths": beside("depth", ".npy"), "mask_paths": beside("mask", ".png"),
             "flow_paths": None if flow is None else flow[:-1] + [None],
             "flow_backward_paths": None if back is None else [None] + back[1:],
-            "occlusion_paths": None if occ is None else occ[:-1] + [None]}
+            "occlusion_paths": None if occ is None else occ[:-1] + [None],
+            "row_pose_paths": beside("row_poses", ".npy")}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -123,6 +124,8 @@ class Sequence:
             this project's .npy (TUM's 16-bit PNGs); None: .npy.
         flow_backward_paths / occlusion_paths: per-frame paths of the backward flow (None for frame 0)
             and the occlusion masks (None for the last frame), where the data has them.
+        row_pose_paths: per-frame paths of the rolling shutter's per-row poses (renders with
+            ``--rolling-shutter-ms``), or None.
     """
 
     name: str
@@ -143,6 +146,7 @@ class Sequence:
     depth_reader: Callable[[Path], np.ndarray] | None = None
     flow_backward_paths: list[Path | None] | None = None
     occlusion_paths: list[Path | None] | None = None
+    row_pose_paths: list[Path] | None = None
 
     def __len__(self) -> int:
         return len(self.image_paths)
@@ -200,6 +204,16 @@ class Sequence:
         if self.occlusion_paths is None or self.occlusion_paths[i] is None:
             return None
         return read_image(self.occlusion_paths[i]) > 0
+
+    def row_poses(self, i: int) -> np.ndarray | None:
+        """(H, 4, 4) float64 world_from_cam at each image row's capture time (a rolling-shutter render);
+        None for a global shutter (every row is seen from :meth:`gt_pose`)."""
+        if self.row_pose_paths is None:
+            return None
+        poses = read_npy(self.row_pose_paths[i], np.float64, 3)
+        if poses.shape[0] != self.camera.height or poses.shape[1:] != (4, 4):
+            raise InputError(self.row_pose_paths[i], f"expected ({self.camera.height}, 4, 4) row poses, got {poses.shape}")
+        return poses
 
     def mask(self, i: int) -> np.ndarray | None:
         """(H, W) uint16 instance ids, 0 = static scene; None when absent."""

@@ -50,6 +50,10 @@ class SceneConfig:
     streets (:meth:`scenes.street.StreetLayout.varied`). False: the original town."""
     scene_file: str | None = None
     """A scene file adding your own meshes to this scene (:mod:`scenes.custom`), or None."""
+    random_lighting: bool = False
+    """Draw the lighting from the seed (:meth:`scenes.lighting.Lighting.random`: sun direction,
+    ambient share, brightness, colour temperature) instead of the scene's fixed one; the geometry and
+    everything else stay as without it."""
 
     def validate(self) -> "SceneConfig":
         if self.name not in SCENE_NAMES:
@@ -74,16 +78,25 @@ def build_scene(config: SceneConfig):
     """Build (and cache: treat the result as read-only) the scene described by ``config``."""
     config.validate()
     rng = np.random.default_rng(config.seed)
+    lighting = None
+    if config.random_lighting:
+        from deepslam.scenes.lighting import Lighting
+
+        lighting = Lighting.random(config.seed)
     if config.name == "street":
         from deepslam.scenes.street import StreetLayout, build_street
 
         layout = StreetLayout.varied(config.seed) if config.varied_layout else StreetLayout()
         scene = build_street(config.seed, config.px_per_m, config.moving_objects, float(config.deform_amplitude_m), rng,
-                             layout)
+                             layout, lighting)
     else:
         from deepslam.scenes.room import build_room
 
-        scene = build_room(config.seed, config.px_per_m, config.moving_objects, float(config.deform_amplitude_m), rng)
+        scene = build_room(config.seed, config.px_per_m, config.moving_objects, float(config.deform_amplitude_m), rng,
+                           lighting)
+    if lighting is not None:  # the light's brightness and colour on the baked atlas and the sky
+        scene.atlas = lighting.apply_gain(scene.atlas)
+        scene.sky_rgb = tuple(int(c) for c in lighting.apply_gain(np.array(scene.sky_rgb, np.uint8)))
     if config.scene_file:
         from deepslam.scenes.custom import add_user_meshes, load_scene_file
 

@@ -13,6 +13,7 @@ import numpy as np
 from deepslam.core.camera import PinholeCamera
 from deepslam.scenes import textures as tx
 from deepslam.scenes.assemble import Assembler, flag_painter
+from deepslam.scenes.lighting import Lighting
 from deepslam.scenes.spec import RIGID, FlagDeform, Orbiter, Scene
 
 EUROC_CAMERA = PinholeCamera(752, 480, 458.0, 458.0, 375.5, 239.5)
@@ -30,10 +31,11 @@ def _sides(p, top=True, bottom=False):
 
 
 def build_room(seed: int, px_per_m: float, moving_objects: int, deform_amplitude_m: float,
-               rng: np.random.Generator) -> Scene:
+               rng: np.random.Generator, lighting: Lighting | None = None) -> Scene:
     lx, ly = float(rng.uniform(8.5, 10.0)), float(rng.uniform(8.5, 10.0))
     hh = float(rng.uniform(3.4, 4.0))
-    asm = Assembler(px_per_m, rng, sun_dir=(0.3, 0.2, 1.0), ambient=0.7)
+    light = lighting or Lighting((0.3, 0.2, 1.0), 0.7, (1.0, 1.0, 1.0))
+    asm = Assembler(px_per_m, rng, sun_dir=light.sun_dir, ambient=light.ambient)
     hx, hy = lx / 2, ly / 2
 
     asm.box((0, 0, -0.1), (hx, hy, 0.1), {"+z": tx.floor_mat})

@@ -26,6 +26,7 @@ from deepslam.core.camera import PinholeCamera
 from deepslam.scenes import textures as tx
 from deepslam.scenes.assemble import Assembler, flag_painter
 from deepslam.scenes.geometry import MeshBuilder, PeriodicPath, offset_polyline
+from deepslam.scenes.lighting import Lighting
 from deepslam.scenes.spec import RIGID, FlagDeform, PathFollower, PathProgress, Scene, speed_profile
 
 ROAD_HALF_M = 6.0
@@ -80,11 +81,14 @@ KITTI_BASELINE_M = 0.54
 
 
 def build_street(seed: int, px_per_m: float, moving_objects: int, deform_amplitude_m: float,
-                 rng: np.random.Generator, layout: StreetLayout = StreetLayout()) -> Scene:
+                 rng: np.random.Generator, layout: StreetLayout = StreetLayout(), lighting: Lighting | None = None) -> Scene:
     bx = float(rng.uniform(56.0, 60.0))
     by = float(rng.uniform(44.0, 46.0))
-    sun = np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.6, -0.2), 0.8])
-    asm = Assembler(px_per_m, rng, sun_dir=sun, ambient=0.6)
+    sun = np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.6, -0.2), 0.8])  # drawn either way: the stream stays
+    if lighting is None:
+        asm = Assembler(px_per_m, rng, sun_dir=sun, ambient=0.6)
+    else:
+        asm = Assembler(px_per_m, rng, sun_dir=lighting.sun_dir, ambient=lighting.ambient)
     _roads(asm, bx, by)
     _sidewalks_and_ground(asm, bx, by, layout)
     _buildings(asm, bx, by, rng, layout)

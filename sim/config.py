@@ -80,6 +80,14 @@ class RenderConfig:
     does between frames."""
     white_balance_jitter: float = 0.0
     """Per-frame gain of each colour channel drawn uniformly in [1 - w, 1 + w] (0: none)."""
+    rolling_shutter_ms: float = 0.0
+    """Rolling-shutter readout time, milliseconds, from the first image row to the last (0: a global
+    shutter). Row v is captured at ``t_i + (v / (H - 1) - 1/2) * readout`` (the middle row at the frame
+    time); rows are rendered in ``rolling_shutter_bands`` bands, each at the time of its middle row.
+    Depth, masks, flow, occlusion and the per-row poses are those of the rows as rendered (exact)."""
+    rolling_shutter_bands: int = 32
+    """Bands of rows rendered at one time each under a rolling shutter (at most the image height:
+    then every row has its own time)."""
     distortion: tuple[float, float, float, float] | None = None
     """Lens distortion (k1, k2, p1, p2), OpenCV's radial-tangential model, applied to the images only
     (EuRoC layout: written to sensor.yaml, and the readers undistort back to the render's pinhole
@@ -89,6 +97,11 @@ class RenderConfig:
     def distorted(self) -> bool:
         """Whether the images get a lens distortion (``distortion`` set and not all zero)."""
         return self.distortion is not None and any(self.distortion)
+
+    @property
+    def rolling_shutter(self) -> bool:
+        """Whether the rows are captured at different times (``rolling_shutter_ms`` > 0)."""
+        return self.rolling_shutter_ms > 0
 
     @property
     def photometric(self) -> bool:
@@ -115,6 +128,12 @@ class RenderConfig:
             d = tuple(self.distortion)
             if len(d) != 4 or not np.isfinite(d).all() or abs(d[0]) > 1 or abs(d[1]) > 1 or max(abs(d[2]), abs(d[3])) > 0.05:
                 raise InputError(None, f"distortion must be k1 k2 p1 p2 with |k| <= 1 and |p| <= 0.05, got {list(d)}")
+        if not (np.isfinite(self.rolling_shutter_ms) and 0.0 <= self.rolling_shutter_ms <= 1000.0):
+            raise InputError(None, f"rolling-shutter readout must be in [0, 1000] ms, got {self.rolling_shutter_ms}")
+        if not isinstance(self.rolling_shutter_bands, int) or not 1 <= self.rolling_shutter_bands <= MAX_SIDE_PX:
+            raise InputError(None, f"rolling-shutter bands must be an integer in [1, {MAX_SIDE_PX}], got {self.rolling_shutter_bands}")
+        if self.rolling_shutter_ms > 0 and self.exposure_ms > 0:
+            raise InputError(None, "rolling shutter and motion blur (exposure) cannot be combined yet: choose one")
         if not isinstance(self.blur_samples, int) or not 2 <= self.blur_samples <= 64:
             raise InputError(None, f"blur samples must be an integer in [2, 64], got {self.blur_samples}")
         return self

@@ -7,8 +7,9 @@ machines that does not change a byte of the result.
 
 How:
 
-- :func:`plan` draws every sequence's settings (scene, scene seed, movers, deformation, layout) from
-  ``numpy.random.default_rng(SeedSequence([seed, 0xDA7A]))`` with a fixed number of draws per sequence,
+- :func:`plan` draws every sequence's settings (scene, scene seed, movers, deformation, layout, exposure)
+  from ``numpy.random.default_rng(SeedSequence([seed, 0xDA7A]))`` with a fixed number of draws per
+  sequence (lighting and rolling shutter from ``SeedSequence([seed, 0xDA7B, k])`` for sequence k),
   so the plan of N sequences is the first N of the plan of N + M, and it does not depend on the
   backend or the number of workers. Scenes are dealt round-robin (``street, room, street, ...``).
 - :func:`render_planned` renders one planned sequence into ``<out>/<name>`` with
@@ -90,6 +91,12 @@ class DatasetConfig:
     """Per-frame brightness gain, log-uniform in [1 / (1 + j), 1 + j] (every sequence)."""
     white_balance_jitter: float = 0.0
     """Per-frame colour channel gains, uniform in [1 - w, 1 + w] (every sequence)."""
+    random_lighting_fraction: float = 0.0
+    """Fraction of sequences lit by a lighting drawn from their scene seed (sun, shadows, brightness,
+    colour temperature: ``scenes.lighting``) instead of the scene's fixed one."""
+    rolling_shutter_ms: tuple[float, float] = (0.0, 0.0)
+    """Rolling-shutter readout per sequence, milliseconds, uniform in this range (0: global shutter;
+    cannot be combined with motion blur in one sequence: where both are drawn, the exposure wins)."""
 
     def validate(self) -> "DatasetConfig":
         """Self, or InputError naming the bad field."""
@@ -111,6 +118,11 @@ class DatasetConfig:
         ex = self.exposure_ms
         if len(ex) != 2 or not np.isfinite(ex).all() or not 0 <= ex[0] <= ex[1] <= 1000:
             raise InputError(None, f"exposure_ms must be [MIN, MAX] with 0 <= MIN <= MAX <= 1000, got {list(ex)}")
+        if not (np.isfinite(self.random_lighting_fraction) and 0 <= self.random_lighting_fraction <= 1):
+            raise InputError(None, f"random_lighting_fraction must be in [0, 1], got {self.random_lighting_fraction}")
+        rs = self.rolling_shutter_ms
+        if len(rs) != 2 or not np.isfinite(rs).all() or not 0 <= rs[0] <= rs[1] <= 1000:
+            raise InputError(None, f"rolling_shutter_ms must be [MIN, MAX] with 0 <= MIN <= MAX <= 1000, got {list(rs)}")
         if self.render_backend not in ("mujoco", "pyrender"):
             raise InputError(None, f"render_backend must be mujoco or pyrender, got {self.render_backend!r}")
         return self
@@ -160,12 +172,17 @@ def plan(cfg: DatasetConfig) -> list[PlannedSequence]:
         deform = round(float(rng.uniform(*cfg.deform_amplitude_m)), 4)
         varied = bool(rng.random() < cfg.varied_layout_fraction) and scene == "street"
         exposure = round(float(rng.uniform(*cfg.exposure_ms)), 3)
+        # later options draw from their own stream per sequence: the draws above stay as they were
+        extra = np.random.default_rng(np.random.SeedSequence([int(cfg.seed), 0xDA7B, k]))
+        lit = bool(extra.random() < cfg.random_lighting_fraction)
+        readout = round(float(extra.uniform(*cfg.rolling_shutter_ms)), 3) if exposure == 0 else 0.0
         sim = SimConfig(SceneConfig(name=scene, seed=scene_seed, moving_objects=movers, deform_amplitude_m=deform,
-                                    varied_layout=varied),
+                                    varied_layout=varied, random_lighting=lit),
                         TrajectoryConfig(kind="auto", frames=cfg.frames),
                         RenderConfig(backend=cfg.render_backend, width=cfg.width, height=cfg.height, flow=cfg.flow,
                                      exposure_ms=exposure, sensor_noise=cfg.sensor_noise,
-                                     exposure_jitter=cfg.exposure_jitter, white_balance_jitter=cfg.white_balance_jitter))
+                                     exposure_jitter=cfg.exposure_jitter, white_balance_jitter=cfg.white_balance_jitter,
+                                     rolling_shutter_ms=readout))
         out.append(PlannedSequence(k, f"seq_{k:04d}", sim.to_dict()))
     return out
 
@@ -203,7 +220,9 @@ def render_planned(entry: dict, out_root: str, fmt: str) -> dict:
     return {"name": entry["name"], "index": entry["index"],
             "settings": {"scene": sc["name"], "seed": sc["seed"], "moving_objects": sc["moving_objects"],
                          "deform_amplitude_m": sc["deform_amplitude_m"], "varied_layout": sc["varied_layout"],
-                         "exposure_ms": entry["sim"]["render"]["exposure_ms"]},
+                         "exposure_ms": entry["sim"]["render"]["exposure_ms"],
+                         "random_lighting": sc.get("random_lighting", False),
+                         "rolling_shutter_ms": entry["sim"]["render"].get("rolling_shutter_ms", 0.0)},
             "frames": entry["sim"]["trajectory"]["frames"], "files": files, "bytes": size, "sha256": sha,
             "seconds": round(time.perf_counter() - t0, 3),
             "peak_rss_mib": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)}

@@ -44,6 +44,10 @@ class SimFrame:
             index + 1 (hidden by something nearer, outside the image, or behind the camera), or None.
         depth_sensor: (H, W) float32 depth_z as a sensor would report it (config ``depth_noise``; 0 =
             no reading), or None.
+        row_poses: (H, 4, 4) float64 world_from_cam of the left camera at each image row's capture
+            time under a rolling shutter (config ``rolling_shutter_ms``), or None (global shutter:
+            every row is seen from ``world_from_cam``). The image, depth, masks and flow of row v are
+            those seen from ``row_poses[v]``; ``world_from_cam`` stays the pose at the frame time.
     """
 
     index: int
@@ -62,6 +66,7 @@ class SimFrame:
     flow_backward: np.ndarray | None = None
     occlusion: np.ndarray | None = None
     depth_sensor: np.ndarray | None = None
+    row_poses: np.ndarray | None = None
 
     @property
     def world_from_cam_right(self) -> np.ndarray | None:
@@ -69,6 +74,20 @@ class SimFrame:
         if not self.baseline_m:
             return None
         return self.world_from_cam @ se3.from_rt(np.eye(3), [self.baseline_m, 0.0, 0.0])
+
+
+def rolling_shutter_bands(height: int, readout_s: float, bands: int) -> list[tuple[int, int, float]]:
+    """The bands of rows a rolling shutter renders at one time each: ``(first row, end row, capture
+    time minus the frame time in seconds)``, top to bottom. Row v's continuous capture time is
+    ``(v / (H - 1) - 1/2) * readout_s``; a band takes its middle row's. ``min(bands, height)`` bands of
+    (nearly) equal height."""
+    k = max(1, min(int(bands), int(height)))
+    edges = np.rint(np.linspace(0, height, k + 1)).astype(int)
+    out = []
+    for r0, r1 in zip(edges[:-1], edges[1:]):
+        mid = (r0 + r1 - 1) / 2.0
+        out.append((int(r0), int(r1), float((mid / (height - 1) - 0.5) * readout_s) if height > 1 else 0.0))
+    return out
 
 
 def make_backend(name: str, scene: Scene, camera: PinholeCamera, baseline_m: float | None):
@@ -132,6 +151,10 @@ class Simulator:
         self.backend = make_backend(rcfg.backend, self.scene, self.camera, self.baseline_m)
         self._flow = FlowComputer(self.camera)
         self._distort_maps: tuple[np.ndarray, np.ndarray] | None = None  # made on the first distorted frame
+        self._bands = rolling_shutter_bands(self.camera.height, rcfg.rolling_shutter_ms * 1e-3,
+                                            rcfg.rolling_shutter_bands) if rcfg.rolling_shutter else []
+        self._band_flow = [FlowComputer(PinholeCamera(self.camera.width, r1 - r0, self.camera.fx, self.camera.fy,
+                                                      self.camera.cx, self.camera.cy - r0)) for r0, r1, _ in self._bands]
         self._inst = np.zeros(len(self.scene.bodies) + 1, np.uint16)  # body index + 1 -> instance id
         for i, body in enumerate(self.scene.bodies):
             self._inst[i + 1] = body.instance_id
@@ -167,18 +190,31 @@ class Simulator:
         right = bool(self.baseline_m) if right is None else right
         flow = self.config.render.flow if flow is None else flow
         s0 = self.state(i)
-        self.backend.set_state(s0)
-        left = self.backend.render("left", colour=True, depth=True)
-        r = self.backend.render("right", colour=True, depth=depth_right) if right else {}
+        rolling = bool(self._bands)
+        if rolling:
+            left, r = self._render_rolling(i, right, colour=True, depth_right=depth_right)
+        else:
+            self.backend.set_state(s0)
+            left = self.backend.render("left", colour=True, depth=True)
+            r = self.backend.render("right", colour=True, depth=depth_right) if right else {}
         fl = occ = back = None
         if flow:
-            fl, z1 = self._flow.flow_and_depth(self.scene, left["depth_z"], left["body"], s0, self.state(i + 1))
+            if rolling:
+                fl, z1 = self._rolling_flow(i, i + 1, left["depth_z"], left["body"])
+            else:
+                fl, z1 = self._flow.flow_and_depth(self.scene, left["depth_z"], left["body"], s0, self.state(i + 1))
             if occlusion is None or occlusion:
-                self.backend.set_state(self.state(i + 1))
-                depth1 = self.backend.render("left", colour=False, depth=True)["depth_z"]
+                if rolling:
+                    depth1 = self._render_rolling(i + 1, False, colour=False)[0]["depth_z"]
+                else:
+                    self.backend.set_state(self.state(i + 1))
+                    depth1 = self.backend.render("left", colour=False, depth=True)["depth_z"]
                 occ = occlusion_mask(fl, z1, depth1)
         if (self.config.render.flow if backward is None else backward) and i > 0:
-            back = self._flow.flow(self.scene, left["depth_z"], left["body"], s0, self.state(i - 1))
+            if rolling:
+                back = self._rolling_flow(i, i - 1, left["depth_z"], left["body"])[0]
+            else:
+                back = self._flow.flow(self.scene, left["depth_z"], left["body"], s0, self.state(i - 1))
         sensor = None
         if self.config.render.depth_noise == "kinect":
             from deepslam.sim.sensor import kinect_depth
@@ -197,7 +233,96 @@ class Simulator:
             rgb_right = None if rgb_right is None else self._distort(rgb_right)
         return SimFrame(i, self.time(i), self.camera, s0.world_from_cam, rgb, left["depth_z"], fl, mask,
                         left["body"], rgb_right, r.get("depth_z"), self.baseline_m if right else None, poses,
-                        back, occ, sensor)
+                        back, occ, sensor, self.row_poses(i) if rolling else None)
+
+    # ------------------------------------------------------------------------------ rolling shutter
+
+    @property
+    def row_time_offsets_s(self) -> np.ndarray | None:
+        """(H,) float64 capture time of each image row minus the frame time, seconds, under a rolling
+        shutter (each row its band's time); None with a global shutter."""
+        if not self._bands:
+            return None
+        out = np.empty(self.camera.height, np.float64)
+        for r0, r1, dt in self._bands:
+            out[r0:r1] = dt
+        return out
+
+    def row_poses(self, i: int) -> np.ndarray:
+        """(H, 4, 4) float64 world_from_cam of the left camera at each row's capture time of frame i."""
+        offsets = self.row_time_offsets_s
+        if offsets is None:
+            return np.repeat(self.state(i).world_from_cam[None], self.camera.height, axis=0)
+        return self.motion.world_from_cam(self.time(i) + offsets)
+
+    def _render_rolling(self, i: int, right: bool, colour: bool, depth_right: bool = False) -> tuple[dict, dict]:
+        """Frame i under the rolling shutter: each band of rows cut from a render of the world at the
+        band's time. Returns the left and right dicts of the backend's ``render`` (right: {} if not)."""
+        h, w = self.camera.height, self.camera.width
+        left: dict = {"depth_z": np.empty((h, w), np.float32), "body": np.empty((h, w), np.int32)}
+        r: dict = {}
+        if colour:
+            left["rgb"] = np.empty((h, w, 3), np.uint8)
+        if right:
+            r = {"rgb": np.empty((h, w, 3), np.uint8)}
+            if depth_right:
+                r["depth_z"] = np.empty((h, w), np.float32)
+        for r0, r1, dt in self._bands:
+            self.backend.set_state(world_state(self.scene, self.motion, self.time(i) + dt))
+            band = self.backend.render("left", colour=colour, depth=True)
+            for key in left:
+                left[key][r0:r1] = band[key][r0:r1]
+            if right:
+                band = self.backend.render("right", colour=True, depth=depth_right)
+                for key in r:
+                    r[key][r0:r1] = band[key][r0:r1]
+        return left, r
+
+    def _rolling_flow(self, i: int, j: int, depth_z: np.ndarray, body: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(flow, z1) from rolling-shutter frame i to frame j (j = i + 1: forward, i - 1: backward), as
+        :meth:`FlowComputer.flow_and_depth` gives them for a global shutter.
+
+        A pixel of row v shows its surface point at row v's time. Where it appears in frame j depends
+        on when frame j captures the row it lands in: the landing row r solves r = row of the point
+        projected at the capture time of r's band. Each band's pixels start from the band with the
+        same rows and move to the band of their landing row until nothing changes (at most 8 rounds;
+        a point that lands outside the image takes the nearest band's time).
+        """
+        h, w = depth_z.shape
+        flow = np.empty((h, w, 2), np.float32)
+        z1 = np.empty((h, w), np.float32)
+        band_of_row = np.empty(h, np.int64)
+        for k, (r0, r1, _) in enumerate(self._bands):
+            band_of_row[r0:r1] = k
+        target: dict[int, WorldState] = {}
+
+        def state_j(k: int) -> WorldState:
+            if k not in target:
+                target[k] = world_state(self.scene, self.motion, self.time(j) + self._bands[k][2])
+            return target[k]
+
+        for b, (r0, r1, dt) in enumerate(self._bands):
+            s0 = world_state(self.scene, self.motion, self.time(i) + dt)
+            d, bd = depth_z[r0:r1], body[r0:r1]
+            cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+            choice = np.full((r1 - r0, w), b, np.int64)
+            rows = np.arange(r0, r1, dtype=np.float64)[:, None]
+            for _ in range(8):
+                fl = np.empty((r1 - r0, w, 2), np.float32)
+                zz = np.empty((r1 - r0, w), np.float32)
+                for k in np.unique(choice):
+                    if k not in cache:
+                        cache[k] = self._band_flow[b].flow_and_depth(self.scene, d, bd, s0, state_j(int(k)))
+                    m = choice == k
+                    fl[m], zz[m] = cache[k][0][m], cache[k][1][m]
+                land = rows + fl[..., 1]
+                ok = np.isfinite(land)
+                new = np.where(ok, band_of_row[np.clip(np.rint(np.where(ok, land, 0.0)), 0, h - 1).astype(np.int64)], choice)
+                if np.array_equal(new, choice):
+                    break
+                choice = new
+            flow[r0:r1], z1[r0:r1] = fl, zz
+        return flow, z1
 
     def _motion_blur(self, i: int, right: bool) -> tuple[np.ndarray, np.ndarray | None]:
         """The left (and right) image averaged over the exposure, centred on frame i's time."""

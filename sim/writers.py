@@ -120,6 +120,8 @@ class _Sink:
         if frame.flow_backward is not None:
             put(atomic.write_npy, folder / "flow_backward" / f"{n}.npy", frame.flow_backward.astype(np.float32))
         put(atomic.write_png, folder / "mask" / f"{n}.png", frame.mask.astype(np.uint16))
+        if frame.row_poses is not None:
+            put(atomic.write_npy, folder / "row_poses" / f"{n}.npy", frame.row_poses.astype(np.float64))
 
     def _mark(self, i: int, frame, written: list[Path]) -> None:
         atomic.write_json(self._records() / f"{_name(i)}.json",
@@ -131,7 +133,7 @@ class _Sink:
         return {"format": fmt, "generator": "deepslam render", "complete": complete, "num_frames": self.n,
                 "rate_hz": sim.rate_hz, "camera": sim.camera.to_dict(), "stereo_baseline_m": sim.baseline_m,
                 "backend": sim.backend_name, "scene": sim.scene.name, "trajectory": getattr(sim.motion, "name", None),
-                "config": sim.resolved_config.to_dict(), "instances": _instances(sim), **extra}
+                "config": sim.resolved_config.to_dict(), "instances": _instances(sim), **_rolling_shutter_meta(sim), **extra}
 
     def _check_resume(self, meta_path: Path, meta: dict) -> bool:
         """True when the folder holds a finished render of the same config."""
@@ -146,6 +148,17 @@ class _Sink:
         if keys:
             raise InputError(meta_path, f"cannot resume: settings differ from the interrupted run ({', '.join(sorted(keys))})")
         return bool(old.get("complete"))
+
+
+def _rolling_shutter_meta(sim) -> dict:
+    """``{"rolling_shutter": {...}}`` for the sequence metadata under a rolling shutter, else {}."""
+    offsets = sim.row_time_offsets_s
+    if offsets is None:
+        return {}
+    rcfg = sim.config.render
+    return {"rolling_shutter": {"readout_ms": rcfg.rolling_shutter_ms, "bands": len(sim._bands),
+                                "row_time_offsets_s": [float(x) for x in offsets],
+                                "row_poses": "row_poses/NNNNNN.npy: (H, 4, 4) float64 world_from_cam of each row"}}
 
 
 def _instances(sim) -> dict:
@@ -163,7 +176,9 @@ class OursSink:
                   "trajectory": getattr(sim.motion, "name", None), "seed": config.scene.seed, "backend": sim.backend_name,
                   "config": sim.resolved_config.to_dict(), "instances": _instances(sim),
                   "has": {"rgb_right": bool(sim.baseline_m), "depth": True, "flow": bool(config.render.flow), "mask": True,
-                          "flow_backward": bool(config.render.flow), "occlusion": bool(config.render.flow)}}
+                          "flow_backward": bool(config.render.flow), "occlusion": bool(config.render.flow),
+                          "row_poses": config.render.rolling_shutter},
+                  **_rolling_shutter_meta(sim)}
         self.complete = False
         if resume and (root / "sequence.json").is_file():
             try:
@@ -190,7 +205,7 @@ class OursSink:
                                 frame.rgb_right, extra={"instance_poses": {str(k): v.tolist() for k, v in frame.instance_poses.items()},
                                                         "dynamic_fraction": dynamic_fraction(frame.mask)},
                                 flow_backward=frame.flow_backward, occlusion=frame.occlusion if i < self.n - 1 else None,
-                                depth_exact=frame.depth_z if sensor else None)
+                                depth_exact=frame.depth_z if sensor else None, row_poses=frame.row_poses)
 
     def finish(self) -> None:
         if not self.complete:

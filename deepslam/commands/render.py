@@ -44,6 +44,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="motion blur: the image averaged over this exposure, centred on the frame time (whose pose, "
                         "depth, flow and masks stay exact: they are mid-exposure's); 0 = sharp")
     p.add_argument("--blur-samples", type=int, default=8, help="renders averaged per blurred image (default 8)")
+    p.add_argument("--rolling-shutter-ms", type=float, default=0.0, metavar="MS",
+                   help="rolling shutter: rows read out top to bottom over this time, the middle row at the frame "
+                        "time; per-row poses in row_poses/, flow and occlusion exact for the rows as captured")
+    p.add_argument("--rolling-shutter-bands", type=int, default=32, metavar="K",
+                   help="rows rendered in K bands, each at its middle row's time (default 32; the image height: "
+                        "every row its own time)")
+    p.add_argument("--random-lighting", action="store_true",
+                   help="draw the lighting from the seed: sun direction, shadow depth, brightness, colour temperature")
     p.add_argument("--sensor-noise", type=float, default=0.0, metavar="STD", help="Gaussian image noise, grey levels")
     p.add_argument("--exposure-jitter", type=float, default=0.0, metavar="J",
                    help="per-frame brightness gain, log-uniform in [1/(1+J), 1+J] (auto-exposure)")
@@ -85,14 +93,15 @@ def run(args: argparse.Namespace) -> int:
     cfg = SimConfig(
         SceneConfig(name=scene_name, seed=0 if seed is None else seed, moving_objects=args.moving_objects, scene_file=scene_file,
                     deform_amplitude_m=args.deform, texture_px_per_m=args.texture_density,
-                    varied_layout=args.varied_layout),
+                    varied_layout=args.varied_layout, random_lighting=args.random_lighting),
         TrajectoryConfig(kind=args.trajectory, frames=args.frames, rate_hz=args.rate),
         RenderConfig(backend=args.backend, width=args.width, height=args.height,
                      stereo_baseline_m=args.stereo_baseline, focal_px=args.focal_px, flow=not args.no_flow,
                      depth_noise=None if args.depth_noise == "none" else args.depth_noise,
                      exposure_ms=args.exposure_ms, blur_samples=args.blur_samples, sensor_noise=args.sensor_noise,
                      exposure_jitter=args.exposure_jitter, white_balance_jitter=args.white_balance_jitter,
-                     distortion=_distortion(args.distortion)),
+                     distortion=_distortion(args.distortion), rolling_shutter_ms=args.rolling_shutter_ms,
+                     rolling_shutter_bands=args.rolling_shutter_bands),
     ).validate()
     path = render_sequence(cfg, args.out, fmt=args.format, resume=args.resume, progress=not args.quiet,
                            sequence=args.sequence)
