@@ -39,6 +39,7 @@ results: $(STAMP)
 	$(PY) -m bench.results_slam
 	$(PY) -m bench.results_vo
 	$(PY) -m bench.results_speed
+	$(PY) -m bench.results_road
 	$(PY) -m bench.results_real
 	$(PY) -m bench.results_tum
 

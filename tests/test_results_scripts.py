@@ -142,3 +142,13 @@ def test_tum_results_quick_rows_and_baselines(shared_data, tmp_path):
     assert rows[("pnp", "VO")]["ate_se3_m"] < rows[("standing", "baseline")]["ate_se3_m"]
     assert rows[("tum_cons_teddy", "VO")]["frames_seen_in_training"] == "single frames, no poses"
     assert (tmp_path / "trajectories.png").stat().st_size > 0
+
+
+def test_road_table_lists_each_flow_with_its_median_and_spread():
+    from bench import results_road
+
+    rep = {"true_height_m": 1.65, "sets": {"KITTI 07 (real)": {
+        "dis": {"pairs": 3, "median_m": 3.3, "q25_m": 2.5, "q75_m": 4.9, "heights_m": [2.5, 3.3, 4.9]},
+        "learned": {"pairs": 0, "median_m": None, "q25_m": None, "q75_m": None, "heights_m": []}}}}
+    md = results_road.markdown(rep)
+    assert "| KITTI 07 (real) | dis | 3 | 3.30 | 2.50-4.90 |" in md and "learned" not in md
