@@ -48,6 +48,10 @@ class SceneConfig:
     """Street only: a narrow, crowded variant of the town from the seed (narrower pavements, so
     facades closer; more parked cars, trees and poles near the kerb), like KITTI's residential
     streets (:meth:`scenes.street.StreetLayout.varied`). False: the original town."""
+    narrow_layout: bool = False
+    """Street only: a narrow residential street from the seed (8-10 m kerb to kerb, cars parked on the
+    road along both kerbs, the ego car near the middle, facades 1-2.5 m behind the kerb:
+    :meth:`scenes.street.StreetLayout.narrow`). Not together with ``varied_layout``."""
     scene_file: str | None = None
     """A scene file adding your own meshes to this scene (:mod:`scenes.custom`), or None."""
     random_lighting: bool = False
@@ -64,6 +68,8 @@ class SceneConfig:
             raise InputError(None, f"deform amplitude must be in [0, 0.3] m, got {self.deform_amplitude_m}")
         if self.texture_px_per_m is not None and not (1.0 <= self.texture_px_per_m <= 400.0):
             raise InputError(None, f"texture density must be in [1, 400] texels/m, got {self.texture_px_per_m}")
+        if self.varied_layout and self.narrow_layout:
+            raise InputError(None, "choose one street layout: varied or narrow, not both")
         if not isinstance(self.seed, int) or self.seed < 0:
             raise InputError(None, f"seed must be a non-negative integer, got {self.seed}")
         return self
@@ -86,7 +92,8 @@ def build_scene(config: SceneConfig):
     if config.name == "street":
         from deepslam.scenes.street import StreetLayout, build_street
 
-        layout = StreetLayout.varied(config.seed) if config.varied_layout else StreetLayout()
+        layout = (StreetLayout.varied(config.seed) if config.varied_layout else
+                  StreetLayout.narrow(config.seed) if config.narrow_layout else StreetLayout())
         scene = build_street(config.seed, config.px_per_m, config.moving_objects, float(config.deform_amplitude_m), rng,
                              layout, lighting)
     else:

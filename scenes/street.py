@@ -63,6 +63,10 @@ class StreetLayout:
     """Distance of the ego car's path right of the road's centreline, metres (1.75: the lane centre;
     less: nearer the middle of the street, as on KITTI's residential streets with cars parked on both
     sides)."""
+    road_half_m: float = ROAD_HALF_M
+    """Half the road's width, kerb to kerb, metres."""
+    lane_offset_m: float = LANE_OFFSET_M
+    """Distance of the moving cars' paths from the road's centreline, metres."""
 
     @classmethod
     def varied(cls, seed: int) -> "StreetLayout":
@@ -73,6 +77,19 @@ class StreetLayout:
                    park_gap_m=(0.5, float(rng.uniform(1.5, 3.0))), tree_offset_m=float(rng.uniform(0.6, 1.3)),
                    tree_probability=float(rng.uniform(0.8, 1.0)), pole_gap_m=(10.0, float(rng.uniform(14.0, 20.0))),
                    ego_lane_offset_m=float(rng.uniform(0.3, 1.75)))
+
+    @classmethod
+    def narrow(cls, seed: int) -> "StreetLayout":
+        """A narrow residential street (its own random stream): 8-10 m kerb to kerb with cars parked on
+        the road along both kerbs, the ego car near the middle, facades 1-2.5 m behind the kerb, trees
+        and poles close to it (KITTI 07's roadside is about twice as near on the left as the town's)."""
+        rng = np.random.default_rng([int(seed), 0x4A770])
+        half = float(rng.uniform(4.0, 5.0))
+        return cls(sidewalk_m=float(rng.uniform(1.0, 2.5)), park_offset_m=half - float(rng.uniform(0.9, 1.1)),
+                   park_probability=float(rng.uniform(0.75, 0.95)), park_gap_m=(0.5, float(rng.uniform(1.5, 3.0))),
+                   tree_offset_m=float(rng.uniform(0.5, 1.0)), tree_probability=float(rng.uniform(0.8, 1.0)),
+                   pole_gap_m=(10.0, float(rng.uniform(14.0, 20.0))), ego_lane_offset_m=float(rng.uniform(0.0, 1.0)),
+                   road_half_m=half, lane_offset_m=1.1)
 
 
 KITTI_CAMERA = PinholeCamera(1241, 376, 718.856, 718.856, 620.0, 187.5)
@@ -89,13 +106,14 @@ def build_street(seed: int, px_per_m: float, moving_objects: int, deform_amplitu
         asm = Assembler(px_per_m, rng, sun_dir=sun, ambient=0.6)
     else:
         asm = Assembler(px_per_m, rng, sun_dir=lighting.sun_dir, ambient=lighting.ambient)
-    _roads(asm, bx, by)
+    _roads(asm, bx, by, layout.road_half_m)
     _sidewalks_and_ground(asm, bx, by, layout)
     _buildings(asm, bx, by, rng, layout)
     _parked_cars(asm, bx, by, rng, layout)
-    flag_sites = [((0.62 * bx, -ROAD_HALF_M - 0.5), (0, -1)), ((bx + ROAD_HALF_M + 0.5, 0.45 * by), (1, 0)),
-                  ((0.38 * bx, by + ROAD_HALF_M + 0.5), (0, 1)), ((-ROAD_HALF_M - 0.5, 0.55 * by), (-1, 0)),
-                  ((1.5 * bx, -ROAD_HALF_M - 0.5), (0, -1)), ((2 * bx + ROAD_HALF_M + 0.5, 0.5 * by), (1, 0))]
+    rh = layout.road_half_m
+    flag_sites = [((0.62 * bx, -rh - 0.5), (0, -1)), ((bx + rh + 0.5, 0.45 * by), (1, 0)),
+                  ((0.38 * bx, by + rh + 0.5), (0, 1)), ((-rh - 0.5, 0.55 * by), (-1, 0)),
+                  ((1.5 * bx, -rh - 0.5), (0, -1)), ((2 * bx + rh + 0.5, 0.5 * by), (1, 0))]
     _street_furniture(asm, bx, by, rng, avoid_xy=np.array([p for p, _ in flag_sites]), layout=layout)
 
     # ego route: loop around block A (counter-clockwise), then around both blocks
@@ -122,7 +140,7 @@ def build_street(seed: int, px_per_m: float, moving_objects: int, deform_amplitu
     # starts is chosen by the simulator (sim.world.separate_movers: in view, clear of the camera)
     loops = [np.array([(0, 0), (0, by), (2 * bx, by), (2 * bx, 0)], float),
              np.array([(0, 0), (0, by), (bx, by), (bx, 0)], float)]
-    paths = [PeriodicPath.from_polyline(offset_polyline(c, LANE_OFFSET_M), MOVER_CORNER_RADIUS_M) for c in loops]
+    paths = [PeriodicPath.from_polyline(offset_polyline(c, layout.lane_offset_m), MOVER_CORNER_RADIUS_M) for c in loops]
     for k in range(moving_objects):
         ahead = k % 3 == 2
         path = lane_path if ahead else paths[k % 2]
@@ -218,8 +236,7 @@ def road_painter(length_m: float, width_m: float, along_y: bool, junctions: list
     return paint
 
 
-def _roads(asm: Assembler, bx: float, by: float) -> None:
-    r = ROAD_HALF_M
+def _roads(asm: Assembler, bx: float, by: float, r: float = ROAD_HALF_M) -> None:
     length = 2 * bx + 2 * r
     junctions = [(x - r + r, x + r + r) for x in (0.0, bx, 2 * bx)]  # along-road coordinate from x = -r
     for y in (0.0, by):
@@ -240,7 +257,7 @@ def _slab(asm: Assembler, x0, x1, y0, y1, painter, kerb_faces=(), density=1.0) -
 
 
 def _sidewalks_and_ground(asm: Assembler, bx: float, by: float, layout: StreetLayout) -> None:
-    r, s = ROAD_HALF_M, layout.sidewalk_m
+    r, s = layout.road_half_m, layout.sidewalk_m
     pave = tx.paving()
     ground = tx.grass
     for x0, x1 in ((r, bx - r), (bx + r, 2 * bx - r)):   # block interiors
@@ -297,7 +314,7 @@ def _row(asm: Assembler, a0: float, a1: float, frontage: float, depth: float, al
 
 
 def _buildings(asm: Assembler, bx: float, by: float, rng, layout: StreetLayout) -> None:
-    f = ROAD_HALF_M + layout.sidewalk_m
+    f = layout.road_half_m + layout.sidewalk_m
     for x0, x1 in ((f, bx - f), (bx + f, 2 * bx - f)):   # block interiors
         y0, y1 = f, by - f
         d_bot, d_top, d_side = (float(rng.uniform(8.0, 12.0)) for _ in range(3))
@@ -333,9 +350,8 @@ def _car(asm: Assembler, builder: MeshBuilder | None, xy, yaw: float, colour, z0
                     yaw=yaw, builder=builder, densities={"+y": 2.0, "-y": 2.0})
 
 
-def _road_segments(bx: float, by: float):
-    """(start_xy, end_xy) of each road stretch between junctions (centreline)."""
-    r = ROAD_HALF_M
+def _road_segments(bx: float, by: float, r: float = ROAD_HALF_M):
+    """(start_xy, end_xy) of each road stretch between junctions (centreline); ``r``: half the road's width."""
     segs = []
     for y in (0.0, by):
         segs += [((r, y), (bx - r, y)), ((bx + r, y), (2 * bx - r, y))]
@@ -345,7 +361,7 @@ def _road_segments(bx: float, by: float):
 
 
 def _parked_cars(asm: Assembler, bx: float, by: float, rng, layout: StreetLayout) -> None:
-    for (ax, ay), (bx_, by_) in _road_segments(bx, by):
+    for (ax, ay), (bx_, by_) in _road_segments(bx, by, layout.road_half_m):
         d = np.array([bx_ - ax, by_ - ay])
         length = float(np.linalg.norm(d))
         d /= length
@@ -364,12 +380,12 @@ def _street_furniture(asm: Assembler, bx: float, by: float, rng, avoid_xy: np.nd
                       layout: StreetLayout = StreetLayout()) -> None:
     """Lamp poles (some with signs), trees and bins along every sidewalk, none within 3.5 m of
     ``avoid_xy`` (N, 2) (the flags)."""
-    r = ROAD_HALF_M
+    r = layout.road_half_m
 
     def free(p) -> bool:
         return bool(np.min(np.linalg.norm(avoid_xy - p, axis=1)) > 3.5)
 
-    for (ax, ay), (bx_, by_) in _road_segments(bx, by):
+    for (ax, ay), (bx_, by_) in _road_segments(bx, by, r):
         d = np.array([bx_ - ax, by_ - ay])
         length = float(np.linalg.norm(d))
         d /= length

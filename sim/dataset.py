@@ -77,6 +77,9 @@ class DatasetConfig:
     """Amplitude of the waving flags, metres, drawn uniformly from this range (0: rigid)."""
     varied_layout_fraction: float = 0.5
     """Fraction of street sequences in the narrow, crowded variant (KITTI-like residential streets)."""
+    narrow_layout_fraction: float = 0.0
+    """Fraction of the street sequences not in the varied layout that are narrow residential streets
+    (``scenes.street.StreetLayout.narrow``)."""
     format: str = "ours"
     """Layout of each sequence: ``ours``, ``kitti`` or ``euroc``."""
     render_backend: str = "mujoco"
@@ -118,6 +121,8 @@ class DatasetConfig:
         ex = self.exposure_ms
         if len(ex) != 2 or not np.isfinite(ex).all() or not 0 <= ex[0] <= ex[1] <= 1000:
             raise InputError(None, f"exposure_ms must be [MIN, MAX] with 0 <= MIN <= MAX <= 1000, got {list(ex)}")
+        if not (np.isfinite(self.narrow_layout_fraction) and 0 <= self.narrow_layout_fraction <= 1):
+            raise InputError(None, f"narrow_layout_fraction must be in [0, 1], got {self.narrow_layout_fraction}")
         if not (np.isfinite(self.random_lighting_fraction) and 0 <= self.random_lighting_fraction <= 1):
             raise InputError(None, f"random_lighting_fraction must be in [0, 1], got {self.random_lighting_fraction}")
         rs = self.rolling_shutter_ms
@@ -176,8 +181,9 @@ def plan(cfg: DatasetConfig) -> list[PlannedSequence]:
         extra = np.random.default_rng(np.random.SeedSequence([int(cfg.seed), 0xDA7B, k]))
         lit = bool(extra.random() < cfg.random_lighting_fraction)
         readout = round(float(extra.uniform(*cfg.rolling_shutter_ms)), 3) if exposure == 0 else 0.0
+        narrow = bool(extra.random() < cfg.narrow_layout_fraction) and scene == "street" and not varied
         sim = SimConfig(SceneConfig(name=scene, seed=scene_seed, moving_objects=movers, deform_amplitude_m=deform,
-                                    varied_layout=varied, random_lighting=lit),
+                                    varied_layout=varied, narrow_layout=narrow, random_lighting=lit),
                         TrajectoryConfig(kind="auto", frames=cfg.frames),
                         RenderConfig(backend=cfg.render_backend, width=cfg.width, height=cfg.height, flow=cfg.flow,
                                      exposure_ms=exposure, sensor_noise=cfg.sensor_noise,
@@ -221,6 +227,7 @@ def render_planned(entry: dict, out_root: str, fmt: str) -> dict:
             "settings": {"scene": sc["name"], "seed": sc["seed"], "moving_objects": sc["moving_objects"],
                          "deform_amplitude_m": sc["deform_amplitude_m"], "varied_layout": sc["varied_layout"],
                          "exposure_ms": entry["sim"]["render"]["exposure_ms"],
+                         "narrow_layout": sc.get("narrow_layout", False),
                          "random_lighting": sc.get("random_lighting", False),
                          "rolling_shutter_ms": entry["sim"]["render"].get("rolling_shutter_ms", 0.0)},
             "frames": entry["sim"]["trajectory"]["frames"], "files": files, "bytes": size, "sha256": sha,

@@ -40,6 +40,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--varied-layout", action="store_true",
                    help="street: a narrow, crowded variant of the town from the seed (closer facades, more parked "
                         "cars and trees by the kerb), like KITTI's residential streets")
+    p.add_argument("--narrow-layout", action="store_true",
+                   help="street: a narrow residential street from the seed (8-10 m kerb to kerb, cars parked along "
+                        "both kerbs, facades close behind them)")
     p.add_argument("--exposure-ms", type=float, default=0.0, metavar="MS",
                    help="motion blur: the image averaged over this exposure, centred on the frame time (whose pose, "
                         "depth, flow and masks stay exact: they are mid-exposure's); 0 = sharp")
@@ -93,7 +96,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = SimConfig(
         SceneConfig(name=scene_name, seed=0 if seed is None else seed, moving_objects=args.moving_objects, scene_file=scene_file,
                     deform_amplitude_m=args.deform, texture_px_per_m=args.texture_density,
-                    varied_layout=args.varied_layout, random_lighting=args.random_lighting),
+                    varied_layout=args.varied_layout, narrow_layout=args.narrow_layout,
+                    random_lighting=args.random_lighting),
         TrajectoryConfig(kind=args.trajectory, frames=args.frames, rate_hz=args.rate),
         RenderConfig(backend=args.backend, width=args.width, height=args.height,
                      stereo_baseline_m=args.stereo_baseline, focal_px=args.focal_px, flow=not args.no_flow,

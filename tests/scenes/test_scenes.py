@@ -168,3 +168,29 @@ def test_varied_street_layout_is_deterministic_narrower_and_leaves_the_default_a
     assert np.array_equal(via_config.bodies[0].mesh.vertices, a.bodies[0].mesh.vertices)
     plain_again = build_scene(SceneConfig(name="street", seed=5, texture_px_per_m=3.0))
     assert np.array_equal(plain_again.bodies[0].mesh.vertices, default.bodies[0].mesh.vertices)
+
+
+def test_narrow_street_is_narrow_with_cars_parked_on_the_road_along_both_kerbs():
+    from deepslam.core.errors import InputError
+    from deepslam.scenes.street import ROAD_HALF_M, StreetLayout
+
+    lay = StreetLayout.narrow(5)
+    assert lay == StreetLayout.narrow(5) and lay != StreetLayout.narrow(6)
+    assert 4.0 <= lay.road_half_m <= 5.0 < ROAD_HALF_M
+    # parked cars (1.8 m wide) stand on the road by the kerb, clear of the moving cars' lanes (1.8 m wide)
+    assert lay.road_half_m - 1.1 <= lay.park_offset_m <= lay.road_half_m - 0.9
+    assert lay.park_offset_m - 0.9 > lay.lane_offset_m + 0.9
+    from deepslam.scenes.street import KERB_M
+
+    def nearest_kerb_top(scene) -> float:
+        """|y| of the pavement's nearest vertex at kerb height along the first street (y = 0)."""
+        v = scene.bodies[0].mesh.vertices
+        m = (np.abs(v[:, 2] - KERB_M) < 1e-9) & (v[:, 0] > 10) & (v[:, 0] < 40) & (np.abs(v[:, 1]) < 15)
+        return float(np.abs(v[m, 1]).min())
+
+    narrow = build_scene(SceneConfig(name="street", seed=5, texture_px_per_m=3.0, narrow_layout=True, moving_objects=2))
+    town = build_scene(SceneConfig(name="street", seed=5, texture_px_per_m=3.0, moving_objects=2))
+    # the pavement moved in by exactly the road's lost half-width
+    assert nearest_kerb_top(town) - nearest_kerb_top(narrow) == pytest.approx(ROAD_HALF_M - lay.road_half_m, abs=1e-6)
+    with pytest.raises(InputError, match="one street layout"):
+        SceneConfig(name="street", varied_layout=True, narrow_layout=True).validate()
