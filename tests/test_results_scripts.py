@@ -152,3 +152,28 @@ def test_road_table_lists_each_flow_with_its_median_and_spread():
         "learned": {"pairs": 0, "median_m": None, "q25_m": None, "q75_m": None, "heights_m": []}}}}
     md = results_road.markdown(rep)
     assert "| KITTI 07 (real) | dis | 3 | 3.30 | 2.50-4.90 |" in md and "learned" not in md
+    rep["roadside"] = {"KITTI 07 (real)": {"pairs": 5, "left_px_per_m": 98.1, "right_px_per_m": 62.7}}
+    assert "| KITTI 07 (real) | 5 | 98 | 63 |" in results_road.markdown(rep)
+
+
+def test_roadside_flow_per_metre_is_the_inverse_distance_of_a_wall_beside_the_camera():
+    """Driving 0.4 m straight past walls 4 m to the left and 8 m to the right: the flow of a wall at
+    lateral distance d is about f * x^2 / d per metre at normalised column x, so the left reads twice."""
+    from bench import results_road
+    from deepslam.core.camera import PinholeCamera
+    from deepslam.gen.flow import synthesize
+
+    cam = PinholeCamera(500, 150, 250.0, 250.0, 249.5, 74.5)
+    u = np.arange(cam.width)[None, :] - cam.cx
+    x = u / cam.fx
+    depth = np.where(x < 0, 4.0 / np.maximum(-x, 1e-3), 8.0 / np.maximum(x, 1e-3)).astype(np.float32)
+    depth = np.broadcast_to(np.clip(depth, 0, 200), (cam.height, cam.width)).copy()
+    motion = se3.from_rt(np.eye(3), [0, 0, -0.4])
+    flow, valid = synthesize(depth, cam, motion)
+    flow = flow.numpy().copy()
+    flow[~valid.numpy()] = np.nan                     # points that leave the view: unknown, not zero
+    poses = np.stack([np.eye(4), se3.inverse(motion)])
+    seq = type("S", (), {"camera": cam, "gt_pose": staticmethod(lambda i: poses[i]), "__len__": lambda self: 2})()
+    r = results_road.roadside_flow(seq, lambda i: flow, results_road.ResultsRoadConfig(pair_step=1, min_motion_m=0.3))
+    assert r["pairs"] == 1
+    assert r["left_px_per_m"] > 1.8 * r["right_px_per_m"]   # the left wall is twice as near
