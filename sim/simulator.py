@@ -155,6 +155,7 @@ class Simulator:
                                             rcfg.rolling_shutter_bands) if rcfg.rolling_shutter else []
         self._band_flow = [FlowComputer(PinholeCamera(self.camera.width, r1 - r0, self.camera.fx, self.camera.fy,
                                                       self.camera.cx, self.camera.cy - r0)) for r0, r1, _ in self._bands]
+        self._next_depth: dict[int, dict] = {}  # {frame: its depth pass} kept from the previous frame's occlusion test
         self._inst = np.zeros(len(self.scene.bodies) + 1, np.uint16)  # body index + 1 -> instance id
         for i, body in enumerate(self.scene.bodies):
             self._inst[i + 1] = body.instance_id
@@ -195,7 +196,11 @@ class Simulator:
             left, r = self._render_rolling(i, right, colour=True, depth_right=depth_right)
         else:
             self.backend.set_state(s0)
-            left = self.backend.render("left", colour=True, depth=True)
+            cached = self._next_depth.pop(i, None)  # frame i's depth pass, made for frame i - 1's occlusion
+            if cached is not None:
+                left = {**self.backend.render("left", colour=True, depth=False), **cached}
+            else:
+                left = self.backend.render("left", colour=True, depth=True)
             r = self.backend.render("right", colour=True, depth=depth_right) if right else {}
         fl = occ = back = None
         if flow:
@@ -208,7 +213,9 @@ class Simulator:
                     depth1 = self._render_rolling(i + 1, False, colour=False)[0]["depth_z"]
                 else:
                     self.backend.set_state(self.state(i + 1))
-                    depth1 = self.backend.render("left", colour=False, depth=True)["depth_z"]
+                    nxt = self.backend.render("left", colour=False, depth=True)
+                    self._next_depth = {i + 1: nxt}  # the next frame in order reuses this pass
+                    depth1 = nxt["depth_z"]
                 occ = occlusion_mask(fl, z1, depth1)
         if (self.config.render.flow if backward is None else backward) and i > 0:
             if rolling:
