@@ -193,7 +193,10 @@ class Simulator:
         s0 = self.state(i)
         rolling = bool(self._bands)
         if rolling:
-            left, r = self._render_rolling(i, right, colour=True, depth_right=depth_right)
+            cached = self._next_depth.pop(i, None)  # frame i's depth bands, made for frame i - 1's occlusion
+            left, r = self._render_rolling(i, right, colour=True, depth_right=depth_right, depth=cached is None)
+            if cached is not None:
+                left.update(cached)
         else:
             self.backend.set_state(s0)
             cached = self._next_depth.pop(i, None)  # frame i's depth pass, made for frame i - 1's occlusion
@@ -210,7 +213,9 @@ class Simulator:
                 fl, z1 = self._flow.flow_and_depth(self.scene, left["depth_z"], left["body"], s0, self.state(i + 1))
             if occlusion is None or occlusion:
                 if rolling:
-                    depth1 = self._render_rolling(i + 1, False, colour=False)[0]["depth_z"]
+                    nxt = self._render_rolling(i + 1, False, colour=False)[0]
+                    self._next_depth = {i + 1: nxt}  # the next frame in order reuses these bands
+                    depth1 = nxt["depth_z"]
                 else:
                     self.backend.set_state(self.state(i + 1))
                     nxt = self.backend.render("left", colour=False, depth=True)
@@ -262,11 +267,12 @@ class Simulator:
             return np.repeat(self.state(i).world_from_cam[None], self.camera.height, axis=0)
         return self.motion.world_from_cam(self.time(i) + offsets)
 
-    def _render_rolling(self, i: int, right: bool, colour: bool, depth_right: bool = False) -> tuple[dict, dict]:
+    def _render_rolling(self, i: int, right: bool, colour: bool, depth_right: bool = False,
+                        depth: bool = True) -> tuple[dict, dict]:
         """Frame i under the rolling shutter: each band of rows cut from a render of the world at the
         band's time. Returns the left and right dicts of the backend's ``render`` (right: {} if not)."""
         h, w = self.camera.height, self.camera.width
-        left: dict = {"depth_z": np.empty((h, w), np.float32), "body": np.empty((h, w), np.int32)}
+        left: dict = {"depth_z": np.empty((h, w), np.float32), "body": np.empty((h, w), np.int32)} if depth else {}
         r: dict = {}
         if colour:
             left["rgb"] = np.empty((h, w, 3), np.uint8)
@@ -276,7 +282,7 @@ class Simulator:
                 r["depth_z"] = np.empty((h, w), np.float32)
         for r0, r1, dt in self._bands:
             self.backend.set_state(world_state(self.scene, self.motion, self.time(i) + dt))
-            band = self.backend.render("left", colour=colour, depth=True)
+            band = self.backend.render("left", colour=colour, depth=depth)
             for key in left:
                 left[key][r0:r1] = band[key][r0:r1]
             if right:

@@ -53,6 +53,17 @@ def test_each_band_of_rows_is_a_render_at_its_time():
             np.testing.assert_allclose(f.row_poses[r0:r1], np.repeat(sim.motion.world_from_cam(sim.time(FRAME) + dt), r1 - r0, 0))
 
 
+def test_frames_in_order_equal_frames_rendered_alone():
+    """Frame i+1 reuses the depth bands frame i's occlusion test rendered: the same bytes as alone."""
+    cfg = _rs(40.0, 4)
+    with Simulator(cfg) as sim:
+        in_order = [sim.frame(i) for i in (FRAME - 1, FRAME)]
+    with Simulator(cfg) as sim:
+        alone = sim.frame(FRAME)
+    for name in ("rgb", "depth_z", "body", "flow", "occlusion", "flow_backward", "row_poses"):
+        np.testing.assert_array_equal(getattr(in_order[1], name), getattr(alone, name), err_msg=name)
+
+
 def test_one_band_is_the_global_shutter():
     """One band is captured at its middle row's time, the frame time: the same frame as without."""
     with Simulator(BASE) as sim:
