@@ -13,7 +13,7 @@ learned-flow magnitude per metre of motion in the image's left and right fifths 
 (rows 0.12 fy above to 0.06 fy below the principal point), in pixels at f = 1000 px: larger is a
 nearer roadside. Sets: the held-out town and a held-out ``--narrow-layout`` street (seed 7), KITTI
 06 and 07. Writes results.json, results.md and road_height.png into ``out/results/road``
-(``python -m bench.results_road``, about 4 minutes).
+(``python -m bench.results_road``, about a minute once the two held-out streets are rendered).
 """
 from __future__ import annotations
 
