@@ -6,6 +6,7 @@
 #   (A-G draw motions from models/motion/kitti_s1.json, fitted on KITTI 00-05 and 07-10: 07's ground truth
 #   was in that prior; I0, J, J06 use a prior fitted without 06 and 07)
 #   I0: F with the prior fitted on 00-05, 08-10   J: I0 + 6 narrow residential streets   J06: J + KITTI 06's single frames
+#   I, J_wide: I0, J with the forward speed uniform over 0-28 m/s (H, on the learned flow, is out/s2r2/run_h.sh's, not here)
 # KITTI 06 is the validation slice of the sim-only recipes (they never see a real frame); 07 is never trained on.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -19,6 +20,10 @@ for s in 4 5 6 7 8 9; do render $s $D/varied2_s$s --varied-layout; render $s $D/
 P=../shared/data/kitti/poses
 [ -f $D/kitti_no0607.json ] || $DS fit-motion --poses $P/00.txt $P/01.txt $P/02.txt $P/03.txt $P/04.txt $P/05.txt \
     $P/08.txt $P/09.txt $P/10.txt --stride 1 --loops --out $D/kitti_no0607.json
+# the same with the forward speed uniform over 0-2.8 m/frame (0-28 m/s at 10 Hz): a truncated t with a huge scale
+[ -f $D/kitti_no0607_wide.json ] || .venv/bin/python -c "import json,sys; d=json.load(open(sys.argv[1])); \
+d['consecutive']['dofs']['t_z']={'df':1000.0,'loc':-1.4,'scale':100.0,'lo':-2.8,'hi':0.0}; json.dump(d,open(sys.argv[2],'w'),indent=2)" \
+    $D/kitti_no0607.json $D/kitti_no0607_wide.json
 DIS="--mode synthetic --synthetic-flow dis --dis-preset medium --frame-scales 1,0.65 --frame-step 2 --samples-per-epoch 20000
      --max-epochs 6 --nll-epochs 10 --threads 2 --data-threads 2 --seed 0 --net cpu --appearance-noise 6 --quiet"
 train() { local out=$1; shift; [ -f "$out/model.safetensors" ] || $DS train $DIS "$@" --out "$out" $([ -d "$out" ] && echo --resume); }
@@ -34,10 +39,13 @@ train $D/F_tilt $OLD --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $MIX
 train $D/G_tilt_06 $OLD --sample-pool 30000 --camera-tilt-deg=-1:3:1 --frames $MIX $K06
 train $D/I0_fit $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $MIX
 train $D/J_narrow $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $MIX $NAR
+train $D/I_wide --motion $D/kitti_no0607_wide.json --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $MIX
+train $D/J_wide --motion $D/kitti_no0607_wide.json --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $MIX $NAR
 train $D/J06_narrow_06 $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $MIX $NAR $K06
 .venv/bin/python -m bench.results_real --out $D/real \
   --model "A=$D/A_default/model.safetensors" --model "B=$D/B_varied/model.safetensors" \
   --model "C=$D/C_mixed/model.safetensors" --model "D=$D/D_mixed_06/model.safetensors" \
   --model "F=$D/F_tilt/model.safetensors" --model "G=$D/G_tilt_06/model.safetensors" \
   --model "I0=$D/I0_fit/model.safetensors" --model "J=$D/J_narrow/model.safetensors" \
-  --model "J06=$D/J06_narrow_06/model.safetensors"
+  --model "J06=$D/J06_narrow_06/model.safetensors" --model "I=$D/I_wide/model.safetensors" \
+  --model "J_wide=$D/J_wide/model.safetensors"
