@@ -45,48 +45,66 @@ class ResultsRoadConfig:
 QUICK = ResultsRoadConfig(heldout_frames=16, pair_step=6)
 
 
-def _heights(seq, flows: dict, cfg: ResultsRoadConfig) -> dict:
-    from deepslam.core import se3
-    from deepslam.vo.road_scale import implied_road_height
-
-    out = {name: [] for name in flows}
-    for i in range(0, len(seq) - 1, cfg.pair_step):
-        p0, p1 = seq.gt_pose(i), seq.gt_pose(i + 1)
-        if p0 is None or p1 is None:
-            continue
-        motion = se3.inverse(p1) @ p0
-        if np.linalg.norm(motion[:3, 3]) < cfg.min_motion_m:
-            continue
-        for name, flow_of in flows.items():
-            fit = implied_road_height(flow_of(i), seq.camera, motion)
-            if np.isfinite(fit.height_m):
-                out[name].append(fit.height_m)
-    return {name: {"pairs": len(h), "median_m": float(np.median(h)) if h else None,
-                   "q25_m": float(np.quantile(h, 0.25)) if h else None, "q75_m": float(np.quantile(h, 0.75)) if h else None,
-                   "heights_m": [round(float(x), 4) for x in h]} for name, h in out.items()}
-
-
-def roadside_flow(seq, flow_of, cfg: ResultsRoadConfig) -> dict:
-    """Median flow per metre of straight motion in the left and right fifths around the horizon."""
+def moving_pairs(seq, cfg: ResultsRoadConfig):
+    """``(i, cam1_from_cam0, metres)`` of every ``pair_step``-th consecutive pair (i, i + 1) with ground
+    truth at both frames that moves at least ``min_motion_m``."""
     from deepslam.core import se3
 
-    cam = seq.camera
-    v0, v1 = int(cam.cy - 0.12 * cam.fy), int(cam.cy + 0.06 * cam.fy) + 1
-    w = cam.width
-    left, right = [], []
     for i in range(0, len(seq) - 1, cfg.pair_step):
         p0, p1 = seq.gt_pose(i), seq.gt_pose(i + 1)
         if p0 is None or p1 is None:
             continue
         motion = se3.inverse(p1) @ p0
         d = float(np.linalg.norm(motion[:3, 3]))
-        if d < cfg.min_motion_m or abs(np.degrees(se3.to_euler6(motion[None])[0, 1])) > 0.5:
-            continue
-        mag = np.linalg.norm(flow_of(i)[v0:v1], axis=-1) * (1000.0 / cam.fx) / d
-        left.append(float(np.nanmedian(mag[:, : w // 5])))
-        right.append(float(np.nanmedian(mag[:, w - w // 5:])))
-    return {"pairs": len(left), "left_px_per_m": float(np.median(left)) if left else None,
-            "right_px_per_m": float(np.median(right)) if right else None}
+        if d >= cfg.min_motion_m:
+            yield i, motion, d
+
+
+def measure(seq, flows: dict, cfg: ResultsRoadConfig, heights: bool = True, roadside_from: str | None = None):
+    """One pass over :func:`moving_pairs`, each flow estimated once per pair: the implied road heights of
+    every flow in ``flows`` ({name: i -> (H, W, 2) flow of pair (i, i + 1)}; when ``heights``), and the
+    roadside nearness from the flow named ``roadside_from`` on straight pairs (yaw < 0.5 deg): the
+    median flow magnitude per metre of motion, px at f = 1000, in the image's left and right fifths
+    around the horizon (rows 0.12 fy above to 0.06 fy below the principal point).
+
+    Returns ``(heights per flow, roadside)``: {name: {pairs, median_m, q25_m, q75_m, heights_m}} (empty
+    without ``heights``) and {pairs, left_px_per_m, right_px_per_m} (None without ``roadside_from``)."""
+    from deepslam.core import se3
+    from deepslam.vo.road_scale import implied_road_height
+
+    cam = seq.camera
+    v0, v1 = int(cam.cy - 0.12 * cam.fy), int(cam.cy + 0.06 * cam.fy) + 1
+    fifth = cam.width // 5
+    found: dict[str, list[float]] = {name: [] for name in flows} if heights else {}
+    left, right = [], []
+    for i, motion, d in moving_pairs(seq, cfg):
+        straight = roadside_from is not None and abs(np.degrees(se3.to_euler6(motion[None])[0, 1])) <= 0.5
+        for name, flow_of in flows.items():
+            side = straight and name == roadside_from
+            if not (heights or side):
+                continue
+            flow = flow_of(i)
+            if heights:
+                fit = implied_road_height(flow, cam, motion)
+                if np.isfinite(fit.height_m):
+                    found[name].append(fit.height_m)
+            if side:
+                mag = np.linalg.norm(flow[v0:v1], axis=-1) * (1000.0 / cam.fx) / d
+                left.append(float(np.nanmedian(mag[:, :fifth])))
+                right.append(float(np.nanmedian(mag[:, cam.width - fifth:])))
+    per_flow = {name: {"pairs": len(h), "median_m": float(np.median(h)) if h else None,
+                       "q25_m": float(np.quantile(h, 0.25)) if h else None,
+                       "q75_m": float(np.quantile(h, 0.75)) if h else None,
+                       "heights_m": [round(float(x), 4) for x in h]} for name, h in found.items()}
+    roadside = None if roadside_from is None else {
+        "pairs": len(left), "left_px_per_m": float(np.median(left)) if left else None,
+        "right_px_per_m": float(np.median(right)) if right else None}
+    return per_flow, roadside
+
+
+def roadside_flow(seq, flow_of, cfg: ResultsRoadConfig) -> dict:
+    """The roadside nearness of :func:`measure` from one flow (``flow_of(i)``: the flow of pair (i, i + 1))."""
+    return measure(seq, {"flow": flow_of}, cfg, heights=False, roadside_from="flow")[1]
 
 
 def run(cfg: ResultsRoadConfig, out: Path, data_dir: Path) -> dict:
@@ -99,31 +117,29 @@ def run(cfg: ResultsRoadConfig, out: Path, data_dir: Path) -> dict:
     ests = {n: flow_estimators.make(n, **({"preset": "medium"} if n == "dis" else {})) for n in cfg.estimators}
     held = open_sequence(render_once("street", "car", cfg.heldout_frames, cfg.width, cfg.heldout_seed,
                                      out / f"street_heldout_s{cfg.heldout_seed}", []))
-    sets = {"simulated street, held out (seed 7)": (held, {"exact": held.flow})}
+    narrow = open_sequence(render_once("street", "car", cfg.heldout_frames, cfg.width, cfg.heldout_seed,
+                                       out / f"street_narrow_s{cfg.heldout_seed}", [], extra=("--narrow-layout", "--no-flow")))
+    # (label, sequence, extra flows, whether to fit road heights); the roadside from the learned flow in every set
+    sets = [("simulated street, held out (seed 7)", held, {"exact": held.flow}, True)]
     for name in ("06", "07"):
         root = data_dir / "kitti" / "sequences" / name
         if (root / "calib.txt").is_file():
-            sets[f"KITTI {name} (real)"] = (open_sequence(root), {})
-    narrow = open_sequence(render_once("street", "car", cfg.heldout_frames, cfg.width, cfg.heldout_seed,
-                                       out / f"street_narrow_s{cfg.heldout_seed}", [], extra=("--narrow-layout", "--no-flow")))
+            sets.append((f"KITTI {name} (real)", open_sequence(root), {}, True))
+    sets.append(("simulated narrow street, held out (seed 7)", narrow, {}, False))
     report = {"config": dataclasses.asdict(cfg), "true_height_m": 1.65, "sets": {}, "roadside": {}}
-    for label, (seq, flows) in [*sets.items(), ("simulated narrow street, held out (seed 7)", (narrow, None))]:
-        cache: dict = {}
-
-        def flow_of(i, seq=seq, cache=cache, est=ests.get("learned")):
-            if i not in cache:
-                cache[i] = est.pair_flow(seq, i, i + 1)
-            return cache[i]
-
-        if "learned" in ests:
-            report["roadside"][label] = roadside_flow(seq, flow_of, cfg)
-        if flows is None:
-            continue
+    for label, seq, flows, heights in sets:
         for n, est in ests.items():
-            flows[n] = flow_of if n == "learned" else (lambda i, seq=seq, est=est: est.pair_flow(seq, i, i + 1))
-        report["sets"][label] = _heights(seq, flows, cfg)
-        print(f"{label}: " + ", ".join(f"{k} {v['median_m']:.2f} m" for k, v in report["sets"][label].items()
-                                       if v["median_m"] is not None), file=sys.stderr)
+            flows[n] = lambda i, seq=seq, est=est: est.pair_flow(seq, i, i + 1)
+        side_from = "learned" if "learned" in ests else None
+        if not heights:
+            flows = {n: f for n, f in flows.items() if n == side_from}
+        per_flow, roadside = measure(seq, flows, cfg, heights=heights, roadside_from=side_from)
+        if roadside is not None:
+            report["roadside"][label] = roadside
+        if heights:
+            report["sets"][label] = per_flow
+            print(f"{label}: " + ", ".join(f"{k} {v['median_m']:.2f} m" for k, v in per_flow.items()
+                                           if v["median_m"] is not None), file=sys.stderr)
     atomic.write_json(out / "results.json", report)
     atomic.write_text(out / "results.md", markdown(report))
     _plot(report, out / "road_height.png")
