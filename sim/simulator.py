@@ -155,6 +155,7 @@ class Simulator:
                                             rcfg.rolling_shutter_bands) if rcfg.rolling_shutter else []
         self._band_flow = [FlowComputer(PinholeCamera(self.camera.width, r1 - r0, self.camera.fx, self.camera.fy,
                                                       self.camera.cx, self.camera.cy - r0)) for r0, r1, _ in self._bands]
+        self._states: dict[int, WorldState] = {}  # the last few of :meth:`state`, oldest first
         self._next_depth: dict[int, dict] = {}  # {frame: its depth pass} kept from the previous frame's occlusion test
         self._inst = np.zeros(len(self.scene.bodies) + 1, np.uint16)  # body index + 1 -> instance id
         for i, body in enumerate(self.scene.bodies):
@@ -166,8 +167,15 @@ class Simulator:
         return float(i) / self.rate_hz
 
     def state(self, i: int) -> WorldState:
-        """The world at frame i (any i >= 0, also beyond num_frames)."""
-        return world_state(self.scene, self.motion, self.time(i))
+        """The world at frame i (any i >= 0, also beyond num_frames); the last few are kept (a frame
+        needs frames i - 1, i and i + 1, and the next frame the same again). Treat it as read-only."""
+        st = self._states.get(i)
+        if st is None:
+            st = world_state(self.scene, self.motion, self.time(i))
+            if len(self._states) >= 4:
+                self._states.pop(next(iter(self._states)))  # the oldest
+            self._states[i] = st
+        return st
 
     @property
     def trajectory(self) -> Trajectory:
@@ -191,42 +199,19 @@ class Simulator:
         right = bool(self.baseline_m) if right is None else right
         flow = self.config.render.flow if flow is None else flow
         s0 = self.state(i)
-        rolling = bool(self._bands)
-        if rolling:
-            cached = self._next_depth.pop(i, None)  # frame i's depth bands, made for frame i - 1's occlusion
-            left, r = self._render_rolling(i, right, colour=True, depth_right=depth_right, depth=cached is None)
-            if cached is not None:
-                left.update(cached)
-        else:
-            self.backend.set_state(s0)
-            cached = self._next_depth.pop(i, None)  # frame i's depth pass, made for frame i - 1's occlusion
-            if cached is not None:
-                left = {**self.backend.render("left", colour=True, depth=False), **cached}
-            else:
-                left = self.backend.render("left", colour=True, depth=True)
-            r = self.backend.render("right", colour=True, depth=depth_right) if right else {}
+        cached = self._next_depth.pop(i, None)  # frame i's depth pass, made for frame i - 1's occlusion test
+        left, r = self._render(i, right, depth=cached is None, depth_right=depth_right)
+        if cached is not None:
+            left.update(cached)
         fl = occ = back = None
         if flow:
-            if rolling:
-                fl, z1 = self._rolling_flow(i, i + 1, left["depth_z"], left["body"])
-            else:
-                fl, z1 = self._flow.flow_and_depth(self.scene, left["depth_z"], left["body"], s0, self.state(i + 1))
+            fl, z1 = self._flow_between(i, i + 1, left["depth_z"], left["body"])
             if occlusion is None or occlusion:
-                if rolling:
-                    nxt = self._render_rolling(i + 1, False, colour=False)[0]
-                    self._next_depth = {i + 1: nxt}  # the next frame in order reuses these bands
-                    depth1 = nxt["depth_z"]
-                else:
-                    self.backend.set_state(self.state(i + 1))
-                    nxt = self.backend.render("left", colour=False, depth=True)
-                    self._next_depth = {i + 1: nxt}  # the next frame in order reuses this pass
-                    depth1 = nxt["depth_z"]
-                occ = occlusion_mask(fl, z1, depth1)
+                nxt = self._render(i + 1, False, colour=False)[0]
+                self._next_depth = {i + 1: nxt}  # the next frame in order reuses this pass
+                occ = occlusion_mask(fl, z1, nxt["depth_z"])
         if (self.config.render.flow if backward is None else backward) and i > 0:
-            if rolling:
-                back = self._rolling_flow(i, i - 1, left["depth_z"], left["body"])[0]
-            else:
-                back = self._flow.flow(self.scene, left["depth_z"], left["body"], s0, self.state(i - 1))
+            back = self._flow_between(i, i - 1, left["depth_z"], left["body"])[0]
         sensor = None
         if self.config.render.depth_noise == "kinect":
             from deepslam.sim.sensor import kinect_depth
@@ -245,7 +230,24 @@ class Simulator:
             rgb_right = None if rgb_right is None else self._distort(rgb_right)
         return SimFrame(i, self.time(i), self.camera, s0.world_from_cam, rgb, left["depth_z"], fl, mask,
                         left["body"], rgb_right, r.get("depth_z"), self.baseline_m if right else None, poses,
-                        back, occ, sensor, self.row_poses(i) if rolling else None)
+                        back, occ, sensor, self.row_poses(i) if self._bands else None)
+
+    def _render(self, i: int, right: bool, colour: bool = True, depth: bool = True,
+                depth_right: bool = False) -> tuple[dict, dict]:
+        """Frame i's left (and right) renders, the backend's ``render`` dicts (right: {} if not), under
+        the global or the rolling shutter."""
+        if self._bands:
+            return self._render_rolling(i, right, colour, depth_right, depth)
+        self.backend.set_state(self.state(i))
+        left = self.backend.render("left", colour=colour, depth=depth)
+        return left, (self.backend.render("right", colour=True, depth=depth_right) if right else {})
+
+    def _flow_between(self, i: int, j: int, depth_z: np.ndarray, body: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(flow, z1) of frame i's pixels to frame j (:meth:`FlowComputer.flow_and_depth`), under the
+        global or the rolling shutter."""
+        if self._bands:
+            return self._rolling_flow(i, j, depth_z, body)
+        return self._flow.flow_and_depth(self.scene, depth_z, body, self.state(i), self.state(j))
 
     # ------------------------------------------------------------------------------ rolling shutter
 
