@@ -41,7 +41,7 @@ edges; the plain NumPy reference is :mod:`gen.flow_reference`; both agree with i
 from __future__ import annotations
 
 import threading
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import torch
@@ -135,27 +135,31 @@ class _Workspace(threading.local):
     """Per-thread scratch buffers, reused between calls (fresh multi-MB allocations cost page faults)."""
 
     def __init__(self):
-        self.buffers: dict[tuple, dict[str, torch.Tensor]] = {}
+        self.buffers: dict[tuple, Any] = {}
 
-    def get(self, device: torch.device, n: int, h: int, w: int) -> dict[str, torch.Tensor]:
-        key = (str(device), n, h, w)
+    def cached(self, key: tuple, make: Callable[[], Any]) -> Any:
+        """The buffers stored under ``key``, made by ``make()`` the first time (at most 9 kinds are kept:
+        a tenth clears them all)."""
         if key not in self.buffers:
             if len(self.buffers) > 8:
                 self.buffers.clear()
-            f32 = dict(dtype=torch.float32, device=device)
-            self.buffers[key] = {"p": torch.empty(n, 3, h, w, **f32), "w": torch.empty(n, h, w, **f32),
-                                 "b": torch.empty(n, h, w, **f32), "t": torch.empty(n, h, w, **f32),
-                                 "ab": torch.empty(n, 2, h, w, **f32)}
+            self.buffers[key] = make()
         return self.buffers[key]
+
+    def get(self, device: torch.device, n: int, h: int, w: int) -> dict[str, torch.Tensor]:
+        """The torch path's float32 scratch for n samples of H x W."""
+        def make() -> dict[str, torch.Tensor]:
+            f32 = dict(dtype=torch.float32, device=device)
+            return {"p": torch.empty(n, 3, h, w, **f32), "w": torch.empty(n, h, w, **f32),
+                    "b": torch.empty(n, h, w, **f32), "t": torch.empty(n, h, w, **f32),
+                    "ab": torch.empty(n, 2, h, w, **f32)}
+
+        return self.cached((str(device), n, h, w), make)
 
     def depth1(self, device: torch.device, n: int, h: int, w: int) -> torch.Tensor:
         """A reused (n, H, W) float32 buffer for the moved points' depths."""
-        key = ("depth1", str(device), n, h, w)
-        if key not in self.buffers:
-            if len(self.buffers) > 8:
-                self.buffers.clear()
-            self.buffers[key] = torch.empty(n, h, w, dtype=torch.float32, device=device)
-        return self.buffers[key]
+        return self.cached(("depth1", str(device), n, h, w),
+                           lambda: torch.empty(n, h, w, dtype=torch.float32, device=device))
 
 
 _WS = _Workspace()
@@ -358,13 +362,9 @@ def _zbuffer_scratch(n_chunks: int, h: int, w: int) -> tuple[np.ndarray, np.ndar
     landing points and depths; (n, 4, H * W + 1) float32: one row's footprint radii (x, y), the depth
     margins, the z-buffer (with a spare cell for points that are not valid); (n, H * W) int32 nearest
     pixels."""
-    key = ("zb", n_chunks, h, w)
-    if key not in _WS.buffers:
-        if len(_WS.buffers) > 8:
-            _WS.buffers.clear()
-        _WS.buffers[key] = (np.empty((n_chunks, 3, (h + 2) * (w + 2)), np.float32),
-                            np.empty((n_chunks, 4, h * w + 1), np.float32), np.empty((n_chunks, h * w), np.int32))
-    return _WS.buffers[key]
+    return _WS.cached(("zb", n_chunks, h, w), lambda: (np.empty((n_chunks, 3, (h + 2) * (w + 2)), np.float32),
+                                                     np.empty((n_chunks, 4, h * w + 1), np.float32),
+                                                     np.empty((n_chunks, h * w), np.int32)))
 
 
 def _synthesize_numba(z: torch.Tensor, mn: np.ndarray, flow_chw: torch.Tensor, valid: torch.Tensor,
