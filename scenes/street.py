@@ -101,11 +101,9 @@ def build_street(seed: int, px_per_m: float, moving_objects: int, deform_amplitu
                  rng: np.random.Generator, layout: StreetLayout = StreetLayout(), lighting: Lighting | None = None) -> Scene:
     bx = float(rng.uniform(56.0, 60.0))
     by = float(rng.uniform(44.0, 46.0))
-    sun = np.array([rng.uniform(-0.5, 0.5), rng.uniform(-0.6, -0.2), 0.8])  # drawn either way: the stream stays
-    if lighting is None:
-        asm = Assembler(px_per_m, rng, sun_dir=sun, ambient=0.6)
-    else:
-        asm = Assembler(px_per_m, rng, sun_dir=lighting.sun_dir, ambient=lighting.ambient)
+    sun = (rng.uniform(-0.5, 0.5), rng.uniform(-0.6, -0.2), 0.8)  # drawn either way: the stream stays
+    light = lighting or Lighting(sun, 0.6, (1.0, 1.0, 1.0))
+    asm = Assembler(px_per_m, rng, sun_dir=light.sun_dir, ambient=light.ambient)
     _roads(asm, bx, by, layout.road_half_m)
     _sidewalks_and_ground(asm, bx, by, layout)
     _buildings(asm, bx, by, rng, layout)

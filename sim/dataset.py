@@ -180,7 +180,8 @@ def plan(cfg: DatasetConfig) -> list[PlannedSequence]:
         # later options draw from their own stream per sequence: the draws above stay as they were
         extra = np.random.default_rng(np.random.SeedSequence([int(cfg.seed), 0xDA7B, k]))
         lit = bool(extra.random() < cfg.random_lighting_fraction)
-        readout = round(float(extra.uniform(*cfg.rolling_shutter_ms)), 3) if exposure == 0 else 0.0
+        readout = round(float(extra.uniform(*cfg.rolling_shutter_ms)), 3)
+        readout = readout if exposure == 0 else 0.0  # drawn either way: a fixed number of draws per sequence
         narrow = bool(extra.random() < cfg.narrow_layout_fraction) and scene == "street" and not varied
         sim = SimConfig(SceneConfig(name=scene, seed=scene_seed, moving_objects=movers, deform_amplitude_m=deform,
                                     varied_layout=varied, narrow_layout=narrow, random_lighting=lit),

@@ -252,6 +252,11 @@ class Simulator:
     # ------------------------------------------------------------------------------ rolling shutter
 
     @property
+    def shutter_bands(self) -> list[tuple[int, int, float]]:
+        """The rolling shutter's bands (:func:`rolling_shutter_bands`); [] with a global shutter."""
+        return list(self._bands)
+
+    @property
     def row_time_offsets_s(self) -> np.ndarray | None:
         """(H,) float64 capture time of each image row minus the frame time, seconds, under a rolling
         shutter (each row its band's time); None with a global shutter."""

@@ -156,7 +156,7 @@ def _rolling_shutter_meta(sim) -> dict:
     if offsets is None:
         return {}
     rcfg = sim.config.render
-    return {"rolling_shutter": {"readout_ms": rcfg.rolling_shutter_ms, "bands": len(sim._bands),
+    return {"rolling_shutter": {"readout_ms": rcfg.rolling_shutter_ms, "bands": len(sim.shutter_bands),
                                 "row_time_offsets_s": [float(x) for x in offsets],
                                 "row_poses": "row_poses/NNNNNN.npy: (H, 4, 4) float64 world_from_cam of each row"}}
 
