@@ -6,7 +6,8 @@
 #   (A-G draw motions from models/motion/kitti_s1.json, fitted on KITTI 00-05 and 07-10: 07's ground truth
 #   was in that prior; I0, J, J06 use a prior fitted without 06 and 07)
 #   I0: F with the prior fitted on 00-05, 08-10   J: I0 + 6 narrow residential streets   J06: J + KITTI 06's single frames
-#   I, J_wide: I0, J with the forward speed uniform over 0-28 m/s (H, on the learned flow, is out/s2r2/run_h.sh's, not here)
+#   I, J_wide: I0, J with the forward speed uniform over 0-28 m/s
+#   H: I0's streets and prior on the LEARNED flow of the rendered views (scored with vo --flow learned)
 # KITTI 06 is the validation slice of the sim-only recipes (they never see a real frame); 07 is never trained on.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -42,10 +43,14 @@ train $D/J_narrow $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $MI
 train $D/I_wide --motion $D/kitti_no0607_wide.json --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $MIX
 train $D/J_wide --motion $D/kitti_no0607_wide.json --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $MIX $NAR
 train $D/J06_narrow_06 $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $MIX $NAR $K06
+[ -f $D/H_learned/model.safetensors ] || $DS train --mode synthetic --synthetic-flow learned --frame-scales 1,0.65 \
+    --sample-pool 12000 --frame-step 2 --samples-per-epoch 12000 --max-epochs 8 --nll-epochs 10 --threads 2 \
+    --data-threads 2 --seed 0 --net cpu --appearance-noise 6 --quiet $NEW --camera-tilt-deg=-1:3:1 --frames $MIX \
+    --out $D/H_learned $([ -d $D/H_learned ] && echo --resume)
 .venv/bin/python -m bench.results_real --out $D/real \
   --model "A=$D/A_default/model.safetensors" --model "B=$D/B_varied/model.safetensors" \
   --model "C=$D/C_mixed/model.safetensors" --model "D=$D/D_mixed_06/model.safetensors" \
   --model "F=$D/F_tilt/model.safetensors" --model "G=$D/G_tilt_06/model.safetensors" \
   --model "I0=$D/I0_fit/model.safetensors" --model "J=$D/J_narrow/model.safetensors" \
   --model "J06=$D/J06_narrow_06/model.safetensors" --model "I=$D/I_wide/model.safetensors" \
-  --model "J_wide=$D/J_wide/model.safetensors"
+  --model "J_wide=$D/J_wide/model.safetensors" --model "H=$D/H_learned/model.safetensors@learned"
