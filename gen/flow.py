@@ -168,15 +168,19 @@ _WS = _Workspace()
 # ------------------------------------------------------------------------------------------ numba kernel
 
 _FASTMATH = {"contract", "arcp", "reassoc", "afn"}
-"""LLVM fast-math flags of the kernel: fused multiply-add, reciprocal and reassociation (so the inner
-loop vectorises); NOT ``nnan``/``ninf``, because the kernel tests for NaN and inf depth."""
+"""LLVM fast-math flags of both kernels: fused multiply-add, reciprocals and reassociation (the plain
+synthesis runs 1.2-1.3x faster with them); NOT ``nnan``/``ninf``, because the kernels test for NaN and
+inf. The z-buffer kernel takes the same flags because its projection must give the plain kernel's
+bits; its decisions are tested equal to :func:`visible_after_motion` (torch), bit for bit, on boxes,
+holes, borders and large motions."""
 _KERNEL = None
+_PROJECT_ROW = None
 _KERNEL_LOCK = threading.Lock()
 
 
 def _numba_kernel():
     """The compiled kernel (compiled on first use; None where numba cannot be imported)."""
-    global _KERNEL
+    global _KERNEL, _PROJECT_ROW
     if _KERNEL is None:
         try:
             import numba
@@ -189,37 +193,47 @@ def _numba_kernel():
         if numba.config.THREADING_LAYER == "default":
             numba.config.THREADING_LAYER = "forksafe"
 
+        @numba.njit(cache=True, inline="always")
+        def project_row(z, coef, flow, valid, depth1, b, v, bd1, want_depth1, cu, cv, half_w, half_h):  # pragma: no cover - compiled
+            """Row v of sample b: flow[b, :, v], valid[b, v] and (when asked) depth_z1 into depth1[bd1, v],
+            from z[b, v] and the sample's (3, 4) coefficients coef[b]. Shared by the plain and the
+            z-buffer kernels, so that both write the same bits; inlined (a compiled call kept the loop
+            scalar: 4x slower) and so compiled with its caller's fast-math flags."""
+            w = z.shape[2]
+            c = coef[b]
+            one, zero, inf = np.float32(1.0), np.float32(0.0), np.float32(np.inf)
+            fv = np.float32(v)
+            bu = c[0, 1] * fv + c[0, 2]
+            bv = c[1, 1] * fv + c[1, 2]
+            bd = c[2, 1] * fv + c[2, 2]
+            au, av, ad = c[0, 0], c[1, 0], c[2, 0]
+            eu, ev, ed = c[0, 3], c[1, 3], c[2, 3]
+            gv = np.float32(cv) - fv
+            for u in range(w):
+                zz = z[b, v, u]
+                fu = np.float32(u)
+                ok = (zz > zero) & (zz < inf)                       # 0, negative, NaN, inf: no depth
+                iw = one / zz if ok else zero                      # w = 1 / depth_z
+                nu = au * fu + bu + eu * iw
+                nv = av * fu + bv + ev * iw
+                d = ad * fu + bd + ed * iw                         # depth_z1 / depth_z
+                ok = ok & (max(abs(nu), abs(nv)) < d)              # in front and inside the image
+                rd = one / d if ok else zero
+                flow[b, 0, v, u] = nu * rd * np.float32(half_w) + (np.float32(cu) - fu) if ok else zero
+                flow[b, 1, v, u] = nv * rd * np.float32(half_h) + gv if ok else zero
+                valid[b, v, u] = ok
+                if want_depth1:
+                    depth1[bd1, v, u] = d * zz if ok else zero
+
         @numba.njit(parallel=True, fastmath=_FASTMATH, cache=True)
         def kernel(z, coef, flow, valid, depth1, want_depth1, cu, cv, half_w, half_h):  # pragma: no cover - compiled
             b_n, h, w = z.shape
-            one, zero, inf = np.float32(1.0), np.float32(0.0), np.float32(np.inf)
             for r in numba.prange(b_n * h):
                 b = r // h
                 v = r - b * h
-                c = coef[b]
-                fv = np.float32(v)
-                bu = c[0, 1] * fv + c[0, 2]
-                bv = c[1, 1] * fv + c[1, 2]
-                bd = c[2, 1] * fv + c[2, 2]
-                au, av, ad = c[0, 0], c[1, 0], c[2, 0]
-                eu, ev, ed = c[0, 3], c[1, 3], c[2, 3]
-                gv = np.float32(cv) - fv
-                for u in range(w):
-                    zz = z[b, v, u]
-                    fu = np.float32(u)
-                    ok = (zz > zero) & (zz < inf)                       # 0, negative, NaN, inf: no depth
-                    iw = one / zz if ok else zero                      # w = 1 / depth_z
-                    nu = au * fu + bu + eu * iw
-                    nv = av * fu + bv + ev * iw
-                    d = ad * fu + bd + ed * iw                         # depth_z1 / depth_z
-                    ok = ok & (max(abs(nu), abs(nv)) < d)              # in front and inside the image
-                    rd = one / d if ok else zero
-                    flow[b, 0, v, u] = nu * rd * np.float32(half_w) + (np.float32(cu) - fu) if ok else zero
-                    flow[b, 1, v, u] = nv * rd * np.float32(half_h) + gv if ok else zero
-                    valid[b, v, u] = ok
-                    if want_depth1:
-                        depth1[b, v, u] = d * zz if ok else zero
+                project_row(z, coef, flow, valid, depth1, b, v, b, want_depth1, cu, cv, half_w, half_h)
 
+        _PROJECT_ROW = project_row
         _KERNEL = kernel
     return _KERNEL or None
 
@@ -228,14 +242,17 @@ _ZB_KERNEL = None
 
 
 def _zbuffer_kernel():
-    """The compiled z-buffer test of :func:`visible_after_motion` (numba; None where it is missing),
-    applied in place. The samples are split into one chunk per thread; each thread works through its
-    samples in its own cache-sized scratch: (1) the landing points and depths copied into
-    NaN-bordered arrays (NaN = not valid), (2) the footprint half-widths and depth margins in
-    branch-free row loops (they vectorise), (3) the splat, with a fast path for the common point whose
-    footprint covers only its nearest pixel, (4) the test, clearing ``valid``, ``flow`` and ``depth1``
-    where a point is hidden. No fastmath: the comparisons round as the torch path's do (tested: the
-    same bits)."""
+    """The plain synthesis and the z-buffer test of :func:`visible_after_motion` in one compiled kernel
+    (numba; None where it is missing). The samples are split into one chunk per thread; each thread
+    works through its samples in its own cache-sized scratch, so a sample's flow is tested while it is
+    still in cache: (1) the sample's rows synthesized by the plain kernel's own row (``project_row``,
+    inlined: the same bits), then row by row copied into three-row windows of landing points and
+    depths, NaN-bordered (NaN = not valid), (2) the footprint half-widths and depth margins in
+    branch-free row loops (they vectorise),
+    (3) each point's nearest pixel and whether its footprint reaches a neighbour, (4) the nearest-pixel
+    splat, branch-free, listing the points that reach further, (5) their splats into the 3x3 block,
+    (6) the test, clearing ``valid``, ``flow`` and ``depth1`` where a point is hidden. Fast-math flags
+    as the plain kernel's (:data:`_FASTMATH`)."""
     global _ZB_KERNEL
     if _ZB_KERNEL is None:
         if _numba_kernel() is None:  # also sets the fork-safe threading layer
@@ -255,76 +272,92 @@ def _zbuffer_kernel():
             m = a if a < b else b
             return np.float32(1.0) if m == inf else m
 
-        @numba.njit(parallel=True, cache=True)
-        def kernel(flow, valid, depth1, tol, n_chunks, padded, flat, centres):  # pragma: no cover - compiled
+        project_row = _PROJECT_ROW
+
+        @numba.njit(cache=True, inline="always")
+        def fill(win, k, fr, vr, add, cols):  # pragma: no cover - compiled
+            """Window row k (NaN-bordered, pixel u at u + 1) = fr + add where valid, else NaN; ``cols``
+            adds u (landing column) when True. One source array per loop: it vectorises."""
+            nan = np.float32(np.nan)
+            w = fr.shape[0]
+            for u in range(w):
+                win[k, u + 1] = fr[u] + (np.float32(u) if cols else add) if vr[u] else nan
+
+        @numba.njit(parallel=True, fastmath=_FASTMATH, cache=True)
+        def kernel(z, coef, flow, valid, depth1, want_depth1, cu, cv, half_w, half_h, tol, n_chunks,
+                   windows, flat, centres, lists, d1scratch):  # pragma: no cover - compiled
             b_n, _, h, w = flow.shape
             nan, inf = np.float32(np.nan), np.float32(np.inf)
             half, one_half, one, zero = np.float32(0.5), np.float32(1.5), np.float32(1.0), np.float32(0.0)
             ftol = np.float32(tol)
-            wp = w + 2
             hw = h * w
             per = (b_n + n_chunks - 1) // n_chunks
             for t in numba.prange(n_chunks):
-                xp, yp, zp = padded[t, 0], padded[t, 1], padded[t, 2]  # (H + 2) x (W + 2), NaN border
-                rxa, rya, sla, zbuf = flat[t, 0], flat[t, 1], flat[t, 2], flat[t, 3]
+                # Per-thread scratch, taken once (the row loops index it, they do not slice it).
+                # Rolling windows of three rows of landing points and depths (slot r % 3 holds row r;
+                # slot 3 stays NaN: the rows above and below the image), NaN-bordered left and right.
+                xw, yw, zw = windows[t, 0], windows[t, 1], windows[t, 2]
+                rxr, ryr, sla, zbuf = flat[t, 0], flat[t, 1], flat[t, 2], flat[t, 3]
                 centre = centres[t]
-                xp[:] = nan
-                yp[:] = nan
-                zp[:] = nan
+                lst = lists[t]
+                z1s = d1scratch[t]  # (H, W) depth_z1 of the sample, 0 where not valid
+                xw[:] = nan
+                yw[:] = nan
+                zw[:] = nan
                 for b in range(t * per, min(b_n, (t + 1) * per)):
-                    fx, fy, vb, zb = flow[b, 0], flow[b, 1], valid[b], depth1[b]
-                    for v in range(h):
-                        o = (v + 1) * wp + 1
-                        fv = np.float32(v)
-                        xr_, yr_, zr_ = xp[o: o + w], yp[o: o + w], zp[o: o + w]
-                        fxr, fyr, vr, zbr_ = fx[v], fy[v], vb[v], zb[v]
-                        for u in range(w):
-                            ok = vr[u]
-                            xr_[u] = fxr[u] + np.float32(u) if ok else nan
-                            yr_[u] = fyr[u] + fv if ok else nan
-                            zr_[u] = zbr_[u] if ok else nan
                     zbuf[:] = inf
-                    for v in range(h):
-                        o = (v + 1) * wp + 1
+                    # (1) the plain synthesis of this sample (the same compiled row as the plain kernel)
+                    for r in range(h):
+                        project_row(z, coef, flow, valid, d1scratch, b, r, t, True, cu, cv, half_w, half_h)
+                    for v in range(-1, h):
+                        r = v + 1
+                        if r < h:  # row v + 1 into the windows; one source array per loop (they vectorise)
+                            k = r % 3
+                            fr = np.float32(r)
+                            for u in range(w):
+                                xw[k, u + 1] = flow[b, 0, r, u] + np.float32(u) if valid[b, r, u] else nan
+                            for u in range(w):
+                                yw[k, u + 1] = flow[b, 1, r, u] + fr if valid[b, r, u] else nan
+                            for u in range(w):
+                                zw[k, u + 1] = z1s[r, u] if valid[b, r, u] else nan
+                        if v < 0:
+                            continue
                         q = v * w
-                        # rows v - 1, v, v + 1 of the padded arrays, from their left border: column u + 1
-                        # is pixel u (non-negative indices only: the loop vectorises)
-                        xa, xc, xb = xp[o - 1 - wp: o - 1], xp[o - 1: o - 1 + wp], xp[o - 1 + wp: o - 1 + 2 * wp]
-                        ya, yc, yb = yp[o - 1 - wp: o - 1], yp[o - 1: o - 1 + wp], yp[o - 1 + wp: o - 1 + 2 * wp]
-                        za, zc, zd = zp[o - 1 - wp: o - 1], zp[o - 1: o - 1 + wp], zp[o - 1 + wp: o - 1 + 2 * wp]
-                        rxr, ryr, slr = rxa[:w], rya[:w], sla[q: q + w]  # this row's radii, all margins
+                        ka, kc, kb = (v - 1) % 3 if v > 0 else 3, v % 3, r % 3 if r < h else 3
+                        # (2) footprint half-widths and depth margins from rows v - 1, v, v + 1 (window
+                        # column u + 1 is pixel u: non-negative indices only, the loop vectorises)
                         for u in range(w):
-                            r = half * (msd(xc[u], xc[u + 1], xc[u + 2]) + msd(xa[u + 1], xc[u + 1], xb[u + 1]))
-                            rxr[u] = min(max(r, half), one_half)
-                            r = half * (msd(yc[u], yc[u + 1], yc[u + 2]) + msd(ya[u + 1], yc[u + 1], yb[u + 1]))
-                            ryr[u] = min(max(r, half), one_half)
-                            slr[u] = msd(zc[u], zc[u + 1], zc[u + 2]) + msd(za[u + 1], zc[u + 1], zd[u + 1]) + ftol * zc[u + 1]
-                        xc, yc, cr = xp[o: o + w], yp[o: o + w], centre[q: q + w]
-                        # nearest pixel of each landing point (h * w: not valid, a spare cell), and whether
+                            rr = half * (msd(xw[kc, u], xw[kc, u + 1], xw[kc, u + 2]) + msd(xw[ka, u + 1], xw[kc, u + 1], xw[kb, u + 1]))
+                            rxr[u] = min(max(rr, half), one_half)
+                            rr = half * (msd(yw[kc, u], yw[kc, u + 1], yw[kc, u + 2]) + msd(yw[ka, u + 1], yw[kc, u + 1], yw[kb, u + 1]))
+                            ryr[u] = min(max(rr, half), one_half)
+                            sla[q + u] = (msd(zw[kc, u], zw[kc, u + 1], zw[kc, u + 2]) + msd(zw[ka, u + 1], zw[kc, u + 1], zw[kb, u + 1])
+                                          + ftol * zw[kc, u + 1])
+                        # (3) nearest pixel of each landing point (h * w: not valid, a spare cell), and whether
                         # its footprint box holds another pixel centre (then the sign bit is set)
                         for u in range(w):
-                            x, y = xc[u], yc[u]
+                            x, y = xw[kc, u + 1], yw[kc, u + 1]
                             xr, yr = np.rint(x), np.rint(y)
                             ok = x == x
                             xn = min(max(int(xr if ok else zero), 0), w - 1)
                             yn = min(max(int(yr if ok else zero), 0), h - 1)
                             alone = (one - abs(x - xr) > rxr[u]) & (one - abs(y - yr) > ryr[u])
-                            cr[u] = (yn * w + xn if alone else ~(yn * w + xn)) if ok else hw
-                        zr = zp[o: o + w]
-                        for u in range(w):  # nearest pixels: branch-free
-                            c = cr[u]
+                            centre[q + u] = (yn * w + xn if alone else ~(yn * w + xn)) if ok else hw
+                        n = 0
+                        for u in range(w):  # (4) nearest pixels, branch-free; the other points listed
+                            c = centre[q + u]
+                            lst[n] = u
+                            n += c < 0
                             c = c if c >= 0 else ~c
-                            z = zr[u]
+                            z1 = zw[kc, u + 1]
                             old = zbuf[c]
-                            zbuf[c] = z if z < old else old  # NaN (not valid: the spare cell) never writes
-                        for u in range(w):  # the footprints that reach into the 3x3 block
-                            c = cr[u]
-                            if c >= 0:
-                                continue
-                            c = ~c
-                            cr[u] = c
-                            z = zr[u]
-                            x, y = xc[u], yc[u]
+                            zbuf[c] = z1 if z1 < old else old  # NaN (not valid: the spare cell) never writes
+                        for k2 in range(n):  # (5) the footprints that reach into the 3x3 block
+                            u = lst[k2]
+                            c = ~centre[q + u]
+                            centre[q + u] = c
+                            z1 = zw[kc, u + 1]
+                            x, y = xw[kc, u + 1], yw[kc, u + 1]
                             xr, yr = np.rint(x), np.rint(y)
                             rx, ry = rxr[u], ryr[u]
                             dx, dy = x - xr, y - yr
@@ -334,37 +367,61 @@ def _zbuffer_kernel():
                             xm_ = (one + dx <= rx) & (xn > 0)
                             yp_ = (one - dy <= ry) & (yn + 1 < h)
                             ym_ = (one + dy <= ry) & (yn > 0)
-                            # the eight neighbours, branch-free: an unselected one is written back as read
-                            # (at a clamped index; each thread owns its z-buffer)
-                            for kx, ky, sel in ((1, 0, xp_), (-1, 0, xm_), (0, 1, yp_), (0, -1, ym_),
-                                                (1, 1, xp_ & yp_), (-1, 1, xm_ & yp_), (1, -1, xp_ & ym_),
-                                                (-1, -1, xm_ & ym_)):
-                                t2 = min(max(c + ky * w + kx, 0), hw)
+                            if (xp_ & xm_) | (yp_ & ym_):  # a footprint wider than two pixels (rare)
+                                # the eight neighbours, branch-free: an unselected one is written back as
+                                # read (at a clamped index; each thread owns its z-buffer)
+                                for kx, ky, sel in ((1, 0, xp_), (-1, 0, xm_), (0, 1, yp_), (0, -1, ym_),
+                                                    (1, 1, xp_ & yp_), (-1, 1, xm_ & yp_), (1, -1, xp_ & ym_),
+                                                    (-1, -1, xm_ & ym_)):
+                                    t2 = min(max(c + ky * w + kx, 0), hw)
+                                    old = zbuf[t2]
+                                    zbuf[t2] = z1 if (sel & (z1 < old)) else old
+                            else:
+                                # at most one neighbour per axis: that column, that row and their corner;
+                                # an axis without one writes to the point's own pixel again (a no-op min)
+                                kx = np.int64(xp_) - np.int64(xm_)
+                                ky = (np.int64(yp_) - np.int64(ym_)) * w
+                                t2 = c + kx
                                 old = zbuf[t2]
-                                zbuf[t2] = z if (sel & (z < old)) else old
-                    for v in range(h):
-                        o = (v + 1) * wp + 1
+                                zbuf[t2] = z1 if z1 < old else old
+                                t2 = c + ky
+                                old = zbuf[t2]
+                                zbuf[t2] = z1 if z1 < old else old
+                                t2 = c + ky + kx
+                                old = zbuf[t2]
+                                zbuf[t2] = z1 if z1 < old else old
+                    for v in range(h):  # (6) the test: clear what is hidden
                         q = v * w
-                        zr, cr, slr = zp[o: o + w], centre[q: q + w], sla[q: q + w]
-                        for u in range(w):
-                            z = zr[u]
-                            if z == z and not (z - zbuf[cr[u]] <= slr[u]):  # valid and hidden
-                                vb[v, u] = False
-                                fx[v, u] = zero
-                                fy[v, u] = zero
-                                zb[v, u] = zero
+                        m = 0
+                        for u in range(w):  # branch-free; the rare hidden points are cleared after
+                            c = centre[q + u]
+                            hid = (c != hw) & (not (z1s[v, u] - zbuf[c] <= sla[q + u]))  # valid and hidden
+                            lst[u] = hid
+                            m += hid
+                        if m:
+                            for u in range(w):
+                                if lst[u]:
+                                    valid[b, v, u] = False
+                                    flow[b, 0, v, u] = zero
+                                    flow[b, 1, v, u] = zero
+                                    z1s[v, u] = zero
+                    if want_depth1:
+                        depth1[b] = z1s
 
         _ZB_KERNEL = kernel
     return _ZB_KERNEL or None
 
-def _zbuffer_scratch(n_chunks: int, h: int, w: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The numba z-buffer's per-thread scratch (reused): (n, 3, (H + 2) * (W + 2)) float32 NaN-bordered
-    landing points and depths; (n, 4, H * W + 1) float32: one row's footprint radii (x, y), the depth
-    margins, the z-buffer (with a spare cell for points that are not valid); (n, H * W) int32 nearest
-    pixels."""
-    return _WS.cached(("zb", n_chunks, h, w), lambda: (np.empty((n_chunks, 3, (h + 2) * (w + 2)), np.float32),
+def _zbuffer_scratch(n_chunks: int, h: int, w: int) -> tuple[np.ndarray, ...]:
+    """The numba z-buffer's per-thread scratch (reused): (n, 3, 4, W + 2) float32 rolling windows of
+    landing points (x, y) and depths, NaN-bordered; (n, 4, H * W + 1) float32: one row's footprint
+    radii (x, y), the depth margins, the z-buffer (with a spare cell for points that are not valid);
+    (n, H * W) int32 nearest pixels; (n, W) int32 one row's list of points whose footprint reaches a
+    neighbour (then its hidden points); (n, H, W) float32 the sample's depth_z1."""
+    return _WS.cached(("zb", n_chunks, h, w), lambda: (np.empty((n_chunks, 3, 4, w + 2), np.float32),
                                                      np.empty((n_chunks, 4, h * w + 1), np.float32),
-                                                     np.empty((n_chunks, h * w), np.int32)))
+                                                     np.empty((n_chunks, h * w), np.int32),
+                                                     np.empty((n_chunks, w), np.int32),
+                                                     np.empty((n_chunks, h, w), np.float32)))
 
 
 def _synthesize_numba(z: torch.Tensor, mn: np.ndarray, flow_chw: torch.Tensor, valid: torch.Tensor,
@@ -379,6 +436,24 @@ def _synthesize_numba(z: torch.Tensor, mn: np.ndarray, flow_chw: torch.Tensor, v
         numba.set_num_threads(max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)))
         kernel(z.numpy(), np.ascontiguousarray(mn, dtype=np.float32), flow_chw.numpy(), valid.numpy(), d1,
                depth1 is not None, (w - 1) / 2.0, (h - 1) / 2.0, w / 2.0, h / 2.0)
+
+
+def _synthesize_zbuffer_numba(z: torch.Tensor, mn: np.ndarray, flow_chw: torch.Tensor, valid: torch.Tensor,
+                              depth1: torch.Tensor | None, occlusion_rel_tol: float) -> None:
+    """The plain synthesis and the z-buffer test in one compiled pass per sample (CPU tensors, one
+    chunk of samples per thread): each sample's flow is tested while it is still in cache."""
+    import numba
+
+    kernel = _zbuffer_kernel()
+    bsz, h, w = z.shape
+    d1 = depth1.numpy() if depth1 is not None else np.empty((1, 1, 1), np.float32)
+    with _KERNEL_LOCK:
+        n_threads = max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS))
+        numba.set_num_threads(n_threads)
+        n_chunks = min(n_threads, bsz)
+        kernel(z.numpy(), np.ascontiguousarray(mn, dtype=np.float32), flow_chw.numpy(), valid.numpy(), d1,
+               depth1 is not None, (w - 1) / 2.0, (h - 1) / 2.0, w / 2.0, h / 2.0, float(occlusion_rel_tol),
+               n_chunks, *_zbuffer_scratch(n_chunks, h, w))
 
 
 def _synthesize_torch(z: torch.Tensor, mn: np.ndarray, flow_chw: torch.Tensor, valid: torch.Tensor,
@@ -449,7 +524,8 @@ def synthesize(depth_z: Any, camera: Any, cam1_from_cam0: Any, zbuffer: bool = F
             depths are splatted into frame 1 (each over its own moved footprint) with
             ``scatter_reduce(amin)``, and a point is hidden when the minimum at its nearest pixel is
             nearer than its own depth by more than a margin (:func:`visible_after_motion`; on the CPU
-            the same test compiled with numba, about six times the cost of the plain synthesis).
+            the same test compiled with numba and fused with the synthesis, about seven times the
+            cost of the plain synthesis: ``python -m bench.run --only gen``).
         occlusion_rel_tol: see :data:`DEFAULT_OCCLUSION_REL_TOL`.
         out: optional ``(flow_chw, valid)`` buffers to write into and reuse across calls: (B, 2, H, W)
             float32 and (B, H, W) bool, contiguous, on the depth's device. A fresh 30 MB result costs
@@ -488,37 +564,29 @@ def synthesize(depth_z: Any, camera: Any, cam1_from_cam0: Any, zbuffer: bool = F
                 or flow_chw.device != device or valid.device != device):
             raise ValueError(f"out must be ((B, 2, H, W) float32, (B, H, W) bool) contiguous on {device} "
                              f"for B, H, W = {bsz}, {h}, {w}")
-    if return_depth1:
-        depth1 = torch.empty(bsz, h, w, **f32)
-    elif zbuffer:  # scratch only: reused (a fresh buffer costs page faults)
-        depth1 = _WS.depth1(device, bsz, h, w)
-    else:
-        depth1 = None
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
     use_numba = backend == "numba" or (backend == "auto" and device.type == "cpu" and _numba_kernel() is not None)
     if use_numba and device.type != "cpu":
         raise ValueError("the numba backend runs on CPU tensors only; use backend='torch'")
+    fused = zbuffer and use_numba and _zbuffer_kernel() is not None  # one compiled pass: synthesis + z-buffer
+    if return_depth1:
+        depth1 = torch.empty(bsz, h, w, **f32)
+    elif zbuffer and not fused:  # scratch only: reused (a fresh buffer costs page faults)
+        depth1 = _WS.depth1(device, bsz, h, w)
+    else:
+        depth1 = None
 
     with torch.no_grad():
-        (_synthesize_numba if use_numba else _synthesize_torch)(z, mn, flow_chw, valid, depth1)
-        if zbuffer:
-            zb = _zbuffer_kernel() if use_numba else None
-            if zb is not None:
-                import numba
-
-                with _KERNEL_LOCK:
-                    n_threads = max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS))
-                    numba.set_num_threads(n_threads)
-                    n_chunks = min(n_threads, bsz)
-                    padded, flat, centres = _zbuffer_scratch(n_chunks, h, w)
-                    zb(flow_chw.numpy(), valid.numpy(), depth1.numpy(), float(occlusion_rel_tol), n_chunks,
-                       padded, flat, centres)
-            else:
-                visible = visible_after_motion(flow_chw, valid, depth1, occlusion_rel_tol)
-                hidden = valid & ~visible
-                valid.copy_(visible)
-                flow_chw.masked_fill_(hidden.unsqueeze(1), 0.0)
+        if fused:
+            _synthesize_zbuffer_numba(z, mn, flow_chw, valid, depth1, occlusion_rel_tol)
+        else:
+            (_synthesize_numba if use_numba else _synthesize_torch)(z, mn, flow_chw, valid, depth1)
+        if zbuffer and not fused:
+            visible = visible_after_motion(flow_chw, valid, depth1, occlusion_rel_tol)
+            hidden = valid & ~visible
+            valid.copy_(visible)
+            flow_chw.masked_fill_(hidden.unsqueeze(1), 0.0)
         if depth1 is not None and not use_numba:  # the numba kernels write 0 where not valid
             depth1.masked_fill_(~valid, 0.0)
 
