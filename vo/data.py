@@ -2,7 +2,8 @@
 
 A *source* yields batches ``{"flow": (B, 2, h, w) float32 px at network resolution,
 "intrinsics": (B, 4) float32 fx, fy, cx, cy at network resolution, "target": (B, 6) float32 paper
-vector of cam_{t+k}_from_cam_t}`` through ``batches(epoch, batch_size)``; the same epoch gives the
+vector of cam_{t+k}_from_cam_t}`` (and, for a network with a depth channel, ``"inv_depth": (B, 1, h, w)
+float32`` 1/m of the first frame, :func:`vo.net.inverse_depth_input`) through ``batches(epoch, batch_size)``; the same epoch gives the
 same batches (seeded from the source's seed and the epoch number, never a global RNG), which is what
 makes ``--resume`` reproduce an uninterrupted run bit for bit.
 
@@ -30,6 +31,7 @@ from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
 from deepslam.gen.flow import pool_flow, synthesize_flow
+from deepslam.vo.net import inverse_depth_input
 
 Batch = dict[str, torch.Tensor]
 
@@ -48,10 +50,12 @@ class TensorSamples:
         target: (N, 6) float32 paper vectors of cam_{t+k}_from_cam_t.
         seed: shuffling seed.
         shuffle: shuffle each epoch (False: in order, e.g. for validation).
+        inv_depth: optional (N, 1, h, w) float32 inverse depth of the first frames, 1/m (0 = unknown).
     """
 
-    def __init__(self, flow, intrinsics, target, seed: int = 0, shuffle: bool = True):
+    def __init__(self, flow, intrinsics, target, seed: int = 0, shuffle: bool = True, inv_depth=None):
         self.flow = torch.as_tensor(np.asarray(flow, dtype=np.float32))
+        self.inv_depth = None if inv_depth is None else torch.as_tensor(np.asarray(inv_depth, dtype=np.float32))
         self.intrinsics = torch.as_tensor(np.asarray(intrinsics, dtype=np.float32))
         self.target = torch.as_tensor(np.asarray(target, dtype=np.float32))
         n = len(self.flow)
@@ -60,6 +64,8 @@ class TensorSamples:
         if self.intrinsics.shape != (n, 4) or self.target.shape != (n, 6):
             raise ValueError(f"intrinsics {tuple(self.intrinsics.shape)} / target {tuple(self.target.shape)} "
                              f"do not match {n} flows")
+        if self.inv_depth is not None and self.inv_depth.shape != (n, 1, *self.flow.shape[2:]):
+            raise ValueError(f"inverse depth {tuple(self.inv_depth.shape)} does not match the flows {tuple(self.flow.shape)}")
         self.seed = int(seed)
         self.shuffle = shuffle
 
@@ -69,7 +75,8 @@ class TensorSamples:
     def subset(self, idx: np.ndarray, shuffle: bool | None = None) -> "TensorSamples":
         idx = torch.as_tensor(np.asarray(idx, dtype=np.int64))
         return TensorSamples(self.flow[idx].numpy(), self.intrinsics[idx].numpy(), self.target[idx].numpy(),
-                             self.seed, self.shuffle if shuffle is None else shuffle)
+                             self.seed, self.shuffle if shuffle is None else shuffle,
+                             None if self.inv_depth is None else self.inv_depth[idx].numpy())
 
     def batches(self, epoch: int, batch_size: int, rank: int = 0, world: int = 1) -> Iterator[Batch]:
         """The epoch's batches of ``batch_size`` in a seeded order; with ``world`` > 1 (data-parallel
@@ -87,7 +94,10 @@ class TensorSamples:
                 if len(idx) < world:
                     break
                 idx = idx[rank::world]
-            yield {"flow": self.flow[idx], "intrinsics": self.intrinsics[idx], "target": self.target[idx]}
+            batch = {"flow": self.flow[idx], "intrinsics": self.intrinsics[idx], "target": self.target[idx]}
+            if self.inv_depth is not None:
+                batch["inv_depth"] = self.inv_depth[idx]
+            yield batch
 
     def split(self, holdout_fraction: float, seed: int) -> tuple["TensorSamples", "TensorSamples"]:
         """(train, holdout) by a seeded permutation; holdout gets round(fraction * N) >= 1 samples."""
@@ -434,6 +444,15 @@ def load_frames(sequences: Seq, width: int, height: int, frame_step: int = 1, de
     return Frames(np.stack(depths), np.array(cam_idx, dtype=np.int64), cams, names)
 
 
+def frame_inverse_depth(seq, i: int, width: int, height: int) -> np.ndarray:
+    """The depth channel of frame i as a network with one reads it at test time: (1, height, width)
+    float32 1/m (0 = unknown), from the sequence's depth maps (sensor or rendered) or else its stereo
+    pair (holes filled, as in training); InputError for a sequence with neither."""
+    how = _depth_source(seq, "auto")
+    d = seq.depth(i) if how == "rendered" else fill_depth_holes(stereo_depth(seq, i))
+    return inverse_depth_input(d, width, height)
+
+
 def stereo_depth(seq, i: int) -> np.ndarray:
     """depth_z (H, W) float32 of frame i from its rectified stereo pair (gen.stereo, SGBM), 0 = unknown."""
     from deepslam.gen import stereo
@@ -587,8 +606,9 @@ class _OnTheFlySource:
         rng = np.random.default_rng(epoch_seed(seed, 0, 0xA11))
         parts = [self.make_batch(rng, min(256, n - s)) for s in
                  tqdm(range(0, n, 256), desc="samples", unit="batch", disable=not progress, leave=False)]
+        inv = torch.cat([p["inv_depth"] for p in parts]).numpy() if "inv_depth" in parts[0] else None
         return TensorSamples(torch.cat([p["flow"] for p in parts]).numpy(), torch.cat([p["intrinsics"] for p in parts]).numpy(),
-                             torch.cat([p["target"] for p in parts]).numpy(), seed=seed)
+                             torch.cat([p["target"] for p in parts]).numpy(), seed=seed, inv_depth=inv)
 
 
 class SyntheticSource(_OnTheFlySource):
@@ -610,10 +630,13 @@ class SyntheticSource(_OnTheFlySource):
         synthesize: replaces :func:`synthesize_flow`: ``(depth (B, H, W) tensor, intrinsics (B, 4),
             cam1_from_cam0 (B, 4, 4)) -> (flow (B, 2, H, W), valid (B, H, W))``.
         tilt: a :class:`CameraTilt` applied to each sample's frame and motion (None: the frames as they are).
+        inv_depth: also give each sample's inverse depth at the network resolution (``"inv_depth"``).
     """
 
     def __init__(self, frames: Frames, sample_motion, samples_per_epoch: int, seed: int = 0, synth_factor: int = 1,
-                 missing_depth: str = "infinity", synthesize=None, tilt: CameraTilt | None = None):
+                 missing_depth: str = "infinity", synthesize=None, tilt: CameraTilt | None = None,
+                 inv_depth: bool = False):
+        self.inv_depth = bool(inv_depth)
         self.frames = frames
         self.sample_motion = sample_motion
         self.samples_per_epoch = int(samples_per_epoch)
@@ -653,8 +676,12 @@ class SyntheticSource(_OnTheFlySource):
         else:
             flow, valid = self.synthesize(depth, self._k_synth[cams], motion)
             flow, _ = pool_flow(flow, valid, self.synth_factor)
-        return {"flow": flow.contiguous(), "intrinsics": torch.from_numpy(self._k_out[cams]),
-                "target": torch.from_numpy(vec6.astype(np.float32))}
+        batch = {"flow": flow.contiguous(), "intrinsics": torch.from_numpy(self._k_out[cams]),
+                 "target": torch.from_numpy(vec6.astype(np.float32))}
+        if self.inv_depth:
+            h, w = flow.shape[2:]
+            batch["inv_depth"] = torch.from_numpy(np.stack([inverse_depth_input(d, w, h) for d in depth.numpy()]))
+        return batch
 
 
 
@@ -761,13 +788,15 @@ class EstimatedFlowSource(_OnTheFlySource):
             (sensor noise, exposure; in a renderer, texture filtering at the new viewpoint), and the
             estimator's errors depend on that. 0: none.
         tilt: a :class:`CameraTilt` applied to each sample's frame (image and depth) and motion.
+        inv_depth: also give each sample's inverse depth at the network resolution (``"inv_depth"``).
     """
 
     def __init__(self, frames: ImageFrames, sample_motion, estimator: str, width: int, height: int,
                  samples_per_epoch: int, seed: int = 0, threads: int = 2, estimator_options: dict | None = None,
-                 appearance_noise: float = 0.0, tilt: CameraTilt | None = None):
+                 appearance_noise: float = 0.0, tilt: CameraTilt | None = None, inv_depth: bool = False):
         import threading
 
+        self.inv_depth = bool(inv_depth)
         from deepslam.vo import flow_estimators
 
         self.frames = frames
@@ -788,7 +817,7 @@ class EstimatedFlowSource(_OnTheFlySource):
     def __len__(self) -> int:
         return self.samples_per_epoch
 
-    def _one(self, k: int, motion: np.ndarray, noise_seed: int, rot: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    def _one(self, k: int, motion: np.ndarray, noise_seed: int, rot: np.ndarray | None) -> tuple[np.ndarray, ...]:
         from deepslam.gen.novel_view import render_novel_view
         from deepslam.vo import flow_estimators
 
@@ -805,7 +834,8 @@ class EstimatedFlowSource(_OnTheFlySource):
         if self.appearance_noise > 0:
             noise = np.random.default_rng(noise_seed).normal(0.0, self.appearance_noise, grey1.shape)
             grey1 = np.clip(np.rint(grey1 + noise), 0, 255).astype(np.uint8)
-        return flow_estimators.to_network_input(est.estimate(grey0, grey1), cam, self.width, self.height)
+        flow, intr = flow_estimators.to_network_input(est.estimate(grey0, grey1), cam, self.width, self.height)
+        return flow, intr, (inverse_depth_input(depth0, self.width, self.height) if self.inv_depth else None)
 
     def make_batch(self, rng: np.random.Generator, n: int) -> Batch:
         from concurrent.futures import ThreadPoolExecutor
@@ -824,6 +854,9 @@ class EstimatedFlowSource(_OnTheFlySource):
         else:
             with ThreadPoolExecutor(self.threads) as pool:
                 out = list(pool.map(self._one, (int(k) for k in idx), motion, (int(z) for z in seeds), rots))
-        return {"flow": torch.from_numpy(np.stack([o[0] for o in out])),
-                "intrinsics": torch.from_numpy(np.stack([o[1] for o in out])),
-                "target": torch.from_numpy(vec6.astype(np.float32))}
+        batch = {"flow": torch.from_numpy(np.stack([o[0] for o in out])),
+                 "intrinsics": torch.from_numpy(np.stack([o[1] for o in out])),
+                 "target": torch.from_numpy(vec6.astype(np.float32))}
+        if self.inv_depth:
+            batch["inv_depth"] = torch.from_numpy(np.stack([o[2] for o in out]))
+        return batch

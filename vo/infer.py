@@ -67,13 +67,19 @@ class VOPredictor:
         """(height, width) of the flow the network takes, pixels."""
         return self.model.cfg.input_height, self.model.cfg.input_width
 
+    @property
+    def needs_depth(self) -> bool:
+        """True for a network with a depth channel: it reads the first frame's depth of every pair."""
+        return bool(self.model.cfg.depth_channel)
+
     @torch.inference_mode()
-    def predict(self, flow, intrinsics) -> tuple[np.ndarray, np.ndarray]:
+    def predict(self, flow, intrinsics, inv_depth=None) -> tuple[np.ndarray, np.ndarray]:
         """6DoF mean and std for flows at network resolution.
 
         Args:
             flow: (B, 2, h, w) float32 px (numpy or torch), h x w = :attr:`input_size`.
             intrinsics: (B, 4) fx, fy, cx, cy at network resolution (used by coord-channel models).
+            inv_depth: (B, 1, h, w) float32 1/m of each pair's first frame (depth-channel models only).
 
         Returns:
             (mean6, std6): float64 (B, 6) each; std6 > 0.
@@ -82,10 +88,14 @@ class VOPredictor:
         intr = torch.as_tensor(np.asarray(intrinsics, dtype=np.float32)) if not torch.is_tensor(intrinsics) else intrinsics.float()
         if flow.ndim != 4 or len(intr) != len(flow):
             raise ValueError(f"flow (B, 2, h, w) and intrinsics (B, 4) expected, got {tuple(flow.shape)}, {tuple(intr.shape)}")
+        inv = None if inv_depth is None else (inv_depth.float() if torch.is_tensor(inv_depth)
+                                              else torch.as_tensor(np.asarray(inv_depth, dtype=np.float32)))
         means, log_stds = [], []
         for s in range(0, len(flow), self.batch_size):
+            sl = slice(s, s + self.batch_size)
             with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.bf16):
-                m, ls = self.model(flow[s:s + self.batch_size].to(self.device), intr[s:s + self.batch_size].to(self.device))
+                m, ls = self.model(flow[sl].to(self.device), intr[sl].to(self.device),
+                                   None if inv is None else inv[sl].to(self.device))
             means.append(m.double().cpu())
             log_stds.append(ls.double().cpu())
         if not means:
@@ -101,11 +111,14 @@ class VOPredictor:
 
     def predict_pairs(self, seq, pairs: Seq[tuple[int, int]], flow_estimator, progress: bool = True,
                       chunk: int = 64) -> tuple[np.ndarray, np.ndarray]:
-        """Flow for every pair (i, j) of ``seq`` by ``flow_estimator``, then 6DoF of cam_j_from_cam_i.
+        """Flow for every pair (i, j) of ``seq`` by ``flow_estimator`` (and, for a depth-channel
+        network, frame i's depth: :func:`vo.data.frame_inverse_depth`), then 6DoF of cam_j_from_cam_i.
 
         Returns (mean6, std6): float64 (P, 6) in the order of ``pairs``.
         """
         from tqdm import tqdm
+
+        from deepslam.vo.data import frame_inverse_depth
 
         pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
         h, w = self.input_size
@@ -115,10 +128,13 @@ class VOPredictor:
                 part = pairs[s:s + chunk]
                 flows = np.zeros((len(part), 2, h, w), np.float32)
                 intr = np.zeros((len(part), 4), np.float32)
+                inv = np.zeros((len(part), 1, h, w), np.float32) if self.needs_depth else None
                 for k, (i, j) in enumerate(part):
                     flows[k], intr[k] = self.prepare(flow_estimator.pair_flow(seq, int(i), int(j)), seq.camera)
+                    if inv is not None:
+                        inv[k] = frame_inverse_depth(seq, int(i), w, h)
                     bar.update(1)
-                m, sd = self.predict(flows, intr)
+                m, sd = self.predict(flows, intr, inv)
                 means.append(m)
                 stds.append(sd)
         if not means:

@@ -13,7 +13,12 @@ image size, ``du / W`` and ``dv / H``, so a flow field means the same thing at a
 then multiplied by ``NetConfig.flow_scale`` (1.0 = exactly the paper). With
 ``NetConfig.coord_channels`` two more channels hold each pixel's normalised image coordinates
 ``(u - cx) / fx`` and ``(v - cy) / fy`` (intrinsics at network resolution), which tell the network
-the camera's field of view so that one model can serve several cameras.
+the camera's field of view so that one model can serve several cameras. With
+``NetConfig.depth_channel`` one more channel holds the first frame's inverse depth ``1 / depth_z``
+(1/m, 0 where unknown; area-averaged to the network resolution, :func:`inverse_depth_input`): for
+RGB-D cameras, renders and stereo, where the depth of the frame is known at test time. Flow alone
+fixes a translation only up to the scene's scale; with the inverse depth the translation's flow
+``f t / depth_z`` is read in metres.
 """
 from __future__ import annotations
 
@@ -50,6 +55,8 @@ class NetConfig:
     """Fully connected hidden layers per branch."""
     coord_channels: bool = False
     """Add the normalised pixel coordinates (u - cx)/fx, (v - cy)/fy as two input channels."""
+    depth_channel: bool = False
+    """Add the first frame's inverse depth (1/m, 0 = unknown) as an input channel (RGB-D, renders, stereo)."""
     flow_scale: float = 1.0
     """Multiplier applied after the paper's normalisation flow / (W, H) (1.0 = the paper)."""
 
@@ -67,7 +74,7 @@ class NetConfig:
 
     @property
     def in_channels(self) -> int:
-        return 4 if self.coord_channels else 2
+        return 2 + 2 * bool(self.coord_channels) + bool(self.depth_channel)
 
     def feature_shape(self) -> tuple[int, int, int]:
         """(channels, rows, columns) after the convolutions."""
@@ -151,8 +158,10 @@ class FlowPoseNet(nn.Module):
         unc = {id(p) for p in self.uncertainty_parameters()}
         return [p for p in self.parameters() if id(p) not in unc]
 
-    def prepare_input(self, flow_px: torch.Tensor, intrinsics: torch.Tensor | None = None) -> torch.Tensor:
-        """The tensor the convolutions see: (B, 2 or 4, h, w) float32 (see the module docstring)."""
+    def prepare_input(self, flow_px: torch.Tensor, intrinsics: torch.Tensor | None = None,
+                      inv_depth: torch.Tensor | None = None) -> torch.Tensor:
+        """The tensor the convolutions see: (B, in_channels, h, w) float32 (see the module docstring).
+        ``inv_depth``: (B, 1, h, w) float32 1/m of the first frame (needed with ``depth_channel``)."""
         cfg = self.cfg
         if flow_px.shape[1:] != (2, cfg.input_height, cfg.input_width):
             raise ValueError(f"flow must be (B, 2, {cfg.input_height}, {cfg.input_width}), got {tuple(flow_px.shape)}")
@@ -164,6 +173,13 @@ class FlowPoseNet(nn.Module):
             cu = (self._grid_uv[:, 0:1] - k[:, 2:3]) / k[:, 0:1]
             cv = (self._grid_uv[:, 1:2] - k[:, 3:4]) / k[:, 1:2]
             x = torch.cat([x, cu, cv], dim=1)
+        if cfg.depth_channel:
+            if inv_depth is None:
+                raise ValueError("this network needs the first frame's inverse depth (depth_channel=True)")
+            if inv_depth.shape != (len(x), 1, cfg.input_height, cfg.input_width):
+                raise ValueError(f"inverse depth must be (B, 1, {cfg.input_height}, {cfg.input_width}), "
+                                 f"got {tuple(inv_depth.shape)}")
+            x = torch.cat([x, inv_depth.to(x.dtype)], dim=1)
         return x.contiguous(memory_format=torch.channels_last) if self.channels_last else x
 
     def set_channels_last(self, on: bool = True) -> "FlowPoseNet":
@@ -171,10 +187,11 @@ class FlowPoseNet(nn.Module):
         self.channels_last = bool(on)
         return self.to(memory_format=torch.channels_last if on else torch.contiguous_format)
 
-    def trunk(self, flow_px: torch.Tensor, intrinsics: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def trunk(self, flow_px: torch.Tensor, intrinsics: torch.Tensor | None = None,
+              inv_depth: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """The hidden features the heads read: (rotation branch (B, hidden_units), translation branch
         (B, hidden_units)), float32. Everything but the four output layers."""
-        x = self.conv(self.prepare_input(flow_px, intrinsics))
+        x = self.conv(self.prepare_input(flow_px, intrinsics, inv_depth))
         x = torch.flatten(x, 1)
         return self.rot_fc(x).float(), self.trans_fc(x).float()
 
@@ -191,8 +208,9 @@ class FlowPoseNet(nn.Module):
             log_std = torch.cat([self.rot_log_std(hr), self.trans_log_std(ht)], dim=1)
         return log_std.clamp(LOG_STD_MIN, LOG_STD_MAX)
 
-    def forward(self, flow_px: torch.Tensor, intrinsics: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        hr, ht = self.trunk(flow_px, intrinsics)
+    def forward(self, flow_px: torch.Tensor, intrinsics: torch.Tensor | None = None,
+                inv_depth: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        hr, ht = self.trunk(flow_px, intrinsics, inv_depth)
         return self.mean_head(hr, ht), self.log_std_head(hr, ht)
 
 
@@ -213,3 +231,19 @@ def gaussian_nll(mean: torch.Tensor, log_std: torch.Tensor, target: torch.Tensor
 
 def count_parameters(model: nn.Module) -> int:
     return sum(p.numel() for p in model.parameters())
+
+
+def inverse_depth_input(depth_z, width: int, height: int):
+    """The network's depth channel for one frame: (1, height, width) float32 ``1 / depth_z`` in 1/m,
+    0 where the depth is unknown (0, negative, NaN, inf), area-averaged from ``depth_z`` (H, W) float
+    metres of any size (numpy) to the network resolution."""
+    import cv2
+    import numpy as np
+
+    d = np.asarray(depth_z, dtype=np.float32)
+    ok = np.isfinite(d) & (d > 0)
+    inv = np.zeros(d.shape, np.float32)
+    np.divide(1.0, d, out=inv, where=ok)
+    if inv.shape != (height, width):
+        inv = cv2.resize(inv, (width, height), interpolation=cv2.INTER_AREA)
+    return inv[None]

@@ -64,7 +64,7 @@ def speed_sweep(predictor, make_source, n_frames: int, rate_hz: float, speeds_mp
     for v in speeds_mps:
         d = float(v) / float(rate_hz)
         batch = make_source(_forward(d)).make_batch(np.random.default_rng(seed), int(n_frames))
-        mean, _ = predictor.predict(batch["flow"], batch["intrinsics"])
+        mean, _ = predictor.predict(batch["flow"], batch["intrinsics"], batch.get("inv_depth"))
         read = -mean[:, 5]
         q25, q50, q75 = np.percentile(read, [25, 50, 75])
         ratio = float(np.median(read / d)) if d > 0 else None

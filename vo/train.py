@@ -209,7 +209,7 @@ def evaluate(model: FlowPoseNet, source: Source, cfg: TrainConfig) -> dict:
     for b in source.batches(0, cfg.batch_size):
         b = _on(cfg, b)
         with _autocast(cfg):
-            mean, log_std = model(b["flow"], b["intrinsics"])
+            mean, log_std = model(b["flow"], b["intrinsics"], b.get("inv_depth"))
         k = len(b["target"])
         loss += float(pose_loss(mean, b["target"], cfg.rot_weight)) * k
         nll += float(gaussian_nll(mean, log_std, b["target"])) * k
@@ -248,7 +248,7 @@ def head_inputs(model: FlowPoseNet, source: Source, cfg: TrainConfig) -> HeadInp
     for b in source.batches(0, cfg.batch_size):
         b = _on(cfg, b)
         with _autocast(cfg):
-            hr, ht = model.trunk(b["flow"], b["intrinsics"])
+            hr, ht = model.trunk(b["flow"], b["intrinsics"], b.get("inv_depth"))
         parts.append((hr, ht, model.mean_head(hr, ht), b["target"].float()))
     return HeadInputs(*(torch.cat([p[i] for p in parts]) for i in range(4)))
 
@@ -481,7 +481,7 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
         for step, b in enumerate(epoch_batches):
             b = _on(cfg, b)
             with _autocast(cfg):
-                mean, _ = step_model(b["flow"], b["intrinsics"])
+                mean, _ = step_model(b["flow"], b["intrinsics"], b.get("inv_depth"))
             loss = pose_loss(mean, b["target"], cfg.rot_weight)
             _check_finite(loss, "stage-1", epoch, step, sched.get_last_lr()[0])
             opt.zero_grad(set_to_none=True)

@@ -110,6 +110,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--hidden", type=int, help="units per fully connected layer")
     g.add_argument("--hidden-layers", type=int)
     g.add_argument("--coord-channels", action="store_true", help="add (u-cx)/fx, (v-cy)/fy input channels")
+    g.add_argument("--depth-channel", action="store_true",
+                   help="add the first frame's inverse depth as an input channel (RGB-D cameras, renders, stereo: "
+                        "vo/slam then read each frame's depth too); needs --mode synthetic --frames")
     g.add_argument("--flow-scale", type=float, help="multiplier after flow / (W, H) (1 = the paper)")
     g = p.add_argument_group("recipe")
     g.add_argument("--batch", type=int, default=128)
@@ -149,6 +152,8 @@ def net_config(args):
             d[field] = v
     if args.coord_channels:
         d["coord_channels"] = True
+    if getattr(args, "depth_channel", False):
+        d["depth_channel"] = True
     try:
         return NetConfig(**d)
     except ValueError as e:
@@ -275,6 +280,9 @@ def run(args: argparse.Namespace) -> int:
     if tilt is not None and (args.mode != "synthetic" or args.shards or args.toy):
         raise InputError(None, "--camera-tilt-deg rotates single frames: it needs --mode synthetic with --frames "
                                "(not --toy, --shards or supervised pairs)")
+    if net.depth_channel and (args.mode != "synthetic" or args.shards or args.toy):
+        raise InputError(None, "--depth-channel reads each single frame's depth: it needs --mode synthetic with --frames "
+                               "(not --toy, --shards or supervised pairs)")
     if args.mode == "synthetic":
         if args.shards:
             train_src, hold_src = data.shard_samples(args.shards, args.holdout, args.seed, h, w)
@@ -311,7 +319,8 @@ def run(args: argparse.Namespace) -> int:
                 train_frames, hold_frames = frames.split(args.holdout, args.seed)
 
                 def source(fr, n, seed):
-                    return data.SyntheticSource(fr, sampler, n, seed, f, args.missing_depth, tilt=tilt)
+                    return data.SyntheticSource(fr, sampler, n, seed, f, args.missing_depth, tilt=tilt,
+                                                inv_depth=net.depth_channel)
             else:
                 opts = {"preset": args.dis_preset} if args.synthetic_flow == "dis" else {}
                 frames = data.load_image_frames(seqs, args.frame_step, args.depth, args.max_frames, progress,
@@ -320,7 +329,7 @@ def run(args: argparse.Namespace) -> int:
 
                 def source(fr, n, seed):
                     return data.EstimatedFlowSource(fr, sampler, args.synthetic_flow, w, h, n, seed, args.data_threads, opts,
-                                                    args.appearance_noise, tilt=tilt)
+                                                    args.appearance_noise, tilt=tilt, inv_depth=net.depth_channel)
             hold_src = source(hold_frames, n_hold, args.seed + 1).materialize(n_hold, args.seed + 1, progress)
             train_src = source(train_frames, args.samples_per_epoch, args.seed)
             estimator_name = getattr(train_src, "estimator_name", None)  # None: exact synthetic flow

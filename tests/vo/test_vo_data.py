@@ -337,3 +337,52 @@ def test_fill_depth_holes_fills_inner_holes_and_leaves_the_sky_at_infinity(keep_
     else:
         assert (out[:2] == 5.0).all()
     assert np.array_equal(out[out > 0] > 0, np.ones((out > 0).sum(), bool))
+
+
+def test_sources_give_the_inverse_depth_of_each_samples_frame(plane_sequence):
+    """With ``inv_depth=True`` every batch (exact and estimated flow, pooled too) carries the first
+    frame's inverse depth at the network resolution: the same frame's depth as the flow's."""
+    from deepslam.vo.net import inverse_depth_input
+
+    src = data.SyntheticSource(_frames(2), data.toy_motion_sampler(), samples_per_epoch=8, seed=4, synth_factor=2,
+                               inv_depth=True)
+    b = next(src.batches(0, 8))
+    rng = np.random.default_rng(data.epoch_seed(4, 0, 0))
+    idx = rng.integers(0, 5, 8)
+    assert b["inv_depth"].shape == (8, 1, 24, 80)
+    for k in range(8):
+        np.testing.assert_allclose(b["inv_depth"][k].numpy(), inverse_depth_input(src.frames.depth_z[idx[k]], 80, 24))
+    pool = src.materialize(8, 1)
+    assert pool.inv_depth.shape == (8, 1, 24, 80) and "inv_depth" in next(pool.batches(0, 4))
+    assert "inv_depth" not in next(data.SyntheticSource(_frames(2), data.toy_motion_sampler(), 8, synth_factor=2).batches(0, 8))
+    seq = open_sequence(plane_sequence)
+    frames = data.load_image_frames([seq], frame_step=3, progress=False)
+    est = data.EstimatedFlowSource(frames, data.toy_motion_sampler(), "dis", 80, 24, 4, seed=3, threads=1, inv_depth=True)
+    b = next(est.batches(0, 4))
+    idx = np.random.default_rng(data.epoch_seed(3, 0, 0)).integers(0, len(frames), 4)
+    for k in range(4):
+        np.testing.assert_allclose(b["inv_depth"][k].numpy(), inverse_depth_input(frames.depth_z[idx[k]], 80, 24))
+    np.testing.assert_allclose(data.frame_inverse_depth(seq, 3, 80, 24), inverse_depth_input(seq.depth(3), 80, 24))
+
+
+def test_train_and_vo_with_a_depth_channel(plane_sequence, motion_json, tmp_path):
+    """`train --depth-channel` makes a network that vo feeds with each pair's first-frame depth; the
+    options that have no single frames to read depth from are refused with one line."""
+    from deepslam.cli import main
+    from deepslam.vo.infer import VOPredictor
+
+    out = tmp_path / "depth"
+    base = ["train", "--mode", "synthetic", "--frames", str(plane_sequence), "--motion", str(motion_json), "--net", "tiny",
+            "--batch", "16", "--samples-per-epoch", "64", "--max-epochs", "2", "--nll-epochs", "1", "--bf16", "off",
+            "--threads", "1", "--quiet", "--depth-channel"]
+    assert main([*base, "--out", str(out)]) == 0
+    pred = VOPredictor.from_file(out / "model.safetensors")
+    assert pred.needs_depth and pred.model.cfg.depth_channel
+    traj = tmp_path / "vo.txt"
+    assert main(["vo", "--sequence", str(plane_sequence), "--model", str(out / "model.safetensors"), "--flow", "gt",
+                 "--out", str(traj), "--quiet"]) == 0
+    assert len([ln for ln in traj.read_text().splitlines() if not ln.startswith("#")]) == 12
+    assert main(["train", "--mode", "synthetic", "--toy", "64", "--net", "tiny", "--depth-channel", "--quiet",
+                 "--out", str(tmp_path / "toy")]) == 2
+    assert main(["train", "--mode", "supervised", "--sequence", str(plane_sequence), "--flow", "gt", "--net", "tiny",
+                 "--depth-channel", "--quiet", "--out", str(tmp_path / "sup")]) == 2

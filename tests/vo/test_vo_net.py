@@ -95,3 +95,25 @@ def test_parameter_split_and_losses():
     assert pose_loss(mean, target) == pytest.approx(50 * 0.01 / 6 + 1.0 / 6)
     # NLL at sigma = 1: 0.5 * mean(z^2)
     assert gaussian_nll(mean, torch.zeros(2, 6), target) == pytest.approx(0.5 * (0.01 + 1.0) / 12)
+
+
+def test_depth_channel_is_the_inverse_depth_and_is_required():
+    from deepslam.vo.net import inverse_depth_input
+
+    cfg = NetConfig(6, 10, filters=4, hidden_units=8, depth_channel=True, kernels=(3,), strides=(1,))
+    net = FlowPoseNet(cfg)
+    assert net.conv[0].in_channels == 3 and NetConfig.from_dict(cfg.to_dict()) == cfg
+    depth = np.full((12, 20), 2.0, np.float32)
+    depth[:2, :2] = 0.0                                   # unknown: 0, never a made-up depth
+    depth[:2, 2:4] = np.nan
+    depth[2:4, :2] = 4.0
+    inv = inverse_depth_input(depth, 10, 6)             # 2 x 2 blocks averaged
+    assert inv.shape == (1, 6, 10) and inv.dtype == np.float32
+    assert inv[0, 0, 0] == 0.0 and inv[0, 0, 1] == 0.0 and inv[0, 1, 0] == pytest.approx(0.25)
+    assert inv[0, 3, 5] == pytest.approx(0.5)
+    x = net.prepare_input(torch.zeros(1, 2, 6, 10), None, torch.from_numpy(inv[None]))
+    assert torch.equal(x[0, 2], torch.from_numpy(inv[0]))
+    with pytest.raises(ValueError, match="inverse depth"):
+        net.prepare_input(torch.zeros(1, 2, 6, 10))
+    with pytest.raises(ValueError, match="inverse depth"):
+        net.prepare_input(torch.zeros(1, 2, 6, 10), None, torch.zeros(1, 1, 5, 10))
