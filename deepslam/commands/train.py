@@ -64,6 +64,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="rotate each sample's camera by a pitch drawn uniformly in [PMIN, PMAX] degrees (positive: "
                         "looking down) and a roll in [-ROLL, ROLL], exactly from the single frame (vo.data.CameraTilt); "
                         "the road then sits at other rows, as under another camera mounting (KITTI's looks ~1 deg down)")
+    g.add_argument("--scene-scale", default=None, metavar="MIN:MAX",
+                   help="scale each sample's depth (the whole scene) by a factor drawn log-uniformly in [MIN, MAX] "
+                        "(vo.data.SceneScale): the same frames then stand for nearer or farther worlds, so the "
+                        "same motion makes more or less parallax")
     g.add_argument("--missing-depth", choices=("infinity", "invalid"), default=None,
                    help="pixels without depth: points at infinity (rotation-only flow; a render's sky) or left out "
                         "(flow 0, never made-up geometry). Default: invalid when a sequence has sensor depth "
@@ -277,6 +281,10 @@ def run(args: argparse.Namespace) -> int:
     h, w = net.input_height, net.input_width
     meta: dict = {"mode": args.mode}
     tilt = data.CameraTilt.parse(args.camera_tilt_deg) if args.camera_tilt_deg else None
+    scene_scale = data.SceneScale.parse(args.scene_scale) if args.scene_scale else None
+    if scene_scale is not None and (args.mode != "synthetic" or args.shards or args.toy):
+        raise InputError(None, "--scene-scale scales single frames: it needs --mode synthetic with --frames "
+                               "(not --toy, --shards or supervised pairs)")
     if tilt is not None and (args.mode != "synthetic" or args.shards or args.toy):
         raise InputError(None, "--camera-tilt-deg rotates single frames: it needs --mode synthetic with --frames "
                                "(not --toy, --shards or supervised pairs)")
@@ -320,7 +328,7 @@ def run(args: argparse.Namespace) -> int:
 
                 def source(fr, n, seed):
                     return data.SyntheticSource(fr, sampler, n, seed, f, args.missing_depth, tilt=tilt,
-                                                inv_depth=net.depth_channel)
+                                                inv_depth=net.depth_channel, scene_scale=scene_scale)
             else:
                 opts = {"preset": args.dis_preset} if args.synthetic_flow == "dis" else {}
                 frames = data.load_image_frames(seqs, args.frame_step, args.depth, args.max_frames, progress,
@@ -329,7 +337,8 @@ def run(args: argparse.Namespace) -> int:
 
                 def source(fr, n, seed):
                     return data.EstimatedFlowSource(fr, sampler, args.synthetic_flow, w, h, n, seed, args.data_threads, opts,
-                                                    args.appearance_noise, tilt=tilt, inv_depth=net.depth_channel)
+                                                    args.appearance_noise, tilt=tilt, inv_depth=net.depth_channel,
+                                                    scene_scale=scene_scale)
             hold_src = source(hold_frames, n_hold, args.seed + 1).materialize(n_hold, args.seed + 1, progress)
             train_src = source(train_frames, args.samples_per_epoch, args.seed)
             estimator_name = getattr(train_src, "estimator_name", None)  # None: exact synthetic flow
@@ -340,7 +349,8 @@ def run(args: argparse.Namespace) -> int:
                             "motion": [m[2] for m in motions], "samples_per_epoch": args.samples_per_epoch,
                             "holdout_samples": n_hold, "synth_factor": f, "missing_depth": args.missing_depth,
                             "sample_pool": args.sample_pool, "speed_range_mps_at_hz": speed_range,
-                            "camera_tilt": tilt.to_dict() if tilt else None}
+                            "camera_tilt": tilt.to_dict() if tilt else None,
+                            "scene_scale": scene_scale.to_dict() if scene_scale else None}
             if estimator_name is not None:
                 meta["data"].update(synth_factor=None, missing_depth=None, frame_scales=list(args.frame_scales),
                                     appearance_noise=args.appearance_noise, synthetic_flow=estimator_name)

@@ -221,6 +221,9 @@ def test_train_cli_bad_input(tmp_path, plane_sequence):
     (tmp_path / "bad.json").write_text("{\"format\": 3}")
     assert main([*base, "--mode", "synthetic", "--frames", str(plane_sequence), "--motion", str(tmp_path / "bad.json")]) == 2
     assert main([*base, "--mode", "supervised"]) == 2
+    assert main([*base, "--mode", "synthetic", "--toy", "64", "--scene-scale", "0.5:1"]) == 2  # no single frames
+    assert main([*base, "--mode", "synthetic", "--frames", str(plane_sequence), "--motion", str(tmp_path / "bad.json"),
+                 "--scene-scale", "1:0.5"]) == 2
 
 
 def test_synthetic_flow_equals_the_simulators_true_flow_everywhere():
@@ -386,3 +389,29 @@ def test_train_and_vo_with_a_depth_channel(plane_sequence, motion_json, tmp_path
                  "--out", str(tmp_path / "toy")]) == 2
     assert main(["train", "--mode", "supervised", "--sequence", str(plane_sequence), "--flow", "gt", "--net", "tiny",
                  "--depth-channel", "--quiet", "--out", str(tmp_path / "sup")]) == 2
+
+
+def test_scene_scale_scales_each_samples_depth_and_keeps_the_motion_metric():
+    """A sample's flow with --scene-scale is the flow of its frame's depth times the drawn factor (the
+    same motion: nearer geometry, more parallax); the factors are log-uniform in the range."""
+    frames = _frames(1)
+    scale = data.SceneScale(0.3, 1.0)
+    src = data.SyntheticSource(frames, data.toy_motion_sampler(), 6, seed=2, scene_scale=scale, inv_depth=True)
+    b = next(src.batches(0, 6))
+    rng = np.random.default_rng(data.epoch_seed(2, 0, 0))
+    idx = rng.integers(0, 5, 6)
+    vec6 = data.toy_motion_sampler()(6, rng)
+    factors = scale.sample(6, rng)
+    assert ((factors >= 0.3) & (factors <= 1.0)).all() and factors.std() > 0
+    np.testing.assert_allclose(b["target"].numpy(), vec6.astype(np.float32))
+    depth = torch.from_numpy(frames.depth_z[idx] * factors[:, None, None].astype(np.float32))
+    want, _ = gen_flow.synthesize_flow(depth, _k(frames.cameras[0], 6), se3.from_euler6(vec6))
+    torch.testing.assert_close(b["flow"], want)
+    plain = next(data.SyntheticSource(frames, data.toy_motion_sampler(), 6, seed=2).batches(0, 6))
+    assert float((b["flow"] - plain["flow"]).abs().max()) > 0.1     # the scale changed the parallax
+    big = np.random.default_rng(0)
+    f = data.SceneScale(0.5, 2.0).sample(20000, big)
+    assert abs(np.median(np.log(f))) < 0.02                            # log-uniform: median at the geometric mean
+    for bad in ("1", "a:b", "0.01:1", "2:1"):
+        with pytest.raises(InputError):
+            data.SceneScale.parse(bad)
