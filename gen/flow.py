@@ -274,15 +274,6 @@ def _zbuffer_kernel():
 
         project_row = _PROJECT_ROW
 
-        @numba.njit(cache=True, inline="always")
-        def fill(win, k, fr, vr, add, cols):  # pragma: no cover - compiled
-            """Window row k (NaN-bordered, pixel u at u + 1) = fr + add where valid, else NaN; ``cols``
-            adds u (landing column) when True. One source array per loop: it vectorises."""
-            nan = np.float32(np.nan)
-            w = fr.shape[0]
-            for u in range(w):
-                win[k, u + 1] = fr[u] + (np.float32(u) if cols else add) if vr[u] else nan
-
         @numba.njit(parallel=True, fastmath=_FASTMATH, cache=True)
         def kernel(z, coef, flow, valid, depth1, want_depth1, cu, cv, half_w, half_h, tol, n_chunks,
                    windows, flat, centres, lists, d1scratch):  # pragma: no cover - compiled
