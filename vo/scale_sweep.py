@@ -52,7 +52,8 @@ def speed_sweep(predictor, make_source, n_frames: int, rate_hz: float, speeds_mp
     """The model's forward read at each speed on the same ``n_frames`` frames.
 
     Args:
-        predictor: a :class:`deepslam.vo.infer.VOPredictor` (``predict(flow, intrinsics)``).
+        predictor: a :class:`deepslam.vo.infer.VOPredictor` (``predict(flow, intrinsics)``, and the
+            inverse depth too where the source gives it).
         make_source: ``sample_motion -> source`` with ``make_batch(rng, n)`` (a SyntheticSource or an
             EstimatedFlowSource over the sweep's frames, at the predictor's input size).
         n_frames: samples per speed (the frames are drawn by the same seed at every speed).
@@ -64,7 +65,8 @@ def speed_sweep(predictor, make_source, n_frames: int, rate_hz: float, speeds_mp
     for v in speeds_mps:
         d = float(v) / float(rate_hz)
         batch = make_source(_forward(d)).make_batch(np.random.default_rng(seed), int(n_frames))
-        mean, _ = predictor.predict(batch["flow"], batch["intrinsics"], batch.get("inv_depth"))
+        extra = (batch["inv_depth"],) if "inv_depth" in batch else ()  # depth-channel models only
+        mean, _ = predictor.predict(batch["flow"], batch["intrinsics"], *extra)
         read = -mean[:, 5]
         q25, q50, q75 = np.percentile(read, [25, 50, 75])
         ratio = float(np.median(read / d)) if d > 0 else None
