@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# Issue 14's training experiments on the TUM fr3/teddy slice (README "RGB-D odometry on TUM fr3/teddy",
+# 2026-12-02): NN_cons variants trained on the three simulated rooms of scripts/train_tum_models.sh only
+# (never a frame or pose of teddy), each scored by `deepslam vo` on teddy. About 45 minutes on 2 cores;
+# resumable (finished steps are skipped). None of them is shipped.
+#   dis: DIS flow of the rendered second view        depth: + the depth channel
+#   scale: DIS + scene scale 0.3-1 (range chosen from teddy's depth statistics, not its poses or a score)
+#   scale_depth: both                                 10hz: DIS with EuRoC's motions at 10 Hz, vo --stride 3
+set -euo pipefail
+cd "$(dirname "$0")/.."
+export MUJOCO_GL=${MUJOCO_GL:-egl} PYOPENGL_PLATFORM=${PYOPENGL_PLATFORM:-egl} OMP_NUM_THREADS=${OMP_NUM_THREADS:-2}
+D=${1:-out/tum_experiments}
+R=${2:-out/tum_models}   # the rooms rendered by scripts/train_tum_models.sh
+DS=.venv/bin/deepslam
+TEDDY=../shared/data/tum/rgbd_dataset_freiburg3_teddy
+[ -f $R/room_s3/poses.txt ] || bash scripts/train_tum_models.sh $R
+mkdir -p $D
+[ -f $D/euroc_cam_10hz/.done ] || { .venv/bin/python models/euroc_camera_poses.py --out $D/euroc_cam_10hz --rate 10 && touch $D/euroc_cam_10hz/.done; }
+[ -f $D/euroc_10hz.json ] || $DS fit-motion --poses $D/euroc_cam_10hz/*.txt --stride 1 --out $D/euroc_10hz.json
+ROOMS="$R/room_s1 $R/room_s2 $R/room_s3"
+COMMON="--mode synthetic --frame-step 3 --net cpu --height 96 --width 128 --flow-scale 30 --samples-per-epoch 10000
+        --max-epochs 8 --nll-epochs 10 --threads 2 --data-threads 2 --seed 0 --quiet
+        --synthetic-flow dis --dis-preset medium --sample-pool 10000 --appearance-noise 6 --frames $ROOMS"
+train() { local out=$1; shift; [ -f "$out/model.safetensors" ] || $DS train $COMMON "$@" --out "$out" $([ -d "$out" ] && echo --resume); }
+M30="--motion models/motion/euroc_s1_30hz.json"
+train $D/dis $M30
+train $D/depth $M30 --depth-channel
+train $D/scale $M30 --scene-scale 0.3:1.0
+train $D/scale_depth $M30 --scene-scale 0.3:1.0 --depth-channel
+train $D/10hz --motion $D/euroc_10hz.json
+for m in dis depth scale scale_depth; do
+  $DS vo --sequence $TEDDY --model $D/$m/model.safetensors --out $D/$m/teddy.txt --quiet
+done
+$DS vo --sequence $TEDDY --model $D/10hz/model.safetensors --stride 3 --out $D/10hz/teddy.txt --quiet
