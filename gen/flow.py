@@ -415,36 +415,46 @@ def _zbuffer_scratch(n_chunks: int, h: int, w: int) -> tuple[np.ndarray, ...]:
                                                      np.empty((n_chunks, h, w), np.float32)))
 
 
-def _synthesize_numba(z: torch.Tensor, mn: np.ndarray, flow_chw: torch.Tensor, valid: torch.Tensor,
-                      depth1: torch.Tensor | None) -> None:
-    """The fused kernel on CPU tensors (zero-copy numpy views), as many threads as torch uses."""
+def _numba_threads() -> int:
+    """Set numba's thread count to torch's (at most numba's pool) and return it; call under
+    :data:`_KERNEL_LOCK`."""
     import numba
 
-    kernel = _numba_kernel()
-    bsz, h, w = z.shape
+    n = max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS))
+    numba.set_num_threads(n)
+    return n
+
+
+def _kernel_args(z: torch.Tensor, mn: np.ndarray, flow_chw: torch.Tensor, valid: torch.Tensor,
+                 depth1: torch.Tensor | None) -> tuple:
+    """The arguments both compiled kernels start with: zero-copy numpy views of the CPU tensors (a
+    (1, 1, 1) dummy for an unwanted depth_z1), the float32 coefficients and the image centre and
+    half-size."""
+    _, h, w = z.shape
     d1 = depth1.numpy() if depth1 is not None else np.empty((1, 1, 1), np.float32)
+    return (z.numpy(), np.ascontiguousarray(mn, dtype=np.float32), flow_chw.numpy(), valid.numpy(), d1,
+            depth1 is not None, (w - 1) / 2.0, (h - 1) / 2.0, w / 2.0, h / 2.0)
+
+
+def _synthesize_numba(z: torch.Tensor, mn: np.ndarray, flow_chw: torch.Tensor, valid: torch.Tensor,
+                      depth1: torch.Tensor | None) -> None:
+    """The plain compiled kernel on CPU tensors, as many threads as torch uses."""
+    kernel = _numba_kernel()
     with _KERNEL_LOCK:
-        numba.set_num_threads(max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)))
-        kernel(z.numpy(), np.ascontiguousarray(mn, dtype=np.float32), flow_chw.numpy(), valid.numpy(), d1,
-               depth1 is not None, (w - 1) / 2.0, (h - 1) / 2.0, w / 2.0, h / 2.0)
+        _numba_threads()
+        kernel(*_kernel_args(z, mn, flow_chw, valid, depth1))
 
 
 def _synthesize_zbuffer_numba(z: torch.Tensor, mn: np.ndarray, flow_chw: torch.Tensor, valid: torch.Tensor,
                               depth1: torch.Tensor | None, occlusion_rel_tol: float) -> None:
     """The plain synthesis and the z-buffer test in one compiled pass per sample (CPU tensors, one
     chunk of samples per thread): each sample's flow is tested while it is still in cache."""
-    import numba
-
     kernel = _zbuffer_kernel()
     bsz, h, w = z.shape
-    d1 = depth1.numpy() if depth1 is not None else np.empty((1, 1, 1), np.float32)
     with _KERNEL_LOCK:
-        n_threads = max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS))
-        numba.set_num_threads(n_threads)
-        n_chunks = min(n_threads, bsz)
-        kernel(z.numpy(), np.ascontiguousarray(mn, dtype=np.float32), flow_chw.numpy(), valid.numpy(), d1,
-               depth1 is not None, (w - 1) / 2.0, (h - 1) / 2.0, w / 2.0, h / 2.0, float(occlusion_rel_tol),
-               n_chunks, *_zbuffer_scratch(n_chunks, h, w))
+        n_chunks = min(_numba_threads(), bsz)
+        kernel(*_kernel_args(z, mn, flow_chw, valid, depth1), float(occlusion_rel_tol), n_chunks,
+               *_zbuffer_scratch(n_chunks, h, w))
 
 
 def _synthesize_torch(z: torch.Tensor, mn: np.ndarray, flow_chw: torch.Tensor, valid: torch.Tensor,
