@@ -588,7 +588,7 @@ class SceneScale:
     def __init__(self, lo: float, hi: float):
         lo, hi = float(lo), float(hi)
         if not (np.isfinite([lo, hi]).all() and 0.05 <= lo <= hi <= 20):
-            raise InputError(None, f"bad depth scale {lo}:{hi} (need 0.05 <= min <= max <= 20)")
+            raise InputError(None, f"bad scene scale {lo}:{hi} (need 0.05 <= min <= max <= 20)")
         self.lo, self.hi = lo, hi
 
     @classmethod
@@ -898,12 +898,12 @@ class EstimatedFlowSource(_OnTheFlySource):
             motion = _tilted(np.stack(rots), motion)
             vec6 = se3.to_euler6(motion)
         scales = self.scene_scale.sample(n, rng) if self.scene_scale is not None else np.ones(n)
+        args = ([int(k) for k in idx], list(motion), [int(z) for z in seeds], rots, [float(sc) for sc in scales])
         if self.threads == 1:
-            out = [self._one(int(k), m, int(z), r, float(sc)) for k, m, z, r, sc in zip(idx, motion, seeds, rots, scales)]
+            out = list(map(self._one, *args))
         else:
             with ThreadPoolExecutor(self.threads) as pool:
-                out = list(pool.map(self._one, (int(k) for k in idx), motion, (int(z) for z in seeds), rots,
-                                    (float(sc) for sc in scales)))
+                out = list(pool.map(self._one, *args))
         batch = {"flow": torch.from_numpy(np.stack([o[0] for o in out])),
                  "intrinsics": torch.from_numpy(np.stack([o[1] for o in out])),
                  "target": torch.from_numpy(vec6.astype(np.float32))}

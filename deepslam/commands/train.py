@@ -156,7 +156,7 @@ def net_config(args):
             d[field] = v
     if args.coord_channels:
         d["coord_channels"] = True
-    if getattr(args, "depth_channel", False):
+    if args.depth_channel:
         d["depth_channel"] = True
     try:
         return NetConfig(**d)
@@ -282,15 +282,13 @@ def run(args: argparse.Namespace) -> int:
     meta: dict = {"mode": args.mode}
     tilt = data.CameraTilt.parse(args.camera_tilt_deg) if args.camera_tilt_deg else None
     scene_scale = data.SceneScale.parse(args.scene_scale) if args.scene_scale else None
-    if scene_scale is not None and (args.mode != "synthetic" or args.shards or args.toy):
-        raise InputError(None, "--scene-scale scales single frames: it needs --mode synthetic with --frames "
-                               "(not --toy, --shards or supervised pairs)")
-    if tilt is not None and (args.mode != "synthetic" or args.shards or args.toy):
-        raise InputError(None, "--camera-tilt-deg rotates single frames: it needs --mode synthetic with --frames "
-                               "(not --toy, --shards or supervised pairs)")
-    if net.depth_channel and (args.mode != "synthetic" or args.shards or args.toy):
-        raise InputError(None, "--depth-channel reads each single frame's depth: it needs --mode synthetic with --frames "
-                               "(not --toy, --shards or supervised pairs)")
+    if args.mode != "synthetic" or args.shards or args.toy:  # no single frames to act on
+        for flag, what, given in (("--scene-scale", "scales single frames", scene_scale is not None),
+                                  ("--camera-tilt-deg", "rotates single frames", tilt is not None),
+                                  ("--depth-channel", "reads each single frame's depth", net.depth_channel)):
+            if given:
+                raise InputError(None, f"{flag} {what}: it needs --mode synthetic with --frames "
+                                       "(not --toy, --shards or supervised pairs)")
     if args.mode == "synthetic":
         if args.shards:
             train_src, hold_src = data.shard_samples(args.shards, args.holdout, args.seed, h, w)
