@@ -52,6 +52,10 @@ class SceneConfig:
     """Street only: a narrow residential street from the seed (8-10 m kerb to kerb, cars parked on the
     road along both kerbs, the ego car near the middle, facades 1-2.5 m behind the kerb:
     :meth:`scenes.street.StreetLayout.narrow`). Not together with ``varied_layout``."""
+    grainy_road: bool = False
+    """Street only: asphalt with visible grain, its contrast drawn per road stretch
+    (:func:`scenes.textures.asphalt_grainy`), instead of the near-uniform surface on which DIS reads
+    a third of the road's motion (half on KITTI's real roads). The rest of the scene is unchanged."""
     scene_file: str | None = None
     """A scene file adding your own meshes to this scene (:mod:`scenes.custom`), or None."""
     random_lighting: bool = False
@@ -68,6 +72,10 @@ class SceneConfig:
             raise InputError(None, f"deform amplitude must be in [0, 0.3] m, got {self.deform_amplitude_m}")
         if self.texture_px_per_m is not None and not (1.0 <= self.texture_px_per_m <= 400.0):
             raise InputError(None, f"texture density must be in [1, 400] texels/m, got {self.texture_px_per_m}")
+        street_only = [flag for flag, on in (("varied layout", self.varied_layout), ("narrow layout", self.narrow_layout),
+                                             ("grainy road", self.grainy_road)) if on]
+        if street_only and self.name != "street":
+            raise InputError(None, f"{street_only[0]} is a street option; scene {self.name!r} has no road")
         if self.varied_layout and self.narrow_layout:
             raise InputError(None, "choose one street layout: varied or narrow, not both")
         if not isinstance(self.seed, int) or self.seed < 0:
@@ -95,7 +103,7 @@ def build_scene(config: SceneConfig):
         layout = (StreetLayout.varied(config.seed) if config.varied_layout else
                   StreetLayout.narrow(config.seed) if config.narrow_layout else StreetLayout())
         scene = build_street(config.seed, config.px_per_m, config.moving_objects, float(config.deform_amplitude_m), rng,
-                             layout, lighting)
+                             layout, lighting, grainy_road=config.grainy_road)
     else:
         from deepslam.scenes.room import build_room
 

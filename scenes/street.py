@@ -98,13 +98,14 @@ KITTI_BASELINE_M = 0.54
 
 
 def build_street(seed: int, px_per_m: float, moving_objects: int, deform_amplitude_m: float,
-                 rng: np.random.Generator, layout: StreetLayout = StreetLayout(), lighting: Lighting | None = None) -> Scene:
+                 rng: np.random.Generator, layout: StreetLayout = StreetLayout(), lighting: Lighting | None = None,
+                 grainy_road: bool = False) -> Scene:
     bx = float(rng.uniform(56.0, 60.0))
     by = float(rng.uniform(44.0, 46.0))
     sun = (rng.uniform(-0.5, 0.5), rng.uniform(-0.6, -0.2), 0.8)  # drawn either way: the stream stays
     light = lighting or Lighting(sun, 0.6, (1.0, 1.0, 1.0))
     asm = Assembler(px_per_m, rng, sun_dir=light.sun_dir, ambient=light.ambient)
-    _roads(asm, bx, by, layout.road_half_m)
+    _roads(asm, bx, by, layout.road_half_m, grainy_road)
     _sidewalks_and_ground(asm, bx, by, layout)
     _buildings(asm, bx, by, rng, layout)
     _parked_cars(asm, bx, by, rng, layout)
@@ -173,15 +174,17 @@ def _all_sides(painter, top: bool = False, bottom: bool = False) -> dict:
     return faces
 
 
-def road_painter(length_m: float, width_m: float, along_y: bool, junctions: list[tuple[float, float]]):
+def road_painter(length_m: float, width_m: float, along_y: bool, junctions: list[tuple[float, float]],
+                 grainy: bool = False):
     """Asphalt with lane markings, drawn along the road's length; ``junctions`` are (start, end)
-    metres along the road where other roads cross (no markings inside, zebra crossings before)."""
+    metres along the road where other roads cross (no markings inside, zebra crossings before);
+    ``grainy``: :func:`textures.asphalt_grainy` instead of the near-uniform :func:`textures.asphalt`."""
 
     def paint(h, w, ppm, rng):
         import cv2
 
         lh, lw = (w, h) if along_y else (h, w)   # canvas: length along columns
-        img = tx.asphalt(lh, lw, ppm, rng)
+        img = (tx.asphalt_grainy if grainy else tx.asphalt)(lh, lw, ppm, rng)
         sx = lw / length_m
         sy = lh / width_m
         white, yellow = (235, 235, 230), (230, 190, 40)
@@ -234,14 +237,14 @@ def road_painter(length_m: float, width_m: float, along_y: bool, junctions: list
     return paint
 
 
-def _roads(asm: Assembler, bx: float, by: float, r: float = ROAD_HALF_M) -> None:
+def _roads(asm: Assembler, bx: float, by: float, r: float = ROAD_HALF_M, grainy: bool = False) -> None:
     length = 2 * bx + 2 * r
     junctions = [(x - r + r, x + r + r) for x in (0.0, bx, 2 * bx)]  # along-road coordinate from x = -r
     for y in (0.0, by):
-        asm.box((bx, y, -0.1), (bx + r, r, 0.1), {"+z": road_painter(length, 2 * r, False, junctions)}, densities={"+z": 1.25})
+        asm.box((bx, y, -0.1), (bx + r, r, 0.1), {"+z": road_painter(length, 2 * r, False, junctions, grainy)}, densities={"+z": 1.25})
     for x in (0.0, bx, 2 * bx):
         seg = by - 2 * r
-        asm.box((x, by / 2, -0.1), (r, seg / 2, 0.1), {"+z": road_painter(seg, 2 * r, True, [])}, densities={"+z": 1.25})
+        asm.box((x, by / 2, -0.1), (r, seg / 2, 0.1), {"+z": road_painter(seg, 2 * r, True, [], grainy)}, densities={"+z": 1.25})
 
 
 def _slab(asm: Assembler, x0, x1, y0, y1, painter, kerb_faces=(), density=1.0) -> None:

@@ -333,7 +333,39 @@ def asphalt(h, w, ppm, rng):
     img = _modulate(img, fbm(h, w, 3.0 * ppm, rng, 6), 0.22)
     grain = rng.random((h, w), dtype=np.float32)
     img = _modulate(img, grain, 0.10)
-    # patches and cracks
+    _patches_and_cracks(img, ppm, rng)
+    return img  # float32: roads add markings before conversion
+
+
+GRAINY_ASPHALT_CONTRAST = (0.10, 0.45)
+"""Range of the grainy asphalt's texture contrast (relative std of its 6-25 cm and texel-scale
+texture), drawn per road stretch: DIS reads a road's motion only as far as its texture lets it."""
+
+
+def asphalt_grainy(h, w, ppm, rng):
+    """Asphalt with visible grain: :func:`asphalt`'s near-uniform surface (what DIS reads as a third of
+    its true motion on a render, against half on KITTI's real roads) replaced by a tone drawn in
+    70-130 grey levels, metre-scale blotches (10 %) and texture at 6-25 cm and at the texel (the
+    contrast drawn from :data:`GRAINY_ASPHALT_CONTRAST`); patches and cracks as in :func:`asphalt`.
+    Float32 (h, w, 3) RGB, 0-255 before clipping."""
+    def unit(n: np.ndarray) -> np.ndarray:
+        return (n - n.mean()) / (n.std() + 1e-6)
+
+    contrast = float(rng.uniform(*GRAINY_ASPHALT_CONTRAST))
+    tone = float(rng.uniform(70.0, 130.0))
+    img = np.empty((h, w, 3), np.float32)
+    img[:] = colour_jitter((tone, tone, 1.03 * tone), rng, 0.04)
+    blotches = unit(fbm(h, w, 2.5 * ppm, rng, 3))
+    mid = unit(fbm(h, w, 0.25 * ppm, rng, 3))
+    grain = unit(cv2.GaussianBlur(rng.standard_normal((h, w)).astype(np.float32), (0, 0), 0.7))
+    img *= np.clip(1.0 + 0.10 * blotches + contrast * (0.6 * mid + 0.4 * grain), 0.3, 1.8)[..., None]
+    _patches_and_cracks(img, ppm, rng)
+    return img  # float32: roads add markings before conversion
+
+
+def _patches_and_cracks(img: np.ndarray, ppm: float, rng: np.random.Generator) -> None:
+    """Darker and lighter rectangular patches and thin dark cracks, in place."""
+    h, w = img.shape[:2]
     for _ in range(int(rng.poisson(h * w / (ppm * ppm * 30.0)) + 1)):
         ph, pw = int(rng.uniform(0.5, 3) * ppm) + 1, int(rng.uniform(0.5, 3) * ppm) + 1
         y0, x0 = int(rng.uniform(0, max(1, h - ph))), int(rng.uniform(0, max(1, w - pw)))
@@ -341,7 +373,6 @@ def asphalt(h, w, ppm, rng):
     for _ in range(int(rng.poisson(h * w / (ppm * ppm * 15.0)) + 1)):
         pts = np.cumsum(rng.normal(0, 0.3 * ppm, (int(rng.integers(3, 9)), 2)), axis=0) + [rng.uniform(0, w), rng.uniform(0, h)]
         cv2.polylines(img, [pts.astype(np.int32)], False, (35, 35, 38), 1, cv2.LINE_AA)
-    return img  # float32: roads add markings before conversion
 
 
 def paving(base_rgb=(165, 160, 150)) -> Painter:

@@ -80,6 +80,9 @@ class DatasetConfig:
     narrow_layout_fraction: float = 0.0
     """Fraction of the street sequences not in the varied layout that are narrow residential streets
     (``scenes.street.StreetLayout.narrow``)."""
+    grainy_road_fraction: float = 0.0
+    """Fraction of the street sequences with grainy asphalt (``scenes.textures.asphalt_grainy``: the
+    road's texture contrast drawn per road stretch) instead of the near-uniform surface."""
     format: str = "ours"
     """Layout of each sequence: ``ours``, ``kitti`` or ``euroc``."""
     render_backend: str = "mujoco"
@@ -123,6 +126,8 @@ class DatasetConfig:
             raise InputError(None, f"exposure_ms must be [MIN, MAX] with 0 <= MIN <= MAX <= 1000, got {list(ex)}")
         if not (np.isfinite(self.narrow_layout_fraction) and 0 <= self.narrow_layout_fraction <= 1):
             raise InputError(None, f"narrow_layout_fraction must be in [0, 1], got {self.narrow_layout_fraction}")
+        if not (np.isfinite(self.grainy_road_fraction) and 0 <= self.grainy_road_fraction <= 1):
+            raise InputError(None, f"grainy_road_fraction must be in [0, 1], got {self.grainy_road_fraction}")
         if not (np.isfinite(self.random_lighting_fraction) and 0 <= self.random_lighting_fraction <= 1):
             raise InputError(None, f"random_lighting_fraction must be in [0, 1], got {self.random_lighting_fraction}")
         rs = self.rolling_shutter_ms
@@ -183,8 +188,10 @@ def plan(cfg: DatasetConfig) -> list[PlannedSequence]:
         readout = round(float(extra.uniform(*cfg.rolling_shutter_ms)), 3)
         readout = readout if exposure == 0 else 0.0  # drawn either way: a fixed number of draws per sequence
         narrow = bool(extra.random() < cfg.narrow_layout_fraction) and scene == "street" and not varied
+        grainy = bool(extra.random() < cfg.grainy_road_fraction) and scene == "street"
         sim = SimConfig(SceneConfig(name=scene, seed=scene_seed, moving_objects=movers, deform_amplitude_m=deform,
-                                    varied_layout=varied, narrow_layout=narrow, random_lighting=lit),
+                                    varied_layout=varied, narrow_layout=narrow, random_lighting=lit,
+                                    grainy_road=grainy),
                         TrajectoryConfig(kind="auto", frames=cfg.frames),
                         RenderConfig(backend=cfg.render_backend, width=cfg.width, height=cfg.height, flow=cfg.flow,
                                      exposure_ms=exposure, sensor_noise=cfg.sensor_noise,
@@ -230,6 +237,7 @@ def render_planned(entry: dict, out_root: str, fmt: str) -> dict:
                          "exposure_ms": entry["sim"]["render"]["exposure_ms"],
                          "narrow_layout": sc.get("narrow_layout", False),
                          "random_lighting": sc.get("random_lighting", False),
+                         "grainy_road": sc.get("grainy_road", False),
                          "rolling_shutter_ms": entry["sim"]["render"].get("rolling_shutter_ms", 0.0)},
             "frames": entry["sim"]["trajectory"]["frames"], "files": files, "bytes": size, "sha256": sha,
             "seconds": round(time.perf_counter() - t0, 3),

@@ -43,6 +43,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--narrow-layout", action="store_true",
                    help="street: a narrow residential street from the seed (8-10 m kerb to kerb, cars parked along "
                         "both kerbs, facades close behind them)")
+    p.add_argument("--grainy-road", action="store_true",
+                   help="street: asphalt with visible grain (contrast drawn per road stretch) instead of the "
+                        "near-uniform surface, so that flow estimators read the road's motion as on real roads")
     p.add_argument("--exposure-ms", type=float, default=0.0, metavar="MS",
                    help="motion blur: the image averaged over this exposure, centred on the frame time (whose pose, "
                         "depth, flow and masks stay exact: they are mid-exposure's); 0 = sharp")
@@ -97,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
         SceneConfig(name=scene_name, seed=0 if seed is None else seed, moving_objects=args.moving_objects, scene_file=scene_file,
                     deform_amplitude_m=args.deform, texture_px_per_m=args.texture_density,
                     varied_layout=args.varied_layout, narrow_layout=args.narrow_layout,
-                    random_lighting=args.random_lighting),
+                    random_lighting=args.random_lighting, grainy_road=args.grainy_road),
         TrajectoryConfig(kind=args.trajectory, frames=args.frames, rate_hz=args.rate),
         RenderConfig(backend=args.backend, width=args.width, height=args.height,
                      stereo_baseline_m=args.stereo_baseline, focal_px=args.focal_px, flow=not args.no_flow,

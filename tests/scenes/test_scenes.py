@@ -194,3 +194,28 @@ def test_narrow_street_is_narrow_with_cars_parked_on_the_road_along_both_kerbs()
     assert nearest_kerb_top(town) - nearest_kerb_top(narrow) == pytest.approx(ROAD_HALF_M - lay.road_half_m, abs=1e-6)
     with pytest.raises(InputError, match="one street layout"):
         SceneConfig(name="street", varied_layout=True, narrow_layout=True).validate()
+
+
+def test_grainy_road_textures_the_asphalt_and_leaves_the_rest_of_the_street_alone():
+    import cv2
+
+    from deepslam.scenes import textures as tx
+
+    def grain(img):  # relative contrast of the texture at 6-20 cm (ppm 25: 1.5-5 texels), what survives mip-mapping
+        g = img.mean(axis=2)
+        return float((cv2.GaussianBlur(g, (0, 0), 1.5) - cv2.GaussianBlur(g, (0, 0), 5)).std() / g.mean())
+
+    smooth = [grain(tx.asphalt(200, 400, 25.0, np.random.default_rng(s))) for s in range(4)]
+    grainy = [grain(tx.asphalt_grainy(200, 400, 25.0, np.random.default_rng(s))) for s in range(4)]
+    assert max(smooth) < 0.025 < 0.04 < min(grainy)
+    assert np.array_equal(tx.asphalt_grainy(50, 60, 25.0, np.random.default_rng(1)),
+                          tx.asphalt_grainy(50, 60, 25.0, np.random.default_rng(1)))
+    plain = build_scene(SceneConfig(name="street", seed=5, texture_px_per_m=3.0))
+    rough = build_scene(SceneConfig(name="street", seed=5, texture_px_per_m=3.0, grainy_road=True))
+    assert all(np.array_equal(a.mesh.vertices, b.mesh.vertices) and np.array_equal(a.mesh.texcoords, b.mesh.texcoords)
+               for a, b in zip(plain.bodies, rough.bodies))
+    assert plain.atlas.shape == rough.atlas.shape and not np.array_equal(plain.atlas, rough.atlas)
+    # only the road's texels change (each region paints from its own stream)
+    assert 0.005 < float((plain.atlas != rough.atlas).any(axis=2).mean()) < 0.5
+    with pytest.raises(InputError, match="street option"):
+        SceneConfig(name="room", grainy_road=True).validate()

@@ -29,12 +29,14 @@ def test_plan_is_seeded_and_a_longer_plan_extends_a_shorter_one():
 def test_lighting_and_rolling_shutter_draws_leave_the_other_settings_as_they_were():
     base = plan(DatasetConfig(sequences=6, frames=3, width=64))
     varied = plan(DatasetConfig(sequences=6, frames=3, width=64, random_lighting_fraction=0.5,
-                                rolling_shutter_ms=(10.0, 30.0), narrow_layout_fraction=1.0))
-    new = ("random_lighting", "narrow_layout")
+                                rolling_shutter_ms=(10.0, 30.0), narrow_layout_fraction=1.0,
+                                grainy_road_fraction=1.0))
+    new = ("random_lighting", "narrow_layout", "grainy_road")
     for a, b in zip(base, varied):
         assert {k: v for k, v in a.sim["scene"].items() if k not in new} == \
             {k: v for k, v in b.sim["scene"].items() if k not in new}
         assert b.sim["scene"]["narrow_layout"] == (b.sim["scene"]["name"] == "street" and not b.sim["scene"]["varied_layout"])
+        assert b.sim["scene"]["grainy_road"] == (b.sim["scene"]["name"] == "street") and not a.sim["scene"]["grainy_road"]
         assert not a.sim["scene"]["random_lighting"] and a.sim["render"]["rolling_shutter_ms"] == 0.0
         assert 10.0 <= b.sim["render"]["rolling_shutter_ms"] <= 30.0
     assert 0 < sum(e.sim["scene"]["random_lighting"] for e in varied) < 6
@@ -45,7 +47,7 @@ def test_lighting_and_rolling_shutter_draws_leave_the_other_settings_as_they_wer
                                          ("deform_amplitude_m", (0.0, 2.0)), ("varied_layout_fraction", 1.5),
                                          ("format", "tartanair"), ("render_backend", "blender"),
                                          ("random_lighting_fraction", -0.1), ("rolling_shutter_ms", (30.0, 10.0)),
-                                         ("narrow_layout_fraction", 2.0)])
+                                         ("narrow_layout_fraction", 2.0), ("grainy_road_fraction", -0.5)])
 def test_bad_configs_are_refused(field, value):
     with pytest.raises(InputError):
         DatasetConfig(**{field: value}).validate()
