@@ -17,6 +17,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--loop-gap", type=int, default=100, help="loop pairs are more than this many frames apart (100)")
     p.add_argument("--loop-radius", type=float, default=5.0, help="... with centres closer than this, metres (5)")
     p.add_argument("--loop-max-angle", type=float, default=30.0, help="... and rotated less than this, degrees (30)")
+    p.add_argument("--loop-fit", choices=("truncated", "plain"), default="truncated",
+                   help="loop distribution's Student-t: refined for the truncation to the data's range (default), "
+                        "or scipy's plain fit (narrower samples; what models/motion/kitti_s1.json's loops used)")
     p.add_argument("--plot", default=None, metavar="PNG", help="write the paper's Figure 3 (histograms + fitted densities)")
     p.add_argument("--json", action="store_true", help="print a JSON summary instead of a table")
 
@@ -35,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
                                  max_angle_deg=args.loop_max_angle)
     try:
         model, vec, loop_vec = motion.fit_motion(trajectories, args.stride, args.loops, loop_cfg,
-                                                 sources=[Path(p).name for p in args.poses])
+                                                 sources=[Path(p).name for p in args.poses], loop_fit=args.loop_fit)
     except ValueError as e:
         raise InputError(None, str(e)) from None
     model.save(args.out)

@@ -98,6 +98,27 @@ def test_relative_vectors_and_fit_student_t_known_answer():
         fit_student_t(np.ones(100))
 
 
+def test_plain_loop_fit_is_scipys_and_is_recorded(kitti_fit, tmp_path):
+    """``loop_fit="plain"`` keeps scipy's plain t (narrower than the data where they fill their range:
+    the loop pairs' forward offset); the file says which fit it holds, and an unknown one is refused."""
+    _, _, loop_vec, trajs = kitti_fit
+    plain, _, vec = fit_motion([trajs[0], trajs[5]], 1, loops=True, loop_fit="plain")
+    np.testing.assert_array_equal(vec, loop_vec)
+    df, loc, scale = stats.t.fit(loop_vec[:, 5])
+    assert plain.loop.dofs[5] == StudentT(df, loc, scale, loop_vec[:, 5].min(), loop_vec[:, 5].max())
+    assert plain.loop.dofs[5].scale < fit_student_t(loop_vec[:, 5]).scale
+    assert plain.loop_fit == "plain" and plain.to_dict()["loop"]["fit"] == "plain"
+    back = MotionModel.load(plain.save(tmp_path / "plain.json"))
+    assert back == plain
+    d = plain.to_dict()
+    d["loop"]["fit"] = "guess"
+    (tmp_path / "bad.json").write_text(json.dumps(d))
+    with pytest.raises(InputError, match="loop.fit must be one of"):
+        MotionModel.load(tmp_path / "bad.json")
+    with pytest.raises(ValueError, match="fit must be one of"):
+        fit_student_t(loop_vec[:, 5], "guess")
+
+
 def test_sampling_is_scipy_rvs_and_deterministic():
     d = StudentT(2.5, 0.1, 0.3, -1e9, 1e9)
     a = d.sample(500, np.random.default_rng(5))
