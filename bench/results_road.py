@@ -4,7 +4,8 @@ For consecutive frame pairs that move at least 0.3 m, :func:`deepslam.vo.road_sc
 fits the road plane in front of the car to the flow with the TRUE motion: an estimator that moves the
 road as far as it really moves gives the camera's height (1.65 m, in the simulated street and on
 KITTI); one that under-moves it a larger height. Sets: a held-out simulated street (seed 7, never
-trained on; exact flow as the check that the fit is right), and the real KITTI slices 06 and 07 (no
+trained on; exact flow as the check that the fit is right), the same street with ``--grainy-road``
+(asphalt with visible grain), and the real KITTI slices 06 and 07 (no
 flow ground truth: the ground-truth poses give the motion). Estimators: DIS (medium, the default of
 ``deepslam vo``) and the shipped learned flow.
 
@@ -117,10 +118,13 @@ def run(cfg: ResultsRoadConfig, out: Path, data_dir: Path) -> dict:
     ests = {n: flow_estimators.make(n, **({"preset": "medium"} if n == "dis" else {})) for n in cfg.estimators}
     held = open_sequence(render_once("street", "car", cfg.heldout_frames, cfg.width, cfg.heldout_seed,
                                      out / f"street_heldout_s{cfg.heldout_seed}", []))
+    grainy = open_sequence(render_once("street", "car", cfg.heldout_frames, cfg.width, cfg.heldout_seed,
+                                       out / f"street_grainy_s{cfg.heldout_seed}", [], extra=("--grainy-road",)))
     narrow = open_sequence(render_once("street", "car", cfg.heldout_frames, cfg.width, cfg.heldout_seed,
                                        out / f"street_narrow_s{cfg.heldout_seed}", [], extra=("--narrow-layout", "--no-flow")))
     # (label, sequence, extra flows, whether to fit road heights); the roadside from the learned flow in every set
-    sets = [("simulated street, held out (seed 7)", held, {"exact": held.flow}, True)]
+    sets = [("simulated street, held out (seed 7)", held, {"exact": held.flow}, True),
+            ("the same street with --grainy-road", grainy, {"exact": grainy.flow}, True)]
     for name in ("06", "07"):
         root = data_dir / "kitti" / "sequences" / name
         if (root / "calib.txt").is_file():

@@ -16,7 +16,8 @@ shipped NN_cons / NN_loops and each flow estimator (the simulator's exact flow, 
    odometry, stretches without revisits).
 
 Writes ``results.json``, ``results.md`` and one top-down trajectory plot per scene and flow under
-``--out``; renders and the per-case records are cached, so a killed run resumes. The target of the
+``--out``; renders and the per-case records are cached, so a killed run resumes (a record is reused
+only while the shipped models it ran with are the same files, by sha256). The target of the
 SLAM issue: SLAM at most half the ATE of VO (the paper: 14.30 -> 3.24 m on KITTI).
 """
 from __future__ import annotations
@@ -71,6 +72,18 @@ def _metrics(seq, world_from_cam: np.ndarray) -> dict:
     # sim3: the shape error once the scale is corrected (loop closure fixes drift, not a scale bias)
     out["ate_sim3_m"] = metrics.evaluate(seq.gt, traj, align="sim3")["ate_m"]
     return out
+
+
+def _models_used(scene: str, flow: str) -> dict[str, str]:
+    """{file name: sha256} of the shipped NN_cons / NN_loops a case runs with: a cached case is reused
+    only while these are the same files (a retrained default must not be scored by a stale record)."""
+    from deepslam.core.integrity import file_digests
+    from deepslam.vo import flow_estimators, models
+
+    kind = "kitti" if scene == "street" else "euroc"
+    est = flow_estimators.make(flow)
+    paths = [models.shipped_path(kind, which, est) for which in ("cons", "loops")]
+    return file_digests(paths, paths[0].parent)
 
 
 def _odometry(seq, flow: str):
@@ -186,11 +199,14 @@ def run(cfg: ResultsSlamConfig, out: Path) -> dict:
         test = open_sequence(_render(log, scene, cfg.test_seed, cfg, out))
         for flow in FLOWS:
             path = out / "cases" / f"{scene}_{flow}.json"
+            used = _models_used(scene, flow)
             if path.is_file():
-                cases[f"{scene}/{flow}"] = json.loads(path.read_text())
-                continue
+                rec = json.loads(path.read_text())
+                if rec.get("models_sha256") == used:
+                    cases[f"{scene}/{flow}"] = rec
+                    continue
             print(f"{scene}, {flow} flow: tune on {', '.join(v.name for v in vals)}, test on {test.name}", flush=True)
-            rec = evaluate_case(vals, test, flow, out / f"{scene}_{flow}.png")
+            rec = {**evaluate_case(vals, test, flow, out / f"{scene}_{flow}.png"), "models_sha256": used}
             atomic.write_json(path, rec)
             cases[f"{scene}/{flow}"] = rec
             print(f"  VO ATE {rec['vo']['ate_m']:.3f} m, SLAM {rec['slam_tuned']['ate_m']:.3f} m "

@@ -8,6 +8,7 @@
 #   I0: F with the prior fitted on 00-05, 08-10   J: I0 + 6 narrow residential streets   J06: J + KITTI 06's single frames
 #   I, J_wide: I0, J with the forward speed uniform over 0-28 m/s
 #   H: I0's streets and prior on the LEARNED flow of the rendered views (scored with vo --flow learned)
+#   K: J with every street re-rendered with --grainy-road (asphalt with visible grain)   K06: K + KITTI 06's single frames
 # KITTI 06 is the validation slice of the sim-only recipes (they never see a real frame); 07 is never trained on.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -18,6 +19,9 @@ DS=.venv/bin/deepslam
 render() { [ -f "$2/poses.txt" ] || $DS render --scene street --frames 200 --width 640 --seed "$1" --out "$2" --quiet ${3:-}; }
 for s in 1 2 3; do render $s $D/street_s$s; render $s $D/varied_s$s --varied-layout; done
 for s in 4 5 6 7 8 9; do render $s $D/varied2_s$s --varied-layout; render $s $D/narrow_s$s "--narrow-layout --no-flow"; done
+G=$D/grainy  # K's streets: the same towns and seeds with grainy asphalt
+for s in 1 2 3; do render $s $G/street_s$s "--grainy-road --no-flow"; done
+for s in 4 5 6 7 8 9; do render $s $G/varied2_s$s "--varied-layout --grainy-road --no-flow"; render $s $G/narrow_s$s "--narrow-layout --grainy-road --no-flow"; done
 P=../shared/data/kitti/poses
 [ -f $D/kitti_no0607.json ] || $DS fit-motion --poses $P/00.txt $P/01.txt $P/02.txt $P/03.txt $P/04.txt $P/05.txt \
     $P/08.txt $P/09.txt $P/10.txt --stride 1 --loops --out $D/kitti_no0607.json
@@ -43,6 +47,11 @@ train $D/J_narrow $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $MI
 train $D/I_wide --motion $D/kitti_no0607_wide.json --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $MIX
 train $D/J_wide --motion $D/kitti_no0607_wide.json --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $MIX $NAR
 train $D/J06_narrow_06 $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $MIX $NAR $K06
+GALL="$G/street_s1 $G/street_s2 $G/street_s3"
+for s in 4 5 6 7 8 9; do GALL="$GALL $G/varied2_s$s"; done
+for s in 4 5 6 7 8 9; do GALL="$GALL $G/narrow_s$s"; done
+train $D/K_grainy $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $GALL
+train $D/K06_grainy_06 $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $GALL $K06
 [ -f $D/H_learned/model.safetensors ] || $DS train --mode synthetic --synthetic-flow learned --frame-scales 1,0.65 \
     --sample-pool 12000 --frame-step 2 --samples-per-epoch 12000 --max-epochs 8 --nll-epochs 10 --threads 2 \
     --data-threads 2 --seed 0 --net cpu --appearance-noise 6 --quiet $NEW --camera-tilt-deg=-1:3:1 --frames $MIX \
@@ -53,4 +62,5 @@ train $D/J06_narrow_06 $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frame
   --model "F=$D/F_tilt/model.safetensors" --model "G=$D/G_tilt_06/model.safetensors" \
   --model "I0=$D/I0_fit/model.safetensors" --model "J=$D/J_narrow/model.safetensors" \
   --model "J06=$D/J06_narrow_06/model.safetensors" --model "I=$D/I_wide/model.safetensors" \
-  --model "J_wide=$D/J_wide/model.safetensors" --model "H=$D/H_learned/model.safetensors@learned"
+  --model "J_wide=$D/J_wide/model.safetensors" --model "H=$D/H_learned/model.safetensors@learned" \
+  --model "K=$D/K_grainy/model.safetensors" --model "K06=$D/K06_grainy_06/model.safetensors"
