@@ -86,6 +86,16 @@ def _models_used(scene: str, flow: str) -> dict[str, str]:
     return file_digests(paths, paths[0].parent)
 
 
+def cached_case(path: Path, models_sha256: dict[str, str]) -> dict | None:
+    """The case record at ``path`` if it was scored with exactly these model files, else None (also
+    when it is missing or unreadable: the case is then run again)."""
+    try:
+        rec = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return rec if isinstance(rec, dict) and rec.get("models_sha256") == models_sha256 else None
+
+
 def _odometry(seq, flow: str):
     from deepslam.vo import flow_estimators, models
 
@@ -200,11 +210,10 @@ def run(cfg: ResultsSlamConfig, out: Path) -> dict:
         for flow in FLOWS:
             path = out / "cases" / f"{scene}_{flow}.json"
             used = _models_used(scene, flow)
-            if path.is_file():
-                rec = json.loads(path.read_text())
-                if rec.get("models_sha256") == used:
-                    cases[f"{scene}/{flow}"] = rec
-                    continue
+            rec = cached_case(path, used)
+            if rec is not None:
+                cases[f"{scene}/{flow}"] = rec
+                continue
             print(f"{scene}, {flow} flow: tune on {', '.join(v.name for v in vals)}, test on {test.name}", flush=True)
             rec = {**evaluate_case(vals, test, flow, out / f"{scene}_{flow}.png"), "models_sha256": used}
             atomic.write_json(path, rec)

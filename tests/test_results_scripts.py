@@ -3,6 +3,7 @@ the tables they write (the full runs are `make results`; these check what they c
 from __future__ import annotations
 
 import dataclasses
+import json
 from types import SimpleNamespace
 
 import numpy as np
@@ -177,3 +178,19 @@ def test_roadside_flow_per_metre_is_the_inverse_distance_of_a_wall_beside_the_ca
     r = results_road.roadside_flow(seq, lambda i: flow, results_road.ResultsRoadConfig(pair_step=1, min_motion_m=0.3))
     assert r["pairs"] == 1
     assert r["left_px_per_m"] > 1.8 * r["right_px_per_m"]   # the left wall is twice as near
+
+
+def test_slam_case_cache_is_reused_only_with_the_same_model_files(tmp_path):
+    """A retrained default must not be scored by a record made with the model before it."""
+    from bench.results_slam import cached_case
+
+    path = tmp_path / "street_dis.json"
+    used = {"kitti_cons_dis.safetensors": "a" * 64, "kitti_loops_dis.safetensors": "b" * 64}
+    assert cached_case(path, used) is None                       # nothing cached yet
+    path.write_text(json.dumps({"vo": {"ate_m": 1.0}}))          # a record from before the digests
+    assert cached_case(path, used) is None
+    path.write_text(json.dumps({"vo": {"ate_m": 1.0}, "models_sha256": used}))
+    assert cached_case(path, used) == {"vo": {"ate_m": 1.0}, "models_sha256": used}
+    assert cached_case(path, {**used, "kitti_cons_dis.safetensors": "c" * 64}) is None
+    path.write_text("{ not json")
+    assert cached_case(path, used) is None
