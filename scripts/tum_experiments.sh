@@ -6,6 +6,8 @@
 #   dis: DIS flow of the rendered second view        depth: + the depth channel
 #   scale: DIS + scene scale 0.3-1 (range chosen from teddy's depth statistics, not its poses or a score)
 #   scale_depth: both                                 10hz: DIS with EuRoC's motions at 10 Hz, vo --stride 3
+#   dis18, 10hz18: dis and 10hz with 18 grey levels of noise on the rendered view (2026-12-02: DIS's error on the
+#   synthetic views then matches its error on teddy's real pairs, scripts/tum_dis_gap.py; no teddy pose or score used)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export MUJOCO_GL=${MUJOCO_GL:-egl} PYOPENGL_PLATFORM=${PYOPENGL_PLATFORM:-egl} OMP_NUM_THREADS=${OMP_NUM_THREADS:-2}
@@ -28,7 +30,10 @@ train $D/depth $M30 --depth-channel
 train $D/scale $M30 --scene-scale 0.3:1.0
 train $D/scale_depth $M30 --scene-scale 0.3:1.0 --depth-channel
 train $D/10hz --motion $D/euroc_10hz.json
-for m in dis depth scale scale_depth; do
+train $D/dis18 $M30 --appearance-noise 18
+train $D/10hz18 --motion $D/euroc_10hz.json --appearance-noise 18
+for m in dis depth scale scale_depth dis18; do
   $DS vo --sequence $TEDDY --model $D/$m/model.safetensors --out $D/$m/teddy.txt --quiet
 done
 $DS vo --sequence $TEDDY --model $D/10hz/model.safetensors --stride 3 --out $D/10hz/teddy.txt --quiet
+$DS vo --sequence $TEDDY --model $D/10hz18/model.safetensors --stride 3 --out $D/10hz18/teddy.txt --quiet
