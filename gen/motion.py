@@ -20,7 +20,8 @@ JSON file (``deepslam fit-motion`` writes it, :meth:`MotionModel.load` validates
      "dof_names": ["euler_x", ..., "t_z"], "units": ["rad", "rad", "rad", "m", "m", "m"],
      "stride": 1, "sources": ["00.txt", ...],
      "consecutive": {"num_motions": N, "dofs": {"euler_x": {"df": .., "loc": .., "scale": .., "lo": .., "hi": ..}, ...}},
-     "loop": null or {"num_motions": M, "min_gap_frames": .., "max_distance_m": .., "max_angle_deg": .., "dofs": {...}}}
+     "loop": null or {"num_motions": M, "min_gap_frames": .., "max_distance_m": .., "max_angle_deg": .., "dofs": {...},
+              "fit": "truncated" or "plain" (optional: how the loop t were fitted, see fit_student_t)}}
 """
 from __future__ import annotations
 
