@@ -1,4 +1,4 @@
-"""``make demo`` / ``python -m deepslam.studies.demo``: the whole harness end to end, in about 11 minutes on 2 cores (15 at most).
+"""``make demo`` / ``python -m deepslam.studies.demo``: the whole harness end to end, in about 8 minutes on 2 cores (10 at most).
 
 1. render a simulated street for training (single frames + depth) and a held-out street sequence
    that closes a loop (another seed: other buildings, other parked cars);
@@ -31,7 +31,7 @@ from deepslam.core.errors import InputError
 
 @dataclasses.dataclass(frozen=True)
 class DemoConfig:
-    """Sizes of the demo; the defaults take about 11 minutes on 2 cores (the budget is 15)."""
+    """Sizes of the demo; the defaults take about 8 minutes on 2 cores (the budget is 10)."""
 
     width: int = 414
     """Rendered image width in pixels (KITTI's 1241 / 3; the height follows KITTI's aspect)."""
@@ -45,17 +45,17 @@ class DemoConfig:
     """Frames of the held-out sequence (the car route closes its loop within 300 frames)."""
     moving_objects: int = 0
     """Moving cars in the held-out sequence (0: the rigid scene the method assumes)."""
-    train_samples_cons: int = 196_608
-    """Training budget of NN_cons in samples (stage 1; 48 epochs of 4096, about 3 minutes here): a
+    train_samples_cons: int = 139_264
+    """Training budget of NN_cons in samples (stage 1; 34 epochs of 4096, about 2 minutes here): a
     sample count, not minutes, so that the demo's numbers are the same run to run and machine to machine."""
-    train_samples_loops: int = 131_072
-    """Training budget of NN_loops in samples (32 epochs)."""
+    train_samples_loops: int = 90_112
+    """Training budget of NN_loops in samples (22 epochs)."""
     dis_pool: int = 8192
     """Samples of the DIS-flow training pool (second views rendered from the single frames, DIS on each pair)."""
-    train_samples_cons_dis: int = 204_800
-    """Training budget of NN_cons on DIS flow in samples (25 passes over its pool of 8192)."""
-    train_samples_loops_dis: int = 122_880
-    """Training budget of NN_loops on DIS flow in samples (15 passes)."""
+    train_samples_cons_dis: int = 147_456
+    """Training budget of NN_cons on DIS flow in samples (18 passes over its pool of 8192)."""
+    train_samples_loops_dis: int = 81_920
+    """Training budget of NN_loops on DIS flow in samples (10 passes)."""
     samples_per_epoch: int = 4096
     """Synthetic samples per epoch."""
     threads: int = 2
