@@ -74,14 +74,14 @@ def _metrics(seq, world_from_cam: np.ndarray) -> dict:
     return out
 
 
-def _models_used(scene: str, flow: str) -> dict[str, str]:
-    """{file name: sha256} of the shipped NN_cons / NN_loops a case runs with: a cached case is reused
-    only while these are the same files (a retrained default must not be scored by a stale record)."""
+def _models_used(seq, flow: str) -> dict[str, str]:
+    """{file name: sha256} of the shipped NN_cons / NN_loops :func:`_odometry` loads for ``seq`` and
+    ``flow``: a cached case is reused only while these are the same files (a retrained default must
+    not be scored by a stale record)."""
     from deepslam.core.integrity import file_digests
     from deepslam.vo import flow_estimators, models
 
-    kind = "kitti" if scene == "street" else "euroc"
-    est = flow_estimators.make(flow)
+    kind, est = models.kind_for_sequence(seq), flow_estimators.make(flow)
     paths = [models.shipped_path(kind, which, est) for which in ("cons", "loops")]
     return file_digests(paths, paths[0].parent)
 
@@ -209,7 +209,7 @@ def run(cfg: ResultsSlamConfig, out: Path) -> dict:
         test = open_sequence(_render(log, scene, cfg.test_seed, cfg, out))
         for flow in FLOWS:
             path = out / "cases" / f"{scene}_{flow}.json"
-            used = _models_used(scene, flow)
+            used = _models_used(test, flow)
             rec = cached_case(path, used)
             if rec is not None:
                 cases[f"{scene}/{flow}"] = rec
