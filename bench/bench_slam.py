@@ -9,6 +9,9 @@ Rows (each against a baseline measured in the same run):
   (target: at least 10x faster);
 - robustness: ATE with 10 % false loop candidates injected vs without (target: at most +10 %), and
   SLAM ATE vs odometry ATE on the synthetic loop trajectory (target: at most half);
+- :func:`vo_end_to_end_fps`: ``deepslam vo`` on the real KITTI 07 slice as a user runs it (a fresh
+  process, the default flow and model, start-up, reading, trajectory and plot included) against DIS
+  alone on the same pairs (issue 12's target: >= 20 frames/s end to end); skipped without the slice;
 - :func:`pipeline_fps`: frames per second of the whole pipeline on KITTI-size frames (target >= 10).
   It uses the shipped VO models with DIS flow when ``vo.models`` can load them, otherwise the
   ground-truth odometry (the row's name says which), so until the models exist it measures
@@ -196,8 +199,36 @@ def pipeline_fps(quick: bool) -> list[dict]:
     return rows
 
 
+def vo_end_to_end_fps(quick: bool) -> list[dict]:
+    """``deepslam vo --sequence <KITTI 07>`` in a fresh process (median wall time of 1 or 3 runs)
+    against DIS medium alone on the same consecutive pairs in this process (images read beforehand)."""
+    import subprocess
+    import sys
+
+    from deepslam.core.paths import base_dir, shared_data_dir
+    from deepslam.core.readers import open_sequence
+    from deepslam.vo import flow_estimators
+
+    root = shared_data_dir() / "kitti" / "sequences" / "07"
+    if not (root / "calib.txt").is_file():
+        return []
+    seq = open_sequence(root)
+    n = len(seq)
+    with tempfile.TemporaryDirectory(prefix="bench_vo_") as tmp:
+        cmd = [sys.executable, "-m", "deepslam", "vo", "--sequence", str(root), "--out", f"{tmp}/vo.txt", "--quiet"]
+        wall, _ = _median_time(lambda: subprocess.run(cmd, cwd=base_dir(), check=True, capture_output=True), 1 if quick else 3)
+    dis = flow_estimators.make("dis", preset="medium")
+    greys = [flow_estimators.to_grey(seq.image(i)) for i in range(n)]
+    dis_s, _ = _median_time(lambda: [dis.estimate(greys[i], greys[i + 1]) for i in range(n - 1)], 1)
+    fps, dis_fps = n / wall, (n - 1) / dis_s
+    return [_row(f"deepslam vo end to end, KITTI 07 slice ({n} frames, {seq.camera.width}x{seq.camera.height}, default "
+                 "DIS flow and model, a fresh process)", fps, "frames/s", "DIS medium alone on the same pairs",
+                 dis_fps, ">= 20 frames/s (issue 12)", fps >= 20, wall_s=wall)]
+
+
 def run(quick: bool = False) -> list[dict]:
     rows = []
+    rows += vo_end_to_end_fps(quick)
     rows += bench_optimisation(quick)
     rows += bench_retrieval(quick)
     rows += bench_robustness(quick)

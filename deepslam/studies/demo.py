@@ -1,4 +1,4 @@
-"""``make demo`` / ``python -m deepslam.studies.demo``: the whole harness end to end, in about 8 minutes on 2 cores (10 at most).
+"""``make demo`` / ``python -m deepslam.studies.demo``: the whole harness end to end, in about 9 minutes on 2 cores (10 at most).
 
 1. render a simulated street for training (single frames + depth) and a held-out street sequence
    that closes a loop (another seed: other buildings, other parked cars);
@@ -31,7 +31,7 @@ from deepslam.core.errors import InputError
 
 @dataclasses.dataclass(frozen=True)
 class DemoConfig:
-    """Sizes of the demo; the defaults take about 8 minutes on 2 cores (the budget is 10)."""
+    """Sizes of the demo; the defaults take about 9 minutes on 2 cores (the budget is 10)."""
 
     width: int = 414
     """Rendered image width in pixels (KITTI's 1241 / 3; the height follows KITTI's aspect)."""
@@ -46,7 +46,7 @@ class DemoConfig:
     moving_objects: int = 0
     """Moving cars in the held-out sequence (0: the rigid scene the method assumes)."""
     train_samples_cons: int = 139_264
-    """Training budget of NN_cons in samples (stage 1; 34 epochs of 4096, about 2 minutes here): a
+    """Training budget of NN_cons in samples (stage 1; 34 epochs of 4096, about 2.5 minutes here): a
     sample count, not minutes, so that the demo's numbers are the same run to run and machine to machine."""
     train_samples_loops: int = 90_112
     """Training budget of NN_loops in samples (22 epochs)."""
