@@ -626,19 +626,43 @@ def _plot_history(path: Path, history: list[dict]) -> None:
     plt.close(fig)
 
 
-def load_model(path: str | Path) -> tuple[FlowPoseNet, dict]:
+def load_model(path: str | Path) -> tuple[torch.nn.Module, dict]:
     """(model in eval mode, float32; meta) from a ``model.safetensors`` or a ``checkpoint.safetensors``
-    (:mod:`vo.modelfile`: nothing in the file is executed)."""
-    from deepslam.core.errors import InputError
-
+    (:mod:`vo.modelfile`: nothing in the file is executed). The model is a :class:`vo.net.FlowPoseNet`,
+    or for an ensemble file (:mod:`vo.ensemble`) an :class:`vo.ensemble.EnsemblePoseNet`; both map
+    ``(flow, intrinsics, inv_depth)`` to ``(mean6, log_std6)`` and carry the input's ``cfg``."""
     path = Path(path)
     _, d = modelfile.load(path, (MODEL_FORMAT, CHECKPOINT_FORMAT))
+    if d.get("format") == MODEL_FORMAT and "ensemble" in d:
+        return _load_ensemble(path, d)
+    return _model_from_tree(path, d), d.get("meta", {})
+
+
+def _load_ensemble(path: Path, d: dict):
+    """(:class:`vo.ensemble.EnsemblePoseNet` in eval mode, meta) from an ensemble file's tree."""
+    from deepslam.core.errors import InputError
+    from deepslam.vo.ensemble import EnsemblePoseNet
+
+    parts = d["ensemble"]
+    if not isinstance(parts, list) or len(parts) < 2 or not all(isinstance(t, dict) for t in parts):
+        raise InputError(path, "malformed VO ensemble (its 'ensemble' is not a list of two or more networks)")
+    members = [_model_from_tree(path, {"format": MODEL_FORMAT, **t}) for t in parts]
+    try:
+        model = EnsemblePoseNet(members)
+    except ValueError as e:
+        raise InputError(path, f"malformed VO ensemble ({e})") from None
+    return model.eval(), d.get("meta", {})
+
+
+def _model_from_tree(path: Path, d: dict) -> FlowPoseNet:
+    """The network a model or checkpoint tree describes (InputError naming ``path`` when it does not fit)."""
+    from deepslam.core.errors import InputError
+
     try:
         if d.get("format") == MODEL_FORMAT:
-            net_cfg, sd, meta = NetConfig.from_dict(d["net"]), d["state_dict"], d.get("meta", {})
+            net_cfg, sd = NetConfig.from_dict(d["net"]), d["state_dict"]
         elif "model" in d and "config" in d:
-            tcfg = TrainConfig.from_dict(d["config"])
-            net_cfg, sd, meta = tcfg.net, d["model"], d.get("meta", {})
+            net_cfg, sd = TrainConfig.from_dict(d["config"]).net, d["model"]
         else:
             raise InputError(path, "not a deepslam VO model (no format/net/state_dict)")
     except (KeyError, TypeError, ValueError) as e:
@@ -650,4 +674,4 @@ def load_model(path: str | Path) -> tuple[FlowPoseNet, dict]:
         model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in sd.items()})
     except RuntimeError as e:
         raise InputError(path, f"weights do not fit the stored network config ({str(e).splitlines()[0]})") from None
-    return model.eval(), meta
+    return model.eval()
