@@ -110,27 +110,40 @@ class VOPredictor:
         return to_network_input(flow_full, camera, w, h)
 
     def predict_pairs(self, seq, pairs: Seq[tuple[int, int]], flow_estimator, progress: bool = True,
-                      chunk: int = 64) -> tuple[np.ndarray, np.ndarray]:
+                      chunk: int = 64, inputs=None) -> tuple[np.ndarray, np.ndarray]:
         """Flow for every pair (i, j) of ``seq`` by ``flow_estimator`` (and, for a depth-channel
         network, frame i's depth: :func:`vo.data.frame_inverse_depth`), then 6DoF of cam_j_from_cam_i.
+
+        The flows are computed in a background thread (:class:`vo.prefetch.PairInputs`) while the
+        network runs on the previous chunk. ``inputs``: a :class:`vo.prefetch.PairInputs` the caller
+        started earlier for the same pairs (``deepslam vo`` starts it before loading torch); one made
+        for another input size is closed and replaced.
 
         Returns (mean6, std6): float64 (P, 6) in the order of ``pairs``.
         """
         from tqdm import tqdm
 
         from deepslam.vo.data import frame_inverse_depth
+        from deepslam.vo.prefetch import PairInputs
 
         pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
         h, w = self.input_size
+        if inputs is not None and ((inputs.height, inputs.width) != (h, w) or not np.array_equal(inputs.pairs, pairs)):
+            inputs.close()
+            inputs = None
+        if inputs is None:
+            inputs = PairInputs(seq, pairs, flow_estimator, w, h)
         means, stds = [], []
-        with tqdm(total=len(pairs), desc=f"vo {self.name}", unit="pair", disable=not progress, leave=False) as bar:
+        with inputs, tqdm(total=len(pairs), desc=f"vo {self.name}", unit="pair", disable=not progress,
+                          leave=False) as bar:
+            it = iter(inputs)
             for s in range(0, len(pairs), chunk):
                 part = pairs[s:s + chunk]
                 flows = np.zeros((len(part), 2, h, w), np.float32)
                 intr = np.zeros((len(part), 4), np.float32)
                 inv = np.zeros((len(part), 1, h, w), np.float32) if self.needs_depth else None
-                for k, (i, j) in enumerate(part):
-                    flows[k], intr[k] = self.prepare(flow_estimator.pair_flow(seq, int(i), int(j)), seq.camera)
+                for k, (i, _) in enumerate(part):
+                    flows[k], intr[k] = next(it)
                     if inv is not None:
                         inv[k] = frame_inverse_depth(seq, int(i), w, h)
                     bar.update(1)

@@ -58,12 +58,18 @@ def shipped_path(kind: str, which: str = "cons", flow=None) -> Path:
 def load_shipped(kind: str, which: str = "cons", flow=None, **kwargs):
     """The shipped :class:`vo.infer.VOPredictor` for ``kind`` / ``which`` (and the flow estimator, see
     :func:`shipped_path`); InputError when the file is missing."""
+    return _load(shipped_path(kind, which, flow), True, **kwargs)
+
+
+def _load(path: Path, shipped: bool, **kwargs):
+    """:class:`vo.infer.VOPredictor` of ``path``; a shipped model is named after its file and, when
+    missing, reported with a pointer to models/README.md."""
     from deepslam.vo.infer import VOPredictor
 
-    path = shipped_path(kind, which, flow)
-    if not path.is_file():
-        raise InputError(path, f"shipped model {kind}/{which} is missing (see models/README.md to train it)")
-    kwargs.setdefault("name", path.stem)
+    if shipped:
+        if not path.is_file():
+            raise InputError(path, f"shipped model {path.stem} is missing (see models/README.md to train it)")
+        kwargs.setdefault("name", path.stem)
     return VOPredictor.from_file(path, **kwargs)
 
 
@@ -81,17 +87,25 @@ def kind_for_sequence(seq) -> str:
     return "kitti" if seq.camera.width > 2 * seq.camera.height else "euroc"
 
 
+def resolve_path(spec: str | None, seq=None, which: str = "cons", flow=None) -> Path:
+    """The model file :func:`resolve` loads for ``spec`` (it may not exist; no torch needed)."""
+    return _locate(spec, seq, which, flow)[0]
+
+
+def _locate(spec: str | None, seq, which: str, flow) -> tuple[Path, bool]:
+    """(model file for ``spec``, whether it is a shipped one)."""
+    if spec is None:
+        if seq is None:
+            raise InputError(None, "no model given and no sequence to choose a shipped one")
+        return shipped_path(kind_for_sequence(seq), which, flow), True
+    kind, _, w = spec.partition(":")
+    if kind in KINDS and not Path(spec).exists():
+        return shipped_path(kind, w or which, flow), True
+    return Path(spec), False
+
+
 def resolve(spec: str | None, seq=None, which: str = "cons", flow=None, **kwargs):
     """A predictor from ``spec``: a model file path, ``kitti``/``euroc`` (shipped ``cons``),
     ``kitti:loops``-style shipped names, or None (the shipped model for ``seq``'s camera kind). Shipped
     models follow ``flow`` (the estimator's name or object, see :func:`shipped_path`); a file is taken as is."""
-    from deepslam.vo.infer import VOPredictor
-
-    if spec is None:
-        if seq is None:
-            raise InputError(None, "no model given and no sequence to choose a shipped one")
-        return load_shipped(kind_for_sequence(seq), which, flow, **kwargs)
-    kind, _, w = spec.partition(":")
-    if kind in KINDS and not Path(spec).exists():
-        return load_shipped(kind, w or which, flow, **kwargs)
-    return VOPredictor.from_file(spec, **kwargs)
+    return _load(*_locate(spec, seq, which, flow), **kwargs)

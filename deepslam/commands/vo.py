@@ -55,7 +55,6 @@ def run(args: argparse.Namespace) -> int:
     from deepslam.core.trajectory import Trajectory
     from deepslam.slam import plugins
     from deepslam.vo import flow_estimators, models
-    from deepslam.vo.infer import chain_euler6
 
     seq = open_sequence(args.sequence)
     if args.stride < 1:
@@ -80,12 +79,25 @@ def run(args: argparse.Namespace) -> int:
         opts = {"preset": args.dis_preset} if args.flow == "dis" else {}
         estimator = flow_estimators.make(args.flow, **opts)
         bf16 = None if args.bf16 == "auto" else args.bf16 == "on"
+        from deepslam.vo.prefetch import PairInputs, model_input_size
+
+        # the flows start before torch and the model load (seconds of start-up they overlap)
+        size = model_input_size(models.resolve_path(args.model, seq, flow=estimator))
+        inputs = None if size is None else PairInputs(seq, pairs, estimator, size[1], size[0])
         from deepslam.gen.device import resolve_device
 
-        predictor = models.resolve(args.model, seq, flow=estimator, batch_size=args.batch, bf16=bf16,
-                                   device=resolve_device(args.device))
-        mean6, std6 = predictor.predict_pairs(seq, pairs, estimator, progress=not (args.quiet or args.json))
+        try:
+            predictor = models.resolve(args.model, seq, flow=estimator, batch_size=args.batch, bf16=bf16,
+                                       device=resolve_device(args.device))
+        except BaseException:
+            if inputs is not None:
+                inputs.close()
+            raise
+        mean6, std6 = predictor.predict_pairs(seq, pairs, estimator, progress=not (args.quiet or args.json),
+                                              inputs=inputs)
         name = predictor.name
+    from deepslam.vo.infer import chain_euler6
+
     world_from_cam = chain_euler6(mean6)
     est = Trajectory(world_from_cam, seq.timestamps_s[frames])
 

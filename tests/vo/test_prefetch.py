@@ -1,0 +1,81 @@
+"""vo.prefetch: flows computed ahead in a thread are the serial flows, in order; failures reach the caller."""
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from deepslam.core.errors import InputError
+from deepslam.core.readers import open_sequence
+from deepslam.vo import flow_estimators
+from deepslam.vo.flow_estimators import to_network_input
+from deepslam.vo.prefetch import PairInputs, model_input_size
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+class _Recording:
+    """A DIS estimator that records the thread and order of its calls."""
+
+    def __init__(self):
+        self.inner = flow_estimators.make("dis", preset="fast")
+        self.calls: list[tuple[int, int, str]] = []
+        self.name = "recording"
+
+    def pair_flow(self, seq, i, j):
+        self.calls.append((i, j, threading.current_thread().name))
+        return self.inner.pair_flow(seq, i, j)
+
+
+@pytest.mark.parametrize("ahead", [1, 3, 512])
+def test_prefetched_inputs_equal_serial_ones_in_order(plane_sequence, ahead):
+    seq = open_sequence(plane_sequence)
+    pairs = [(0, 1), (4, 6), (1, 2), (10, 11), (2, 9)]
+    rec = _Recording()
+    got = list(PairInputs(seq, pairs, rec, 80, 24, ahead=ahead))
+    serial = flow_estimators.make("dis", preset="fast")
+    assert len(got) == len(pairs)
+    for (flow, intr), (i, j) in zip(got, pairs):
+        want_flow, want_intr = to_network_input(serial.pair_flow(seq, i, j), seq.camera, 80, 24)
+        np.testing.assert_array_equal(flow, want_flow)
+        np.testing.assert_array_equal(intr, want_intr)
+    assert [c[:2] for c in rec.calls] == pairs
+    assert {c[2] for c in rec.calls} == {"deepslam-flow-prefetch"}
+
+
+def test_a_failure_in_the_worker_is_raised_to_the_reader(plane_sequence, tmp_path):
+    root = tmp_path / "seq"
+    shutil.copytree(plane_sequence, root)
+    seq = open_sequence(root)
+    seq.image_paths[3].unlink()  # the fourth frame's image goes missing after the sequence was opened
+    it = iter(PairInputs(seq, [(0, 1), (1, 2), (2, 3), (3, 4)], flow_estimators.make("dis", preset="fast"), 80, 24))
+    next(it), next(it)  # the pairs before the missing frame come through
+    with pytest.raises(InputError, match="000003"):
+        next(it)
+
+
+def test_closing_early_stops_the_worker(plane_sequence):
+    seq = open_sequence(plane_sequence)
+    rec = _Recording()
+    inputs = PairInputs(seq, [(k, k + 1) for k in range(11)] * 20, rec, 80, 24, ahead=2)
+    with inputs:
+        next(iter(inputs))
+    assert not inputs._thread.is_alive()
+    assert len(rec.calls) <= 5  # the one read, two queued, and at most the pair in hand
+
+
+def test_model_input_size_reads_only_the_header(tmp_path):
+    assert model_input_size(REPO / "models" / "kitti_cons_dis.safetensors") == (48, 160)
+    assert model_input_size(REPO / "models" / "tum_cons.safetensors") == (96, 128)
+    assert model_input_size(tmp_path / "missing.safetensors") is None
+    (tmp_path / "junk.safetensors").write_bytes(b"\x00" * 64)
+    assert model_input_size(tmp_path / "junk.safetensors") is None
+    code = ("import sys; from deepslam.vo.prefetch import model_input_size; "
+            f"print(model_input_size({str(REPO / 'models' / 'euroc_cons.safetensors')!r}), 'torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "(96, 160) False"

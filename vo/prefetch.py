@@ -1,0 +1,112 @@
+"""Network inputs for a list of frame pairs, computed ahead in a background thread.
+
+The flow estimator (DIS: OpenCV, which releases the GIL) and the image reading run in a thread of
+their own while the caller does something else: loads torch and the model (``deepslam vo`` starts
+the flows before it imports torch, about 3 s on this machine), or runs the network on the previous
+chunk. The flows come out in the order of the pairs and are bit-identical to computing them in the
+caller's thread: one estimator object, used by one thread at a time, in the same order.
+
+This module does not import torch.
+"""
+from __future__ import annotations
+
+import queue
+import threading
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+
+class _Failed:
+    """What the worker puts in the queue when the estimator or a reader raised."""
+
+    def __init__(self, error: BaseException):
+        self.error = error
+
+
+class PairInputs:
+    """Iterates ``(flow_chw, intrinsics)`` for each pair (i, j) of ``pairs``, in order: flow float32
+    (2, height, width) px at network resolution and intrinsics float32 (4,) fx, fy, cx, cy at that
+    resolution (:func:`vo.flow_estimators.to_network_input` of ``estimator.pair_flow(seq, i, j)``).
+
+    Args:
+        seq: a :class:`core.sequence.Sequence`.
+        pairs: (P, 2) int frame indices.
+        estimator: a flow estimator (``pair_flow(seq, i, j)``); only the worker thread calls it.
+        width, height: the network's input size, pixels.
+        ahead: how many pairs the worker may run ahead of the reader (bounds memory: 256 KB a pair at
+            96 x 320).
+
+    The worker starts at construction. An exception raised in the worker (a missing image: InputError)
+    is raised again by the iterator, in the caller's thread, at the pair where it happened. Iterate
+    once; :meth:`close` (or leaving a ``with`` block) stops the worker early.
+    """
+
+    def __init__(self, seq, pairs, estimator, width: int, height: int, ahead: int = 512):
+        self.seq, self.estimator = seq, estimator
+        self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+        self.width, self.height = int(width), int(height)
+        self._q: queue.Queue = queue.Queue(maxsize=max(1, int(ahead)))
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._work, name="deepslam-flow-prefetch", daemon=True)
+        self._thread.start()
+
+    def _work(self) -> None:
+        from deepslam.vo.flow_estimators import to_network_input
+
+        try:
+            for i, j in self.pairs:
+                if self._stop.is_set():
+                    return
+                flow = self.estimator.pair_flow(self.seq, int(i), int(j))
+                item = to_network_input(flow, self.seq.camera, self.width, self.height)
+                while not self._stop.is_set():
+                    try:
+                        self._q.put(item, timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+        except BaseException as e:  # noqa: BLE001 - handed to the reading thread, raised there
+            self._q.put(_Failed(e))
+
+    def __len__(self) -> int:
+        return len(self.pairs)
+
+    def __iter__(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        try:
+            for _ in range(len(self.pairs)):
+                item = self._q.get()
+                if isinstance(item, _Failed):
+                    raise item.error
+                yield item
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        """Stop the worker (it finishes the pair it is on) and wait for it."""
+        self._stop.set()
+        self._thread.join()
+
+    def __enter__(self) -> "PairInputs":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def model_input_size(path: str | Path) -> tuple[int, int] | None:
+    """(height, width) of the input the VO model file at ``path`` reads, from its safetensors header
+    alone (no torch, no tensors read); None when the file is missing or not a readable model file (the
+    loader then says what is wrong)."""
+    import json
+
+    from safetensors import safe_open
+
+    try:
+        with safe_open(str(path), framework="numpy") as f:
+            tree = json.loads((f.metadata() or {})["tree"])
+        net = tree["ensemble"][0]["net"] if "ensemble" in tree else tree.get("net") or tree["config"]["net"]
+        return int(net["input_height"]), int(net["input_width"])
+    except Exception:  # noqa: BLE001 - any unreadable file: no prefetch, the loader reports it
+        return None
