@@ -158,3 +158,19 @@ def test_vo_picks_the_rgbd_model_for_a_tum_sequence(shared_data, tmp_path):
     assert cfg["model_name"] == "tum_cons" and cfg["model"] == "shipped:tum_cons"
     metrics = json.loads((tmp_path / "t.metrics.json").read_text())
     assert metrics["frames_scored"] < metrics["frames"] == 24  # the motion capture starts late
+
+
+def test_vo_takes_an_ensemble_file(plane_sequence, street_model, tmp_path):
+    """An ensemble of one network twice answers as that network (the members agree: no spread)."""
+    from deepslam.cli import main
+
+    ens = tmp_path / "ens.safetensors"
+    assert main(["ensemble-model", str(street_model), str(street_model), "--out", str(ens)]) == 0
+    for name, model in (("one", street_model), ("two", ens)):
+        assert _vo("--sequence", plane_sequence, "--model", model, "--out", tmp_path / f"{name}.txt", "--flow", "gt",
+                   "--bf16", "off", "--quiet") == 0
+    one = np.loadtxt(tmp_path / "one.motions.csv", delimiter=",", skiprows=1)
+    two = np.loadtxt(tmp_path / "two.motions.csv", delimiter=",", skiprows=1)
+    np.testing.assert_allclose(two[:, 4:], one[:, 4:], rtol=1e-5, atol=1e-7)
+    cfg = json.loads((tmp_path / "two.config.json").read_text())
+    assert cfg["model_name"] == "ens"
