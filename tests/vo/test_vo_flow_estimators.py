@@ -61,6 +61,19 @@ def test_resize_flow_rescales_values():
     np.testing.assert_allclose(big[..., 0], 12.0, rtol=1e-6)
 
 
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+@pytest.mark.parametrize("size", [(120, 40), (30, 20)])
+def test_resize_flow_reads_non_finite_values_as_zero(bad, size):
+    flow = np.full((40, 120, 2), 3.0, np.float32)
+    flow[5:9, 10:20] = bad
+    before = flow.copy()
+    got = fe.resize_flow(flow, *size)
+    clean = np.where(np.isfinite(flow), flow, 0.0).astype(np.float32)
+    np.testing.assert_array_equal(got, fe.resize_flow(clean, *size))
+    assert np.isfinite(got).all()
+    np.testing.assert_array_equal(flow, before)  # the caller's array is left alone
+
+
 def test_resized_flow_matches_flow_computed_at_the_small_resolution():
     """A smooth (planar) flow field computed at full size and resized equals the one computed with the
     scaled camera, so the network sees the same numbers whichever way the flow was made."""
