@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Issue 12's sim-to-real experiment (README "Sim-to-real"): four DIS-flow NN_cons recipes, then the
-# real KITTI slices. About 100 minutes on 2 cores; resumable (finished steps are skipped).
+# real KITTI slices. About 130 minutes on 2 cores; resumable (finished steps are skipped).
 #   A: 3 default streets   B: 3 varied streets   C: 3 default + 6 varied   D: C + KITTI 06's single frames
 #   F: C with the training cameras tilted (pitch -1..3 deg, roll +-1 deg)   G: F + KITTI 06's single frames
 #   (A-G draw motions from models/motion/kitti_s1.json, fitted on KITTI 00-05 and 07-10: 07's ground truth
@@ -9,6 +9,7 @@
 #   I, J_wide: I0, J with the forward speed uniform over 0-28 m/s
 #   H: I0's streets and prior on the LEARNED flow of the rendered views (scored with vo --flow learned)
 #   K: J with every street re-rendered with --grainy-road (asphalt with visible grain)   K06: K + KITTI 06's single frames
+#   K06_seed1-4: K06 at other seeds; K06_ens5: seeds 0-4 as one ensemble file (the seed study; not shipped)
 # KITTI 06 is the validation slice of the sim-only recipes (they never see a real frame); 07 is never trained on.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -52,6 +53,14 @@ for s in 4 5 6 7 8 9; do GALL="$GALL $G/varied2_s$s"; done
 for s in 4 5 6 7 8 9; do GALL="$GALL $G/narrow_s$s"; done
 train $D/K_grainy $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $GALL
 train $D/K06_grainy_06 $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $GALL $K06
+# the seed study (sixth session): K06 at seeds 1-4, and seeds 0-4 joined into one ensemble file
+for s in 1 2 3 4; do
+  out=$D/K06_seed$s
+  [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 \
+      --frames $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
+done
+[ -f $D/K06_ens5.safetensors ] || $DS ensemble-model $D/K06_grainy_06/model.safetensors $D/K06_seed1/model.safetensors \
+    $D/K06_seed2/model.safetensors $D/K06_seed3/model.safetensors $D/K06_seed4/model.safetensors --out $D/K06_ens5.safetensors
 [ -f $D/H_learned/model.safetensors ] || $DS train --mode synthetic --synthetic-flow learned --frame-scales 1,0.65 \
     --sample-pool 12000 --frame-step 2 --samples-per-epoch 12000 --max-epochs 8 --nll-epochs 10 --threads 2 \
     --data-threads 2 --seed 0 --net cpu --appearance-noise 6 --quiet $NEW --camera-tilt-deg=-1:3:1 --frames $MIX \
@@ -63,4 +72,7 @@ train $D/K06_grainy_06 $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frame
   --model "I0=$D/I0_fit/model.safetensors" --model "J=$D/J_narrow/model.safetensors" \
   --model "J06=$D/J06_narrow_06/model.safetensors" --model "I=$D/I_wide/model.safetensors" \
   --model "J_wide=$D/J_wide/model.safetensors" --model "H=$D/H_learned/model.safetensors@learned" \
-  --model "K=$D/K_grainy/model.safetensors" --model "K06=$D/K06_grainy_06/model.safetensors"
+  --model "K=$D/K_grainy/model.safetensors" --model "K06=$D/K06_grainy_06/model.safetensors" \
+  --model "K06_seed1=$D/K06_seed1/model.safetensors" --model "K06_seed2=$D/K06_seed2/model.safetensors" \
+  --model "K06_seed3=$D/K06_seed3/model.safetensors" --model "K06_seed4=$D/K06_seed4/model.safetensors" \
+  --model "K06_ens5=$D/K06_ens5.safetensors"
