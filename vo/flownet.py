@@ -245,6 +245,9 @@ class FlowTrainConfig:
     """torch CPU threads."""
     device: str = "cpu"
     """Torch device to train on (``cpu``, ``cuda``, ``cuda:N``); bf16 autocast on either."""
+    init: str = ""
+    """A flow model file (or training checkpoint) whose weights start the training: fine-tuning a trained
+    estimator on new data (its network must be ``net``). Empty: random initialisation from ``seed``."""
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
@@ -387,6 +390,11 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(cfg.seed)
             model = FlowNet(cfg.net)
+        if cfg.init and not (resume and ck.is_file()):
+            start, _ = load_flow_model(cfg.init)
+            if start.cfg.to_dict() != cfg.net.to_dict():
+                raise InputError(cfg.init, "its network differs from the one to train; cannot start from it")
+            model.load_state_dict(start.state_dict())
         dev = torch.device(cfg.device)
         model = model.to(dev)
         opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)

@@ -22,6 +22,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=2, help="torch CPU threads (2)")
     p.add_argument("--device", default="auto", help="auto (CUDA when torch sees one, else the CPU), cpu, cuda or cuda:N")
+    p.add_argument("--init", default="", metavar="FLOW_MODEL",
+                   help="start from this flow model's weights (fine-tuning, e.g. models/flow_learned.safetensors "
+                        "on new renders); default: random initialisation")
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -62,8 +65,15 @@ def run(args: argparse.Namespace) -> int:
     pairs = FlowPairs(seqs, progress=not args.quiet)
     cfg = FlowTrainConfig(crop=(ch, cw), batch_size=args.batch, lr=args.lr, max_steps=args.max_steps,
                           max_minutes=args.max_minutes, stop_after_steps=args.stop_after, seed=args.seed,
-                          threads=args.threads, device=str(device))
+                          threads=args.threads, device=str(device), init=args.init)
     meta = {"sequences": [str(s.root) for s in seqs], "pairs": len(pairs)}
+    if args.init:
+        import hashlib
+        from pathlib import Path
+
+        if not Path(args.init).is_file():
+            raise InputError(args.init, "flow model to start from is missing")
+        meta["init_sha256"] = hashlib.sha256(Path(args.init).read_bytes()).hexdigest()
     path = train_flow(cfg, pairs, args.out, resume=args.resume, progress=not args.quiet, meta=meta)
     print(f"model: {path}")
     return 0

@@ -1,4 +1,5 @@
 """The learned flow estimator's parts (vo.flownet): cost volume, warping, loss, metrics, files, training."""
+import dataclasses
 import json
 
 import numpy as np
@@ -97,6 +98,16 @@ def test_training_learns_a_translation_and_the_model_file_loads(tmp_path):
         train_flow(cfg, _Shifted(), tmp_path / "run", progress=False)
     hist = json.loads((tmp_path / "run" / "history.json").read_text())
     assert [h["step"] for h in hist] == [200, 400, 600]
+    # fine-tuning starts from the trained weights (from a random start 20 tiny steps learn nothing)
+    for init, want_good in ((str(path), True), ("", False)):
+        tune = dataclasses.replace(cfg, max_steps=20, lr=1e-7, checkpoint_steps=20, init=init)
+        tuned, _ = load_flow_model(train_flow(tune, _Shifted(), tmp_path / f"tune{bool(init)}", progress=False))
+        with torch.no_grad():
+            e = (tuned(b["img0"], b["img1"])[-1] - gt)[:, :, 4:-4, 4:-4].norm(dim=1).mean()
+        assert (float(e) < 0.6 * float(zero)) == want_good
+    other = dataclasses.replace(cfg, net=dataclasses.replace(SMALL, search_px=3), init=str(path))
+    with pytest.raises(InputError, match="its network differs"):
+        train_flow(other, _Shifted(), tmp_path / "other", progress=False)
 
 
 def test_a_pickle_is_refused_as_a_flow_model(tmp_path):
