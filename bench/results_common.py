@@ -43,3 +43,40 @@ def results_main(name: str, doc: str, config, quick_config, out_name: str,
     print(markdown(report))
     print(f"wrote {out / 'results.json'} and {out / 'results.md'}")
     return 0
+
+
+def reuse_only_with_same_settings(out: Path, settings: dict) -> None:
+    """Guard of a results folder whose script reuses what an earlier run left there (trained models,
+    per-case records: that is how a killed run resumes). The first run writes ``out/settings.json``;
+    a later run whose settings differ is refused before it reads or writes anything, since it would
+    report the earlier run's figures as its own.
+
+    Args:
+        out: the results folder.
+        settings: JSON-able description of everything the reused files depend on (the config, digests
+            of input files).
+
+    Raises:
+        InputError: naming ``settings.json`` and the keys that differ.
+    """
+    import json
+
+    from deepslam.core import atomic
+    from deepslam.core.errors import InputError
+
+    path = Path(out) / "settings.json"
+    now = json.loads(json.dumps(settings))
+    if path.is_file():
+        try:
+            before = json.loads(path.read_text())
+        except ValueError:
+            raise InputError(path, "is not JSON; remove the folder or choose another --out") from None
+        if before != now:
+            keys = sorted(k for k in set(before) | set(now) if before.get(k) != now.get(k))
+            sub = [f"{k}.{j}" for k in keys if isinstance(before.get(k), dict) and isinstance(now.get(k), dict)
+                   for j in sorted(set(before[k]) | set(now[k])) if before[k].get(j) != now[k].get(j)]
+            raise InputError(path, f"this folder holds results made with other settings ({', '.join(sub or keys)}); "
+                             "its models and records would be reused: choose another --out or remove the folder")
+        return
+    Path(out).mkdir(parents=True, exist_ok=True)
+    atomic.write_json(path, now)

@@ -17,7 +17,8 @@ and writes ``results.json`` and ``results.md`` (mean +- std over seeds) under ``
 is the synthetic / supervised t_err ratio (the paper: 2.7 on KITTI, about 1 on EuRoC).
 
 Every step is a ``deepslam`` subcommand or a cached evaluation; a step whose output exists is
-skipped, so a killed run resumes where it stopped. ``--quick``: one seed, tiny budgets (a smoke run).
+skipped, so a killed run resumes where it stopped. A folder made with other settings (the config or
+the motion model's bytes) is refused (``settings.json``), never reused. ``--quick``: one seed, tiny budgets (a smoke run).
 """
 from __future__ import annotations
 
@@ -209,7 +210,14 @@ def run(cfg: ResultsVOConfig, out: Path, data: Path) -> dict:
     from deepslam.core.readers import open_sequence
     from deepslam.studies.demo import render_once, run_command
 
-    out.mkdir(parents=True, exist_ok=True)
+    import hashlib
+
+    from bench.results_common import reuse_only_with_same_settings
+    from deepslam.vo.models import models_dir
+
+    motion = models_dir() / "motion" / cfg.motion
+    reuse_only_with_same_settings(out, {"config": dataclasses.asdict(cfg), "motion_sha256": hashlib.sha256(
+        motion.read_bytes()).hexdigest() if motion.is_file() else None})
     atomic.write_json(out / "config.json", dataclasses.asdict(cfg))
     log: list[str] = []
     t0 = time.perf_counter()

@@ -194,3 +194,20 @@ def test_slam_case_cache_is_reused_only_with_the_same_model_files(tmp_path):
     assert cached_case(path, {**used, "kitti_cons_dis.safetensors": "c" * 64}) is None
     path.write_text("{ not json")
     assert cached_case(path, used) is None
+
+
+def test_a_results_folder_is_reused_only_with_the_same_settings(tmp_path):
+    from bench.results_common import reuse_only_with_same_settings
+    from deepslam.core.errors import InputError
+
+    cfg = dataclasses.asdict(results_vo.ResultsVOConfig())
+    reuse_only_with_same_settings(tmp_path, {"config": cfg, "motion_sha256": "a"})
+    reuse_only_with_same_settings(tmp_path, {"config": cfg, "motion_sha256": "a"})  # a resumed run
+    with pytest.raises(InputError, match=r"settings\.json.*config\.seeds"):
+        reuse_only_with_same_settings(tmp_path, {"config": {**cfg, "seeds": [5]}, "motion_sha256": "a"})
+    with pytest.raises(InputError, match="motion_sha256"):
+        reuse_only_with_same_settings(tmp_path, {"config": cfg, "motion_sha256": "b"})
+    # results_vo refuses such a folder before it renders or trains anything
+    with pytest.raises(InputError, match="other settings"):
+        results_vo.run(dataclasses.replace(results_vo.ResultsVOConfig(), seeds=(9,)), tmp_path, tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["settings.json"]
