@@ -287,7 +287,9 @@ class FlowPairs:
     def _add(self, g0, g1, flow, name):
         self.grey0.append(g0)
         self.grey1.append(g1)
-        self.flow.append(np.asarray(flow, np.float16))
+        flow = np.asarray(flow, np.float32)
+        # float16 holds |x| < 65504: a larger (non-physical) flow is stored as NaN, left out of the loss
+        self.flow.append(np.where(np.abs(flow) < np.finfo(np.float16).max, flow, np.nan).astype(np.float16))
         self.names.append(name)
 
     def __len__(self) -> int:

@@ -131,3 +131,25 @@ def test_a_crop_larger_than_the_frames_is_refused_before_anything_is_written(tmp
     with pytest.raises(InputError, match="crop"):
         train_flow(FlowTrainConfig(net=SMALL, crop=(64, 128)), _Tiny(), tmp_path / "run", progress=False)
     assert not (tmp_path / "run").exists()
+
+
+def test_flow_pairs_keep_flow_float16_cannot_hold_as_nan(plane_sequence):
+    """A flow beyond float16's range (a point nearly in the camera plane) is stored as NaN, silently,
+    and so left out of the loss like any non-finite flow; the rest is kept."""
+    import warnings
+
+    from deepslam.core.readers import open_sequence
+    from deepslam.vo.flownet import FlowPairs
+
+    pairs = FlowPairs([open_sequence(plane_sequence)], progress=False)
+    g = np.zeros((4, 5), np.uint8)
+    flow = np.full((4, 5, 2), 2.5, np.float32)
+    flow[1, 2] = (1e6, -3.0)
+    flow[3, 4] = (np.inf, 1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        pairs._add(g, g, flow, "test")
+    kept = pairs.flow[-1].astype(np.float32)
+    assert np.isnan(kept[1, 2]).sum() == 1 and kept[1, 2, 1] == -3.0
+    assert np.isnan(kept[3, 4, 0]) and kept[3, 4, 1] == 1.0
+    assert (kept[0] == 2.5).all()
