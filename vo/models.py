@@ -20,13 +20,14 @@ KINDS = ("kitti", "euroc", "tum")
 hand-held RGB-D cameras (TUM RGB-D)."""
 WHICH = ("cons", "loops")
 """NN_cons (consecutive frames) and NN_loops (loop pairs)."""
-FLOW_VARIANTS = ("dis",)
-"""Estimators with models trained on their flow (file suffix ``_<name>``)."""
+FLOW_VARIANTS = ("dis", "learned")
+"""Estimators with models trained on their flow (file suffix ``_<name>``): OpenCV DIS, and the learned
+flow estimator (``models/flow_learned.safetensors``)."""
 
 
 def flow_variant(flow: str | None) -> str | None:
     """The variant suffix for a flow estimator's name or object name (``dis``, ``dis-medium`` -> ``dis``;
-    ``gt``, None -> None: exact flow is what the plain models learned)."""
+    ``learned`` -> ``learned``; ``gt``, None -> None: exact flow is what the plain models learned)."""
     if flow is None:
         return None
     base = str(getattr(flow, "name", flow)).split("-")[0]

@@ -143,6 +143,10 @@ def test_shipped_models_follow_the_flow_estimator(monkeypatch, tmp_path, street_
     assert models.shipped_path("kitti", "cons", "gt").name == "kitti_cons.safetensors"
     assert models.shipped_path("kitti", "cons").name == "kitti_cons.safetensors"
     assert models.shipped_path("kitti", "loops", "dis").name == "kitti_loops.safetensors"   # no variant: the plain one
+    assert models.shipped_path("kitti", "cons", "learned").name == "kitti_cons.safetensors"  # not (yet) shipped here
+    shutil.copy(street_model, tmp_path / "kitti_cons_learned.safetensors")
+    assert models.shipped_path("kitti", "cons", "learned").name == "kitti_cons_learned.safetensors"
+    assert models.shipped_path("kitti", "cons", "dis").name == "kitti_cons_dis.safetensors"
     assert models.resolve("kitti", None, "cons", "dis").name == "kitti_cons_dis"
     assert models.resolve(str(tmp_path / "kitti_cons.safetensors"), None, "cons", "dis").name != "kitti_cons_dis"
 
