@@ -34,7 +34,7 @@ class Candidate:
     """Flow estimator: ``dis`` or ``gt``."""
 
 
-SHIPPED = (Candidate("shipped kitti_cons_dis", "kitti", "dis"),)
+SHIPPED = (Candidate("shipped kitti_cons_dis", "kitti", "dis"), Candidate("shipped kitti_cons_learned", "kitti", "learned"))
 
 
 def seen_frames(meta: dict, seq_root: Path) -> str:

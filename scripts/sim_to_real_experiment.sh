@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Issue 12's sim-to-real experiment (README "Sim-to-real"): four DIS-flow NN_cons recipes, then the
-# real KITTI slices. About 130 minutes on 2 cores; resumable (finished steps are skipped).
+# real KITTI slices. About 160 minutes on 2 cores; resumable (finished steps are skipped).
 #   A: 3 default streets   B: 3 varied streets   C: 3 default + 6 varied   D: C + KITTI 06's single frames
 #   F: C with the training cameras tilted (pitch -1..3 deg, roll +-1 deg)   G: F + KITTI 06's single frames
 #   (A-G draw motions from models/motion/kitti_s1.json, fitted on KITTI 00-05 and 07-10: 07's ground truth
@@ -10,6 +10,7 @@
 #   H: I0's streets and prior on the LEARNED flow of the rendered views (scored with vo --flow learned)
 #   K: J with every street re-rendered with --grainy-road (asphalt with visible grain)   K06: K + KITTI 06's single frames
 #   K06_seed1-4: K06 at other seeds; K06_ens5: seeds 0-4 as one ensemble file (the seed study; not shipped)
+#   L06: K06 on the learned flow of the rendered views (seeds 0-2; scored with vo --flow learned)
 # KITTI 06 is the validation slice of the sim-only recipes (they never see a real frame); 07 is never trained on.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -65,6 +66,15 @@ done
     --sample-pool 12000 --frame-step 2 --samples-per-epoch 12000 --max-epochs 8 --nll-epochs 10 --threads 2 \
     --data-threads 2 --seed 0 --net cpu --appearance-noise 6 --quiet $NEW --camera-tilt-deg=-1:3:1 --frames $MIX \
     --out $D/H_learned $([ -d $D/H_learned ] && echo --resume)
+# L06 (sixth session): K06's streets, prior and 06 frames on the LEARNED flow of the rendered views, seeds 0-2
+# (the learned flow as fine-tuned on 2026-12-02, scripts/train_flow_model.sh; H above was trained with its first run)
+for s in 0 1 2; do
+  out=$D/L06_learned_s$s
+  [ -f $out/model.safetensors ] || $DS train --mode synthetic --synthetic-flow learned --frame-scales 1,0.65 \
+      --sample-pool 12000 --frame-step 2 --samples-per-epoch 12000 --max-epochs 8 --nll-epochs 10 --threads 2 \
+      --data-threads 2 --seed $s --net cpu --appearance-noise 6 --quiet $NEW --camera-tilt-deg=-1:3:1 \
+      --frames $GALL $K06 --out $out $([ -d $out ] && echo --resume)
+done
 .venv/bin/python -m bench.results_real --out $D/real \
   --model "A=$D/A_default/model.safetensors" --model "B=$D/B_varied/model.safetensors" \
   --model "C=$D/C_mixed/model.safetensors" --model "D=$D/D_mixed_06/model.safetensors" \
@@ -75,4 +85,5 @@ done
   --model "K=$D/K_grainy/model.safetensors" --model "K06=$D/K06_grainy_06/model.safetensors" \
   --model "K06_seed1=$D/K06_seed1/model.safetensors" --model "K06_seed2=$D/K06_seed2/model.safetensors" \
   --model "K06_seed3=$D/K06_seed3/model.safetensors" --model "K06_seed4=$D/K06_seed4/model.safetensors" \
-  --model "K06_ens5=$D/K06_ens5.safetensors"
+  --model "K06_ens5=$D/K06_ens5.safetensors" --model "L06=$D/L06_learned_s0/model.safetensors@learned" \
+  --model "L06_seed1=$D/L06_learned_s1/model.safetensors@learned" --model "L06_seed2=$D/L06_learned_s2/model.safetensors@learned"

@@ -122,9 +122,10 @@ def test_real_slice_table_says_what_each_model_saw(shared_data, tmp_path):
     from bench import results_real
 
     rep = results_real.run(results_real.SHIPPED, tmp_path, shared_data)
-    by = {r["slice"].split("/")[-1]: r for r in rep["rows"]}
-    assert by["06"]["seen_in_training"] == "single frames, no poses"
-    assert by["07"]["seen_in_training"] == "none"
+    assert len(rep["rows"]) == 2 * len(results_real.SHIPPED)  # each shipped model (DIS and learned flow) on 06 and 07
+    for r in rep["rows"]:
+        want = {"06": "single frames, no poses", "07": "none"}[r["slice"].split("/")[-1]]
+        assert r["seen_in_training"] == want, r
     for r in rep["rows"]:
         assert r["path_length_ratio"] > 0 and r["endpoint_drift_pct"] >= 0
     md = (tmp_path / "results.md").read_text()
