@@ -63,15 +63,20 @@ class PairInputs:
                 if self._stop.is_set():
                     return
                 flow = self.estimator.pair_flow(self.seq, int(i), int(j))
-                item = to_network_input(flow, self.seq.camera, self.width, self.height)
-                while not self._stop.is_set():
-                    try:
-                        self._q.put(item, timeout=0.1)
-                        break
-                    except queue.Full:
-                        continue
+                if not self._put(to_network_input(flow, self.seq.camera, self.width, self.height)):
+                    return
         except BaseException as e:  # noqa: BLE001 - handed to the reading thread, raised there
-            self._q.put(_Failed(e))
+            self._put(_Failed(e))
+
+    def _put(self, item) -> bool:
+        """Queue ``item`` unless the reader stops first (never blocks a :meth:`close`); False when stopped."""
+        while not self._stop.is_set():
+            try:
+                self._q.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
 
     def __len__(self) -> int:
         return len(self.pairs)
@@ -79,7 +84,13 @@ class PairInputs:
     def __iter__(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         try:
             for _ in range(len(self.pairs)):
-                item = self._q.get()
+                while True:
+                    try:
+                        item = self._q.get(timeout=0.1)
+                        break
+                    except queue.Empty:
+                        if not self._thread.is_alive() and self._q.empty():
+                            raise RuntimeError("the flow prefetch thread ended early (closed, or iterated twice)") from None
                 if isinstance(item, _Failed):
                     raise item.error
                 yield item

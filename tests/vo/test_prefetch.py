@@ -79,3 +79,53 @@ def test_model_input_size_reads_only_the_header(tmp_path):
             f"print(model_input_size({str(REPO / 'models' / 'euroc_cons.safetensors')!r}), 'torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "(96, 160) False"
+
+
+class _Failing:
+    """Raises on its third pair."""
+
+    name = "failing"
+
+    def __init__(self):
+        self.calls = 0
+
+    def pair_flow(self, seq, i, j):
+        self.calls += 1
+        if self.calls == 3:
+            raise InputError("frame-3.png", "cannot be read")
+        return np.zeros((seq.camera.height, seq.camera.width, 2), np.float32)
+
+
+@pytest.mark.parametrize("read", [0, 1])
+def test_a_worker_failing_on_a_full_queue_never_blocks_close(plane_sequence, read):
+    """The worker fails while its queue is full and nobody reads (the model failed to load, Ctrl-C):
+    close() returns at once; a second iteration says so instead of waiting forever."""
+    import time
+
+    seq = open_sequence(plane_sequence)
+    inputs = PairInputs(seq, [(k, k + 1) for k in range(6)], _Failing(), 80, 24, ahead=1)
+    it = iter(inputs)
+    for _ in range(read):
+        next(it)
+    time.sleep(0.3)  # the worker fills the queue and then fails
+    t0 = time.perf_counter()
+    inputs.close()
+    assert time.perf_counter() - t0 < 2.0 and not inputs._thread.is_alive()
+    with pytest.raises(RuntimeError, match="ended early"):
+        list(PairInputs.__iter__(inputs))
+
+
+def test_vo_reports_an_image_missing_mid_sequence_as_one_line(plane_sequence, tmp_path, capsys):
+    """The worker's InputError reaches the command line: one line naming the file, exit 2, no traceback,
+    no trajectory written."""
+    from deepslam.cli import main
+
+    root = tmp_path / "seq"
+    shutil.copytree(plane_sequence, root)
+    missing = open_sequence(root).image_paths[7]
+    missing.unlink()
+    out = tmp_path / "vo" / "t.txt"
+    rc = main(["vo", "--sequence", str(root), "--model", "kitti", "--flow", "dis", "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and len(err.strip().splitlines()) == 1 and missing.name in err and "Traceback" not in err
+    assert not out.exists()
