@@ -47,9 +47,10 @@ def results_main(name: str, doc: str, config, quick_config, out_name: str,
 
 def reuse_only_with_same_settings(out: Path, settings: dict) -> None:
     """Guard of a results folder whose script reuses what an earlier run left there (trained models,
-    per-case records: that is how a killed run resumes). The first run writes ``out/settings.json``;
-    a later run whose settings differ is refused before it reads or writes anything, since it would
-    report the earlier run's figures as its own.
+    per-case records: that is how a killed run resumes). The first run, in an empty folder, writes
+    ``out/settings.json``; a later run whose settings differ, or a folder holding anything without a
+    ``settings.json`` (made before settings were recorded), is refused before it reads or writes
+    anything, since it would report the earlier run's figures as its own.
 
     Args:
         out: the results folder.
@@ -79,4 +80,7 @@ def reuse_only_with_same_settings(out: Path, settings: dict) -> None:
                              "its models and records would be reused: choose another --out or remove the folder")
         return
     Path(out).mkdir(parents=True, exist_ok=True)
+    if any(Path(out).iterdir()):  # made before settings were recorded: nothing says what it holds
+        raise InputError(out, "holds results from a run that recorded no settings.json; its models and records "
+                         "would be reused: choose another --out or remove the folder")
     atomic.write_json(path, now)

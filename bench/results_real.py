@@ -31,7 +31,7 @@ class Candidate:
     model: str
     """Model file, or a shipped spec such as ``kitti`` (see deepslam.vo.models.resolve)."""
     flow: str = "dis"
-    """Flow estimator: ``dis`` or ``gt``."""
+    """Flow estimator: ``dis``, ``learned`` or ``gt`` (a name of :func:`deepslam.vo.flow_estimators.make`)."""
 
 
 SHIPPED = (Candidate("shipped kitti_cons_dis", "kitti", "dis"), Candidate("shipped kitti_cons_learned", "kitti", "learned"))
@@ -111,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("MUJOCO_GL", "egl")
     ap = argparse.ArgumentParser(prog="python -m bench.results_real", description=__doc__.split("\n\n")[0])
     ap.add_argument("--model", action="append", default=[], metavar="NAME=PATH[@FLOW]",
-                    help="a candidate model beside the shipped ones (repeatable; FLOW dis or gt, default dis)")
+                    help="a candidate model beside the shipped ones (repeatable; FLOW dis, learned or gt, default dis)")
     ap.add_argument("--no-shipped", action="store_true", help="score only the --model candidates")
     ap.add_argument("--out", type=Path, default=None, help="output folder (default out/results/real)")
     ap.add_argument("--data", type=Path, default=None, help="shared data folder (default ../shared/data)")

@@ -126,6 +126,8 @@ def test_real_slice_table_says_what_each_model_saw(shared_data, tmp_path):
     for r in rep["rows"]:
         want = {"06": "single frames, no poses", "07": "none"}[r["slice"].split("/")[-1]]
         assert r["seen_in_training"] == want, r
+        # the model file each shipped candidate names is the one scored (no silent fallback to another)
+        assert r["model_file"] == r["model"].removeprefix("shipped "), r
     for r in rep["rows"]:
         assert r["path_length_ratio"] > 0 and r["endpoint_drift_pct"] >= 0
     md = (tmp_path / "results.md").read_text()
@@ -212,3 +214,7 @@ def test_a_results_folder_is_reused_only_with_the_same_settings(tmp_path):
     with pytest.raises(InputError, match="other settings"):
         results_vo.run(dataclasses.replace(results_vo.ResultsVOConfig(), seeds=(9,)), tmp_path, tmp_path)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["settings.json"]
+    old = tmp_path / "old"  # a folder from before settings were recorded
+    (old / "models").mkdir(parents=True)
+    with pytest.raises(InputError, match="recorded no settings"):
+        reuse_only_with_same_settings(old, {"config": cfg, "motion_sha256": "a"})
