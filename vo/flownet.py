@@ -255,6 +255,15 @@ class FlowTrainConfig:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
 
 
+def initial_weights(cfg: FlowTrainConfig) -> FlowNet:
+    """The network ``cfg.init`` names (fine-tuning's start); InputError when the file is missing, not a
+    flow model, or holds another network than ``cfg.net``."""
+    start, _ = load_flow_model(cfg.init)
+    if start.cfg.to_dict() != cfg.net.to_dict():
+        raise InputError(cfg.init, "its network differs from the one to train; cannot start from it")
+    return start
+
+
 class FlowPairs:
     """Rendered frame pairs with exact flow, in memory: (grey0, grey1, flow) uint8, uint8, float16.
 
@@ -393,10 +402,7 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
             torch.manual_seed(cfg.seed)
             model = FlowNet(cfg.net)
         if cfg.init and not (resume and ck.is_file()):
-            start, _ = load_flow_model(cfg.init)
-            if start.cfg.to_dict() != cfg.net.to_dict():
-                raise InputError(cfg.init, "its network differs from the one to train; cannot start from it")
-            model.load_state_dict(start.state_dict())
+            model.load_state_dict(initial_weights(cfg).state_dict())
         dev = torch.device(cfg.device)
         model = model.to(dev)
         opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
@@ -408,6 +414,9 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
                 diff = sorted(k for k in d["config"] if d["config"][k] != cfg.to_dict().get(k))
                 if any(k not in ("max_minutes", "threads", "stop_after_steps", "device") for k in diff):
                     raise InputError(ck, f"cannot resume: settings differ ({', '.join(diff)})")
+            started = (d.get("meta") or {}).get("init_sha256")
+            if cfg.init and started and started != (meta or {}).get("init_sha256", started):
+                raise InputError(cfg.init, "differs from the flow model this run started from (sha256); cannot resume")
             model.load_state_dict({k: v.to(dev) for k, v in d["state_dict"].items()})
             opt.load_state_dict(d["optimizer"])
             sched.load_state_dict(d["scheduler"])

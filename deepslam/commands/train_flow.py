@@ -61,19 +61,21 @@ def run(args: argparse.Namespace) -> int:
     if not (args.lr > 0 and args.lr < 1) or not (args.max_minutes >= 0):
         raise InputError(None, "--lr must be in (0, 1) and --max-minutes >= 0")
     device = resolve_device(args.device)
-    seqs = [open_sequence(d) for d in _sequence_dirs(args.sequences)]
-    pairs = FlowPairs(seqs, progress=not args.quiet)
     cfg = FlowTrainConfig(crop=(ch, cw), batch_size=args.batch, lr=args.lr, max_steps=args.max_steps,
                           max_minutes=args.max_minutes, stop_after_steps=args.stop_after, seed=args.seed,
                           threads=args.threads, device=str(device), init=args.init)
-    meta = {"sequences": [str(s.root) for s in seqs], "pairs": len(pairs)}
-    if args.init:
+    init_meta = {}
+    if args.init:  # checked before minutes of loading frames
         import hashlib
         from pathlib import Path
 
-        if not Path(args.init).is_file():
-            raise InputError(args.init, "flow model to start from is missing")
-        meta["init_sha256"] = hashlib.sha256(Path(args.init).read_bytes()).hexdigest()
+        from deepslam.vo.flownet import initial_weights
+
+        initial_weights(cfg)
+        init_meta["init_sha256"] = hashlib.sha256(Path(args.init).read_bytes()).hexdigest()
+    seqs = [open_sequence(d) for d in _sequence_dirs(args.sequences)]
+    pairs = FlowPairs(seqs, progress=not args.quiet)
+    meta = {"sequences": [str(s.root) for s in seqs], "pairs": len(pairs), **init_meta}
     path = train_flow(cfg, pairs, args.out, resume=args.resume, progress=not args.quiet, meta=meta)
     print(f"model: {path}")
     return 0
