@@ -13,7 +13,6 @@ import numpy as np
 import torch
 
 from deepslam.core import se3
-from deepslam.vo.net import FlowPoseNet
 
 
 @functools.lru_cache(maxsize=1)
@@ -30,7 +29,8 @@ class VOPredictor:
     """A trained flow -> 6DoF network, ready for batched inference.
 
     Args:
-        model: a :class:`vo.net.FlowPoseNet` (put in eval mode here).
+        model: a :class:`vo.net.FlowPoseNet`, or a :class:`vo.ensemble.EnsemblePoseNet` of several (put in
+            eval mode here).
         name: short name shown in logs (the model file's stem).
         meta: what the model file says about its training.
         batch_size: flows per forward pass.
@@ -39,7 +39,7 @@ class VOPredictor:
         channels_last: NHWC convolutions (faster on this CPU).
     """
 
-    def __init__(self, model: FlowPoseNet, name: str = "vo", meta: dict | None = None, batch_size: int = 64,
+    def __init__(self, model: torch.nn.Module, name: str = "vo", meta: dict | None = None, batch_size: int = 64,
                  bf16: bool | None = None, channels_last: bool = True, device: str | torch.device = "cpu"):
         self.model = model.eval()
         if channels_last:

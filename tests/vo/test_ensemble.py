@@ -105,7 +105,7 @@ def test_members_seeing_different_frames_report_the_union(tmp_path):
 
 
 @pytest.mark.parametrize("bad", ["one_file", "other_input", "nested", "missing", "malformed_tree"])
-def test_bad_ensembles_are_refused_with_the_file_named(bad, tmp_path, capsys):
+def test_bad_ensembles_are_refused_with_the_file_named(bad, tmp_path, capsys, plane_sequence):
     from deepslam.cli import main
 
     paths = _files(tmp_path, seeds=(0, 1))
@@ -126,8 +126,10 @@ def test_bad_ensembles_are_refused_with_the_file_named(bad, tmp_path, capsys):
         modelfile.save(out, MODEL_FORMAT, {"format": MODEL_FORMAT, "ensemble": [tree]})
         with pytest.raises(InputError, match="malformed VO ensemble"):
             load_model(out)
-        rc = main(["vo", "--sequence", str(tmp_path), "--model", str(out), "--out", str(tmp_path / "t.txt")])
-        assert rc == 2
+        rc = main(["vo", "--sequence", str(plane_sequence), "--model", str(out), "--out", str(tmp_path / "t.txt"),
+                   "--quiet"])
+        err = capsys.readouterr().err
+        assert rc == 2 and "malformed VO ensemble" in err and str(out) in err and len(err.strip().splitlines()) == 1
         return
     rc = main(["ensemble-model", *argv, "--out", str(out)])
     err = capsys.readouterr().err
