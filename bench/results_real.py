@@ -54,10 +54,10 @@ def score(cand: Candidate, seq) -> dict:
     """``deepslam vo`` on the whole slice with ``cand``; the drift and ATE figures (core.metrics)."""
     from deepslam.core import metrics
     from deepslam.core.trajectory import Trajectory
-    from deepslam.vo import flow_estimators, models
+    from deepslam.vo import models
     from deepslam.vo.infer import chain_euler6
 
-    est = flow_estimators.make(cand.flow, **({"preset": "medium"} if cand.flow == "dis" else {}))
+    est = models.flow_for_model(cand.flow, models.resolve_path(cand.model, seq, flow=cand.flow))
     pred = models.resolve(cand.model, seq, flow=est)
     pairs = np.stack([np.arange(len(seq) - 1), np.arange(1, len(seq))], axis=1)
     mean6, _ = pred.predict_pairs(seq, pairs, est, progress=False)

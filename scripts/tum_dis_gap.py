@@ -27,6 +27,7 @@ def main(argv: list[str]) -> int:
     root = argv[0] if argv else "../shared/data/tum/rgbd_dataset_freiburg3_teddy"
     seq = open_sequence(root)
     dis = flow_estimators.make("dis", preset="medium")
+    learned = flow_estimators.make("learned")
     pairs = [(i, i + 1) for i in range(0, len(seq) - 1, 4)][:45]
     vec, _ = make_pnp().predict(seq, pairs)
     noises = (0, 6, 12, 18, 24)
@@ -41,8 +42,11 @@ def main(argv: list[str]) -> int:
         def epe(flow: np.ndarray) -> float:
             return float(np.median(np.linalg.norm(flow[valid] - ref[valid], axis=1)))
 
-        errors.setdefault("real pair", []).append(epe(dis.estimate(grey0, flow_estimators.to_grey(seq.image(j)))))
+        grey1 = flow_estimators.to_grey(seq.image(j))
+        errors.setdefault("real pair", []).append(epe(dis.estimate(grey0, grey1)))
+        errors.setdefault("real pair, learned flow", []).append(epe(learned.estimate(grey0, grey1)))
         view, _ = render_novel_view(grey0, depth, seq.camera, motion)
+        errors.setdefault("synthetic view, learned flow", []).append(epe(learned.estimate(grey0, view)))
         for sigma in noises:
             noisy = view if sigma == 0 else np.clip(
                 np.rint(view + np.random.default_rng(i).normal(0.0, sigma, view.shape)), 0, 255).astype(np.uint8)

@@ -197,13 +197,15 @@ def odometry_from_args(args, seq):
         loops = load_odometry(loops_spec) if loops_spec else cons
         return cons, loops
     from deepslam.gen.device import resolve_device
-    from deepslam.vo import flow_estimators, models
+    from deepslam.vo import models
 
-    flow = flow_estimators.make(args.flow)
     device = resolve_device(getattr(args, "device", "cpu"))
-    cons = models.resolve(args.model_cons, seq, "cons", flow, device=device).as_odometry(flow)
-    loops = None
-    if not args.no_loops:
-        loops_spec = args.model_loops
-        loops = models.resolve(loops_spec, seq, "loops", flow, device=device).as_odometry(flow)
+
+    def odometry(spec, which):
+        # each model gets the flow as it was trained on it (DIS's preset and texture threshold may differ)
+        flow = models.flow_for_model(args.flow, models.resolve_path(spec, seq, which, args.flow))
+        return models.resolve(spec, seq, which, flow, device=device).as_odometry(flow)
+
+    cons = odometry(args.model_cons, "cons")
+    loops = None if args.no_loops else odometry(args.model_loops, "loops")
     return cons, loops

@@ -74,6 +74,37 @@ def _load(path: Path, shipped: bool, **kwargs):
     return VOPredictor.from_file(path, **kwargs)
 
 
+def recorded_flow_options(path: str | Path, flow: str) -> dict:
+    """The options of flow estimator ``flow`` (a :func:`vo.flow_estimators.make` name) that the VO model
+    file at ``path`` was trained on: its meta's ``flow`` record (``deepslam train`` writes
+    ``{"estimator": name, "options": {...}}`` for a model trained on an estimator's flow; an ensemble's
+    first member's). {} when the file records another estimator or none (exact synthetic flow), or
+    cannot be read (the loader reports that). Read from the file's header: no torch."""
+    from deepslam.vo import modeltree
+
+    try:
+        tree = modeltree.read_header_tree(path)
+        record = modeltree.meta(tree).get("flow")
+        if record is None and "ensemble" in tree:
+            record = modeltree.meta(tree["ensemble"][0]).get("flow")
+    except Exception:  # noqa: BLE001 - an unreadable file: the loader says what is wrong
+        return {}
+    if not isinstance(record, dict) or record.get("estimator") != flow or not isinstance(record.get("options"), dict):
+        return {}
+    return dict(record["options"])
+
+
+def flow_for_model(flow: str, path: str | Path, **given):
+    """The flow estimator ``flow`` set up as the model file at ``path`` saw it in training
+    (:func:`recorded_flow_options`: DIS's preset and texture threshold), with the options in ``given``
+    that are not None taking precedence (a command line's explicit flags)."""
+    from deepslam.vo import flow_estimators
+
+    options = recorded_flow_options(path, flow)
+    options.update({k: v for k, v in given.items() if v is not None})
+    return flow_estimators.make(flow, **options)
+
+
 def kind_for_sequence(seq) -> str:
     """The shipped-model kind that suits a sequence: its reader's kind for KITTI/EuRoC/TUM; for our format
     the scene's kind when sequence.json names one (``street`` -> kitti, ``room``/``indoor`` -> euroc),

@@ -110,17 +110,13 @@ class PairInputs:
 
 
 def model_input_size(path: str | Path) -> tuple[int, int] | None:
-    """(height, width) of the input the VO model file at ``path`` reads, from its safetensors header
-    alone (no torch, no tensors read); None when the file is missing or not a readable model file (the
-    loader then says what is wrong)."""
-    import json
-
-    from safetensors import safe_open
+    """(height, width) of the input the VO model file at ``path`` reads, from its header alone
+    (:mod:`vo.modeltree`: no torch, no tensors read); None when the file is missing or not a readable
+    model file (the loader then says what is wrong)."""
+    from deepslam.vo import modeltree
 
     try:
-        with safe_open(str(path), framework="numpy") as f:
-            tree = json.loads((f.metadata() or {})["tree"])
-        net = tree["ensemble"][0]["net"] if "ensemble" in tree else tree.get("net") or tree["config"]["net"]
+        net = modeltree.net_config(modeltree.read_header_tree(path))
         return int(net["input_height"]), int(net["input_width"])
     except Exception:  # noqa: BLE001 - any unreadable file: no prefetch, the loader reports it
         return None

@@ -658,13 +658,17 @@ def _model_from_tree(path: Path, d: dict) -> FlowPoseNet:
     """The network a model or checkpoint tree describes (InputError naming ``path`` when it does not fit)."""
     from deepslam.core.errors import InputError
 
+    from deepslam.vo import modeltree
+
     try:
         if d.get("format") == MODEL_FORMAT:
-            net_cfg, sd = NetConfig.from_dict(d["net"]), d["state_dict"]
+            sd = d["state_dict"]
         elif "model" in d and "config" in d:
-            net_cfg, sd = TrainConfig.from_dict(d["config"]).net, d["model"]
+            TrainConfig.from_dict(d["config"])  # a checkpoint's whole config must parse, not only its net
+            sd = d["model"]
         else:
             raise InputError(path, "not a deepslam VO model (no format/net/state_dict)")
+        net_cfg = NetConfig.from_dict(modeltree.net_config(d))
     except (KeyError, TypeError, ValueError) as e:
         raise InputError(path, f"malformed VO model ({type(e).__name__}: {e})") from None
     if not isinstance(sd, dict) or not all(torch.is_tensor(v) for v in sd.values()):

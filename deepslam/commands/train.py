@@ -104,6 +104,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--max-pairs", type=int, default=0, help="at most this many pairs per sequence (0 = all)")
     g.add_argument("--flow", default="dis", help="flow estimator: dis or gt")
     g.add_argument("--dis-preset", default="medium", choices=("ultrafast", "fast", "medium"))
+    g.add_argument("--dis-min-texture", type=float, default=0.0, metavar="T",
+                   help="DIS flow is unknown (NaN, 0 in the network's input) where the first image's texture "
+                        "(structure tensor's smaller eigenvalue, (grey levels/px)^2) is below T (0 = keep all)")
     g = p.add_argument_group("network")
     g.add_argument("--net", choices=sorted(NET_PRESETS), default="paper", help="preset, refined by the options below")
     g.add_argument("--height", type=int, help="input rows")
@@ -253,7 +256,7 @@ def run(args: argparse.Namespace) -> int:
 
     from deepslam.core.errors import InputError
     from deepslam.core.readers import open_sequence
-    from deepslam.vo import data
+    from deepslam.vo import data, flow_estimators
     from deepslam.vo.infer import cpu_has_native_bf16
     from deepslam.vo.train import TrainConfig, TrainingDiverged, train
 
@@ -328,7 +331,7 @@ def run(args: argparse.Namespace) -> int:
                     return data.SyntheticSource(fr, sampler, n, seed, f, args.missing_depth, tilt=tilt,
                                                 inv_depth=net.depth_channel, scene_scale=scene_scale)
             else:
-                opts = {"preset": args.dis_preset} if args.synthetic_flow == "dis" else {}
+                opts = flow_estimators.estimator_options(args.synthetic_flow, args.dis_preset, args.dis_min_texture)
                 frames = data.load_image_frames(seqs, args.frame_step, args.depth, args.max_frames, progress,
                                                 scales=args.frame_scales)
                 train_frames, hold_frames = frames.split(args.holdout, args.seed)
@@ -350,14 +353,16 @@ def run(args: argparse.Namespace) -> int:
                             "camera_tilt": tilt.to_dict() if tilt else None,
                             "scene_scale": scene_scale.to_dict() if scene_scale else None}
             if estimator_name is not None:
+                meta["flow"] = {"estimator": args.synthetic_flow, "options": opts}  # what vo/slam set up to match
                 meta["data"].update(synth_factor=None, missing_depth=None, frame_scales=list(args.frame_scales),
                                     appearance_noise=args.appearance_noise, synthetic_flow=estimator_name)
     else:
         if not args.sequence:
             raise InputError(None, "supervised mode needs --sequence DIR...")
-        from deepslam.vo import flow_estimators
 
-        est = flow_estimators.make(args.flow, **({"preset": args.dis_preset} if args.flow == "dis" else {}))
+        opts = flow_estimators.estimator_options(args.flow, args.dis_preset, args.dis_min_texture)
+        est = flow_estimators.make(args.flow, **opts)
+        meta["flow"] = {"estimator": args.flow, "options": opts}
         spec = data.PairSpec(strides=tuple(args.strides), kind=args.pairs, max_pairs=args.max_pairs)
         parts, counts = [], {}
         for d in args.sequence:

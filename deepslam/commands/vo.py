@@ -24,7 +24,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--flow", default="dis", help="flow estimator: dis (OpenCV DIS, default), learned (the network "
                    "`deepslam train-flow` trains on renders), gt (the sequence's ground-truth flow, our format), or a "
                    "plug-in MODULE:FACTORY")
-    p.add_argument("--dis-preset", default="medium", choices=("ultrafast", "fast", "medium"), help="DIS preset (default medium)")
+    p.add_argument("--dis-preset", default=None, choices=("ultrafast", "fast", "medium"),
+                   help="DIS preset (default: the one the model was trained on, medium where it does not say)")
+    p.add_argument("--dis-min-texture", type=float, default=None, metavar="T",
+                   help="DIS flow is unknown where the first image's texture is below T ((grey levels/px)^2: the "
+                        "structure tensor's smaller eigenvalue over 7x7 px; 0 = keep all). Default: the model's, "
+                        "as it was trained (0 where it does not say)")
     p.add_argument("--stride", type=int, default=1, help="frame gap k: predict cam_{t+k}_from_cam_t for t = 0, k, 2k, ...")
     p.add_argument("--start", type=int, default=0, help="first frame")
     p.add_argument("--end", type=int, default=None, help="one past the last frame (default: all)")
@@ -54,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     from deepslam.core.readers import open_sequence
     from deepslam.core.trajectory import Trajectory
     from deepslam.slam import plugins
-    from deepslam.vo import flow_estimators, models
+    from deepslam.vo import models
 
     seq = open_sequence(args.sequence)
     if args.stride < 1:
@@ -76,13 +81,14 @@ def run(args: argparse.Namespace) -> int:
         mean6, std6 = plugin.predict(seq, pairs)
         name, estimator, predictor = plugin.name, None, None
     else:
-        opts = {"preset": args.dis_preset} if args.flow == "dis" else {}
-        estimator = flow_estimators.make(args.flow, **opts)
+        model_path = models.resolve_path(args.model, seq, flow=args.flow)
+        given = {"preset": args.dis_preset, "min_texture": args.dis_min_texture} if args.flow == "dis" else {}
+        estimator = models.flow_for_model(args.flow, model_path, **given)  # DIS set up as the model was trained
         bf16 = None if args.bf16 == "auto" else args.bf16 == "on"
         from deepslam.vo.prefetch import PairInputs, model_input_size
 
         # the flows start before torch and the model load (seconds of start-up they overlap)
-        size = model_input_size(models.resolve_path(args.model, seq, flow=estimator))
+        size = model_input_size(model_path)
         inputs = None if size is None else PairInputs(seq, pairs, estimator, size[1], size[0])
         from deepslam.gen.device import resolve_device
 

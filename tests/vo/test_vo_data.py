@@ -190,12 +190,28 @@ def test_train_cli_synthetic_with_dis_flow_and_a_sample_pool(plane_sequence, mot
 
     out = tmp_path / "syn_dis"
     rc = main(["train", "--mode", "synthetic", "--synthetic-flow", "dis", "--dis-preset", "fast", "--sample-pool", "48",
+               "--dis-min-texture", "0.5",
                "--frames", str(plane_sequence), "--motion", str(motion_json), "--net", "tiny", "--batch", "16",
                "--samples-per-epoch", "64", "--max-epochs", "2", "--nll-epochs", "1", "--bf16", "off", "--threads", "1",
                "--quiet", "--out", str(out)])
     assert rc == 0
-    d = json.loads((out / "config.json").read_text())["data"]["data"]
-    assert d["synthetic_flow"] == "dis-fast" and d["sample_pool"] == 48 and d["synth_factor"] is None
+    meta = json.loads((out / "config.json").read_text())["data"]
+    d = meta["data"]
+    assert d["synthetic_flow"] == "dis-fast-tex0.5" and d["sample_pool"] == 48 and d["synth_factor"] is None
+    assert meta["flow"] == {"estimator": "dis", "options": {"preset": "fast", "min_texture": 0.5}}
+    # the model file records the flow it learned, and vo sets DIS up the same unless told otherwise
+    from deepslam.vo import models
+
+    model = out / "model.safetensors"
+    assert models.recorded_flow_options(model, "dis") == {"preset": "fast", "min_texture": 0.5}
+    assert models.recorded_flow_options(model, "learned") == {}
+    assert models.flow_for_model("dis", model).name == "dis-fast-tex0.5"
+    assert models.flow_for_model("dis", model, min_texture=0.0, preset=None).name == "dis-fast"
+    for flags, name in (([], "dis-fast-tex0.5"), (["--dis-min-texture", "0", "--dis-preset", "medium"], "dis-medium")):
+        traj = tmp_path / f"vo{len(flags)}.txt"
+        assert main(["vo", "--sequence", str(plane_sequence), "--model", str(model), "--out", str(traj), "--quiet",
+                     *flags]) == 0
+        assert json.loads(traj.with_suffix(".config.json").read_text())["flow"] == name
     assert main(["train", "--mode", "synthetic", "--synthetic-flow", "nope", "--frames", str(plane_sequence),
                  "--motion", str(motion_json), "--net", "tiny", "--quiet", "--out", str(tmp_path / "o")]) == 2
 

@@ -38,6 +38,59 @@ def test_dis_accepts_rgb_and_rejects_unknown_preset():
         fe.make("raft-not-registered")
 
 
+def test_texture_strength_is_the_structure_tensors_smaller_eigenvalue():
+    """Against the definition computed by hand: a flat image has none, a single straight edge (the
+    aperture problem) none, a ramp in both directions none (one gradient direction); random texture a lot,
+    and the value of a pixel is the smaller eigenvalue of its 7x7 mean of (gx, gy)(gx, gy)^T."""
+    flat = np.full((40, 50), 128, np.uint8)
+    assert np.abs(fe.texture_strength(flat)).max() < 1e-6
+    edge = np.zeros((40, 50), np.uint8)
+    edge[:, 25:] = 200
+    assert np.abs(fe.texture_strength(edge)).max() < 1e-3
+    ramp = (np.add.outer(np.arange(40), np.arange(50)) * 2).astype(np.uint8)  # 2 grey levels per px along u and v
+    assert np.abs(fe.texture_strength(ramp)[5:-5, 5:-5]).max() < 1e-3
+    img = _texture(40, 50).astype(np.float64)
+    t = fe.texture_strength(img.astype(np.uint8))
+    gx, gy = np.zeros_like(img), np.zeros_like(img)
+    gx[:, 1:-1] = (img[:, 2:] - img[:, :-2]) / 2
+    gy[1:-1] = (img[2:] - img[:-2]) / 2
+    gx[1:-1] = (gx[:-2] + 2 * gx[1:-1] + gx[2:]) / 4  # Sobel = central difference smoothed 1-2-1 across
+    gy[:, 1:-1] = (gy[:, :-2] + 2 * gy[:, 1:-1] + gy[:, 2:]) / 4
+    v, u = 20, 24
+    win = (slice(v - 3, v + 4), slice(u - 3, u + 4))
+    tensor = np.array([[np.mean(gx[win] ** 2), np.mean(gx[win] * gy[win])],
+                       [np.mean(gx[win] * gy[win]), np.mean(gy[win] ** 2)]])
+    assert t.dtype == np.float32 and t.shape == (40, 50)
+    assert t[v, u] == pytest.approx(np.linalg.eigvalsh(tensor)[0], rel=1e-4)
+    assert t[v, u] > 1.0
+
+
+@pytest.mark.parametrize("min_texture", [0.0, 0.5, 1e9])
+def test_dis_min_texture_marks_textureless_pixels_unknown(min_texture):
+    """Half the image textured, half a flat wall: with a threshold the wall's flow is NaN and the
+    textured half's is DIS's own; the name records the threshold; a bad threshold is refused."""
+    img = _texture(96, 128)
+    img[:, 64:] = 90
+    shifted = np.roll(img, 2, axis=1)
+    plain = fe.make("dis", preset="medium").estimate(img, shifted)
+    dis = fe.make("dis", **fe.estimator_options("dis", "medium", min_texture))
+    flow = dis.estimate(img, shifted)
+    unknown = np.isnan(flow).any(axis=2)
+    assert np.array_equal(unknown, fe.texture_strength(img) < min_texture)
+    np.testing.assert_array_equal(flow[~unknown], plain[~unknown])
+    if min_texture == 0.0:
+        assert dis.name == "dis-medium" and not unknown.any()
+    elif min_texture == 0.5:
+        assert dis.name == "dis-medium-tex0.5"
+        assert unknown[10:-10, 80:-10].all() and not unknown[10:-10, 10:50].any()
+    else:
+        assert unknown.all()
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(InputError, match="min_texture"):
+            fe.DISFlow("medium", bad)
+    assert fe.estimator_options("learned", "fast", 3.0) == {}
+
+
 def test_registry_takes_new_estimators():
     @fe.register("zero-test")
     class Zero:
