@@ -5,7 +5,11 @@ sensor depth and the motion a classical RGB-D odometry finds (the ``pnp`` plug-i
 with the sensor depth; no ground-truth pose is used). Printed: the median end-point error of DIS
 (medium) against it on the real pair (i, i + 1), and on the synthetic second view rendered from frame i
 and the same motion (what ``train --synthetic-flow dis`` makes), with 0-24 grey levels of Gaussian
-noise on that view (``--appearance-noise``). Pixels with sensor depth only. About 2 minutes:
+noise on that view (``--appearance-noise``); and of the learned flow (``models/flow_learned.safetensors``)
+on the real pair and the noise-free view. Then, over all these pixels pooled, DIS's error on the real
+pairs by quartile of the first image's texture (:func:`vo.flow_estimators.texture_strength`) and what
+each ``--dis-min-texture`` threshold keeps (how 0.5 was chosen: no pose and no odometry score is
+used). Pixels with sensor depth only. About 2 minutes:
 
     .venv/bin/python scripts/tum_dis_gap.py [TEDDY_DIR]
 """
@@ -32,6 +36,7 @@ def main(argv: list[str]) -> int:
     vec, _ = make_pnp().predict(seq, pairs)
     noises = (0, 6, 12, 18, 24)
     errors: dict[str, list[float]] = {}
+    pixel_errors, pixel_texture = [], []
     for (i, j), v in zip(pairs, vec):
         depth = np.asarray(seq.depth(i), np.float32)
         motion = se3.from_euler6(v[None])[0]
@@ -43,7 +48,10 @@ def main(argv: list[str]) -> int:
             return float(np.median(np.linalg.norm(flow[valid] - ref[valid], axis=1)))
 
         grey1 = flow_estimators.to_grey(seq.image(j))
-        errors.setdefault("real pair", []).append(epe(dis.estimate(grey0, grey1)))
+        real = dis.estimate(grey0, grey1)
+        errors.setdefault("real pair", []).append(epe(real))
+        pixel_errors.append(np.linalg.norm(real[valid] - ref[valid], axis=1))
+        pixel_texture.append(flow_estimators.texture_strength(grey0)[valid])
         errors.setdefault("real pair, learned flow", []).append(epe(learned.estimate(grey0, grey1)))
         view, _ = render_novel_view(grey0, depth, seq.camera, motion)
         errors.setdefault("synthetic view, learned flow", []).append(epe(learned.estimate(grey0, view)))
@@ -52,7 +60,18 @@ def main(argv: list[str]) -> int:
                 np.rint(view + np.random.default_rng(i).normal(0.0, sigma, view.shape)), 0, 255).astype(np.uint8)
             errors.setdefault(f"synthetic view, noise {sigma}", []).append(epe(dis.estimate(grey0, noisy)))
     for name, e in errors.items():
-        print(f"{name:28s} DIS end-point error, median over {len(e)} pairs: {np.median(e):.2f} px")
+        who = "" if "learned" in name else "DIS "
+        print(f"{name:28s} {who}end-point error, median over {len(e)} pairs: {np.median(e):.2f} px")
+    err, tex = np.concatenate(pixel_errors), np.concatenate(pixel_texture)
+    edges = np.quantile(tex, [0.0, 0.25, 0.5, 0.75, 1.0])
+    for k, (lo, hi) in enumerate(zip(edges[:-1], edges[1:])):
+        sel = (tex >= lo) & (tex <= hi)
+        print(f"real pairs, texture quartile {k + 1} ({lo:.3g}-{hi:.3g} (grey levels/px)^2): DIS median error "
+              f"{np.median(err[sel]):.2f} px")
+    for t in (0.25, 0.5, 1.0, 2.0):
+        sel = tex >= t
+        print(f"--dis-min-texture {t:g} keeps {100 * sel.mean():.0f} % of the pixels; their DIS median error "
+              f"{np.median(err[sel]):.2f} px, mean {err[sel].mean():.2f} px (all: {np.median(err):.2f} / {err.mean():.2f})")
     return 0
 
 

@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Issue 14's training experiments on the TUM fr3/teddy slice (README "RGB-D odometry on TUM fr3/teddy",
 # 2026-12-02): NN_cons variants trained on the three simulated rooms of scripts/train_tum_models.sh only
-# (never a frame or pose of teddy), each scored by `deepslam vo` on teddy. About 45 minutes on 2 cores;
-# resumable (finished steps are skipped). None of them is shipped.
+# (never a pose of teddy; the teddy_* variants also its single frames), each scored by `deepslam vo` on teddy.
+# About 2 hours on 2 cores; resumable (finished steps are skipped). None of them is shipped (the teddy_tex30 recipe at
+# seed 0 is: scripts/train_tum_models.sh).
 #   dis: DIS flow of the rendered second view        depth: + the depth channel
 #   scale: DIS + scene scale 0.3-1 (range chosen from teddy's depth statistics, not its poses or a score)
 #   scale_depth: both                                 10hz: DIS with EuRoC's motions at 10 Hz, vo --stride 3
@@ -32,6 +33,22 @@ train $D/scale_depth $M30 --scene-scale 0.3:1.0 --depth-channel
 train $D/10hz --motion $D/euroc_10hz.json
 train $D/dis18 $M30 --appearance-noise 18
 train $D/10hz18 --motion $D/euroc_10hz.json --appearance-noise 18
+# seventh session (2026-12-02): DIS's flow left out where the first image has no texture (--dis-min-texture 0.5,
+# the threshold from scripts/tum_dis_gap.py: teddy's real pairs against the pnp baseline's motion, no pose or score)
+#   tex, tex30: rooms only, 8 / 30 epochs      teddy_dis: rooms + teddy's single frames, no texture threshold (control)
+#   teddy_tex: rooms + teddy with it, 8 epochs  teddy_tex_depth30: + the depth channel, 30 epochs
+#   teddy_tex30 (= the shipped tum_cons_teddy), at seeds 1 and 2 too     tex30_scale: tex30 + --scene-scale 0.3:1
+TEX="--dis-min-texture 0.5"
+train $D/tex $M30 $TEX
+train $D/tex30 $M30 $TEX --max-epochs 30
+train $D/teddy_dis $M30 --frames $ROOMS $TEDDY
+train $D/teddy_tex $M30 $TEX --frames $ROOMS $TEDDY
+train $D/teddy_tex_depth30 $M30 $TEX --frames $ROOMS $TEDDY --depth-channel --max-epochs 30
+for s in 1 2; do train $D/teddy_tex30_seed$s $M30 $TEX --frames $ROOMS $TEDDY --max-epochs 30 --seed $s; done
+train $D/tex30_scale $M30 $TEX --max-epochs 30 --scene-scale 0.3:1.0
+for m in tex tex30 teddy_dis teddy_tex teddy_tex_depth30 teddy_tex30_seed1 teddy_tex30_seed2 tex30_scale; do
+  $DS vo --sequence $TEDDY --model $D/$m/model.safetensors --out $D/$m/teddy.txt --quiet  # DIS as the model records
+done
 for m in dis depth scale scale_depth dis18; do
   $DS vo --sequence $TEDDY --model $D/$m/model.safetensors --out $D/$m/teddy.txt --quiet
 done
