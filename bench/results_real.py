@@ -57,8 +57,8 @@ def score(cand: Candidate, seq) -> dict:
     from deepslam.vo import models
     from deepslam.vo.infer import chain_euler6
 
-    est = models.flow_for_model(cand.flow, models.resolve_path(cand.model, seq, flow=cand.flow))
-    pred = models.resolve(cand.model, seq, flow=est)
+    path, shipped = models.locate(cand.model, seq, flow=cand.flow)
+    est, pred = models.flow_for_model(cand.flow, path), models.load(path, shipped)
     pairs = np.stack([np.arange(len(seq) - 1), np.arange(1, len(seq))], axis=1)
     mean6, _ = pred.predict_pairs(seq, pairs, est, progress=False)
     traj = Trajectory(chain_euler6(mean6), seq.timestamps_s)

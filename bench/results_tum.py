@@ -9,7 +9,7 @@ same run: standing still (every pose the first) and the classical plug-in ``pnp`
 with the sensor depth). ATE after se3 and sim3 alignment (evo's definition), RPE per frame, on the
 frames the ground truth covers. Targets (issue 14): VO ATE <= 0.05 m, SLAM no worse than VO. Writes
 results.json, results.md and trajectories.png into ``out/results/tum`` (``python -m bench.results_tum``,
-about 2 minutes).
+about 2.5 minutes).
 """
 from __future__ import annotations
 

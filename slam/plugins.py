@@ -200,11 +200,16 @@ def odometry_from_args(args, seq):
     from deepslam.vo import models
 
     device = resolve_device(getattr(args, "device", "cpu"))
+    estimators: dict[tuple, object] = {}  # one estimator per set-up: cons and loops share it where they agree
 
     def odometry(spec, which):
         # each model gets the flow as it was trained on it (DIS's preset and texture threshold may differ)
-        flow = models.flow_for_model(args.flow, models.resolve_path(spec, seq, which, args.flow))
-        return models.resolve(spec, seq, which, flow, device=device).as_odometry(flow)
+        path, shipped = models.locate(spec, seq, which, args.flow)
+        key = tuple(sorted(models.recorded_flow_options(path, args.flow).items()))
+        if key not in estimators:
+            estimators[key] = models.flow_for_model(args.flow, path)
+        flow = estimators[key]
+        return models.load(path, shipped, device=device).as_odometry(flow)
 
     cons = odometry(args.model_cons, "cons")
     loops = None if args.no_loops else odometry(args.model_loops, "loops")

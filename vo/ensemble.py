@@ -113,7 +113,7 @@ def write_ensemble(paths: Sequence[str | Path], out: str | Path) -> dict:
 
     Raises:
         InputError: fewer than two files, a file that is not a single-network VO model, or members that
-            read different inputs (named by file).
+            read different inputs or were trained on differently set-up flow (``meta.flow``; named by file).
     """
     import hashlib
 
@@ -134,6 +134,10 @@ def write_ensemble(paths: Sequence[str | Path], out: str | Path) -> dict:
             raise InputError(p, f"reads another input than {paths[0]} ({input_key(model.cfg)} against {input_key(first)})")
         trees.append(model_tree(model, meta))
     metas = [t["meta"] for t in trees]
+    for p, m in zip(paths[1:], metas[1:]):  # one flow set-up for all: vo/slam give the ensemble one estimator
+        if m.get("flow") != metas[0].get("flow"):
+            raise InputError(p, f"was trained on other flow than {paths[0]} (meta.flow {m.get('flow')!r} against "
+                                f"{metas[0].get('flow')!r})")
     meta = {"ensemble_of": [{"file": str(p), "sha256": hashlib.sha256(p.read_bytes()).hexdigest(),
                              "seed": (m.get("train") or {}).get("seed")} for p, m in zip(paths, metas)]}
     datas = [m.get("data") or {} for m in metas]
@@ -143,5 +147,7 @@ def write_ensemble(paths: Sequence[str | Path], out: str | Path) -> dict:
         frames = sorted({str(f) for d in datas for f in d.get("frames", []) or []})
         seqs = sorted({str(f) for d in datas for f in (d.get("sequences") or {})})
         meta["data"] = {"frames": frames, "sequences": {s: None for s in seqs}, "members_differ": True}
+    if metas[0].get("flow") is not None:
+        meta["flow"] = metas[0]["flow"]  # what vo.models.flow_for_model reads
     modelfile.save(out, MODEL_FORMAT, ensemble_tree(trees, meta))
     return meta

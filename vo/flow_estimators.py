@@ -116,9 +116,13 @@ class DISFlow:
 
         if preset not in DIS_PRESETS:
             raise InputError(None, f"unknown DIS preset {preset!r} (one of {', '.join(DIS_PRESETS)})")
-        min_texture = float(min_texture)
+        given = min_texture
+        try:
+            min_texture = float(min_texture)
+        except (TypeError, ValueError):
+            min_texture = math.nan
         if not (math.isfinite(min_texture) and min_texture >= 0):
-            raise InputError(None, f"DIS min_texture must be a finite number >= 0, got {min_texture!r}")
+            raise InputError(None, f"DIS min_texture (--dis-min-texture) must be a finite number >= 0, got {given!r}")
         self.preset = preset
         self.min_texture = min_texture
         self.name = f"dis-{preset}" + (f"-tex{min_texture:g}" if min_texture > 0 else "")
@@ -262,10 +266,16 @@ register("gt")(GroundTruthFlow)
 register("learned")(_learned)
 
 
-def estimator_options(name: str, dis_preset: str = "medium", dis_min_texture: float = 0.0) -> dict:
+def estimator_options(name: str, dis_preset: str | None = "medium", dis_min_texture: float | None = 0.0) -> dict:
     """The options :func:`make` passes to ``name``'s factory from the command line's DIS flags
-    (``--dis-preset``, ``--dis-min-texture``): those of :class:`DISFlow` for ``dis``, none otherwise."""
-    return {"preset": dis_preset, "min_texture": dis_min_texture} if name == "dis" else {}
+    (``--dis-preset``, ``--dis-min-texture``; None = not given): those of :class:`DISFlow` for ``dis``,
+    none otherwise. InputError when a texture threshold is given for another estimator (it would be
+    silently ignored)."""
+    if name == "dis":
+        return {"preset": dis_preset, "min_texture": dis_min_texture}
+    if dis_min_texture:
+        raise InputError(None, f"--dis-min-texture applies to DIS flow only, not to flow estimator {name!r}")
+    return {}
 
 
 def names() -> list[str]:

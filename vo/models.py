@@ -59,10 +59,10 @@ def shipped_path(kind: str, which: str = "cons", flow=None) -> Path:
 def load_shipped(kind: str, which: str = "cons", flow=None, **kwargs):
     """The shipped :class:`vo.infer.VOPredictor` for ``kind`` / ``which`` (and the flow estimator, see
     :func:`shipped_path`); InputError when the file is missing."""
-    return _load(shipped_path(kind, which, flow), True, **kwargs)
+    return load(shipped_path(kind, which, flow), True, **kwargs)
 
 
-def _load(path: Path, shipped: bool, **kwargs):
+def load(path: Path, shipped: bool = False, **kwargs):
     """:class:`vo.infer.VOPredictor` of ``path``; a shipped model is named after its file and, when
     missing, reported with a pointer to models/README.md."""
     from deepslam.vo.infer import VOPredictor
@@ -74,35 +74,55 @@ def _load(path: Path, shipped: bool, **kwargs):
     return VOPredictor.from_file(path, **kwargs)
 
 
+RECORDED_OPTIONS = {"dis": ("preset", "min_texture")}
+"""The options a model file's flow record may set, per estimator (:class:`vo.flow_estimators.DISFlow`'s)."""
+
+
 def recorded_flow_options(path: str | Path, flow: str) -> dict:
     """The options of flow estimator ``flow`` (a :func:`vo.flow_estimators.make` name) that the VO model
     file at ``path`` was trained on: its meta's ``flow`` record (``deepslam train`` writes
-    ``{"estimator": name, "options": {...}}`` for a model trained on an estimator's flow; an ensemble's
-    first member's). {} when the file records another estimator or none (exact synthetic flow), or
-    cannot be read (the loader reports that). Read from the file's header: no torch."""
+    ``{"estimator": name, "options": {...}}`` for a model trained on an estimator's flow;
+    ``ensemble-model`` copies its members' shared record). {} when the file records another estimator
+    or none (exact synthetic flow; DIS models trained before the record existed used DIS medium on
+    every pixel, the estimator's defaults), or cannot be read (the loader reports that). Read from the
+    file's header: no torch.
+
+    Raises:
+        InputError: naming ``path``, when the record's options are not ones ``flow`` takes
+            (:data:`RECORDED_OPTIONS`).
+    """
     from deepslam.vo import modeltree
 
     try:
-        tree = modeltree.read_header_tree(path)
-        record = modeltree.meta(tree).get("flow")
-        if record is None and "ensemble" in tree:
-            record = modeltree.meta(tree["ensemble"][0]).get("flow")
+        record = modeltree.meta(modeltree.read_header_tree(path)).get("flow")
     except Exception:  # noqa: BLE001 - an unreadable file: the loader says what is wrong
         return {}
-    if not isinstance(record, dict) or record.get("estimator") != flow or not isinstance(record.get("options"), dict):
+    if not isinstance(record, dict) or record.get("estimator") != flow:
         return {}
-    return dict(record["options"])
+    options = record.get("options")
+    allowed = RECORDED_OPTIONS.get(flow, ())
+    if not isinstance(options, dict) or set(options) - set(allowed):
+        raise InputError(path, f"malformed VO model: its meta.flow options {options!r} are not options of flow "
+                               f"estimator {flow} (it takes {', '.join(allowed) or 'none'})")
+    return dict(options)
 
 
 def flow_for_model(flow: str, path: str | Path, **given):
     """The flow estimator ``flow`` set up as the model file at ``path`` saw it in training
     (:func:`recorded_flow_options`: DIS's preset and texture threshold), with the options in ``given``
-    that are not None taking precedence (a command line's explicit flags)."""
+    that are not None taking precedence (a command line's explicit flags). InputError naming ``path``
+    when its recorded options are not valid ones."""
     from deepslam.vo import flow_estimators
 
-    options = recorded_flow_options(path, flow)
-    options.update({k: v for k, v in given.items() if v is not None})
-    return flow_estimators.make(flow, **options)
+    recorded = recorded_flow_options(path, flow)
+    options = {**recorded, **{k: v for k, v in given.items() if v is not None}}
+    try:
+        return flow_estimators.make(flow, **options)
+    except InputError as e:
+        if not recorded:
+            raise
+        raise InputError(path, f"malformed VO model: its meta.flow options {recorded!r} do not set up flow "
+                               f"estimator {flow} ({e.what})") from None
 
 
 def kind_for_sequence(seq) -> str:
@@ -121,11 +141,12 @@ def kind_for_sequence(seq) -> str:
 
 def resolve_path(spec: str | None, seq=None, which: str = "cons", flow=None) -> Path:
     """The model file :func:`resolve` loads for ``spec`` (it may not exist; no torch needed)."""
-    return _locate(spec, seq, which, flow)[0]
+    return locate(spec, seq, which, flow)[0]
 
 
-def _locate(spec: str | None, seq, which: str, flow) -> tuple[Path, bool]:
-    """(model file for ``spec``, whether it is a shipped one)."""
+def locate(spec: str | None, seq=None, which: str = "cons", flow=None) -> tuple[Path, bool]:
+    """(model file for ``spec``, whether it is a shipped one), as :func:`resolve` finds it (no torch
+    needed). With :func:`flow_for_model` and :func:`load`: set a model's flow up before loading torch."""
     if spec is None:
         if seq is None:
             raise InputError(None, "no model given and no sequence to choose a shipped one")
@@ -140,4 +161,4 @@ def resolve(spec: str | None, seq=None, which: str = "cons", flow=None, **kwargs
     """A predictor from ``spec``: a model file path, ``kitti``/``euroc`` (shipped ``cons``),
     ``kitti:loops``-style shipped names, or None (the shipped model for ``seq``'s camera kind). Shipped
     models follow ``flow`` (the estimator's name or object, see :func:`shipped_path`); a file is taken as is."""
-    return _load(*_locate(spec, seq, which, flow), **kwargs)
+    return load(*locate(spec, seq, which, flow), **kwargs)

@@ -4,8 +4,8 @@ A VO model file (:mod:`vo.modelfile`: safetensors, its JSON tree in the header u
 file's kind under ``deepslam``) holds one of three layouts:
 
 - a model (``deepslam-vo-model``): ``net`` (:class:`vo.net.NetConfig` as a dict), ``state_dict``, ``meta``;
-- an ensemble (``deepslam-vo-model`` with ``ensemble``: a list of member trees, each ``net`` and
-  ``state_dict``; :mod:`vo.ensemble`), ``meta``;
+- an ensemble (``deepslam-vo-model`` with ``ensemble``: a list of member trees, each ``net``,
+  ``state_dict`` and its own ``meta``; :mod:`vo.ensemble`), and the ensemble's ``meta``;
 - a training checkpoint (``deepslam-vo-checkpoint``): ``config`` (a :class:`vo.train.TrainConfig` dict,
   its ``net`` inside), ``model`` (the weights), ``meta`` and the optimiser's state.
 

@@ -324,6 +324,8 @@ def run(args: argparse.Namespace) -> int:
                 args.missing_depth = "invalid" if any(sq.kind == "tum" for sq in seqs) else "infinity"
             n_hold = args.holdout_samples or max(args.batch, int(round(args.holdout * args.samples_per_epoch)))
             if args.synthetic_flow == "exact":
+                if args.dis_min_texture:
+                    raise InputError(None, "--dis-min-texture applies to DIS flow only (--synthetic-flow dis)")
                 frames = data.load_frames(seqs, w * f, h * f, args.frame_step, args.depth, args.max_frames, progress)
                 train_frames, hold_frames = frames.split(args.holdout, args.seed)
 

@@ -81,8 +81,10 @@ def run(args: argparse.Namespace) -> int:
         mean6, std6 = plugin.predict(seq, pairs)
         name, estimator, predictor = plugin.name, None, None
     else:
-        model_path = models.resolve_path(args.model, seq, flow=args.flow)
-        given = {"preset": args.dis_preset, "min_texture": args.dis_min_texture} if args.flow == "dis" else {}
+        from deepslam.vo.flow_estimators import estimator_options
+
+        model_path, shipped = models.locate(args.model, seq, flow=args.flow)
+        given = estimator_options(args.flow, args.dis_preset, args.dis_min_texture)
         estimator = models.flow_for_model(args.flow, model_path, **given)  # DIS set up as the model was trained
         bf16 = None if args.bf16 == "auto" else args.bf16 == "on"
         from deepslam.vo.prefetch import PairInputs, model_input_size
@@ -93,8 +95,8 @@ def run(args: argparse.Namespace) -> int:
         from deepslam.gen.device import resolve_device
 
         try:
-            predictor = models.resolve(args.model, seq, flow=estimator, batch_size=args.batch, bf16=bf16,
-                                       device=resolve_device(args.device))
+            predictor = models.load(model_path, shipped, batch_size=args.batch, bf16=bf16,
+                                    device=resolve_device(args.device))
         except BaseException:
             if inputs is not None:
                 inputs.close()

@@ -465,8 +465,15 @@ def _main_odometries(config: StressConfig) -> OdometrySet:
             from deepslam.gen.device import resolve_device
 
             dev = resolve_device(config.device)
-            cons = {f: models.resolve(config.model_cons or kind, None, "cons", est, device=dev) for f, est in flows.items()}
-            loops = models.resolve(config.model_loops or f"{kind}:loops", None, "loops", flows["dis"], device=dev)
+            cons, cons_flows = {}, dict(flows)
+            for f, est in flows.items():
+                path, shipped = models.locate(config.model_cons or kind, None, "cons", est)
+                if f == "dis":  # DIS set up as this model was trained (its texture threshold), at the study's preset
+                    cons_flows[f] = models.flow_for_model("dis", path, preset=config.dis_preset)
+                cons[f] = models.load(path, shipped, device=dev)
+            path, shipped = models.locate(config.model_loops or f"{kind}:loops", None, "loops", flows["dis"])
+            loops_flow = models.flow_for_model("dis", path, preset=config.dis_preset)
+            loops = models.load(path, shipped, device=dev)
         except InputError as e:
             if config.model_cons or config.model_loops:
                 raise  # a model the user named is missing or broken: bad input
@@ -479,8 +486,8 @@ def _main_odometries(config: StressConfig) -> OdometrySet:
                     "least-squares fit of flow + depth over all pixels")
         else:
             names = ", ".join(f"{cons[f].name} on {f} flow" for f in flows)
-            return OdometrySet("model", {f: cons[f].as_odometry(est, progress=False) for f, est in flows.items()},
-                               loops.as_odometry(flows["dis"], progress=False),
+            return OdometrySet("model", {f: cons[f].as_odometry(est, progress=False) for f, est in cons_flows.items()},
+                               loops.as_odometry(loops_flow, progress=False),
                                f"learned, NN_cons {names}, and NN_loops {loops.name} (on DIS flow)")
     return OdometrySet("rigid-fit", {f: RigidFitOdometry(est) for f, est in flows.items()}, RigidFitOdometry(flows["dis"]),
                        "rigid least-squares fit of flow + depth over all pixels (solvePnP, no outlier rejection); "

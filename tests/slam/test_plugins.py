@@ -228,3 +228,28 @@ def test_flow_plugin_in_vo(plugin_dir, seq_dir, tmp_path, capsys):
     rc, cap = _main(["vo", "--sequence", seq_dir, "--flow", "nosuchflow", "--out", tmp_path / "v.txt"], capsys)
     assert rc == 2 and "unknown flow estimator 'nosuchflow'" in cap.err
 
+
+
+def test_slam_gives_each_model_the_flow_it_was_trained_on(seq_dir, tmp_path):
+    """NN_cons trained on DIS with textureless pixels left out, NN_loops on plain DIS: slam sets DIS up
+    per model (two estimators); models that agree share one estimator."""
+    import argparse
+
+    from deepslam.slam.plugins import odometry_from_args
+    from deepslam.vo.net import FlowPoseNet, NetConfig
+    from deepslam.vo.train import save_model
+
+    net = FlowPoseNet(NetConfig(input_height=24, input_width=80, filters=8, hidden_units=16))
+    tex, plain = tmp_path / "tex.safetensors", tmp_path / "plain.safetensors"
+    save_model(tex, net, {"flow": {"estimator": "dis", "options": {"preset": "fast", "min_texture": 0.5}}})
+    save_model(plain, net, {"flow": {"estimator": "dis", "options": {"preset": "medium", "min_texture": 0.0}}})
+    seq = open_sequence(seq_dir)
+
+    def args(cons, loops):
+        return argparse.Namespace(odometry="model", odometry_command=None, model_cons=str(cons),
+                                  model_loops=str(loops), flow="dis", no_loops=False, device="cpu", sequence=seq_dir)
+
+    cons, loops = odometry_from_args(args(tex, plain), seq)
+    assert cons.flow_estimator.name == "dis-fast-tex0.5" and loops.flow_estimator.name == "dis-medium"
+    cons, loops = odometry_from_args(args(tex, tex), seq)
+    assert cons.flow_estimator is loops.flow_estimator

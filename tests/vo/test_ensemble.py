@@ -104,7 +104,22 @@ def test_members_seeing_different_frames_report_the_union(tmp_path):
     assert meta["data"]["frames"] == ["x", "y"] and list(meta["data"]["sequences"]) == ["z"]
 
 
-@pytest.mark.parametrize("bad", ["one_file", "other_input", "nested", "missing", "malformed_tree"])
+def test_the_members_flow_record_becomes_the_ensembles(tmp_path):
+    """Members trained on one DIS set-up: the ensemble records it, so vo/slam set DIS up for it as for them."""
+    from deepslam.vo import models
+
+    flow = {"estimator": "dis", "options": {"preset": "medium", "min_texture": 0.5}}
+    paths = []
+    for s in (0, 1):
+        paths.append(tmp_path / f"t{s}.safetensors")
+        save_model(paths[-1], _net(s), {"train": {"seed": s}, "flow": flow})
+    meta = write_ensemble(paths, tmp_path / "e.safetensors")
+    assert meta["flow"] == flow
+    assert models.flow_for_model("dis", tmp_path / "e.safetensors").name == "dis-medium-tex0.5"
+    assert "flow" not in write_ensemble(_files(tmp_path), tmp_path / "plain.safetensors")
+
+
+@pytest.mark.parametrize("bad", ["one_file", "other_input", "other_flow", "nested", "missing", "malformed_tree"])
 def test_bad_ensembles_are_refused_with_the_file_named(bad, tmp_path, capsys, plane_sequence):
     from deepslam.cli import main
 
@@ -115,6 +130,10 @@ def test_bad_ensembles_are_refused_with_the_file_named(bad, tmp_path, capsys, pl
     elif bad == "other_input":
         other = tmp_path / "wide.safetensors"
         save_model(other, _net(5, NetConfig(input_height=48, input_width=160, filters=8, hidden_units=16)), {})
+        argv, named = [str(paths[0]), str(other)], other
+    elif bad == "other_flow":  # trained on DIS with textureless pixels left out: one estimator cannot serve both
+        other = tmp_path / "tex.safetensors"
+        save_model(other, _net(5), {"flow": {"estimator": "dis", "options": {"preset": "medium", "min_texture": 0.5}}})
         argv, named = [str(paths[0]), str(other)], other
     elif bad == "nested":
         write_ensemble(paths, tmp_path / "inner.safetensors")

@@ -212,8 +212,28 @@ def test_train_cli_synthetic_with_dis_flow_and_a_sample_pool(plane_sequence, mot
         assert main(["vo", "--sequence", str(plane_sequence), "--model", str(model), "--out", str(traj), "--quiet",
                      *flags]) == 0
         assert json.loads(traj.with_suffix(".config.json").read_text())["flow"] == name
+    # a texture threshold for a flow it does not apply to is refused, not ignored
+    for argv in (["vo", "--sequence", str(plane_sequence), "--model", str(model), "--flow", "gt"],
+                 ["train", "--mode", "synthetic", "--frames", str(plane_sequence), "--motion", str(motion_json)]):
+        assert main([*argv, "--dis-min-texture", "0.5", "--out", str(tmp_path / "refused"), "--quiet"]) == 2
     assert main(["train", "--mode", "synthetic", "--synthetic-flow", "nope", "--frames", str(plane_sequence),
                  "--motion", str(motion_json), "--net", "tiny", "--quiet", "--out", str(tmp_path / "o")]) == 2
+
+
+@pytest.mark.parametrize("options", [{"min_texture": "abc"}, {"foo": 1}, {"preset": "bogus"}, ["medium"]])
+def test_a_malformed_flow_record_is_one_line_naming_the_model_file(options, plane_sequence, tmp_path, capsys):
+    """A model file whose meta.flow options DIS cannot take: vo exits 2 with one line naming the file."""
+    from deepslam.cli import main
+    from deepslam.vo.net import FlowPoseNet, NetConfig
+    from deepslam.vo.train import save_model
+
+    model = tmp_path / "bad_record.safetensors"
+    save_model(model, FlowPoseNet(NetConfig(input_height=24, input_width=80, filters=8, hidden_units=16)),
+               {"flow": {"estimator": "dis", "options": options}})
+    rc = main(["vo", "--sequence", str(plane_sequence), "--model", str(model), "--out", str(tmp_path / "t.txt"), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1 and str(model) in err and "meta.flow" in err, err
+    assert not (tmp_path / "t.txt").exists()
 
 
 def test_train_cli_supervised_with_ground_truth_flow(plane_sequence, tmp_path):

@@ -88,7 +88,9 @@ def test_dis_min_texture_marks_textureless_pixels_unknown(min_texture):
     for bad in (-1.0, float("nan"), float("inf")):
         with pytest.raises(InputError, match="min_texture"):
             fe.DISFlow("medium", bad)
-    assert fe.estimator_options("learned", "fast", 3.0) == {}
+    assert fe.estimator_options("learned", "fast", 0.0) == fe.estimator_options("gt", None, None) == {}
+    with pytest.raises(InputError, match="DIS flow only"):
+        fe.estimator_options("learned", "fast", 3.0)
 
 
 def test_registry_takes_new_estimators():
