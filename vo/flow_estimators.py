@@ -105,7 +105,7 @@ class DISFlow:
         min_texture: where the first image's :func:`texture_strength` is below this ((grey levels / px)^2),
             the flow is NaN (unknown) instead of DIS's guess; 0 (default) keeps every pixel. On a real
             camera's textureless walls DIS's flow is its regularizer's and the sensor noise's, not the
-            scene's motion (TUM fr3/teddy: median error 2.6 px on the least textured quarter of the pixels,
+            scene's motion (TUM fr3/teddy: median error 2.8 px on the least textured quarter of the pixels,
             0.4 px on the most textured; README, RGB-D odometry), and a network that reads every pixel
             reads that as motion. The name says the threshold (``dis-medium-tex0.5``), so a model's
             training record names the flow it learned from.
