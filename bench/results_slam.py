@@ -97,12 +97,16 @@ def cached_case(path: Path, models_sha256: dict[str, str]) -> dict | None:
 
 
 def _odometry(seq, flow: str):
-    from deepslam.vo import flow_estimators, models
+    """The shipped (NN_cons, NN_loops) for ``seq``'s camera kind and ``flow``, each on the flow set up as
+    its file records (:func:`vo.models.flow_for_model`)."""
+    from deepslam.vo import models
 
     kind = models.kind_for_sequence(seq)
-    est = flow_estimators.make(flow)
-    return (models.load_shipped(kind, "cons", est).as_odometry(est, progress=False),
-            models.load_shipped(kind, "loops", est).as_odometry(est, progress=False))
+    odometries = []
+    for which in ("cons", "loops"):
+        path = models.shipped_path(kind, which, flow)
+        odometries.append(models.load(path, True).as_odometry(models.flow_for_model(flow, path), progress=False))
+    return tuple(odometries)
 
 
 def _loop_record(seq, loops, res) -> dict | None:
