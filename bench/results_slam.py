@@ -79,11 +79,17 @@ def _models_used(seq, flow: str) -> dict[str, str]:
     ``flow``: a cached case is reused only while these are the same files (a retrained default must
     not be scored by a stale record)."""
     from deepslam.core.integrity import file_digests
-    from deepslam.vo import flow_estimators, models
 
-    kind, est = models.kind_for_sequence(seq), flow_estimators.make(flow)
-    paths = [models.shipped_path(kind, which, est) for which in ("cons", "loops")]
+    paths = _shipped_paths(seq, flow)
     return file_digests(paths, paths[0].parent)
+
+
+def _shipped_paths(seq, flow: str) -> list[Path]:
+    """[NN_cons, NN_loops] shipped files for ``seq``'s camera kind and the flow estimator named ``flow``."""
+    from deepslam.vo import models
+
+    kind = models.kind_for_sequence(seq)
+    return [models.shipped_path(kind, which, flow) for which in ("cons", "loops")]
 
 
 def cached_case(path: Path, models_sha256: dict[str, str]) -> dict | None:
@@ -101,12 +107,8 @@ def _odometry(seq, flow: str):
     its file records (:func:`vo.models.flow_for_model`)."""
     from deepslam.vo import models
 
-    kind = models.kind_for_sequence(seq)
-    odometries = []
-    for which in ("cons", "loops"):
-        path = models.shipped_path(kind, which, flow)
-        odometries.append(models.load(path, True).as_odometry(models.flow_for_model(flow, path), progress=False))
-    return tuple(odometries)
+    return tuple(models.load(path, True).as_odometry(models.flow_for_model(flow, path), progress=False)
+                 for path in _shipped_paths(seq, flow))
 
 
 def _loop_record(seq, loops, res) -> dict | None:
