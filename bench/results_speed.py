@@ -43,18 +43,23 @@ def _sweeps(seq, kind: str, cfg: ResultsSpeedConfig) -> dict:
 
     out = {}
     for flow in ("exact", "dis"):
-        pred = models.load_shipped("kitti", "cons", None if flow == "exact" else "dis")
+        path = models.shipped_path("kitti", "cons", None if flow == "exact" else "dis")
+        pred = models.load(path, True)
         h, w = pred.input_size
+        unknown = pred.model.cfg.unknown_flow
         if flow == "exact":
             frames = data.load_frames([seq], 2 * w, 2 * h, depth=kind, progress=False)
 
-            def make(sample, frames=frames):
-                return data.SyntheticSource(frames, sample, cfg.samples, synth_factor=2)
+            def make(sample, frames=frames, unknown=unknown):
+                return data.SyntheticSource(frames, sample, cfg.samples, synth_factor=2, unknown=unknown)
         else:
             frames = data.load_image_frames([seq], depth=kind, progress=False)
+            # DIS set up as the model's file records it (medium on every pixel for today's file)
+            options = {"preset": "medium", **models.recorded_flow_options(path, "dis")}
 
-            def make(sample, frames=frames, h=h, w=w):
-                return data.EstimatedFlowSource(frames, sample, "dis", w, h, cfg.samples, estimator_options={"preset": "medium"})
+            def make(sample, frames=frames, h=h, w=w, unknown=unknown, options=options):
+                return data.EstimatedFlowSource(frames, sample, "dis", w, h, cfg.samples, estimator_options=options,
+                                                unknown=unknown)
         reads = scale_sweep.speed_sweep(pred, make, cfg.samples, cfg.rate_hz, seed=cfg.seed)
         out[flow] = {"model": pred.name, "reads": [dataclasses.asdict(r) for r in reads],
                      "flatness": scale_sweep.flatness(reads)}

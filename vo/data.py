@@ -245,7 +245,8 @@ def frame_pairs(gt_world_from_cam: np.ndarray, spec: PairSpec) -> np.ndarray:
     return pairs
 
 
-def supervised_samples(seq, pairs: np.ndarray, estimator, width: int, height: int, progress: bool = True) -> dict[str, np.ndarray]:
+def supervised_samples(seq, pairs: np.ndarray, estimator, width: int, height: int, progress: bool = True,
+                       unknown: str = "zero") -> dict[str, np.ndarray]:
     """Flow between frame pairs of a sequence with ground truth, at network resolution, + targets.
 
     Args:
@@ -253,8 +254,10 @@ def supervised_samples(seq, pairs: np.ndarray, estimator, width: int, height: in
         pairs: (P, 2) frame indices (i, j).
         estimator: a :mod:`vo.flow_estimators` estimator (``pair_flow(seq, i, j)``).
         width, height: network input size.
+        unknown: how unknown flow is resized (:data:`vo.flow_estimators.UNKNOWN_FLOW`: ``nan`` for a
+            network with a validity channel).
 
-    Returns ``flow`` (P, 2, height, width) float32 px, ``intrinsics`` (P, 4) float32, ``target``
+    Returns ``flow`` (P, 2, height, width) float32 px (NaN where unknown, with ``nan``), ``intrinsics`` (P, 4) float32, ``target``
     (P, 6) float32 = to_euler6(cam_j_from_cam_i).
     """
     from tqdm import tqdm
@@ -267,7 +270,8 @@ def supervised_samples(seq, pairs: np.ndarray, estimator, width: int, height: in
     flows = np.zeros((len(pairs), 2, height, width), np.float32)
     intr = np.zeros((len(pairs), 4), np.float32)
     for p, (i, j) in enumerate(tqdm(pairs, desc=f"flow {seq.name}", unit="pair", disable=not progress, leave=False)):
-        flows[p], intr[p] = to_network_input(estimator.pair_flow(seq, int(i), int(j)), seq.camera, width, height)
+        flows[p], intr[p] = to_network_input(estimator.pair_flow(seq, int(i), int(j)), seq.camera, width, height,
+                                                unknown)
     w = seq.gt.world_from_cam
     target = se3.to_euler6(se3.relative(w[pairs[:, 1]], w[pairs[:, 0]])) if len(pairs) else np.zeros((0, 6))
     return {"flow": flows, "intrinsics": intr, "target": target.astype(np.float32)}
@@ -670,11 +674,18 @@ class SyntheticSource(_OnTheFlySource):
         tilt: a :class:`CameraTilt` applied to each sample's frame and motion (None: the frames as they are).
         inv_depth: also give each sample's inverse depth at the network resolution (``"inv_depth"``).
         scene_scale: a :class:`SceneScale` applied to each sample's depth (None: the depth as it is).
+        unknown: ``zero`` (flow 0 where no pixel of a network pixel is valid) or ``nan`` (NaN there:
+            for a network with a validity channel; :data:`vo.flow_estimators.UNKNOWN_FLOW`).
     """
 
     def __init__(self, frames: Frames, sample_motion, samples_per_epoch: int, seed: int = 0, synth_factor: int = 1,
                  missing_depth: str = "infinity", synthesize=None, tilt: CameraTilt | None = None,
-                 inv_depth: bool = False, scene_scale: SceneScale | None = None):
+                 inv_depth: bool = False, scene_scale: SceneScale | None = None, unknown: str = "zero"):
+        from deepslam.vo.flow_estimators import UNKNOWN_FLOW
+
+        if unknown not in UNKNOWN_FLOW:
+            raise ValueError(f"unknown must be one of {UNKNOWN_FLOW}, got {unknown!r}")
+        self.unknown = unknown
         self.inv_depth = bool(inv_depth)
         self.scene_scale = scene_scale
         self.frames = frames
@@ -713,11 +724,13 @@ class SyntheticSource(_OnTheFlySource):
         if self.scene_scale is not None:
             depth = depth * torch.from_numpy(self.scene_scale.sample(n, rng).astype(np.float32)).view(n, 1, 1)
         if self.synthesize is None:
-            flow, _ = synthesize_flow(depth, self._k_synth[cams], motion, self.missing_depth,
-                                      pool=self.synth_factor)
+            flow, valid = synthesize_flow(depth, self._k_synth[cams], motion, self.missing_depth,
+                                          pool=self.synth_factor)
         else:
             flow, valid = self.synthesize(depth, self._k_synth[cams], motion)
-            flow, _ = pool_flow(flow, valid, self.synth_factor)
+            flow, valid = pool_flow(flow, valid, self.synth_factor)
+        if self.unknown == "nan":
+            flow = flow.masked_fill(~valid[:, None], float("nan"))
         batch = {"flow": flow.contiguous(), "intrinsics": torch.from_numpy(self._k_out[cams]),
                  "target": torch.from_numpy(vec6.astype(np.float32))}
         if self.inv_depth:
@@ -832,13 +845,21 @@ class EstimatedFlowSource(_OnTheFlySource):
         tilt: a :class:`CameraTilt` applied to each sample's frame (image and depth) and motion.
         inv_depth: also give each sample's inverse depth at the network resolution (``"inv_depth"``).
         scene_scale: a :class:`SceneScale` applied to each sample's depth (None: the depth as it is).
+        unknown: how the estimator's unknown flow (NaN) is resized to the network input
+            (:data:`vo.flow_estimators.UNKNOWN_FLOW`: ``nan`` for a network with a validity channel).
     """
 
     def __init__(self, frames: ImageFrames, sample_motion, estimator: str, width: int, height: int,
                  samples_per_epoch: int, seed: int = 0, threads: int = 2, estimator_options: dict | None = None,
                  appearance_noise: float = 0.0, tilt: CameraTilt | None = None, inv_depth: bool = False,
-                 scene_scale: SceneScale | None = None):
+                 scene_scale: SceneScale | None = None, unknown: str = "zero"):
         import threading
+
+        from deepslam.vo.flow_estimators import UNKNOWN_FLOW
+
+        if unknown not in UNKNOWN_FLOW:
+            raise ValueError(f"unknown must be one of {UNKNOWN_FLOW}, got {unknown!r}")
+        self.unknown = unknown
 
         self.inv_depth = bool(inv_depth)
         self.scene_scale = scene_scale
@@ -882,7 +903,8 @@ class EstimatedFlowSource(_OnTheFlySource):
         if self.appearance_noise > 0:
             noise = np.random.default_rng(noise_seed).normal(0.0, self.appearance_noise, grey1.shape)
             grey1 = np.clip(np.rint(grey1 + noise), 0, 255).astype(np.uint8)
-        flow, intr = flow_estimators.to_network_input(est.estimate(grey0, grey1), cam, self.width, self.height)
+        flow, intr = flow_estimators.to_network_input(est.estimate(grey0, grey1), cam, self.width, self.height,
+                                                     self.unknown)
         return flow, intr, (inverse_depth_input(depth0, self.width, self.height) if self.inv_depth else None)
 
     def make_batch(self, rng: np.random.Generator, n: int) -> Batch:

@@ -83,7 +83,8 @@ class EnsemblePoseNet(nn.Module):
 def input_key(cfg) -> dict:
     """What decides whether two networks can read the same prepared input (size, scale, extra channels)."""
     d = cfg.to_dict()
-    return {k: d[k] for k in ("input_height", "input_width", "flow_scale", "coord_channels", "depth_channel")
+    return {k: d[k] for k in ("input_height", "input_width", "flow_scale", "coord_channels", "depth_channel",
+                                 "valid_channel")
             if k in d}
 
 

@@ -311,38 +311,66 @@ def make(name: str, **options) -> FlowEstimator:
     return est
 
 
-def resize_flow(flow: np.ndarray, width: int, height: int) -> np.ndarray:
+UNKNOWN_FLOW = ("zero", "nan")
+"""How :func:`resize_flow` treats pixels whose flow is unknown (NaN or inf: DIS's textureless pixels,
+no depth): ``zero`` = as flow 0, averaged in with their known neighbours (what every network trained
+before the validity channel reads); ``nan`` = left out of the average, and NaN where a network pixel
+covers no known pixel at all (what a :attr:`vo.net.NetConfig.valid_channel` network reads)."""
+
+
+def resize_flow(flow: np.ndarray, width: int, height: int, unknown: str = "zero") -> np.ndarray:
     """A flow (H, W, 2) float32 px resampled to (height, width, 2) with its values rescaled.
 
     The pixel grid maps as the camera does (:meth:`core.camera.PinholeCamera.scaled`,
     ``u' = (u + 0.5) sx - 0.5``), so a displacement du becomes ``du * sx`` with ``sx = width / W``
     (and dv ``* sy``). Downsampling averages over the source area (cv2.INTER_AREA), upsampling is
-    bilinear. Non-finite values are replaced by 0 first.
+    bilinear. Non-finite values (unknown flow) are, by ``unknown`` (:data:`UNKNOWN_FLOW`): ``zero``,
+    replaced by 0 first; ``nan``, left out of each output pixel's average (weighted by the known
+    pixels' share of it), and the output is NaN where no known pixel contributes. A flow with no
+    unknown pixel resizes to the same values either way.
     """
     import cv2
 
+    if unknown not in UNKNOWN_FLOW:
+        raise ValueError(f"unknown must be one of {UNKNOWN_FLOW}, got {unknown!r}")
     flow = np.asarray(flow, dtype=np.float32)
-    if not np.isfinite(flow).all():  # the check is 50x cheaper than nan_to_num on a finite flow
-        flow = np.nan_to_num(flow, nan=0.0, posinf=0.0, neginf=0.0)
     if flow.ndim != 3 or flow.shape[2] != 2:
         raise ValueError(f"flow must be (H, W, 2), got {flow.shape}")
+    known = None
+    if not np.isfinite(flow).all():  # the check is 50x cheaper than nan_to_num on a finite flow
+        if unknown == "nan":
+            known = np.isfinite(flow).all(axis=2).astype(np.float32)
+        flow = np.nan_to_num(flow, nan=0.0, posinf=0.0, neginf=0.0)
+        if known is not None:
+            flow *= known[..., None]  # a pixel with one finite component is unknown as a whole
     h0, w0 = flow.shape[:2]
     if (h0, w0) == (height, width):
-        return flow.copy()
+        out = flow.copy()
+        if known is not None:
+            out[known == 0] = np.nan
+        return out
     interp = cv2.INTER_AREA if (width <= w0 and height <= h0) else cv2.INTER_LINEAR
     out = cv2.resize(flow, (width, height), interpolation=interp)
+    if known is not None:
+        share = cv2.resize(known, (width, height), interpolation=interp)
+        empty = share <= 1e-6
+        out /= np.where(empty, 1.0, share)[..., None]
+        out[empty] = np.nan
     out[..., 0] *= width / w0
     out[..., 1] *= height / h0
     return out
 
 
-def to_network_input(flow: np.ndarray, camera, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+def to_network_input(flow: np.ndarray, camera, width: int, height: int,
+                     unknown: str = "zero") -> tuple[np.ndarray, np.ndarray]:
     """Full-resolution flow -> the network's input.
 
     Args:
-        flow: (H, W, 2) float32 px at the camera's resolution.
+        flow: (H, W, 2) float32 px at the camera's resolution; NaN where unknown.
         camera: :class:`core.camera.PinholeCamera` of the images (H x W).
         width, height: the network's input size.
+        unknown: how unknown flow is resized (:func:`resize_flow`; ``nan`` for a network with a
+            validity channel, which then holds NaN where nothing is known).
 
     Returns:
         ``(flow_chw, intrinsics)``: float32 (2, height, width) px at network resolution, and float32
@@ -350,7 +378,7 @@ def to_network_input(flow: np.ndarray, camera, width: int, height: int) -> tuple
     """
     if flow.shape[:2] != (camera.height, camera.width):
         raise ValueError(f"flow is {flow.shape[:2]} but the camera is {camera.height}x{camera.width}")
-    small = resize_flow(flow, width, height)
+    small = resize_flow(flow, width, height, unknown)
     cam = camera.scaled(width, height)
     return (np.ascontiguousarray(small.transpose(2, 0, 1)),
             np.array([cam.fx, cam.fy, cam.cx, cam.cy], dtype=np.float32))

@@ -107,7 +107,7 @@ class VOPredictor:
         from deepslam.vo.flow_estimators import to_network_input
 
         h, w = self.input_size
-        return to_network_input(flow_full, camera, w, h)
+        return to_network_input(flow_full, camera, w, h, self.model.cfg.unknown_flow)
 
     def predict_pairs(self, seq, pairs: Seq[tuple[int, int]], flow_estimator, progress: bool = True,
                       chunk: int = 64, inputs=None) -> tuple[np.ndarray, np.ndarray]:
@@ -128,11 +128,13 @@ class VOPredictor:
 
         pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
         h, w = self.input_size
-        if inputs is not None and ((inputs.height, inputs.width) != (h, w) or not np.array_equal(inputs.pairs, pairs)):
+        unknown = self.model.cfg.unknown_flow
+        if inputs is not None and ((inputs.height, inputs.width, inputs.unknown) != (h, w, unknown)
+                                   or not np.array_equal(inputs.pairs, pairs)):
             inputs.close()
             inputs = None
         if inputs is None:
-            inputs = PairInputs(seq, pairs, flow_estimator, w, h)
+            inputs = PairInputs(seq, pairs, flow_estimator, w, h, unknown=unknown)
         means, stds = [], []
         with inputs, tqdm(total=len(pairs), desc=f"vo {self.name}", unit="pair", disable=not progress,
                           leave=False) as bar:

@@ -18,7 +18,11 @@ the camera's field of view so that one model can serve several cameras. With
 (1/m, 0 where unknown; area-averaged to the network resolution, :func:`inverse_depth_input`): for
 RGB-D cameras, renders and stereo, where the depth of the frame is known at test time. Flow alone
 fixes a translation only up to the scene's scale; with the inverse depth the translation's flow
-``f t / depth_z`` is read in metres.
+``f t / depth_z`` is read in metres. With ``NetConfig.valid_channel`` a last channel is 1 where the
+flow is known and 0 where it is not (the input holds NaN there: DIS's textureless pixels left out,
+depth holes), and the flow is averaged over known pixels only when it is resized to the network's
+resolution; without it unknown flow reads as 0, indistinguishable from no motion, and a network pixel
+that covers both is their average.
 """
 from __future__ import annotations
 
@@ -59,6 +63,10 @@ class NetConfig:
     """Add the first frame's inverse depth (1/m, 0 = unknown) as an input channel (RGB-D, renders, stereo)."""
     flow_scale: float = 1.0
     """Multiplier applied after the paper's normalisation flow / (W, H) (1.0 = the paper)."""
+    valid_channel: bool = False
+    """Add a channel that is 1 where the flow is known and 0 where it is not (NaN in the input: DIS's
+    textureless pixels, no depth); such a network's flow is resized over known pixels only
+    (:func:`vo.flow_estimators.resize_flow` with ``unknown="nan"``). False: unknown flow reads as 0."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "kernels", tuple(int(k) for k in self.kernels))
@@ -74,7 +82,13 @@ class NetConfig:
 
     @property
     def in_channels(self) -> int:
-        return 2 + 2 * bool(self.coord_channels) + bool(self.depth_channel)
+        return 2 + 2 * bool(self.coord_channels) + bool(self.depth_channel) + bool(self.valid_channel)
+
+    @property
+    def unknown_flow(self) -> str:
+        """How this network's input flow is resized where the flow is unknown
+        (:data:`vo.flow_estimators.UNKNOWN_FLOW`): ``nan`` with a validity channel, else ``zero``."""
+        return "nan" if self.valid_channel else "zero"
 
     def feature_shape(self) -> tuple[int, int, int]:
         """(channels, rows, columns) after the convolutions."""
@@ -165,7 +179,10 @@ class FlowPoseNet(nn.Module):
         cfg = self.cfg
         if flow_px.shape[1:] != (2, cfg.input_height, cfg.input_width):
             raise ValueError(f"flow must be (B, 2, {cfg.input_height}, {cfg.input_width}), got {tuple(flow_px.shape)}")
-        x = flow_px.float() * self._inv_size
+        flow_px = flow_px.float()
+        known = torch.isfinite(flow_px).all(dim=1, keepdim=True)
+        flow_px = torch.where(known, flow_px, 0.0)  # unknown flow reads as 0 (and, with valid_channel, is marked)
+        x = flow_px * self._inv_size
         if cfg.coord_channels:
             if intrinsics is None:
                 raise ValueError("this network needs the intrinsics (coord_channels=True)")
@@ -180,6 +197,8 @@ class FlowPoseNet(nn.Module):
                 raise ValueError(f"inverse depth must be (B, 1, {cfg.input_height}, {cfg.input_width}), "
                                  f"got {tuple(inv_depth.shape)}")
             x = torch.cat([x, inv_depth.to(x.dtype)], dim=1)
+        if cfg.valid_channel:
+            x = torch.cat([x, known.to(x.dtype)], dim=1)
         return x.contiguous(memory_format=torch.channels_last) if self.channels_last else x
 
     def set_channels_last(self, on: bool = True) -> "FlowPoseNet":

@@ -38,6 +38,8 @@ class PairInputs:
         pairs: (P, 2) int frame indices.
         estimator: a flow estimator (``pair_flow(seq, i, j)``); only the worker thread calls it.
         width, height: the network's input size, pixels.
+        unknown: how unknown flow is resized (:data:`vo.flow_estimators.UNKNOWN_FLOW`; the network's
+            :attr:`vo.net.NetConfig.unknown_flow`).
         ahead: how many pairs the worker may run ahead of the reader (bounds memory: 256 KB a pair at
             96 x 320).
 
@@ -46,10 +48,11 @@ class PairInputs:
     once; :meth:`close` (or leaving a ``with`` block) stops the worker early.
     """
 
-    def __init__(self, seq, pairs, estimator, width: int, height: int, ahead: int = 512):
+    def __init__(self, seq, pairs, estimator, width: int, height: int, ahead: int = 512, unknown: str = "zero"):
         self.seq, self.estimator = seq, estimator
         self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
         self.width, self.height = int(width), int(height)
+        self.unknown = unknown
         self._q: queue.Queue = queue.Queue(maxsize=max(1, int(ahead)))
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._work, name="deepslam-flow-prefetch", daemon=True)
@@ -63,7 +66,7 @@ class PairInputs:
                 if self._stop.is_set():
                     return
                 flow = self.estimator.pair_flow(self.seq, int(i), int(j))
-                if not self._put(to_network_input(flow, self.seq.camera, self.width, self.height)):
+                if not self._put(to_network_input(flow, self.seq.camera, self.width, self.height, self.unknown)):
                     return
         except BaseException as e:  # noqa: BLE001 - handed to the reading thread, raised there
             self._put(_Failed(e))
@@ -109,14 +112,15 @@ class PairInputs:
         self.close()
 
 
-def model_input_size(path: str | Path) -> tuple[int, int] | None:
-    """(height, width) of the input the VO model file at ``path`` reads, from its header alone
-    (:mod:`vo.modeltree`: no torch, no tensors read); None when the file is missing or not a readable
-    model file (the loader then says what is wrong)."""
+def model_input(path: str | Path) -> tuple[int, int, str] | None:
+    """(height, width, unknown) of the input the VO model file at ``path`` reads: its size in pixels and
+    how its unknown flow is resized (:attr:`vo.net.NetConfig.unknown_flow`), from the file's header
+    alone (:mod:`vo.modeltree`: no torch, no tensors read); None when the file is missing or not a
+    readable model file (the loader then says what is wrong)."""
     from deepslam.vo import modeltree
 
     try:
         net = modeltree.net_config(modeltree.read_header_tree(path))
-        return int(net["input_height"]), int(net["input_width"])
+        return int(net["input_height"]), int(net["input_width"]), ("nan" if net.get("valid_channel") else "zero")
     except Exception:  # noqa: BLE001 - any unreadable file: no prefetch, the loader reports it
         return None

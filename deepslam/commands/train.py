@@ -120,6 +120,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--depth-channel", action="store_true",
                    help="add the first frame's inverse depth as an input channel (RGB-D cameras, renders, stereo: "
                         "vo/slam then read each frame's depth too); needs --mode synthetic --frames")
+    g.add_argument("--valid-channel", action="store_true",
+                   help="add a channel marking where the flow is known (DIS's textureless pixels left out with "
+                        "--dis-min-texture, depth holes): unknown flow is then left out when it is resized, instead "
+                        "of read as 0 and averaged in")
     g.add_argument("--flow-scale", type=float, help="multiplier after flow / (W, H) (1 = the paper)")
     g = p.add_argument_group("recipe")
     g.add_argument("--batch", type=int, default=128)
@@ -161,6 +165,8 @@ def net_config(args):
         d["coord_channels"] = True
     if args.depth_channel:
         d["depth_channel"] = True
+    if args.valid_channel:
+        d["valid_channel"] = True
     try:
         return NetConfig(**d)
     except ValueError as e:
@@ -294,6 +300,9 @@ def run(args: argparse.Namespace) -> int:
                                        "(not --toy, --shards or supervised pairs)")
     if args.mode == "synthetic":
         if args.shards:
+            if net.valid_channel:  # shards hold flow resized with unknown = 0: nothing left to mark
+                raise InputError(None, "--valid-channel needs flows made for it: --frames or supervised pairs, "
+                                       "not --shards")
             train_src, hold_src = data.shard_samples(args.shards, args.holdout, args.seed, h, w)
             meta["data"] = {"shards": str(args.shards), "n_train": len(train_src), "n_holdout": len(hold_src)}
         elif args.toy:
@@ -331,7 +340,8 @@ def run(args: argparse.Namespace) -> int:
 
                 def source(fr, n, seed):
                     return data.SyntheticSource(fr, sampler, n, seed, f, args.missing_depth, tilt=tilt,
-                                                inv_depth=net.depth_channel, scene_scale=scene_scale)
+                                                inv_depth=net.depth_channel, scene_scale=scene_scale,
+                                                unknown=net.unknown_flow)
             else:
                 opts = flow_estimators.estimator_options(args.synthetic_flow, args.dis_preset, args.dis_min_texture)
                 frames = data.load_image_frames(seqs, args.frame_step, args.depth, args.max_frames, progress,
@@ -341,7 +351,7 @@ def run(args: argparse.Namespace) -> int:
                 def source(fr, n, seed):
                     return data.EstimatedFlowSource(fr, sampler, args.synthetic_flow, w, h, n, seed, args.data_threads, opts,
                                                     args.appearance_noise, tilt=tilt, inv_depth=net.depth_channel,
-                                                    scene_scale=scene_scale)
+                                                    scene_scale=scene_scale, unknown=net.unknown_flow)
             hold_src = source(hold_frames, n_hold, args.seed + 1).materialize(n_hold, args.seed + 1, progress)
             train_src = source(train_frames, args.samples_per_epoch, args.seed)
             estimator_name = getattr(train_src, "estimator_name", None)  # None: exact synthetic flow
@@ -374,7 +384,7 @@ def run(args: argparse.Namespace) -> int:
             pairs = data.frame_pairs(seq.gt.world_from_cam, spec)
             counts[str(seq.root)] = int(len(pairs))
             if len(pairs):
-                parts.append(data.supervised_samples(seq, pairs, est, w, h, progress))
+                parts.append(data.supervised_samples(seq, pairs, est, w, h, progress, unknown=net.unknown_flow))
         if not parts:
             raise InputError(None, "no frame pairs to train on (sequences too short for the strides, or no loops)")
         s = data.concat_samples(parts)

@@ -87,11 +87,11 @@ def run(args: argparse.Namespace) -> int:
         given = estimator_options(args.flow, args.dis_preset, args.dis_min_texture)
         estimator = models.flow_for_model(args.flow, model_path, **given)  # DIS set up as the model was trained
         bf16 = None if args.bf16 == "auto" else args.bf16 == "on"
-        from deepslam.vo.prefetch import PairInputs, model_input_size
+        from deepslam.vo.prefetch import PairInputs, model_input
 
         # the flows start before torch and the model load (seconds of start-up they overlap)
-        size = model_input_size(model_path)
-        inputs = None if size is None else PairInputs(seq, pairs, estimator, size[1], size[0])
+        spec = model_input(model_path)
+        inputs = None if spec is None else PairInputs(seq, pairs, estimator, spec[1], spec[0], unknown=spec[2])
         from deepslam.gen.device import resolve_device
 
         try:

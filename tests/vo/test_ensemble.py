@@ -12,7 +12,7 @@ from deepslam.vo import modelfile
 from deepslam.vo.ensemble import EnsemblePoseNet, mixture_moments, write_ensemble
 from deepslam.vo.infer import VOPredictor
 from deepslam.vo.net import LOG_STD_MAX, LOG_STD_MIN, FlowPoseNet, NetConfig
-from deepslam.vo.prefetch import model_input_size
+from deepslam.vo.prefetch import model_input
 from deepslam.vo.train import MODEL_FORMAT, load_model, save_model
 
 SMALL = NetConfig(input_height=24, input_width=80, filters=8, hidden_units=16, flow_scale=10.0)
@@ -93,7 +93,7 @@ def test_ensemble_file_round_trip_and_predictor(tmp_path):
     np.testing.assert_allclose(std ** 2, v_i.mean(0) + m_i.var(0), rtol=1e-3)
     assert np.all(std >= np.sqrt(v_i.min(0)) * (1 - 1e-4))
     assert ens.input_size == (24, 80)
-    assert model_input_size(out) == (24, 80)  # what deepslam vo reads before it loads torch
+    assert model_input(out) == (24, 80, "zero")  # what deepslam vo reads before it loads torch
 
 
 def test_members_seeing_different_frames_report_the_union(tmp_path):

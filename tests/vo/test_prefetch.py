@@ -14,7 +14,7 @@ from deepslam.core.errors import InputError
 from deepslam.core.readers import open_sequence
 from deepslam.vo import flow_estimators
 from deepslam.vo.flow_estimators import to_network_input
-from deepslam.vo.prefetch import PairInputs, model_input_size
+from deepslam.vo.prefetch import PairInputs, model_input
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -69,16 +69,16 @@ def test_closing_early_stops_the_worker(plane_sequence):
     assert len(rec.calls) <= 5  # the one read, two queued, and at most the pair in hand
 
 
-def test_model_input_size_reads_only_the_header(tmp_path):
-    assert model_input_size(REPO / "models" / "kitti_cons_dis.safetensors") == (48, 160)
-    assert model_input_size(REPO / "models" / "tum_cons.safetensors") == (96, 128)
-    assert model_input_size(tmp_path / "missing.safetensors") is None
+def test_model_input_reads_only_the_header(tmp_path):
+    assert model_input(REPO / "models" / "kitti_cons_dis.safetensors") == (48, 160, "zero")
+    assert model_input(REPO / "models" / "tum_cons.safetensors") == (96, 128, "zero")
+    assert model_input(tmp_path / "missing.safetensors") is None
     (tmp_path / "junk.safetensors").write_bytes(b"\x00" * 64)
-    assert model_input_size(tmp_path / "junk.safetensors") is None
-    code = ("import sys; from deepslam.vo.prefetch import model_input_size; "
-            f"print(model_input_size({str(REPO / 'models' / 'euroc_cons.safetensors')!r}), 'torch' in sys.modules)")
+    assert model_input(tmp_path / "junk.safetensors") is None
+    code = ("import sys; from deepslam.vo.prefetch import model_input; "
+            f"print(model_input({str(REPO / 'models' / 'euroc_cons.safetensors')!r}), 'torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    assert out.strip() == "(96, 160) False"
+    assert out.strip() == "(96, 160, 'zero') False"
 
 
 class _Failing:

@@ -451,3 +451,59 @@ def test_scene_scale_scales_each_samples_depth_and_keeps_the_motion_metric():
     for bad in ("1", "a:b", "0.01:1", "2:1"):
         with pytest.raises(InputError):
             data.SceneScale.parse(bad)
+
+
+def test_sources_leave_unknown_flow_nan_for_a_validity_channel(plane_sequence):
+    """unknown="nan" (a network with a validity channel): the exact source marks pixels without depth
+    NaN where the zero reading has 0, with the same flow elsewhere; the DIS source marks network pixels
+    with no textured pixel NaN where the zero reading has 0."""
+    frames = _frames(2)
+    depth = frames.depth_z.copy()
+    depth[:, 30:, :40] = 0.0                                     # a hole: no depth (missing_depth="invalid")
+    holed = data.Frames(depth, frames.camera_index, frames.cameras, frames.names)
+    zero = next(data.SyntheticSource(holed, data.toy_motion_sampler(), 6, seed=2, synth_factor=2,
+                                     missing_depth="invalid").batches(0, 6))["flow"]
+    nan = next(data.SyntheticSource(holed, data.toy_motion_sampler(), 6, seed=2, synth_factor=2,
+                                    missing_depth="invalid", unknown="nan").batches(0, 6))["flow"]
+    unknown = torch.isnan(nan)
+    assert unknown[:, :, 15:, :20].all() and unknown[:, 0].eq(unknown[:, 1]).all()
+    assert torch.equal(zero[unknown], torch.zeros(int(unknown.sum()))) and torch.equal(zero[~unknown], nan[~unknown])
+    with pytest.raises(ValueError, match="unknown must be"):
+        data.SyntheticSource(holed, data.toy_motion_sampler(), 6, unknown="keep")
+
+    seq = open_sequence(plane_sequence)
+    image_frames = data.load_image_frames([seq], frame_step=3, progress=False)
+    opts = {"preset": "fast", "min_texture": 1e9}                  # nothing is textured enough: all unknown
+    zero = next(data.EstimatedFlowSource(image_frames, data.toy_motion_sampler(), "dis", 80, 24, 4, seed=3, threads=1,
+                                         estimator_options=opts).batches(0, 4))["flow"]
+    nan = next(data.EstimatedFlowSource(image_frames, data.toy_motion_sampler(), "dis", 80, 24, 4, seed=3, threads=1,
+                                        estimator_options=opts, unknown="nan").batches(0, 4))["flow"]
+    assert torch.isnan(nan).all() and torch.equal(zero, torch.zeros_like(zero))
+    opts["min_texture"] = 0.0                                      # every pixel known: the two readings agree
+    a, b = (next(data.EstimatedFlowSource(image_frames, data.toy_motion_sampler(), "dis", 80, 24, 4, seed=3, threads=1,
+                                          estimator_options=opts, unknown=u).batches(0, 4))["flow"] for u in ("zero", "nan"))
+    assert torch.equal(a, b) and torch.isfinite(a).all()
+
+
+def test_train_and_vo_with_a_validity_channel(plane_sequence, motion_json, tmp_path, capsys):
+    """`train --valid-channel` on DIS with a texture threshold: the model file says its input keeps
+    unknown flow apart (read from the header), vo runs it; shards (flows resized with unknown = 0) are refused."""
+    from deepslam.cli import main
+    from deepslam.vo.prefetch import model_input
+
+    out = tmp_path / "valid"
+    assert main(["train", "--mode", "synthetic", "--synthetic-flow", "dis", "--dis-preset", "fast", "--dis-min-texture",
+                 "0.5", "--valid-channel", "--sample-pool", "32", "--frames", str(plane_sequence), "--motion",
+                 str(motion_json), "--net", "tiny", "--batch", "16", "--samples-per-epoch", "32", "--max-epochs", "1",
+                 "--nll-epochs", "1", "--bf16", "off", "--threads", "1", "--quiet", "--out", str(out)]) == 0
+    model = out / "model.safetensors"
+    assert model_input(model) == (24, 80, "nan")
+    traj = tmp_path / "vo.txt"
+    assert main(["vo", "--sequence", str(plane_sequence), "--model", str(model), "--out", str(traj), "--quiet"]) == 0
+    rows = [ln.split() for ln in traj.read_text().splitlines() if not ln.startswith("#")]
+    assert len(rows) == 12 and np.isfinite(np.array(rows, dtype=float)).all()
+    capsys.readouterr()
+    assert main(["train", "--mode", "synthetic", "--shards", str(tmp_path), "--net", "tiny", "--valid-channel",
+                 "--quiet", "--out", str(tmp_path / "shards")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--valid-channel" in err and not (tmp_path / "shards").exists()

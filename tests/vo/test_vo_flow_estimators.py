@@ -253,3 +253,30 @@ def test_dis_pair_flow_reuses_decoded_images_but_never_across_sequences(plane_se
     shutil.copy(imgs[4], imgs[2])  # frame 2 of the copy shows frame 4
     seq2 = open_sequence(other)
     np.testing.assert_array_equal(dis.pair_flow(seq2, 2, 3), fe.make("dis", preset="ultrafast").estimate(seq2.image(2), seq2.image(3)))
+
+
+@pytest.mark.parametrize("size", [(120, 40), (30, 20), (24, 8), (240, 80)])
+def test_resize_flow_nan_mode_averages_known_pixels_only(size):
+    """unknown="nan": a flow with no unknown pixel resizes as before; a network pixel that covers some
+    unknown pixels is the mean of its known ones (not pulled toward 0), and NaN (both components) where
+    it covers none."""
+    rng = np.random.default_rng(0)
+    flow = rng.normal(0, 3, (40, 120, 2)).astype(np.float32)
+    np.testing.assert_array_equal(fe.resize_flow(flow, *size, unknown="nan"), fe.resize_flow(flow, *size))
+    const = np.full((40, 120, 2), (6.0, -4.0), np.float32)
+    const[:, :55] = np.nan  # the left columns unknown, the boundary inside network pixels at every size
+    const[0:2, 100:120, 1] = np.inf  # one bad component makes the whole vector unknown
+    before = const.copy()
+    got = fe.resize_flow(const, *size, unknown="nan")
+    w, h = size
+    known = np.isfinite(got).all(axis=2)
+    assert known.any() and not known.all()
+    np.testing.assert_allclose(got[known], np.broadcast_to([6.0 * w / 120, -4.0 * h / 40], got[known].shape), rtol=1e-5)
+    assert np.isnan(got[~known]).all()
+    if w <= 120:  # downsampling: unknown exactly where the network pixel covers only unknown pixels
+        np.testing.assert_array_equal(known[:, : int(55 * w / 120)], False)
+    np.testing.assert_array_equal(const, before)  # the caller's array is left alone (NaN == NaN here)
+    zero = fe.resize_flow(const, *size)  # the old reading: unknown = 0, averaged in
+    assert np.isfinite(zero).all() and np.abs(zero[..., 0]).min() < 6.0 * w / 120 * 0.99
+    with pytest.raises(ValueError, match="unknown must be one of"):
+        fe.resize_flow(flow, *size, unknown="drop")

@@ -117,3 +117,28 @@ def test_depth_channel_is_the_inverse_depth_and_is_required():
         net.prepare_input(torch.zeros(1, 2, 6, 10))
     with pytest.raises(ValueError, match="inverse depth"):
         net.prepare_input(torch.zeros(1, 2, 6, 10), None, torch.zeros(1, 1, 5, 10))
+
+
+@pytest.mark.parametrize("valid_channel", [False, True])
+def test_unknown_flow_reads_as_zero_and_the_valid_channel_marks_it(valid_channel):
+    """NaN / inf flow (unknown) enters as 0 either way; with valid_channel a last channel is 1 where
+    both components are known, 0 elsewhere, after the depth channel; the output stays finite."""
+    cfg = NetConfig(6, 10, filters=4, hidden_units=8, kernels=(3,), strides=(1,), depth_channel=True,
+                    valid_channel=valid_channel)
+    assert cfg.in_channels == 3 + valid_channel and NetConfig.from_dict(cfg.to_dict()) == cfg
+    assert cfg.unknown_flow == ("nan" if valid_channel else "zero")
+    net = FlowPoseNet(cfg)
+    flow = torch.full((2, 2, 6, 10), 5.0)
+    flow[0, :, 1, 2] = float("nan")
+    flow[1, 0, 3, 4] = float("inf")  # one bad component: the vector is unknown
+    inv = torch.full((2, 1, 6, 10), 0.5)
+    x = net.prepare_input(flow, None, inv)
+    assert x.shape == (2, cfg.in_channels, 6, 10) and torch.isfinite(x).all()
+    assert x[0, :2, 1, 2].eq(0).all() and x[1, :2, 3, 4].eq(0).all() and x[0, 0, 0, 0] > 0
+    assert torch.equal(x[:, 2], inv[:, 0])
+    if valid_channel:
+        known = torch.ones(2, 6, 10)
+        known[0, 1, 2] = known[1, 3, 4] = 0
+        assert torch.equal(x[:, 3], known)
+    mean, log_std = net(flow, None, inv)
+    assert torch.isfinite(mean).all() and torch.isfinite(log_std).all()

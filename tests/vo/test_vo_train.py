@@ -76,10 +76,10 @@ def test_outputs_written(trained):
     cfg = json.loads((out / "config.json").read_text())
     assert cfg["train"]["rot_weight"] == 50.0 and cfg["train"]["net"]["filters"] == 16
     # the header alone gives the input size of the model and of the checkpoint (their trees differ)
-    from deepslam.vo.prefetch import model_input_size
+    from deepslam.vo.prefetch import model_input
 
     size = (cfg["train"]["net"]["input_height"], cfg["train"]["net"]["input_width"])
-    assert model_input_size(out / "model.safetensors") == model_input_size(out / "checkpoint.safetensors") == size
+    assert model_input(out / "model.safetensors") == model_input(out / "checkpoint.safetensors") == (*size, "zero")
 
 
 def test_nll_stage_changes_only_log_std_heads_and_std_follows_noise(trained):
