@@ -151,11 +151,13 @@ def bench_robustness(quick: bool) -> list[dict]:
 def _odometry_for_fps(seq):
     """(cons, loops, label): the shipped KITTI models with DIS flow if loadable, else ground truth."""
     try:
-        from deepslam.vo import flow_estimators, models
+        from deepslam.vo import models
 
-        flow = flow_estimators.make("dis")
-        cons = models.load_shipped("kitti", "cons", flow).as_odometry(flow, progress=False)
-        loops = models.load_shipped("kitti", "loops", flow).as_odometry(flow, progress=False)
+        odometry = []
+        for which in ("cons", "loops"):  # each shipped model on DIS as its file records
+            path = models.shipped_path("kitti", which, "dis")
+            odometry.append(models.load(path, True).as_odometry(models.flow_for_model("dis", path), progress=False))
+        cons, loops = odometry
         return cons, loops, "shipped VO models + DIS flow"
     except Exception:  # models not shipped yet (or vo incomplete): measure the SLAM back end alone
         from deepslam.slam.odometry import GroundTruthOdometry, NoiseConfig

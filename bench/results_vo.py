@@ -135,15 +135,16 @@ def evaluate_street(seq, cons: Path, loops: Path, flow: str, cfg: ResultsVOConfi
     """VO, loop-pair and SLAM figures of one (NN_cons, NN_loops) on the held-out street."""
     from deepslam.core import metrics
     from deepslam.slam.pipeline import run_slam
-    from deepslam.vo import flow_estimators
+    from deepslam.vo import models
     from deepslam.vo.infer import VOPredictor
 
-    est = flow_estimators.make(flow)
+    # each model on the flow its file records (DIS's defaults where it records none)
+    est_cons, est_loops = models.flow_for_model(flow, cons), models.flow_for_model(flow, loops)
     p_cons, p_loops = VOPredictor.from_file(cons), VOPredictor.from_file(loops)
-    res = run_slam(seq, p_cons.as_odometry(est, progress=False), p_loops.as_odometry(est, progress=False),
+    res = run_slam(seq, p_cons.as_odometry(est_cons, progress=False), p_loops.as_odometry(est_loops, progress=False),
                    show_progress=False)
     pairs = _loop_pairs(seq, cfg)
-    mean6, _ = p_loops.predict_pairs(seq, pairs, est, progress=False)
+    mean6, _ = p_loops.predict_pairs(seq, pairs, est_loops, progress=False)
     return {"vo": metric_subset(metrics.evaluate(seq.gt, res.vo)),
             "slam": metric_subset(metrics.evaluate(seq.gt, res.slam)),
             "loops": pair_errors(seq, pairs, mean6), "loop_edges": int(len(res.loops))}
@@ -154,11 +155,11 @@ def evaluate_vo(seq, cons: Path, flow: str) -> dict:
     from deepslam.core import metrics
     from deepslam.core.trajectory import Trajectory
     from deepslam.slam.pipeline import consecutive_pairs
-    from deepslam.vo import flow_estimators
+    from deepslam.vo import models
     from deepslam.vo.infer import VOPredictor, chain_euler6
 
     p = VOPredictor.from_file(cons)
-    mean6, _ = p.predict_pairs(seq, consecutive_pairs(len(seq)), flow_estimators.make(flow), progress=False)
+    mean6, _ = p.predict_pairs(seq, consecutive_pairs(len(seq)), models.flow_for_model(flow, cons), progress=False)
     traj = Trajectory(seq.gt.world_from_cam[0] @ chain_euler6(mean6), seq.timestamps_s)
     return metric_subset(metrics.evaluate(seq.gt, traj))
 

@@ -205,9 +205,10 @@ def odometry_from_args(args, seq):
     def odometry(spec, which):
         # each model gets the flow as it was trained on it (DIS's preset and texture threshold may differ)
         path, shipped = models.locate(spec, seq, which, args.flow)
-        key = tuple(sorted(models.recorded_flow_options(path, args.flow).items()))
+        recorded = models.recorded_flow_options(path, args.flow)
+        key = tuple(sorted(recorded.items()))
         if key not in estimators:
-            estimators[key] = models.flow_for_model(args.flow, path)
+            estimators[key] = models.flow_for_model(args.flow, path, recorded)
         flow = estimators[key]
         return models.load(path, shipped, device=device).as_odometry(flow)
 

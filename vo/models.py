@@ -107,14 +107,16 @@ def recorded_flow_options(path: str | Path, flow: str) -> dict:
     return dict(options)
 
 
-def flow_for_model(flow: str, path: str | Path, **given):
+def flow_for_model(flow: str, path: str | Path, recorded: dict | None = None, **given):
     """The flow estimator ``flow`` set up as the model file at ``path`` saw it in training
-    (:func:`recorded_flow_options`: DIS's preset and texture threshold), with the options in ``given``
-    that are not None taking precedence (a command line's explicit flags). InputError naming ``path``
-    when its recorded options are not valid ones."""
+    (:func:`recorded_flow_options`: DIS's preset and texture threshold; ``recorded``: those options
+    when the caller has read them already), with the options in ``given`` that are not None taking
+    precedence (a command line's explicit flags). InputError naming ``path`` when its recorded
+    options are not valid ones."""
     from deepslam.vo import flow_estimators
 
-    recorded = recorded_flow_options(path, flow)
+    if recorded is None:
+        recorded = recorded_flow_options(path, flow)
     options = {**recorded, **{k: v for k, v in given.items() if v is not None}}
     try:
         return flow_estimators.make(flow, **options)
