@@ -681,11 +681,9 @@ class SyntheticSource(_OnTheFlySource):
     def __init__(self, frames: Frames, sample_motion, samples_per_epoch: int, seed: int = 0, synth_factor: int = 1,
                  missing_depth: str = "infinity", synthesize=None, tilt: CameraTilt | None = None,
                  inv_depth: bool = False, scene_scale: SceneScale | None = None, unknown: str = "zero"):
-        from deepslam.vo.flow_estimators import UNKNOWN_FLOW
+        from deepslam.vo.flow_estimators import check_unknown
 
-        if unknown not in UNKNOWN_FLOW:
-            raise ValueError(f"unknown must be one of {UNKNOWN_FLOW}, got {unknown!r}")
-        self.unknown = unknown
+        self.unknown = check_unknown(unknown)
         self.inv_depth = bool(inv_depth)
         self.scene_scale = scene_scale
         self.frames = frames
@@ -855,12 +853,9 @@ class EstimatedFlowSource(_OnTheFlySource):
                  scene_scale: SceneScale | None = None, unknown: str = "zero"):
         import threading
 
-        from deepslam.vo.flow_estimators import UNKNOWN_FLOW
+        from deepslam.vo.flow_estimators import check_unknown
 
-        if unknown not in UNKNOWN_FLOW:
-            raise ValueError(f"unknown must be one of {UNKNOWN_FLOW}, got {unknown!r}")
-        self.unknown = unknown
-
+        self.unknown = check_unknown(unknown)
         self.inv_depth = bool(inv_depth)
         self.scene_scale = scene_scale
         from deepslam.vo import flow_estimators

@@ -318,6 +318,19 @@ before the validity channel reads); ``nan`` = left out of the average, and NaN w
 covers no known pixel at all (what a :attr:`vo.net.NetConfig.valid_channel` network reads)."""
 
 
+def unknown_flow(valid_channel: bool) -> str:
+    """How a network reads unknown flow (:data:`UNKNOWN_FLOW`): ``nan`` with a validity channel, else
+    ``zero`` (:attr:`vo.net.NetConfig.unknown_flow`; the header-only reader in :mod:`vo.prefetch`)."""
+    return "nan" if valid_channel else "zero"
+
+
+def check_unknown(unknown: str) -> str:
+    """``unknown`` if it is one of :data:`UNKNOWN_FLOW`, else ValueError."""
+    if unknown not in UNKNOWN_FLOW:
+        raise ValueError(f"unknown must be one of {UNKNOWN_FLOW}, got {unknown!r}")
+    return unknown
+
+
 def resize_flow(flow: np.ndarray, width: int, height: int, unknown: str = "zero") -> np.ndarray:
     """A flow (H, W, 2) float32 px resampled to (height, width, 2) with its values rescaled.
 
@@ -331,8 +344,7 @@ def resize_flow(flow: np.ndarray, width: int, height: int, unknown: str = "zero"
     """
     import cv2
 
-    if unknown not in UNKNOWN_FLOW:
-        raise ValueError(f"unknown must be one of {UNKNOWN_FLOW}, got {unknown!r}")
+    check_unknown(unknown)
     flow = np.asarray(flow, dtype=np.float32)
     if flow.ndim != 3 or flow.shape[2] != 2:
         raise ValueError(f"flow must be (H, W, 2), got {flow.shape}")

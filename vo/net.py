@@ -88,7 +88,9 @@ class NetConfig:
     def unknown_flow(self) -> str:
         """How this network's input flow is resized where the flow is unknown
         (:data:`vo.flow_estimators.UNKNOWN_FLOW`): ``nan`` with a validity channel, else ``zero``."""
-        return "nan" if self.valid_channel else "zero"
+        from deepslam.vo.flow_estimators import unknown_flow
+
+        return unknown_flow(self.valid_channel)
 
     def feature_shape(self) -> tuple[int, int, int]:
         """(channels, rows, columns) after the convolutions."""

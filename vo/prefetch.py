@@ -118,9 +118,10 @@ def model_input(path: str | Path) -> tuple[int, int, str] | None:
     alone (:mod:`vo.modeltree`: no torch, no tensors read); None when the file is missing or not a
     readable model file (the loader then says what is wrong)."""
     from deepslam.vo import modeltree
+    from deepslam.vo.flow_estimators import unknown_flow
 
     try:
         net = modeltree.net_config(modeltree.read_header_tree(path))
-        return int(net["input_height"]), int(net["input_width"]), ("nan" if net.get("valid_channel") else "zero")
+        return int(net["input_height"]), int(net["input_width"]), unknown_flow(bool(net.get("valid_channel")))
     except Exception:  # noqa: BLE001 - any unreadable file: no prefetch, the loader reports it
         return None
