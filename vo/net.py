@@ -39,6 +39,10 @@ LOG_STD_MAX = 6.0
 """Upper clamp of a predicted log-std."""
 
 
+POSE_HEADS = ("regress", "solve")
+"""The values of :attr:`NetConfig.pose_head`."""
+
+
 @dataclasses.dataclass(frozen=True)
 class NetConfig:
     """Shape of the network. The defaults are the paper's; shrink them to train on a CPU."""
@@ -67,6 +71,13 @@ class NetConfig:
     """Add a channel that is 1 where the flow is known and 0 where it is not (NaN in the input: DIS's
     textureless pixels, no depth); such a network's flow is resized over known pixels only
     (:func:`vo.flow_estimators.resize_flow` with ``unknown="nan"``). False: unknown flow reads as 0."""
+    pose_head: str = "regress"
+    """How the pose is read: ``regress`` (the paper: convolutions, fully connected branches, a linear
+    output) or ``solve`` (:mod:`vo.posesolve`: a convolutional network weighs each pixel and the pose is
+    the weighted Gauss-Newton fit of the flow with the first frame's depth; needs ``depth_channel`` and
+    ``valid_channel``; ``kernels``, ``strides`` and the hidden sizes are then unused)."""
+    solve_iterations: int = 3
+    """Gauss-Newton steps of the ``solve`` head (the first is the linear motion-field solve)."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "kernels", tuple(int(k) for k in self.kernels))
@@ -79,6 +90,13 @@ class NetConfig:
                 raise ValueError(f"{name} must be in 1..{most}, got {getattr(self, name)}")
         if not (math.isfinite(self.flow_scale) and self.flow_scale > 0):
             raise ValueError(f"flow_scale must be a positive number, got {self.flow_scale}")
+        if self.pose_head not in POSE_HEADS:
+            raise ValueError(f"pose_head must be one of {', '.join(POSE_HEADS)}, got {self.pose_head!r}")
+        if self.pose_head == "solve" and not (self.depth_channel and self.valid_channel):
+            raise ValueError("the solve pose head needs the depth channel and the validity channel "
+                             "(--depth-channel --valid-channel): it fits the flow with the frame's depth where both are known")
+        if not 1 <= int(self.solve_iterations) <= 20:
+            raise ValueError(f"solve_iterations must be in 1..20, got {self.solve_iterations}")
 
     @property
     def in_channels(self) -> int:
@@ -176,32 +194,16 @@ class FlowPoseNet(nn.Module):
 
     def prepare_input(self, flow_px: torch.Tensor, intrinsics: torch.Tensor | None = None,
                       inv_depth: torch.Tensor | None = None) -> torch.Tensor:
-        """The tensor the convolutions see: (B, in_channels, h, w) float32 (see the module docstring).
-        ``inv_depth``: (B, 1, h, w) float32 1/m of the first frame (needed with ``depth_channel``)."""
-        cfg = self.cfg
-        if flow_px.shape[1:] != (2, cfg.input_height, cfg.input_width):
-            raise ValueError(f"flow must be (B, 2, {cfg.input_height}, {cfg.input_width}), got {tuple(flow_px.shape)}")
-        flow_px = flow_px.float()
-        known = torch.isfinite(flow_px).all(dim=1, keepdim=True)
-        flow_px = torch.where(known, flow_px, 0.0)  # unknown flow reads as 0 (and, with valid_channel, is marked)
-        x = flow_px * self._inv_size
-        if cfg.coord_channels:
-            if intrinsics is None:
-                raise ValueError("this network needs the intrinsics (coord_channels=True)")
-            k = intrinsics.to(x.dtype).view(-1, 4, 1, 1)
-            cu = (self._grid_uv[:, 0:1] - k[:, 2:3]) / k[:, 0:1]
-            cv = (self._grid_uv[:, 1:2] - k[:, 3:4]) / k[:, 1:2]
-            x = torch.cat([x, cu, cv], dim=1)
-        if cfg.depth_channel:
-            if inv_depth is None:
-                raise ValueError("this network needs the first frame's inverse depth (depth_channel=True)")
-            if inv_depth.shape != (len(x), 1, cfg.input_height, cfg.input_width):
-                raise ValueError(f"inverse depth must be (B, 1, {cfg.input_height}, {cfg.input_width}), "
-                                 f"got {tuple(inv_depth.shape)}")
-            x = torch.cat([x, inv_depth.to(x.dtype)], dim=1)
-        if cfg.valid_channel:
-            x = torch.cat([x, known.to(x.dtype)], dim=1)
-        return x.contiguous(memory_format=torch.channels_last) if self.channels_last else x
+        """The tensor the convolutions see: :func:`network_input`."""
+        return network_input(self, flow_px, intrinsics, inv_depth)
+
+    @torch.no_grad()
+    def calibrate_log_std(self, ht: torch.Tensor, rmse: torch.Tensor) -> None:
+        """Start stage 2 from a calibrated constant: log-std heads' weights 0, biases log(``rmse``) (6,)
+        (the held-out RMSE per DoF; ``ht``, the trunk's translation features, is not needed here)."""
+        for head, part in ((self.rot_log_std, rmse[:3]), (self.trans_log_std, rmse[3:])):
+            head.weight.zero_()
+            head.bias.copy_(part.log())
 
     def set_channels_last(self, on: bool = True) -> "FlowPoseNet":
         """Store the convolution weights (and feed inputs) channels-last (NHWC); faster on some CPUs."""
@@ -233,6 +235,51 @@ class FlowPoseNet(nn.Module):
                 inv_depth: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         hr, ht = self.trunk(flow_px, intrinsics, inv_depth)
         return self.mean_head(hr, ht), self.log_std_head(hr, ht)
+
+
+def network_input(net: nn.Module, flow_px: torch.Tensor, intrinsics: torch.Tensor | None = None,
+                  inv_depth: torch.Tensor | None = None) -> torch.Tensor:
+    """The tensor a network's convolutions see: (B, in_channels, h, w) float32 (see the module docstring).
+    ``net``: a :class:`FlowPoseNet` or :class:`vo.posesolve.FlowSolvePoseNet` (its ``cfg``, its
+    ``_inv_size`` and ``_grid_uv`` buffers, ``channels_last``); ``flow_px``: (B, 2, h, w) px, NaN where
+    unknown; ``intrinsics``: (B, 4) fx, fy, cx, cy px at network resolution (needed with
+    ``coord_channels``); ``inv_depth``: (B, 1, h, w) float32 1/m of the first frame (needed with
+    ``depth_channel``)."""
+    cfg = net.cfg
+    if flow_px.shape[1:] != (2, cfg.input_height, cfg.input_width):
+        raise ValueError(f"flow must be (B, 2, {cfg.input_height}, {cfg.input_width}), got {tuple(flow_px.shape)}")
+    flow_px = flow_px.float()
+    known = torch.isfinite(flow_px).all(dim=1, keepdim=True)
+    flow_px = torch.where(known, flow_px, 0.0)  # unknown flow reads as 0 (and, with valid_channel, is marked)
+    x = flow_px * net._inv_size
+    if cfg.coord_channels:
+        if intrinsics is None:
+            raise ValueError("this network needs the intrinsics (coord_channels=True)")
+        k = intrinsics.to(x.dtype).view(-1, 4, 1, 1)
+        cu = (net._grid_uv[:, 0:1] - k[:, 2:3]) / k[:, 0:1]
+        cv = (net._grid_uv[:, 1:2] - k[:, 3:4]) / k[:, 1:2]
+        x = torch.cat([x, cu, cv], dim=1)
+    if cfg.depth_channel:
+        if inv_depth is None:
+            raise ValueError("this network needs the first frame's inverse depth (depth_channel=True)")
+        if inv_depth.shape != (len(x), 1, cfg.input_height, cfg.input_width):
+            raise ValueError(f"inverse depth must be (B, 1, {cfg.input_height}, {cfg.input_width}), "
+                             f"got {tuple(inv_depth.shape)}")
+        x = torch.cat([x, inv_depth.to(x.dtype)], dim=1)
+    if cfg.valid_channel:
+        x = torch.cat([x, known.to(x.dtype)], dim=1)
+    return x.contiguous(memory_format=torch.channels_last) if net.channels_last else x
+
+
+def make_net(cfg: NetConfig = PAPER) -> nn.Module:
+    """The network ``cfg`` describes: :class:`FlowPoseNet` (``pose_head="regress"``) or
+    :class:`vo.posesolve.FlowSolvePoseNet` (``"solve"``); both map ``(flow, intrinsics, inv_depth)`` to
+    ``(mean6, log_std6)`` and train in :mod:`vo.train`'s two stages."""
+    if cfg.pose_head == "solve":
+        from deepslam.vo.posesolve import FlowSolvePoseNet
+
+        return FlowSolvePoseNet(cfg)
+    return FlowPoseNet(cfg)
 
 
 def pose_loss(mean: torch.Tensor, target: torch.Tensor, rot_weight: float = 50.0) -> torch.Tensor:

@@ -37,7 +37,7 @@ import torch
 from deepslam.core import atomic
 from deepslam.vo import modelfile
 from deepslam.vo.data import epoch_seed
-from deepslam.vo.net import FlowPoseNet, NetConfig, gaussian_nll, pose_loss
+from deepslam.vo.net import FlowPoseNet, NetConfig, gaussian_nll, make_net, pose_loss
 
 CHECKPOINT = "checkpoint.safetensors"
 MODEL = "model.safetensors"
@@ -140,7 +140,7 @@ def new_model(cfg: TrainConfig) -> FlowPoseNet:
     """The initial network, its weights drawn from ``cfg.seed`` (the global RNG is left as it was)."""
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(cfg.seed)
-        return FlowPoseNet(cfg.net)
+        return make_net(cfg.net)
 
 
 def _autocast(cfg: TrainConfig):
@@ -223,7 +223,8 @@ class HeadInputs:
     """What the frozen trunk gives for a fixed sample set: stage 2 trains the log-std heads on it
     without running the convolutions again (they cannot change while frozen).
 
-    hr, ht: (N, hidden_units) float32 features of the rotation and translation branches.
+    hr, ht: (N, hidden_units) float32 features of the rotation and translation branches (for a solve-head
+        network, :class:`vo.posesolve.FlowSolvePoseNet`: (N, 6) the solved pose and its log-std feature).
     mean: (N, 6) float32 predicted paper vectors; target: (N, 6) float32 labels.
     """
 
@@ -298,11 +299,10 @@ def fit_uncertainty(model: FlowPoseNet, source: Source, cfg: TrainConfig, epochs
 
 @torch.no_grad()
 def init_log_std(model: FlowPoseNet, hi: HeadInputs) -> list[float]:
-    """Start stage 2 from a calibrated constant: log-std heads' weights 0, biases log(held-out RMSE)."""
+    """Start stage 2 calibrated to the held-out RMSE per DoF (the model's ``calibrate_log_std``: for the
+    paper's network a constant log(RMSE); for the solve head its own log-std feature shifted to it)."""
     rmse = hi.rmse6().float().clamp_min(1e-5)
-    for head, part in ((model.rot_log_std, rmse[:3]), (model.trans_log_std, rmse[3:])):
-        head.weight.zero_()
-        head.bias.copy_(part.log())
+    model.calibrate_log_std(hi.ht, rmse)
     return rmse.tolist()
 
 
@@ -673,7 +673,7 @@ def _model_from_tree(path: Path, d: dict) -> FlowPoseNet:
         raise InputError(path, f"malformed VO model ({type(e).__name__}: {e})") from None
     if not isinstance(sd, dict) or not all(torch.is_tensor(v) for v in sd.values()):
         raise InputError(path, "malformed VO model (its weights are not a dict of tensors)")
-    model = FlowPoseNet(net_cfg)
+    model = make_net(net_cfg)
     try:
         model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in sd.items()})
     except RuntimeError as e:

@@ -125,6 +125,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "--dis-min-texture, depth holes): unknown flow is then left out when it is resized, instead "
                         "of read as 0 and averaged in")
     g.add_argument("--flow-scale", type=float, help="multiplier after flow / (W, H) (1 = the paper)")
+    g.add_argument("--pose-head", choices=("regress", "solve"), default="regress",
+                   help="regress: the paper's fully connected output; solve: the network weighs each pixel and the "
+                        "pose is the weighted Gauss-Newton fit of the flow with the frame's depth (RGB-D, renders; "
+                        "needs --depth-channel --valid-channel)")
     g = p.add_argument_group("recipe")
     g.add_argument("--batch", type=int, default=128)
     g.add_argument("--lr-min", type=float, default=1e-4)
@@ -167,6 +171,8 @@ def net_config(args):
         d["depth_channel"] = True
     if args.valid_channel:
         d["valid_channel"] = True
+    if args.pose_head != "regress":
+        d["pose_head"] = args.pose_head
     try:
         return NetConfig(**d)
     except ValueError as e:
