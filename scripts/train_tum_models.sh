@@ -4,7 +4,8 @@
 # flow synthesized from each frame's depth and a hand-held motion model fitted on EuRoC's ground
 # truth resampled to 30 Hz (V1_01 left out; never the scored sequence's poses), and, as its own
 # variant, the same plus the TUM fr3/teddy slice's single frames (sensor depth, holes left out, no
-# poses). About 30 minutes on 2 cores; resumable.
+# poses). About 30 minutes on 2 cores (the two solve-head models of the ninth session: 35 minutes each more on a
+# machine without AVX-512); resumable.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export MUJOCO_GL=${MUJOCO_GL:-egl} PYOPENGL_PLATFORM=${PYOPENGL_PLATFORM:-egl} OMP_NUM_THREADS=${OMP_NUM_THREADS:-2}
@@ -32,5 +33,12 @@ train $D/tum_cons_teddy --frames $ROOMS $TEDDY --motion models/motion/euroc_s1_3
 # pose), 30 epochs over one pool of 10,000 samples (chosen over 8 by the held-out synthetic loss)
 DISCOMMON="--synthetic-flow dis --dis-preset medium --dis-min-texture 0.5 --appearance-noise 6 --sample-pool 10000
            --data-threads 2 --max-epochs 30"
-train $D/tum_cons_teddy_dis --frames $ROOMS $TEDDY --motion models/motion/euroc_s1_30hz.json $DISCOMMON
+train $D/tum_cons_teddy_dis --frames $ROOMS $TEDDY --motion models/motion/euroc_s1_30hz.json $DISCOMMON  # shipped until the ninth session
+# the solve pose head (ninth session, 2026-12-02; shipped as tum_cons_teddy, about 35 minutes on 2 cores without
+# AVX-512): the same data, the network weighs each pixel and the pose is the weighted Gauss-Newton fit of the flow
+# with the frame's depth (vo/posesolve.py); 10 epochs; float32 (--bf16 off: as it was trained, on any machine)
+SOLVE="--depth-channel --valid-channel --pose-head solve --bf16 off"
+train $D/tum_cons_teddy_solve --frames $ROOMS $TEDDY --motion models/motion/euroc_s1_30hz.json $DISCOMMON $SOLVE --max-epochs 10
+# and on the rooms alone (shipped as tum_cons, the default for TUM, since the ninth session; tum_cons above before it)
+train $D/tum_cons_solve --frames $ROOMS --motion models/motion/euroc_s1_30hz.json $DISCOMMON $SOLVE --max-epochs 10
 echo ALLDONE

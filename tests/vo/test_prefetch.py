@@ -71,7 +71,7 @@ def test_closing_early_stops_the_worker(plane_sequence):
 
 def test_model_input_reads_only_the_header(tmp_path):
     assert model_input(REPO / "models" / "kitti_cons_dis.safetensors") == (48, 160, "zero")
-    assert model_input(REPO / "models" / "tum_cons.safetensors") == (96, 128, "zero")
+    assert model_input(REPO / "models" / "tum_cons.safetensors") == (96, 128, "nan")
     assert model_input(tmp_path / "missing.safetensors") is None
     (tmp_path / "junk.safetensors").write_bytes(b"\x00" * 64)
     assert model_input(tmp_path / "junk.safetensors") is None
