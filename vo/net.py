@@ -176,12 +176,7 @@ class FlowPoseNet(nn.Module):
         for head in (self.rot_log_std, self.trans_log_std):
             nn.init.zeros_(head.weight)
             nn.init.zeros_(head.bias)
-        size = torch.tensor([cfg.input_width, cfg.input_height], dtype=torch.float32).view(1, 2, 1, 1)
-        self.register_buffer("_inv_size", cfg.flow_scale / size, persistent=False)
-        v, u = torch.meshgrid(torch.arange(cfg.input_height, dtype=torch.float32),
-                              torch.arange(cfg.input_width, dtype=torch.float32), indexing="ij")
-        self.register_buffer("_grid_uv", torch.stack([u, v])[None], persistent=False)
-        self.channels_last = False
+        register_input_buffers(self, cfg)
 
     def uncertainty_parameters(self) -> list[nn.Parameter]:
         """The log-std heads' parameters (trained in the second stage)."""
@@ -235,6 +230,18 @@ class FlowPoseNet(nn.Module):
                 inv_depth: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         hr, ht = self.trunk(flow_px, intrinsics, inv_depth)
         return self.mean_head(hr, ht), self.log_std_head(hr, ht)
+
+
+def register_input_buffers(net: nn.Module, cfg: NetConfig) -> None:
+    """What :func:`network_input` reads from a network: ``_inv_size`` (1, 2, 1, 1) float32
+    ``flow_scale / (W, H)`` and ``_grid_uv`` (1, 2, h, w) float32 pixel coordinates at network
+    resolution (buffers, not saved), and ``channels_last`` (False)."""
+    size = torch.tensor([cfg.input_width, cfg.input_height], dtype=torch.float32).view(1, 2, 1, 1)
+    net.register_buffer("_inv_size", cfg.flow_scale / size, persistent=False)
+    v, u = torch.meshgrid(torch.arange(cfg.input_height, dtype=torch.float32),
+                          torch.arange(cfg.input_width, dtype=torch.float32), indexing="ij")
+    net.register_buffer("_grid_uv", torch.stack([u, v])[None], persistent=False)
+    net.channels_last = False
 
 
 def network_input(net: nn.Module, flow_px: torch.Tensor, intrinsics: torch.Tensor | None = None,

@@ -24,7 +24,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from deepslam.vo.net import LOG_STD_MAX, LOG_STD_MIN, NetConfig, network_input
+from deepslam.vo.net import LOG_STD_MAX, LOG_STD_MIN, NetConfig, network_input, register_input_buffers
 
 LOG_WEIGHT_LIMIT = 10.0
 """The learned log-weights are clamped to [-LOG_WEIGHT_LIMIT, LOG_WEIGHT_LIMIT] (weights in 1/px^2)."""
@@ -77,8 +77,9 @@ def solve_pose(flow_px: torch.Tensor, inv_depth: torch.Tensor, intrinsics: torch
 
     Returns:
         (rotation (B, 3, 3), translation (B, 3) metres, H (B, 6, 6) the normal matrix J^T W J of the
-        last step (at the solution to first order) in (dw radians, dt metres) coordinates, 1/px^2 units of the weights), float64 (the
-        per-pixel terms are float32, the normal equations are summed and solved in float64).
+        last step (at the solution to first order) in (dw radians, dt metres) coordinates and the
+        weights' 1/px^2), float64 (the per-pixel terms are float32, the normal equations are summed
+        and solved in float64).
     """
     b, _, h, w = flow_px.shape
     f32 = dict(dtype=torch.float32, device=flow_px.device)
@@ -130,8 +131,7 @@ class FlowSolvePoseNet(nn.Module):
     resolution), one more of stride 2 and a dilated one at a quarter resolution, upsampled and joined
     with the first's features, a last convolution to two log-weights per half-resolution pixel
     (started at 0: every weight 1, the plain least-squares solve), upsampled bilinearly to the input's
-    pixels. ``cfg.kernels``, ``strides``, ``hidden_units`` and ``hidden_layers``
-    are not used. The interface is :class:`vo.net.FlowPoseNet`'s: ``trunk`` returns (mean (B, 6), the
+    pixels. ``cfg.kernels``, ``strides``, ``hidden_units`` and ``hidden_layers`` are not used. The interface is :class:`vo.net.FlowPoseNet`'s: ``trunk`` returns (mean (B, 6), the
     solve's log-std feature 0.5 log diag(H^-1) (B, 6)), ``mean_head`` the first, ``log_std_head`` maps
     the second through the stage-2 heads ``rot_log_std`` and ``trans_log_std`` (Linear 3 -> 3).
     """
@@ -153,12 +153,7 @@ class FlowSolvePoseNet(nn.Module):
         for head in (self.rot_log_std, self.trans_log_std):
             nn.init.eye_(head.weight)
             nn.init.zeros_(head.bias)
-        size = torch.tensor([cfg.input_width, cfg.input_height], dtype=torch.float32).view(1, 2, 1, 1)
-        self.register_buffer("_inv_size", cfg.flow_scale / size, persistent=False)
-        v, u = torch.meshgrid(torch.arange(cfg.input_height, dtype=torch.float32),
-                              torch.arange(cfg.input_width, dtype=torch.float32), indexing="ij")
-        self.register_buffer("_grid_uv", torch.stack([u, v])[None], persistent=False)
-        self.channels_last = False
+        register_input_buffers(self, cfg)
 
     def uncertainty_parameters(self) -> list[nn.Parameter]:
         """The stage-2 heads' parameters."""
@@ -174,6 +169,7 @@ class FlowSolvePoseNet(nn.Module):
         return network_input(self, flow_px, intrinsics, inv_depth)
 
     def set_channels_last(self, on: bool = True) -> "FlowSolvePoseNet":
+        """Channels-last (NHWC) weights and inputs, as :meth:`vo.net.FlowPoseNet.set_channels_last`."""
         self.channels_last = bool(on)
         return self.to(memory_format=torch.channels_last if on else torch.contiguous_format)
 
