@@ -148,7 +148,40 @@ def _branch(n_in: int, cfg: NetConfig) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
-class FlowPoseNet(nn.Module):
+class PoseNet(nn.Module):
+    """What both pose heads share (:class:`FlowPoseNet`, :class:`vo.posesolve.FlowSolvePoseNet`): the
+    input tensor (:func:`network_input`), the split of the parameters between the two training stages
+    (the log-std heads ``rot_log_std`` and ``trans_log_std`` against the rest), the memory format, and
+    ``forward = (mean_head, log_std_head) of trunk``."""
+
+    cfg: NetConfig
+
+    def uncertainty_parameters(self) -> list[nn.Parameter]:
+        """The log-std heads' parameters (trained in the second stage)."""
+        return [*self.rot_log_std.parameters(), *self.trans_log_std.parameters()]
+
+    def motion_parameters(self) -> list[nn.Parameter]:
+        """Everything but the log-std heads (trained in the first stage, frozen in the second)."""
+        unc = {id(p) for p in self.uncertainty_parameters()}
+        return [p for p in self.parameters() if id(p) not in unc]
+
+    def prepare_input(self, flow_px: torch.Tensor, intrinsics: torch.Tensor | None = None,
+                      inv_depth: torch.Tensor | None = None) -> torch.Tensor:
+        """The tensor the convolutions see: :func:`network_input`."""
+        return network_input(self, flow_px, intrinsics, inv_depth)
+
+    def set_channels_last(self, on: bool = True) -> "PoseNet":
+        """Store the convolution weights (and feed inputs) channels-last (NHWC); faster on some CPUs."""
+        self.channels_last = bool(on)
+        return self.to(memory_format=torch.channels_last if on else torch.contiguous_format)
+
+    def forward(self, flow_px: torch.Tensor, intrinsics: torch.Tensor | None = None,
+                inv_depth: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        hr, ht = self.trunk(flow_px, intrinsics, inv_depth)
+        return self.mean_head(hr, ht), self.log_std_head(hr, ht)
+
+
+class FlowPoseNet(PoseNet):
     """Flow (B, 2, h, w) px at network resolution + intrinsics (B, 4) -> 6DoF mean and log-std.
 
     ``forward`` returns ``(mean6, log_std6)``, both float32 (B, 6): the paper's vector
@@ -178,20 +211,6 @@ class FlowPoseNet(nn.Module):
             nn.init.zeros_(head.bias)
         register_input_buffers(self, cfg)
 
-    def uncertainty_parameters(self) -> list[nn.Parameter]:
-        """The log-std heads' parameters (trained in the second stage)."""
-        return [*self.rot_log_std.parameters(), *self.trans_log_std.parameters()]
-
-    def motion_parameters(self) -> list[nn.Parameter]:
-        """Everything but the log-std heads (trained in the first stage, frozen in the second)."""
-        unc = {id(p) for p in self.uncertainty_parameters()}
-        return [p for p in self.parameters() if id(p) not in unc]
-
-    def prepare_input(self, flow_px: torch.Tensor, intrinsics: torch.Tensor | None = None,
-                      inv_depth: torch.Tensor | None = None) -> torch.Tensor:
-        """The tensor the convolutions see: :func:`network_input`."""
-        return network_input(self, flow_px, intrinsics, inv_depth)
-
     @torch.no_grad()
     def calibrate_log_std(self, ht: torch.Tensor, rmse: torch.Tensor) -> None:
         """Start stage 2 from a calibrated constant: log-std heads' weights 0, biases log(``rmse``) (6,)
@@ -199,11 +218,6 @@ class FlowPoseNet(nn.Module):
         for head, part in ((self.rot_log_std, rmse[:3]), (self.trans_log_std, rmse[3:])):
             head.weight.zero_()
             head.bias.copy_(part.log())
-
-    def set_channels_last(self, on: bool = True) -> "FlowPoseNet":
-        """Store the convolution weights (and feed inputs) channels-last (NHWC); faster on some CPUs."""
-        self.channels_last = bool(on)
-        return self.to(memory_format=torch.channels_last if on else torch.contiguous_format)
 
     def trunk(self, flow_px: torch.Tensor, intrinsics: torch.Tensor | None = None,
               inv_depth: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -226,10 +240,7 @@ class FlowPoseNet(nn.Module):
             log_std = torch.cat([self.rot_log_std(hr), self.trans_log_std(ht)], dim=1)
         return log_std.clamp(LOG_STD_MIN, LOG_STD_MAX)
 
-    def forward(self, flow_px: torch.Tensor, intrinsics: torch.Tensor | None = None,
-                inv_depth: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        hr, ht = self.trunk(flow_px, intrinsics, inv_depth)
-        return self.mean_head(hr, ht), self.log_std_head(hr, ht)
+
 
 
 def register_input_buffers(net: nn.Module, cfg: NetConfig) -> None:

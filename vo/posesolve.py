@@ -24,7 +24,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from deepslam.vo.net import LOG_STD_MAX, LOG_STD_MIN, NetConfig, network_input, register_input_buffers
+from deepslam.vo.net import LOG_STD_MAX, LOG_STD_MIN, NetConfig, PoseNet, register_input_buffers
 
 LOG_WEIGHT_LIMIT = 10.0
 """The learned log-weights are clamped to [-LOG_WEIGHT_LIMIT, LOG_WEIGHT_LIMIT] (weights in 1/px^2)."""
@@ -123,7 +123,7 @@ def solve_pose(flow_px: torch.Tensor, inv_depth: torch.Tensor, intrinsics: torch
     return rot, t, hess
 
 
-class FlowSolvePoseNet(nn.Module):
+class FlowSolvePoseNet(PoseNet):
     """Flow (B, 2, h, w) px + intrinsics (B, 4) + inverse depth (B, 1, h, w) -> 6DoF mean and log-std,
     through :func:`solve_pose` with learned per-pixel weights (see the module docstring).
 
@@ -154,24 +154,6 @@ class FlowSolvePoseNet(nn.Module):
             nn.init.eye_(head.weight)
             nn.init.zeros_(head.bias)
         register_input_buffers(self, cfg)
-
-    def uncertainty_parameters(self) -> list[nn.Parameter]:
-        """The stage-2 heads' parameters."""
-        return [*self.rot_log_std.parameters(), *self.trans_log_std.parameters()]
-
-    def motion_parameters(self) -> list[nn.Parameter]:
-        """The weight network's parameters (stage 1)."""
-        unc = {id(p) for p in self.uncertainty_parameters()}
-        return [p for p in self.parameters() if id(p) not in unc]
-
-    def prepare_input(self, flow_px, intrinsics=None, inv_depth=None) -> torch.Tensor:
-        """The weight network's input: :func:`vo.net.network_input`'s tensor, as the paper's network reads it."""
-        return network_input(self, flow_px, intrinsics, inv_depth)
-
-    def set_channels_last(self, on: bool = True) -> "FlowSolvePoseNet":
-        """Channels-last (NHWC) weights and inputs, as :meth:`vo.net.FlowPoseNet.set_channels_last`."""
-        self.channels_last = bool(on)
-        return self.to(memory_format=torch.channels_last if on else torch.contiguous_format)
 
     def log_weights(self, flow_px, intrinsics, inv_depth) -> torch.Tensor:
         """(B, 2, h, w) float32 learned log-weights (1/px^2) of each pixel's u and v residual."""
@@ -212,7 +194,3 @@ class FlowSolvePoseNet(nn.Module):
         with torch.autocast(ht.device.type, enabled=False):
             log_std = torch.cat([self.rot_log_std(ht[:, :3]), self.trans_log_std(ht[:, 3:])], dim=1)
         return log_std.clamp(LOG_STD_MIN, LOG_STD_MAX)
-
-    def forward(self, flow_px, intrinsics=None, inv_depth=None) -> tuple[torch.Tensor, torch.Tensor]:
-        hr, ht = self.trunk(flow_px, intrinsics, inv_depth)
-        return self.mean_head(hr, ht), self.log_std_head(hr, ht)
