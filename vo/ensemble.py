@@ -23,7 +23,7 @@ import torch
 from torch import nn
 
 from deepslam.core.errors import InputError
-from deepslam.vo.net import LOG_STD_MAX, LOG_STD_MIN, FlowPoseNet
+from deepslam.vo.net import LOG_STD_MAX, LOG_STD_MIN, PoseNet
 
 
 def mixture_moments(means: torch.Tensor, log_stds: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -47,13 +47,13 @@ def mixture_moments(means: torch.Tensor, log_stds: torch.Tensor) -> tuple[torch.
 
 
 class EnsemblePoseNet(nn.Module):
-    """Several :class:`vo.net.FlowPoseNet` of one input shape, answering as one (see the module doc).
+    """Several :class:`vo.net.PoseNet` (either pose head) of one input shape, answering as one (see the module doc).
 
     ``forward(flow, intrinsics, inv_depth)`` takes what a member takes and returns ``(mean6, log_std6)``,
     float32 (B, 6), the mixture's moments. ``cfg`` is the first member's (input size, channels).
     """
 
-    def __init__(self, members: Sequence[FlowPoseNet]):
+    def __init__(self, members: Sequence[PoseNet]):
         super().__init__()
         members = list(members)
         if len(members) < 2:
@@ -68,7 +68,7 @@ class EnsemblePoseNet(nn.Module):
         self.channels_last = False
 
     def set_channels_last(self, on: bool = True) -> "EnsemblePoseNet":
-        """Channels-last convolutions in every member (see :meth:`vo.net.FlowPoseNet.set_channels_last`)."""
+        """Channels-last convolutions in every member (see :meth:`vo.net.PoseNet.set_channels_last`)."""
         for m in self.members:
             m.set_channels_last(on)
         self.channels_last = bool(on)

@@ -29,7 +29,7 @@ class VOPredictor:
     """A trained flow -> 6DoF network, ready for batched inference.
 
     Args:
-        model: a :class:`vo.net.FlowPoseNet`, or a :class:`vo.ensemble.EnsemblePoseNet` of several (put in
+        model: a :class:`vo.net.PoseNet` (either pose head), or a :class:`vo.ensemble.EnsemblePoseNet` of several (put in
             eval mode here).
         name: short name shown in logs (the model file's stem).
         meta: what the model file says about its training.

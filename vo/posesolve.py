@@ -131,7 +131,8 @@ class FlowSolvePoseNet(PoseNet):
     resolution), one more of stride 2 and a dilated one at a quarter resolution, upsampled and joined
     with the first's features, a last convolution to two log-weights per half-resolution pixel
     (started at 0: every weight 1, the plain least-squares solve), upsampled bilinearly to the input's
-    pixels. ``cfg.kernels``, ``strides``, ``hidden_units`` and ``hidden_layers`` are not used. The interface is :class:`vo.net.FlowPoseNet`'s: ``trunk`` returns (mean (B, 6), the
+    pixels. ``cfg.kernels``, ``strides``, ``hidden_units`` and ``hidden_layers`` are not used. The
+    interface is :class:`vo.net.FlowPoseNet`'s: ``trunk`` returns (mean (B, 6), the
     solve's log-std feature 0.5 log diag(H^-1) (B, 6)), ``mean_head`` the first, ``log_std_head`` maps
     the second through the stage-2 heads ``rot_log_std`` and ``trans_log_std`` (Linear 3 -> 3).
     """

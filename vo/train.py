@@ -1,4 +1,4 @@
-"""Two-stage training of :class:`vo.net.FlowPoseNet` with the paper's recipe, checkpoints and resume.
+"""Two-stage training of a :class:`vo.net.PoseNet` (either pose head) with the paper's recipe, checkpoints and resume.
 
 Stage 1 (motion): Adam with amsgrad, batch 128, a cyclic learning rate (triangular, between
 ``lr_min`` and ``lr_max``, torch's CyclicLR stepped every batch), loss
@@ -37,7 +37,7 @@ import torch
 from deepslam.core import atomic
 from deepslam.vo import modelfile
 from deepslam.vo.data import epoch_seed
-from deepslam.vo.net import FlowPoseNet, NetConfig, gaussian_nll, make_net, pose_loss
+from deepslam.vo.net import NetConfig, PoseNet, gaussian_nll, make_net, pose_loss
 
 CHECKPOINT = "checkpoint.safetensors"
 MODEL = "model.safetensors"
@@ -136,7 +136,7 @@ class TrainResult:
     holdout_nll: float | None
 
 
-def new_model(cfg: TrainConfig) -> FlowPoseNet:
+def new_model(cfg: TrainConfig) -> PoseNet:
     """The initial network, its weights drawn from ``cfg.seed`` (the global RNG is left as it was)."""
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(cfg.seed)
@@ -161,7 +161,7 @@ def _step_size(cfg: TrainConfig, n_train: int) -> int:
     return max(1, math.ceil(n_train / cfg.batch_size))
 
 
-def _stage1_optim(model: FlowPoseNet, cfg: TrainConfig, n_train: int):
+def _stage1_optim(model: PoseNet, cfg: TrainConfig, n_train: int):
     opt = torch.optim.Adam(model.motion_parameters(), lr=cfg.lr_min, amsgrad=True)
     sched = torch.optim.lr_scheduler.CyclicLR(opt, base_lr=cfg.lr_min, max_lr=cfg.lr_max,
                                               step_size_up=_step_size(cfg, n_train), mode="triangular",
@@ -169,7 +169,7 @@ def _stage1_optim(model: FlowPoseNet, cfg: TrainConfig, n_train: int):
     return opt, sched
 
 
-def _stage2_optim(model: FlowPoseNet, cfg: TrainConfig):
+def _stage2_optim(model: PoseNet, cfg: TrainConfig):
     for p in model.motion_parameters():
         p.requires_grad_(False)
     return torch.optim.Adam(model.uncertainty_parameters(), lr=cfg.nll_lr, amsgrad=True)
@@ -186,14 +186,14 @@ def load_checkpoint(path: Path) -> dict:
     return modelfile.load(path, (CHECKPOINT_FORMAT,))[1]
 
 
-def model_tree(model: FlowPoseNet, meta: dict, half: bool = False) -> dict:
+def model_tree(model: PoseNet, meta: dict, half: bool = False) -> dict:
     """What a model file holds: format, version, net config, weights (float16 with ``half``), meta."""
     sd = {k: (v.half() if half and v.is_floating_point() else v).contiguous() for k, v in model.state_dict().items()}
     return {"format": MODEL_FORMAT, "version": MODEL_VERSION, "net": model.cfg.to_dict(), "state_dict": sd,
             "meta": meta}
 
 
-def save_model(path: Path, model: FlowPoseNet, meta: dict, half: bool = False) -> None:
+def save_model(path: Path, model: PoseNet, meta: dict, half: bool = False) -> None:
     """The inference artifact: net config + weights (+ meta: training summary, data description).
 
     ``half``: store the weights as float16 (half the size; loaded back as float32).
@@ -202,7 +202,7 @@ def save_model(path: Path, model: FlowPoseNet, meta: dict, half: bool = False) -
 
 
 @torch.no_grad()
-def evaluate(model: FlowPoseNet, source: Source, cfg: TrainConfig) -> dict:
+def evaluate(model: PoseNet, source: Source, cfg: TrainConfig) -> dict:
     """Held-out figures: pose loss, Gaussian NLL, RMSE per DoF (weighted by batch sizes)."""
     model.eval()
     n, loss, nll, se = 0, 0.0, 0.0, torch.zeros(6, dtype=torch.float64)
@@ -242,7 +242,7 @@ class HeadInputs:
 
 
 @torch.no_grad()
-def head_inputs(model: FlowPoseNet, source: Source, cfg: TrainConfig) -> HeadInputs:
+def head_inputs(model: PoseNet, source: Source, cfg: TrainConfig) -> HeadInputs:
     """One pass of the trunk over ``source`` (its epoch-0 batches, in their order)."""
     model.eval()
     parts: list[tuple[torch.Tensor, ...]] = []
@@ -255,14 +255,14 @@ def head_inputs(model: FlowPoseNet, source: Source, cfg: TrainConfig) -> HeadInp
 
 
 @torch.no_grad()
-def evaluate_heads(model: FlowPoseNet, hi: HeadInputs, cfg: TrainConfig) -> dict:
+def evaluate_heads(model: PoseNet, hi: HeadInputs, cfg: TrainConfig) -> dict:
     """:func:`evaluate`'s figures from cached trunk features."""
     log_std = model.log_std_head(hi.hr, hi.ht)
     return {"loss": float(pose_loss(hi.mean, hi.target, cfg.rot_weight)),
             "nll": float(gaussian_nll(hi.mean, log_std, hi.target)), "rmse6": hi.rmse6().cpu().tolist()}
 
 
-def uncertainty_epoch(model: FlowPoseNet, hi: HeadInputs, cfg: TrainConfig, opt: torch.optim.Optimizer, epoch: int,
+def uncertainty_epoch(model: PoseNet, hi: HeadInputs, cfg: TrainConfig, opt: torch.optim.Optimizer, epoch: int,
                       deadline: float | None = None) -> tuple[float, bool]:
     """One stage-2 epoch: the Gaussian NLL through the log-std heads only (``opt`` holds just their
     parameters), over the cached features in an order drawn from (seed, epoch).
@@ -288,7 +288,7 @@ def uncertainty_epoch(model: FlowPoseNet, hi: HeadInputs, cfg: TrainConfig, opt:
     return nll_sum / max(n_seen, 1), False
 
 
-def fit_uncertainty(model: FlowPoseNet, source: Source, cfg: TrainConfig, epochs: int) -> list[float]:
+def fit_uncertainty(model: PoseNet, source: Source, cfg: TrainConfig, epochs: int) -> list[float]:
     """The whole second stage on a trained model: freeze all but the log-std heads, start them at
     log(held-out RMSE), train them ``epochs`` epochs with the NLL. Returns the NLL per epoch."""
     hi = head_inputs(model, source, cfg)
@@ -298,7 +298,7 @@ def fit_uncertainty(model: FlowPoseNet, source: Source, cfg: TrainConfig, epochs
 
 
 @torch.no_grad()
-def init_log_std(model: FlowPoseNet, hi: HeadInputs) -> list[float]:
+def init_log_std(model: PoseNet, hi: HeadInputs) -> list[float]:
     """Start stage 2 calibrated to the held-out RMSE per DoF (the model's ``calibrate_log_std``: for the
     paper's network a constant log(RMSE); for the solve head its own log-std feature shifted to it)."""
     rmse = hi.rmse6().float().clamp_min(1e-5)
@@ -628,7 +628,7 @@ def _plot_history(path: Path, history: list[dict]) -> None:
 
 def load_model(path: str | Path) -> tuple[torch.nn.Module, dict]:
     """(model in eval mode, float32; meta) from a ``model.safetensors`` or a ``checkpoint.safetensors``
-    (:mod:`vo.modelfile`: nothing in the file is executed). The model is a :class:`vo.net.FlowPoseNet`,
+    (:mod:`vo.modelfile`: nothing in the file is executed). The model is a :class:`vo.net.PoseNet` (either pose head),
     or for an ensemble file (:mod:`vo.ensemble`) an :class:`vo.ensemble.EnsemblePoseNet`; both map
     ``(flow, intrinsics, inv_depth)`` to ``(mean6, log_std6)`` and carry the input's ``cfg``."""
     path = Path(path)
@@ -654,7 +654,7 @@ def _load_ensemble(path: Path, d: dict):
     return model.eval(), d.get("meta", {})
 
 
-def _model_from_tree(path: Path, d: dict) -> FlowPoseNet:
+def _model_from_tree(path: Path, d: dict) -> PoseNet:
     """The network a model or checkpoint tree describes (InputError naming ``path`` when it does not fit)."""
     from deepslam.core.errors import InputError
 
