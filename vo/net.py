@@ -241,8 +241,6 @@ class FlowPoseNet(PoseNet):
         return log_std.clamp(LOG_STD_MIN, LOG_STD_MAX)
 
 
-
-
 def register_input_buffers(net: nn.Module, cfg: NetConfig) -> None:
     """What :func:`network_input` reads from a network: ``_inv_size`` (1, 2, 1, 1) float32
     ``flow_scale / (W, H)`` and ``_grid_uv`` (1, 2, h, w) float32 pixel coordinates at network
@@ -258,7 +256,7 @@ def register_input_buffers(net: nn.Module, cfg: NetConfig) -> None:
 def network_input(net: nn.Module, flow_px: torch.Tensor, intrinsics: torch.Tensor | None = None,
                   inv_depth: torch.Tensor | None = None) -> torch.Tensor:
     """The tensor a network's convolutions see: (B, in_channels, h, w) float32 (see the module docstring).
-    ``net``: a :class:`FlowPoseNet` or :class:`vo.posesolve.FlowSolvePoseNet` (its ``cfg``, its
+    ``net``: a :class:`PoseNet` of either head (its ``cfg``, its
     ``_inv_size`` and ``_grid_uv`` buffers, ``channels_last``); ``flow_px``: (B, 2, h, w) px, NaN where
     unknown; ``intrinsics``: (B, 4) fx, fy, cx, cy px at network resolution (needed with
     ``coord_channels``); ``inv_depth``: (B, 1, h, w) float32 1/m of the first frame (needed with
@@ -289,7 +287,7 @@ def network_input(net: nn.Module, flow_px: torch.Tensor, intrinsics: torch.Tenso
     return x.contiguous(memory_format=torch.channels_last) if net.channels_last else x
 
 
-def make_net(cfg: NetConfig = PAPER) -> nn.Module:
+def make_net(cfg: NetConfig = PAPER) -> PoseNet:
     """The network ``cfg`` describes: :class:`FlowPoseNet` (``pose_head="regress"``) or
     :class:`vo.posesolve.FlowSolvePoseNet` (``"solve"``); both map ``(flow, intrinsics, inv_depth)`` to
     ``(mean6, log_std6)`` and train in :mod:`vo.train`'s two stages."""
