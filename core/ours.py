@@ -4,10 +4,12 @@ Layout of one sequence folder::
 
     sequence.json        header: format, version, num_frames, rate_hz, camera (PinholeCamera dict),
                          stereo_baseline_m (or null), scene, trajectory, seed, backend, config,
-                         has {rgb_right, depth, flow, mask}, complete (false while being written)
+                         has {rgb_right, depth, flow, mask, depth_exact, ...}, complete (false while being written)
     rgb/NNNNNN.png       uint8 HxWx3 RGB, left camera
     rgb_right/NNNNNN.png uint8 HxWx3 RGB, right camera at +baseline along the camera x axis (optional)
-    depth/NNNNNN.npy     float32 HxW depth_z in metres, 0 = no surface
+    depth/NNNNNN.npy     float32 HxW depth_z in metres, 0 = no surface (with ``--depth-noise``: as the sensor reads it,
+                         0 = no reading)
+    depth_exact/NNNNNN.npy  float32 HxW exact depth_z, only with ``--depth-noise`` (``has.depth_exact``)
     flow/NNNNNN.npy      float32 HxWx2 (du, dv) pixels from frame NNNNNN to NNNNNN+1 (none for the last)
     mask/NNNNNN.png      uint16 HxW instance ids, 0 = static scene
     row_poses/NNNNNN.npy float64 Hx4x4 world_from_cam of each image row (rolling shutter only; the header's
@@ -152,6 +154,8 @@ def read_ours(root: str | Path) -> Sequence:
         if has.get("flow_backward") else None,
         occlusion_paths=([root / "occlusion" / f"{s}.png" for s in names[:-1]] + [None]) if has.get("occlusion") else None,
         row_pose_paths=[root / "row_poses" / f"{s}.npy" for s in names] if has.get("row_poses") else None,
+        depth_exact_paths=[root / "depth_exact" / f"{s}.npy" for s in names]
+        if has.get("depth_exact", (root / "depth_exact").is_dir()) else None,
         meta=header,
     )
 

@@ -58,7 +58,7 @@ def read_npy(path: str | Path, dtype: np.dtype, ndim: int) -> np.ndarray:
 
 def ground_truth_files(beside: Callable[[str, str], list[Path] | None]) -> dict:
     """The Sequence fields of the ground-truth folders that sit beside a layout's images
-    (``depth/``, ``flow/``, ``flow_backward/``, ``occlusion/``, ``mask/``, ``row_poses/``, one file per frame in the
+    (``depth/``, ``depth_exact/``, ``flow/``, ``flow_backward/``, ``occlusion/``, ``mask/``, ``row_poses/``, one file per frame in the
     images' numbering), from ``beside(folder, suffix)`` -> per-frame paths or None when the folder is
     absent. Forward flow and occlusion have no file for the last frame, backward flow none for the first."""
     flow, back, occ = beside("flow", ".npy"), beside("flow_backward", ".npy"), beside("occlusion", ".png")
@@ -66,7 +66,7 @@ def ground_truth_files(beside: Callable[[str, str], list[Path] | None]) -> dict:
             "flow_paths": None if flow is None else flow[:-1] + [None],
             "flow_backward_paths": None if back is None else [None] + back[1:],
             "occlusion_paths": None if occ is None else occ[:-1] + [None],
-            "row_pose_paths": beside("row_poses", ".npy")}
+            "row_pose_paths": beside("row_poses", ".npy"), "depth_exact_paths": beside("depth_exact", ".npy")}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -126,6 +126,9 @@ class Sequence:
             and the occlusion masks (None for the last frame), where the data has them.
         row_pose_paths: per-frame paths of the rolling shutter's per-row poses (renders with
             ``--rolling-shutter-ms``), or None.
+        depth_exact_paths: per-frame paths of the exact depth where ``depth_paths`` hold a simulated
+            sensor's (renders with ``--depth-noise``), or None (the depth is the exact one, or a real
+            sensor's with nothing better).
     """
 
     name: str
@@ -147,6 +150,7 @@ class Sequence:
     flow_backward_paths: list[Path | None] | None = None
     occlusion_paths: list[Path | None] | None = None
     row_pose_paths: list[Path] | None = None
+    depth_exact_paths: list[Path] | None = None
 
     def __len__(self) -> int:
         return len(self.image_paths)
@@ -176,6 +180,13 @@ class Sequence:
         if self.depth_reader is not None:
             return self.depth_reader(self.depth_paths[i])
         return read_npy(self.depth_paths[i], np.float32, 2)
+
+    def depth_exact(self, i: int) -> np.ndarray | None:
+        """(H, W) float32 depth_z in metres of the scene's true surfaces (0 = nothing), for a render whose
+        :meth:`depth` is a simulated sensor's; otherwise :meth:`depth` (the best geometry there is)."""
+        if self.depth_exact_paths is None:
+            return self.depth(i)
+        return read_npy(self.depth_exact_paths[i], np.float32, 2)
 
     def gt_pose(self, i: int) -> np.ndarray | None:
         """(4, 4) float64 world_from_cam of frame i, or None where there is no ground truth."""

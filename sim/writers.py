@@ -177,7 +177,8 @@ class OursSink:
                   "config": sim.resolved_config.to_dict(), "instances": _instances(sim),
                   "has": {"rgb_right": bool(sim.baseline_m), "depth": True, "flow": bool(config.render.flow), "mask": True,
                           "flow_backward": bool(config.render.flow), "occlusion": bool(config.render.flow),
-                          "row_poses": config.render.rolling_shutter},
+                          "row_poses": config.render.rolling_shutter,
+                          "depth_exact": config.render.depth_noise is not None},
                   **_rolling_shutter_meta(sim)}
         self.complete = False
         if resume and (root / "sequence.json").is_file():

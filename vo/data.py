@@ -752,10 +752,15 @@ class ImageFrames:
 
     Attributes:
         grey: N arrays (H_k, W_k) uint8.
-        depth_z: N arrays (H_k, W_k) float32 metres (0 = unknown / sky).
+        depth_z: N arrays (H_k, W_k) float32 metres (0 = unknown / sky): the geometry the second view
+            is rendered from.
         camera_index: (N,) int index into ``cameras``.
         cameras: the distinct cameras (each at its frames' H_k x W_k).
         names: N "sequence:frame" labels.
+        depth_sensor: N arrays (H_k, W_k) float32 metres (0 = no reading) or None per frame: the depth a
+            network's depth channel reads where it is not ``depth_z`` (a render with a simulated sensor,
+            ``--depth-noise``: the view comes from the true surfaces, the network sees what the sensor
+            reports, as on a real RGB-D camera); None (default): ``depth_z``.
     """
 
     grey: list
@@ -763,14 +768,21 @@ class ImageFrames:
     camera_index: np.ndarray
     cameras: list[PinholeCamera]
     names: list[str]
+    depth_sensor: list | None = None
 
     def __len__(self) -> int:
         return len(self.grey)
 
+    def network_depth(self, k: int) -> np.ndarray:
+        """Frame k's depth as the network reads it: (H_k, W_k) float32 metres, 0 = unknown."""
+        sensor = None if self.depth_sensor is None else self.depth_sensor[k]
+        return self.depth_z[k] if sensor is None else sensor
+
     def subset(self, idx) -> "ImageFrames":
         idx = np.asarray(idx, dtype=np.int64)
         return ImageFrames([self.grey[i] for i in idx], [self.depth_z[i] for i in idx], self.camera_index[idx],
-                           self.cameras, [self.names[i] for i in idx])
+                           self.cameras, [self.names[i] for i in idx],
+                           None if self.depth_sensor is None else [self.depth_sensor[i] for i in idx])
 
     def split(self, holdout_fraction: float, seed: int) -> tuple["ImageFrames", "ImageFrames"]:
         """(train, holdout) by a seeded permutation of the source frames (as :meth:`Frames.split`); the
@@ -787,6 +799,9 @@ def load_image_frames(sequences: Seq, frame_step: int = 1, depth: str = "auto", 
     ``scales`` below 1 add the frame downscaled (image INTER_AREA, depth nearest, the camera scaled): an
     estimator errs differently at another resolution (DIS under-reads a road more on a smaller image),
     so a network that will see several resolutions should be trained on them.
+
+    A render with a simulated depth sensor (``render --depth-noise``; :meth:`core.sequence.Sequence.depth_exact`)
+    gives its exact depth as ``depth_z`` and the sensor's as ``depth_sensor``.
     """
     import cv2
     from tqdm import tqdm
@@ -795,13 +810,17 @@ def load_image_frames(sequences: Seq, frame_step: int = 1, depth: str = "auto", 
 
     if not scales or any(not (0.05 <= float(sc) <= 1.0) for sc in scales):
         raise InputError(None, f"frame scales must be in [0.05, 1], got {list(scales)}")
-    greys, depths, cam_idx, cams, names = [], [], [], [], []
+    greys, depths, sensors, cam_idx, cams, names = [], [], [], [], [], []
     for seq in sequences:
         how = _depth_source(seq, depth)
+        simulated_sensor = how == "rendered" and seq.depth_exact_paths is not None
         for i in tqdm(_frame_indices(seq, frame_step, max_frames), desc=f"frames {seq.name} ({how})", unit="frame",
                       disable=not progress, leave=False):
             grey = to_grey(seq.image(i))
             d = _frame_depth(seq, i, how, fill_stereo_holes, seq.camera.width, seq.camera.height)
+            sensor = None
+            if simulated_sensor:
+                d, sensor = resize_depth(seq.depth_exact(i), seq.camera.width, seq.camera.height), d
             for sc in scales:
                 w, h = max(8, round(seq.camera.width * sc)), max(8, round(seq.camera.height * sc))
                 cam = seq.camera.scaled(w, h)
@@ -810,11 +829,13 @@ def load_image_frames(sequences: Seq, frame_step: int = 1, depth: str = "auto", 
                 same = (w, h) == (seq.camera.width, seq.camera.height)
                 greys.append(grey if same else cv2.resize(grey, (w, h), interpolation=cv2.INTER_AREA))
                 depths.append(d if same else resize_depth(d, w, h))
+                sensors.append(sensor if same or sensor is None else resize_depth(sensor, w, h))
                 cam_idx.append(cams.index(cam))
                 names.append(f"{seq.name}:{i}" + ("" if same else f"@{w}x{h}"))
     if not greys:
         raise InputError(None, "no frames to train on")
-    return ImageFrames(greys, depths, np.array(cam_idx, dtype=np.int64), cams, names)
+    return ImageFrames(greys, depths, np.array(cam_idx, dtype=np.int64), cams, names,
+                       sensors if any(x is not None for x in sensors) else None)
 
 
 class EstimatedFlowSource(_OnTheFlySource):
@@ -887,20 +908,21 @@ class EstimatedFlowSource(_OnTheFlySource):
         if est is None:
             est = self._local.est = flow_estimators.make(self.estimator, **self.estimator_options)
         cam = self.frames.cameras[self.frames.camera_index[k]]
-        grey0, depth0 = self.frames.grey[k], self.frames.depth_z[k]
+        grey0, depth0, seen0 = self.frames.grey[k], self.frames.depth_z[k], self.frames.network_depth(k)
         if rot is not None:
             from deepslam.gen.rotate_view import rotate_depth, rotate_image
 
             grey0, depth0 = rotate_image(grey0, cam, rot), rotate_depth(depth0, cam, rot, outside="nearest")
+            seen0 = depth0 if seen0 is self.frames.depth_z[k] else rotate_depth(seen0, cam, rot, outside="nearest")
         if scale != 1.0:
-            depth0 = depth0 * np.float32(scale)
+            depth0, seen0 = depth0 * np.float32(scale), seen0 * np.float32(scale)
         grey1, _ = render_novel_view(grey0, depth0, cam, motion)
         if self.appearance_noise > 0:
             noise = np.random.default_rng(noise_seed).normal(0.0, self.appearance_noise, grey1.shape)
             grey1 = np.clip(np.rint(grey1 + noise), 0, 255).astype(np.uint8)
         flow, intr = flow_estimators.to_network_input(est.estimate(grey0, grey1), cam, self.width, self.height,
                                                      self.unknown)
-        return flow, intr, (inverse_depth_input(depth0, self.width, self.height) if self.inv_depth else None)
+        return flow, intr, (inverse_depth_input(seen0, self.width, self.height) if self.inv_depth else None)
 
     def make_batch(self, rng: np.random.Generator, n: int) -> Batch:
         from concurrent.futures import ThreadPoolExecutor

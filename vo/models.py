@@ -74,7 +74,7 @@ def load(path: Path, shipped: bool = False, **kwargs):
     return VOPredictor.from_file(path, **kwargs)
 
 
-RECORDED_OPTIONS = {"dis": ("preset", "min_texture")}
+RECORDED_OPTIONS = {"dis": ("preset", "min_texture", "fb_max_px")}
 """The options a model file's flow record may set, per estimator (:class:`vo.flow_estimators.DISFlow`'s)."""
 
 

@@ -107,6 +107,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--dis-min-texture", type=float, default=0.0, metavar="T",
                    help="DIS flow is unknown (NaN, 0 in the network's input) where the first image's texture "
                         "(structure tensor's smaller eigenvalue, (grey levels/px)^2) is below T (0 = keep all)")
+    g.add_argument("--dis-fb-check", type=float, default=None, metavar="PX",
+                   help="DIS flow is unknown where the backward flow does not bring a pixel back to within PX "
+                        "pixels (occlusions, wrong matches; twice DIS's time; 0 = no check); recorded in the model, "
+                        "so vo and slam set DIS up the same way")
     g = p.add_argument_group("network")
     g.add_argument("--net", choices=sorted(NET_PRESETS), default="paper", help="preset, refined by the options below")
     g.add_argument("--height", type=int, help="input rows")
@@ -339,8 +343,9 @@ def run(args: argparse.Namespace) -> int:
                 args.missing_depth = "invalid" if any(sq.kind == "tum" for sq in seqs) else "infinity"
             n_hold = args.holdout_samples or max(args.batch, int(round(args.holdout * args.samples_per_epoch)))
             if args.synthetic_flow == "exact":
-                if args.dis_min_texture:
-                    raise InputError(None, "--dis-min-texture applies to DIS flow only (--synthetic-flow dis)")
+                for flag, given in (("--dis-min-texture", args.dis_min_texture), ("--dis-fb-check", args.dis_fb_check)):
+                    if given:
+                        raise InputError(None, f"{flag} applies to DIS flow only (--synthetic-flow dis)")
                 frames = data.load_frames(seqs, w * f, h * f, args.frame_step, args.depth, args.max_frames, progress)
                 train_frames, hold_frames = frames.split(args.holdout, args.seed)
 
@@ -349,7 +354,8 @@ def run(args: argparse.Namespace) -> int:
                                                 inv_depth=net.depth_channel, scene_scale=scene_scale,
                                                 unknown=net.unknown_flow)
             else:
-                opts = flow_estimators.estimator_options(args.synthetic_flow, args.dis_preset, args.dis_min_texture)
+                opts = flow_estimators.estimator_options(args.synthetic_flow, args.dis_preset, args.dis_min_texture,
+                                                         args.dis_fb_check)
                 frames = data.load_image_frames(seqs, args.frame_step, args.depth, args.max_frames, progress,
                                                 scales=args.frame_scales)
                 train_frames, hold_frames = frames.split(args.holdout, args.seed)
@@ -378,7 +384,7 @@ def run(args: argparse.Namespace) -> int:
         if not args.sequence:
             raise InputError(None, "supervised mode needs --sequence DIR...")
 
-        opts = flow_estimators.estimator_options(args.flow, args.dis_preset, args.dis_min_texture)
+        opts = flow_estimators.estimator_options(args.flow, args.dis_preset, args.dis_min_texture, args.dis_fb_check)
         est = flow_estimators.make(args.flow, **opts)
         meta["flow"] = {"estimator": args.flow, "options": opts}
         spec = data.PairSpec(strides=tuple(args.strides), kind=args.pairs, max_pairs=args.max_pairs)

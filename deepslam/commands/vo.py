@@ -30,6 +30,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="DIS flow is unknown where the first image's texture is below T ((grey levels/px)^2: the "
                         "structure tensor's smaller eigenvalue over 7x7 px; 0 = keep all). Default: the model's, "
                         "as it was trained (0 where it does not say)")
+    p.add_argument("--dis-fb-check", type=float, default=None, metavar="PX",
+                   help="DIS flow is unknown where the backward flow does not bring a pixel back to within PX "
+                        "pixels (occlusions, wrong matches; twice DIS's time; 0 = no check). Default: the model's, "
+                        "as it was trained (0 where it does not say)")
     p.add_argument("--stride", type=int, default=1, help="frame gap k: predict cam_{t+k}_from_cam_t for t = 0, k, 2k, ...")
     p.add_argument("--start", type=int, default=0, help="first frame")
     p.add_argument("--end", type=int, default=None, help="one past the last frame (default: all)")
@@ -84,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
         from deepslam.vo.flow_estimators import estimator_options
 
         model_path, shipped = models.locate(args.model, seq, flow=args.flow)
-        given = estimator_options(args.flow, args.dis_preset, args.dis_min_texture)
+        given = estimator_options(args.flow, args.dis_preset, args.dis_min_texture, args.dis_fb_check)
         estimator = models.flow_for_model(args.flow, model_path, **given)  # DIS set up as the model was trained
         bf16 = None if args.bf16 == "auto" else args.bf16 == "on"
         from deepslam.vo.prefetch import PairInputs, model_input

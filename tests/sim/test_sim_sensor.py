@@ -62,3 +62,32 @@ def test_render_writes_sensor_depth_and_keeps_the_exact_one(tmp_path):
     both = (sensor > 0) & (exact > 0)
     assert 0 < np.abs(sensor[both] - exact[both]).mean() < 0.05
     assert seq.camera.fx == 134.0
+    assert np.array_equal(seq.depth_exact(1), exact) and seq.meta["has"]["depth_exact"]
+
+    # training on an estimator's flow: the second view comes from the true surfaces, the network's depth
+    # channel reads what the sensor reported (0 where it has no reading), as on a real RGB-D camera
+    from deepslam.vo.data import EstimatedFlowSource, load_image_frames
+    from deepslam.vo.net import inverse_depth_input
+
+    frames = load_image_frames([seq], progress=False)
+    assert np.array_equal(frames.depth_z[1], exact) and np.array_equal(frames.depth_sensor[1], sensor)
+    assert np.array_equal(frames.subset([1]).network_depth(0), sensor)
+    src = EstimatedFlowSource(frames.subset([1]), lambda n, rng: np.tile([0, 0.01, 0, 0.02, 0, 0.05], (n, 1)), "dis",
+                              32, 24, 2, threads=1, inv_depth=True)
+    inv = next(iter(src.batches(0, 2)))["inv_depth"].numpy()
+    assert np.array_equal(inv[0], inverse_depth_input(sensor, 32, 24))
+    assert not np.array_equal(inv[0], inverse_depth_input(exact, 32, 24))
+
+
+def test_a_render_without_a_sensor_model_has_one_depth(tmp_path):
+    from deepslam.cli import main
+    from deepslam.core.readers import open_sequence
+    from deepslam.vo.data import load_image_frames
+
+    out = tmp_path / "room"
+    assert main(["render", "--scene", "room", "--frames", "2", "--width", "64", "--height", "48",
+                 "--focal-px", "54", "--stereo-baseline", "0", "--out", str(out), "--quiet"]) == 0
+    seq = open_sequence(out)
+    assert seq.depth_exact_paths is None and not (out / "depth_exact").exists()
+    assert np.array_equal(seq.depth_exact(1), seq.depth(1))
+    assert load_image_frames([seq], progress=False).depth_sensor is None

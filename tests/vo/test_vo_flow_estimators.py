@@ -280,3 +280,61 @@ def test_resize_flow_nan_mode_averages_known_pixels_only(size):
     assert np.isfinite(zero).all() and np.abs(zero[..., 0]).min() < 6.0 * w / 120 * 0.99
     with pytest.raises(ValueError, match="unknown must be one of"):
         fe.resize_flow(flow, *size, unknown="drop")
+
+
+def _occluder_pair() -> tuple[np.ndarray, np.ndarray]:
+    """A textured scene that moves 4 px right between the images, and a square (new texture) that covers
+    part of it in the second image only: the first image's pixels under it are occluded."""
+    import cv2
+
+    rng = np.random.default_rng(0)
+
+    def texture(h, w):
+        t = cv2.GaussianBlur(rng.uniform(0, 255, (h, w)).astype(np.float32), (0, 0), 2.0)
+        return cv2.normalize(t, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+
+    bg = texture(140, 200)
+    img0, img1 = bg[10:130, 10:190].copy(), bg[10:130, 6:186].copy()
+    img1[40:80, 70:110] = texture(40, 40)
+    return img0, img1
+
+
+def test_forward_backward_error_of_consistent_inconsistent_and_leaving_flow():
+    f = np.zeros((20, 30, 2), np.float32)
+    f[..., 0] = 2.0
+    b = -f
+    err = fe.forward_backward_error(f, b)
+    assert np.allclose(err[:, :28], 0.0) and np.isnan(err[:, 28:]).all()  # x + 2 beyond the last column: unknown
+    b2 = b.copy()
+    b2[5, 12] = (1.0, 3.0)  # the backward flow where (5, 10) lands disagrees
+    err2 = fe.forward_backward_error(f, b2)
+    assert np.isclose(err2[5, 10], np.hypot(3.0, 3.0)) and err2[5, 9] == err2[5, 11] == 0  # landing on (5, 11), (5, 13)
+    f[3, 4] = np.nan
+    assert np.isnan(fe.forward_backward_error(f, b)[3, 4])
+
+
+@pytest.mark.parametrize("fb", [0.0, 0.5, 1.0])
+def test_dis_forward_backward_check_leaves_occlusions_out(fb):
+    img0, img1 = _occluder_pair()
+    dis = fe.DISFlow("medium", 0.0, fb)
+    flow = dis.estimate(img0, img1)
+    unknown = np.isnan(flow[..., 0])
+    occluded, open_ = unknown[40:80, 66:106], unknown[5:30, 20:170]
+    assert not open_.any() and np.allclose(flow[5:30, 20:170, 0], 4.0, atol=0.05)  # the seen scene stays, right
+    if fb == 0:
+        assert dis.name == "dis-medium" and not unknown.any()
+    else:
+        assert dis.name == f"dis-medium-fb{fb:g}"
+        assert occluded.mean() > 0.3 and unknown[:, -2:].all()  # hidden by the square; leaving the view
+    assert np.array_equal(np.isnan(fe.DISFlow("medium", 0.0, fb).estimate(img0, img1)[..., 0]), unknown)  # deterministic
+
+
+def test_fb_check_options_and_refusals():
+    assert fe.estimator_options("dis", "medium", 0.5) == {"preset": "medium", "min_texture": 0.5}  # as old records
+    assert fe.estimator_options("dis", "medium", 0.5, 0.0)["fb_max_px"] == 0.0  # given: overrides a model's record
+    assert fe.estimator_options("dis", "medium", 0.5, 0.5)["fb_max_px"] == 0.5
+    for bad in (-1.0, float("nan"), "x"):
+        with pytest.raises(InputError, match="fb_max_px"):
+            fe.DISFlow("medium", 0.0, bad)
+    with pytest.raises(InputError, match="--dis-fb-check applies to DIS flow only"):
+        fe.estimator_options("learned", None, None, 1.0)
