@@ -11,7 +11,7 @@ translation (cm) and rotation (deg) errors. The exact row is the network's own e
 the synthetic DIS row is DIS's, as trained; the step to the real row is the real pairs' gap.
 About 1 minute a model:
 
-    .venv/bin/python scripts/tum_vo_gap.py MODEL.safetensors [MODEL ...] [--sequence TEDDY_DIR]
+    .venv/bin/python scripts/tum_vo_gap.py MODEL.safetensors [MODEL ...] [--sequence TEDDY_DIR] [--dis-fb-check PX]
 """
 from __future__ import annotations
 
@@ -25,6 +25,8 @@ def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("models", nargs="+")
     p.add_argument("--sequence", default="../shared/data/tum/rgbd_dataset_freiburg3_teddy")
+    p.add_argument("--dis-fb-check", type=float, default=None, metavar="PX",
+                   help="DIS's forward-backward check for every model (default: each model's own, as trained)")
     args = p.parse_args(argv)
 
     from deepslam.core import se3
@@ -42,7 +44,7 @@ def main(argv: list[str]) -> int:
     ref6, _ = make_pnp().predict(seq, pairs)
     for path in args.models:
         pred = VOPredictor.from_file(path)
-        dis = models.flow_for_model("dis", path)
+        dis = models.flow_for_model("dis", path, fb_max_px=args.dis_fb_check)
         min_texture = getattr(dis, "min_texture", 0.0)
         h, w = pred.input_size
         reads: dict[str, list[np.ndarray]] = {}
