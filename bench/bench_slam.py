@@ -153,11 +153,8 @@ def _odometry_for_fps(seq):
     try:
         from deepslam.vo import models
 
-        odometry = []
-        for which in ("cons", "loops"):  # each shipped model on DIS as its file records
-            path = models.shipped_path("kitti", which, "dis")
-            odometry.append(models.load(path, True).as_odometry(models.flow_for_model("dis", path), progress=False))
-        cons, loops = odometry
+        # each shipped model on DIS as its file records
+        cons, loops = (models.odometry(models.shipped_path("kitti", which, "dis"), "dis", True) for which in ("cons", "loops"))
         return cons, loops, "shipped VO models + DIS flow"
     except Exception:  # models not shipped yet (or vo incomplete): measure the SLAM back end alone
         from deepslam.slam.odometry import GroundTruthOdometry, NoiseConfig

@@ -107,8 +107,7 @@ def _odometry(seq, flow: str):
     its file records (:func:`vo.models.flow_for_model`)."""
     from deepslam.vo import models
 
-    return tuple(models.load(path, True).as_odometry(models.flow_for_model(flow, path), progress=False)
-                 for path in _shipped_paths(seq, flow))
+    return tuple(models.odometry(path, flow, True) for path in _shipped_paths(seq, flow))
 
 
 def _loop_record(seq, loops, res) -> dict | None:

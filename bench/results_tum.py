@@ -72,7 +72,7 @@ def run(cfg: ResultsTumConfig, out: Path, data: Path) -> dict:
     add("pnp (SIFT + PnP with sensor depth)", "-", chain_euler6(pnp.predict(seq, pairs)[0]), "VO")
     sub = seq if n == len(seq) else _head(seq, n)
     loops_path = models.models_dir() / "tum_loops.safetensors"
-    loops = VOPredictor.from_file(loops_path).as_odometry(models.flow_for_model(cfg.flow, loops_path), progress=False)
+    loops = models.odometry(loops_path, cfg.flow)
     for name, seen in (("tum_cons", "none"), ("tum_cons_teddy", "single frames, no poses")):
         path = models.models_dir() / f"{name}.safetensors"
         cons, est = VOPredictor.from_file(path), models.flow_for_model(cfg.flow, path)

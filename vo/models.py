@@ -74,6 +74,12 @@ def load(path: Path, shipped: bool = False, **kwargs):
     return VOPredictor.from_file(path, **kwargs)
 
 
+def odometry(path: str | Path, flow: str = "dis", shipped: bool = False, progress: bool = False, **kwargs):
+    """The VO model file at ``path`` as a SLAM odometry (:meth:`vo.infer.VOPredictor.as_odometry`) on flow
+    estimator ``flow`` set up as the file records (:func:`flow_for_model`); ``kwargs`` go to :func:`load`."""
+    return load(Path(path), shipped, **kwargs).as_odometry(flow_for_model(flow, path), progress=progress)
+
+
 RECORDED_OPTIONS = {"dis": ("preset", "min_texture", "fb_max_px")}
 """The options a model file's flow record may set, per estimator (:class:`vo.flow_estimators.DISFlow`'s)."""
 

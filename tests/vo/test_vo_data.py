@@ -207,6 +207,8 @@ def test_train_cli_synthetic_with_dis_flow_and_a_sample_pool(plane_sequence, mot
     assert models.recorded_flow_options(model, "learned") == {}
     assert models.flow_for_model("dis", model).name == "dis-fast-tex0.5-fb1"
     assert models.flow_for_model("dis", model, min_texture=0.0, preset=None).name == "dis-fast-fb1"
+    odometry = models.odometry(model)  # as bench and SLAM take a model file: on the flow it records
+    assert odometry.flow_estimator.name == "dis-fast-tex0.5-fb1" and not odometry.progress
     for flags, name in (([], "dis-fast-tex0.5-fb1"), (["--dis-min-texture", "0", "--dis-preset", "medium",
                                                        "--dis-fb-check", "0"], "dis-medium")):
         traj = tmp_path / f"vo{len(flags)}.txt"
