@@ -9,7 +9,6 @@ REFERENCE, so it reads the same flow at the same resolution:
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 
 
@@ -19,15 +18,14 @@ def main(argv: list[str]) -> int:
     p.add_argument("out")
     args = p.parse_args(argv)
 
-    from deepslam.vo.net import make_net
+    from deepslam.vo.posesolve import unit_weight_net
     from deepslam.vo.train import load_model, save_model
 
     ref, meta = load_model(args.reference)
-    cfg = dataclasses.replace(ref.cfg, depth_channel=True, valid_channel=True, pose_head="solve")
     out_meta = {"untrained": "solve head, every weight 1"}
     if meta.get("flow"):
         out_meta["flow"] = meta["flow"]
-    save_model(args.out, make_net(cfg), out_meta)
+    save_model(args.out, unit_weight_net(ref.cfg), out_meta)
     print(f"wrote {args.out}")
     return 0
 

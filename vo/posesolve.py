@@ -195,3 +195,12 @@ class FlowSolvePoseNet(PoseNet):
         with torch.autocast(ht.device.type, enabled=False):
             log_std = torch.cat([self.rot_log_std(ht[:, :3]), self.trans_log_std(ht[:, 3:])], dim=1)
         return log_std.clamp(LOG_STD_MIN, LOG_STD_MAX)
+
+
+def unit_weight_net(cfg: NetConfig) -> FlowSolvePoseNet:
+    """The solve pose head, untrained, at ``cfg``'s input size and flow scaling: every weight 1, so its
+    pose is the plain least-squares fit of the flow with the frame's depth (a classical dense
+    flow + depth odometry that runs through the learned models' path)."""
+    import dataclasses
+
+    return FlowSolvePoseNet(dataclasses.replace(cfg, depth_channel=True, valid_channel=True, pose_head="solve"))

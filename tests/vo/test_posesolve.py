@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from deepslam.core import se3
 from deepslam.vo.net import NetConfig, make_net
-from deepslam.vo.posesolve import FlowSolvePoseNet, euler6, so3_exp, solve_pose
+from deepslam.vo.posesolve import FlowSolvePoseNet, euler6, so3_exp, solve_pose, unit_weight_net
 
 H, W = 24, 32
 K = (30.0, 28.0, 15.5, 11.5)
@@ -138,6 +138,11 @@ def test_untrained_solve_network_is_the_plain_least_squares_fit():
     assert torch.allclose(net.log_std_head(hr, ht).mean(0), rmse.log(), atol=1e-5)
     assert len(net.uncertainty_parameters()) == 4 and all(
         id(p) not in {id(q) for q in net.uncertainty_parameters()} for p in net.motion_parameters())
+    # from a regression network's config (the flow it reads, its size): the same untrained solve
+    plain = unit_weight_net(NetConfig(H, W, filters=4, hidden_units=8))
+    assert plain.cfg.pose_head == "solve" and plain.cfg.depth_channel and plain.cfg.valid_channel
+    with torch.no_grad():
+        assert np.allclose(plain(f, k, inv)[0][0].numpy(), vec, atol=2e-5)
 
 
 @pytest.mark.parametrize("change, match", [
