@@ -67,8 +67,22 @@ SOLVE="--depth-channel --valid-channel --pose-head solve --max-epochs 10 --bf16 
 train $D/solve_teddy $M30 $TEX --frames $ROOMS $TEDDY $SOLVE
 train $D/solve_rooms $M30 $TEX $SOLVE
 train $D/solve_teddy_seed1 $M30 $TEX --frames $ROOMS $TEDDY $SOLVE --seed 1   # trained after seed 0's teddy score was seen
-.venv/bin/python scripts/solve_unit_weights.py models/tum_cons_teddy.safetensors $D/unit_solve.safetensors  # every weight 1
+.venv/bin/python scripts/solve_unit_weights.py models/tum_cons.safetensors $D/unit_solve.safetensors  # every weight 1
 for m in solve_teddy solve_rooms solve_teddy_seed1; do
   $DS vo --sequence $TEDDY --model $D/$m/model.safetensors --out $D/$m/teddy.txt --quiet
 done
 $DS vo --sequence $TEDDY --model $D/unit_solve.safetensors --out $D/unit_solve_teddy.txt --quiet
+
+# Tenth session (2026-12-02; see README, RGB-D odometry): the same solve recipe (10 epochs, DIS tex0.5)
+# (1) on the rooms rendered with the simulated Kinect's depth (the view from the exact surfaces, the depth channel
+# from the sensor); (2) rooms only with DIS's forward-backward check 0.5 px; (3) the shipped fb recipe at seed 1
+for s in 1 2 3; do
+  [ -f $R/room_k$s/poses.txt ] || $DS render --scene room --frames 300 --width 640 --height 480 --focal-px 537 --rate 30 \
+      --stereo-baseline 0 --seed $s --depth-noise kinect --out $R/room_k$s --quiet
+done
+train $D/solve_kinect $M30 $TEX $SOLVE --frames $R/room_k1 $R/room_k2 $R/room_k3
+train $D/solve_rooms_fb $M30 $TEX $SOLVE --dis-fb-check 0.5
+train $D/solve_teddy_fb_seed1 $M30 $TEX --frames $ROOMS $TEDDY $SOLVE --dis-fb-check 0.5 --seed 1
+for m in solve_kinect solve_rooms_fb solve_teddy_fb_seed1; do
+  $DS vo --sequence $TEDDY --model $D/$m/model.safetensors --out $D/$m/teddy.txt --quiet
+done
