@@ -127,7 +127,14 @@ def flow_for_model(flow: str, path: str | Path, recorded: dict | None = None, **
     try:
         return flow_estimators.make(flow, **options)
     except InputError as e:
-        if not recorded:
+        bad_record = bool(recorded)
+        if recorded and options != recorded:
+            try:
+                flow_estimators.make(flow, **recorded)
+                bad_record = False  # the file's own options are fine: the command line's are not
+            except InputError:
+                pass
+        if not bad_record:
             raise
         raise InputError(path, f"malformed VO model: its meta.flow options {recorded!r} do not set up flow "
                                f"estimator {flow} ({e.what})") from None

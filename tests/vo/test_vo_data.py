@@ -207,6 +207,9 @@ def test_train_cli_synthetic_with_dis_flow_and_a_sample_pool(plane_sequence, mot
     assert models.recorded_flow_options(model, "learned") == {}
     assert models.flow_for_model("dis", model).name == "dis-fast-tex0.5-fb1"
     assert models.flow_for_model("dis", model, min_texture=0.0, preset=None).name == "dis-fast-fb1"
+    with pytest.raises(InputError, match="--dis-fb-check") as bad:  # a bad flag is the flag's fault, not the file's
+        models.flow_for_model("dis", model, fb_max_px=-1.0)
+    assert "malformed" not in str(bad.value)
     odometry = models.odometry(model)  # as bench and SLAM take a model file: on the flow it records
     assert odometry.flow_estimator.name == "dis-fast-tex0.5-fb1" and not odometry.progress
     for flags, name in (([], "dis-fast-tex0.5-fb1"), (["--dis-min-texture", "0", "--dis-preset", "medium",
