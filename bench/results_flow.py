@@ -26,13 +26,10 @@ import numpy as np
 def fb_consistency(fw: np.ndarray, bw: np.ndarray) -> float:
     """Share of pixels whose forward flow ``fw`` (H, W, 2) and the backward flow ``bw`` sampled at the
     landing point cancel within max(1 px, 5 % of |fw|) (pixels landing outside left out)."""
-    from deepslam.vo.flow_estimators import chain_flows
+    from deepslam.vo.flow_estimators import forward_backward_error
 
-    h, w = fw.shape[:2]
-    u, v = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-    mu, mv = u + fw[..., 0], v + fw[..., 1]
-    inside = (mu >= 0) & (mu <= w - 1) & (mv >= 0) & (mv <= h - 1)
-    err = np.linalg.norm(chain_flows([fw, bw]), axis=-1)  # forward then backward: 0 where they agree
+    err = forward_backward_error(fw, bw)  # forward then backward: 0 where they agree, NaN landing outside
+    inside = np.isfinite(err)
     ok = err <= np.maximum(1.0, 0.05 * np.linalg.norm(fw, axis=-1))
     return float(ok[inside].mean()) if inside.any() else float("nan")
 

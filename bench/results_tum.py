@@ -75,9 +75,10 @@ def run(cfg: ResultsTumConfig, out: Path, data: Path) -> dict:
     sub = seq if n == len(seq) else _head(seq, n)
     loops_path = models.models_dir() / "tum_loops.safetensors"
     loops = models.odometry(loops_path, cfg.flow)
+    shipped = {}
     for name, seen in (("tum_cons", "none"), ("tum_cons_teddy", "single frames, no poses")):
         path = models.models_dir() / f"{name}.safetensors"
-        cons, est = VOPredictor.from_file(path), models.flow_for_model(cfg.flow, path)
+        cons, est = shipped[name] = VOPredictor.from_file(path), models.flow_for_model(cfg.flow, path)
         mean6, _ = cons.predict_pairs(seq, pairs, est, progress=False)
         label = f"{name} ({est.name})"
         add(label, seen, chain_euler6(mean6), "VO")
@@ -85,7 +86,8 @@ def run(cfg: ResultsTumConfig, out: Path, data: Path) -> dict:
                        show_progress=False)
         add(label, seen, res.slam.world_from_cam, "SLAM")
     # a classical dense baseline through the same path: the solve head untrained (every weight 1) is the
-    # plain least-squares fit of tum_cons's flow with the sensor depth
+    # plain least-squares fit of the flow, set up as tum_cons_teddy's, with the sensor depth
+    cons, est = shipped["tum_cons_teddy"]
     plain = VOPredictor(unit_weight_net(cons.model.cfg), name="least squares")
     add(f"dense flow + depth least squares ({est.name}; the solve head, every weight 1, untrained)", "-",
         chain_euler6(plain.predict_pairs(seq, pairs, est, progress=False)[0]), "VO")

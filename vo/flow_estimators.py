@@ -99,19 +99,15 @@ def texture_strength(grey: np.ndarray, block: int = 7) -> np.ndarray:
 
 def forward_backward_error(forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
     """|forward(x) + backward(x + forward(x))| per pixel: (H, W) float32 pixels, 0 for a consistent pair,
-    NaN where the forward flow is unknown or lands outside the image (the backward flow is sampled
-    bilinearly, cv2.remap).
+    NaN where the forward flow is unknown or lands outside the image (the round trip is
+    :func:`chain_flows` of the two: the backward flow sampled bilinearly at the landing point).
 
     forward: (H, W, 2) float32 (du, dv) px from image 0 to image 1; backward: the same from 1 to 0.
     """
-    import cv2
-
     h, w = forward.shape[:2]
     xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
     x1, y1 = xs + forward[..., 0], ys + forward[..., 1]
-    at = cv2.remap(np.ascontiguousarray(backward, np.float32), x1, y1, cv2.INTER_LINEAR,
-                   borderMode=cv2.BORDER_REPLICATE)
-    err = np.linalg.norm(forward + at, axis=-1)
+    err = np.linalg.norm(chain_flows([forward, backward]), axis=-1)
     err[~((x1 >= 0) & (x1 <= w - 1) & (y1 >= 0) & (y1 <= h - 1))] = np.nan  # also where the flow is NaN
     return err
 

@@ -343,9 +343,8 @@ def run(args: argparse.Namespace) -> int:
                 args.missing_depth = "invalid" if any(sq.kind == "tum" for sq in seqs) else "infinity"
             n_hold = args.holdout_samples or max(args.batch, int(round(args.holdout * args.samples_per_epoch)))
             if args.synthetic_flow == "exact":
-                for flag, given in (("--dis-min-texture", args.dis_min_texture), ("--dis-fb-check", args.dis_fb_check)):
-                    if given:
-                        raise InputError(None, f"{flag} applies to DIS flow only (--synthetic-flow dis)")
+                # DIS's flags given for exact flow are refused, not ignored (the same check as for any other estimator)
+                flow_estimators.estimator_options("exact", None, args.dis_min_texture, args.dis_fb_check)
                 frames = data.load_frames(seqs, w * f, h * f, args.frame_step, args.depth, args.max_frames, progress)
                 train_frames, hold_frames = frames.split(args.holdout, args.seed)
 
