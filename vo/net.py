@@ -78,6 +78,10 @@ class NetConfig:
     ``valid_channel``; ``kernels``, ``strides`` and the hidden sizes are then unused)."""
     solve_iterations: int = 3
     """Gauss-Newton steps of the ``solve`` head (the first is the linear motion-field solve)."""
+    solve_robust: str = "none"
+    """Kernel of the ``solve`` head's residuals: ``none`` (weighted least squares) or ``cauchy``
+    (iteratively reweighted from the second step on, scale from the residuals' median: see
+    :func:`vo.posesolve.solve_pose`). A model file without this field reads as ``none``."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "kernels", tuple(int(k) for k in self.kernels))
@@ -97,6 +101,8 @@ class NetConfig:
                              "(--depth-channel --valid-channel): it fits the flow with the frame's depth where both are known")
         if not 1 <= int(self.solve_iterations) <= 20:
             raise ValueError(f"solve_iterations must be in 1..20, got {self.solve_iterations}")
+        if self.solve_robust not in ("none", "cauchy"):
+            raise ValueError(f"solve_robust must be none or cauchy, got {self.solve_robust!r}")
 
     @property
     def in_channels(self) -> int:

@@ -133,6 +133,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="regress: the paper's fully connected output; solve: the network weighs each pixel and the "
                         "pose is the weighted Gauss-Newton fit of the flow with the frame's depth (RGB-D, renders; "
                         "needs --depth-channel --valid-channel)")
+    g.add_argument("--solve-iterations", type=int, help="Gauss-Newton steps of the solve head (default 3)")
+    g.add_argument("--solve-robust", choices=("none", "cauchy"), default="none",
+                   help="the solve head's kernel: none (weighted least squares) or cauchy (iteratively reweighted "
+                        "from the second step on, scale from the residuals' median: pixels the flow gets wrong "
+                        "stop pulling the pose)")
     g = p.add_argument_group("recipe")
     g.add_argument("--batch", type=int, default=128)
     g.add_argument("--lr-min", type=float, default=1e-4)
@@ -165,7 +170,8 @@ def net_config(args):
     d = dict(NET_PRESETS[args.net])
     for arg, field in (("height", "input_height"), ("width", "input_width"), ("filters", "filters"),
                        ("kernels", "kernels"), ("conv_strides", "strides"), ("hidden", "hidden_units"),
-                       ("hidden_layers", "hidden_layers"), ("flow_scale", "flow_scale")):
+                       ("hidden_layers", "hidden_layers"), ("flow_scale", "flow_scale"),
+                       ("solve_iterations", "solve_iterations")):
         v = getattr(args, arg, None)
         if v is not None:
             d[field] = v
@@ -177,6 +183,8 @@ def net_config(args):
         d["valid_channel"] = True
     if args.pose_head != "regress":
         d["pose_head"] = args.pose_head
+    if args.solve_robust != "none":
+        d["solve_robust"] = args.solve_robust
     try:
         return NetConfig(**d)
     except ValueError as e:
