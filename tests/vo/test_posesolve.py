@@ -224,3 +224,29 @@ def test_train_and_vo_with_the_solve_head(plane_sequence, motion_json, tmp_path,
     assert main(base + ["--depth-channel", "--out", str(tmp_path / "bad")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--valid-channel" in err and not (tmp_path / "bad").exists()
+    # set-solve: the same weights with the Cauchy kernel and 6 steps, recorded in the meta; the result
+    # is the trained net with its config changed, nothing else
+    capsys.readouterr()
+    robust = tmp_path / "robust.safetensors"
+    assert main(["set-solve", str(out / "model.safetensors"), "--robust", "cauchy", "--iterations", "6",
+                 "--out", str(robust)]) == 0
+    changed, changed_meta = load_model(robust)
+    assert (changed.cfg.solve_robust, changed.cfg.solve_iterations) == ("cauchy", 6)
+    assert changed_meta["solve_changed"] == {"trained_with": {"robust": "none", "iterations": 3},
+                                             "now": {"robust": "cauchy", "iterations": 6}}
+    assert changed_meta["train"] == meta["train"]
+    assert all(torch.equal(a, b) for a, b in zip(model.state_dict().values(), changed.state_dict().values()))
+    model.cfg = changed.cfg
+    x = 3 * torch.randn(2, 2, model.cfg.input_height, model.cfg.input_width)
+    k = torch.tensor([[20.0, 20.0, 16.0, 12.0]] * 2)
+    inv = torch.rand(2, 1, model.cfg.input_height, model.cfg.input_width)
+    with torch.no_grad():
+        assert all(torch.equal(a, b) for a, b in zip(model(x, k, inv), changed(x, k, inv)))
+    capsys.readouterr()
+    regress = tmp_path / "regress"
+    assert main([a for a in base if a != "solve" and a != "--pose-head"] + ["--out", str(regress)]) == 0
+    capsys.readouterr()
+    assert main(["set-solve", str(regress / "model.safetensors"), "--robust", "cauchy",
+                 "--out", str(tmp_path / "x.safetensors")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "solve pose head" in err and not (tmp_path / "x.safetensors").exists()
