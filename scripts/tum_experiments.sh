@@ -86,3 +86,10 @@ train $D/solve_teddy_fb_seed1 $M30 $TEX --frames $ROOMS $TEDDY $SOLVE --dis-fb-c
 for m in solve_kinect solve_rooms_fb solve_teddy_fb_seed1; do
   $DS vo --sequence $TEDDY --model $D/$m/model.safetensors --out $D/$m/teddy.txt --quiet
 done
+
+# Twelfth session (2026-12-03): the shipped tum_cons_teddy recipe (fb 0.5, the Cauchy kernel in the solve, 6 steps;
+# scripts/train_tum_models.sh's tum_cons_teddy_fb_cauchy) at seed 1: the recipe's spread, not used for any choice
+train $D/solve_teddy_cauchy_seed1 $M30 $TEX --frames $ROOMS $TEDDY $SOLVE --dis-fb-check 0.5 \
+    --solve-robust cauchy --solve-iterations 6 --seed 1
+$DS vo --sequence $TEDDY --model $D/solve_teddy_cauchy_seed1/model.safetensors \
+    --out $D/solve_teddy_cauchy_seed1/teddy.txt --quiet
