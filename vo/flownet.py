@@ -248,6 +248,12 @@ class FlowTrainConfig:
     init: str = ""
     """A flow model file (or training checkpoint) whose weights start the training: fine-tuning a trained
     estimator on new data (its network must be ``net``). Empty: random initialisation from ``seed``."""
+    real_batch_size: int = 0
+    """Real (unlabelled) pairs per step for the unsupervised loss (:mod:`vo.flow_unsup`); 0: none."""
+    real_weight: float = 1.0
+    """Weight of the unsupervised loss on the real pairs against the supervised one on the renders."""
+    smooth_weight: float = 4.0
+    """Weight of the edge-aware smoothness term inside the unsupervised loss."""
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
@@ -313,14 +319,8 @@ class FlowPairs:
         ch, cw = crop
         i0, i1, fl = [], [], []
         for k in rng.integers(0, len(self), n):
-            g0, g1, f = self.grey0[k], self.grey1[k], self.flow[k]
-            h, w = g0.shape
-            if h < ch or w < cw:
-                raise InputError(None, f"frames {h}x{w} are smaller than the crop {ch}x{cw}")
-            y, x = int(rng.integers(0, h - ch + 1)), int(rng.integers(0, w - cw + 1))
-            a = g0[y:y + ch, x:x + cw].astype(np.float32) / 255.0
-            b = g1[y:y + ch, x:x + cw].astype(np.float32) / 255.0
-            ff = f[y:y + ch, x:x + cw].astype(np.float32).transpose(2, 0, 1).copy()
+            a, b, (y, x) = crop_pair(rng, self.grey0[k], self.grey1[k], crop, "frames")
+            ff = self.flow[k][y:y + ch, x:x + cw].astype(np.float32).transpose(2, 0, 1).copy()
             if rng.random() < 0.5:  # mirror: u flips sign
                 a, b, ff = a[:, ::-1], b[:, ::-1], ff[:, :, ::-1]
                 ff[0] = -ff[0]
@@ -330,6 +330,19 @@ class FlowPairs:
             fl.append(np.ascontiguousarray(ff))
         return {"img0": torch.from_numpy(np.stack(i0)[:, None]), "img1": torch.from_numpy(np.stack(i1)[:, None]),
                 "flow": torch.from_numpy(np.stack(fl))}
+
+
+def crop_pair(rng: np.random.Generator, g0: np.ndarray, g1: np.ndarray, crop: tuple[int, int],
+              what: str) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    """The same random ``crop`` (height, width) of two grey uint8 images (H, W), as float32 in [0, 1],
+    and its top-left (y, x); InputError naming ``what`` when the images are smaller than the crop."""
+    ch, cw = crop
+    h, w = g0.shape
+    if h < ch or w < cw:
+        raise InputError(None, f"{what} {h}x{w} are smaller than the crop {ch}x{cw}")
+    y, x = int(rng.integers(0, h - ch + 1)), int(rng.integers(0, w - cw + 1))
+    return (g0[y:y + ch, x:x + cw].astype(np.float32) / 255.0, g1[y:y + ch, x:x + cw].astype(np.float32) / 255.0,
+            (y, x))
 
 
 def _photometric_pair(a: np.ndarray, b: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -376,9 +389,13 @@ def endpoint_error(pred: np.ndarray, gt: np.ndarray) -> dict:
 
 
 def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resume: bool = False,
-               progress: bool = True, meta: dict | None = None) -> Path:
+               progress: bool = True, meta: dict | None = None, real_pairs=None) -> Path:
     """Train, checkpointing to ``out_dir/checkpoint.safetensors``; writes ``flow.safetensors`` at the end
-    (or when a cap stops it) and ``history.json``. Returns the model file's path."""
+    (or when a cap stops it) and ``history.json``. Returns the model file's path.
+
+    With ``real_pairs`` (a :class:`vo.flow_unsup.RealPairs`) and ``cfg.real_batch_size`` > 0, each step
+    adds ``cfg.real_weight`` times the unsupervised census + smoothness loss of that many real pairs
+    (drawn from their own random stream, so the supervised batches are those of a run without them)."""
     from tqdm import tqdm
 
     from deepslam.core import atomic
@@ -386,10 +403,12 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
     from deepslam.vo import modelfile
 
     out = Path(out_dir)
-    min_size = getattr(pairs, "min_size", None)
-    if min_size is not None and (min_size()[0] < cfg.crop[0] or min_size()[1] < cfg.crop[1]):
-        raise InputError(None, f"the training crop {cfg.crop[0]}x{cfg.crop[1]} is larger than the smallest frame "
-                               f"({min_size()[0]}x{min_size()[1]}); choose a smaller --crop")
+    use_real = real_pairs is not None and cfg.real_batch_size > 0
+    for what, src in (("frame", pairs), ("real frame at the network's width", real_pairs if use_real else None)):
+        min_size = getattr(src, "min_size", None)
+        if min_size is not None and (min_size()[0] < cfg.crop[0] or min_size()[1] < cfg.crop[1]):
+            raise InputError(None, f"the training crop {cfg.crop[0]}x{cfg.crop[1]} is larger than the smallest {what} "
+                                   f"({min_size()[0]}x{min_size()[1]}); choose a smaller --crop")
     before = torch.get_num_threads()
     torch.set_num_threads(max(1, cfg.threads))
     with output_lock(out):
@@ -435,7 +454,7 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
         bar = tqdm(total=cfg.max_steps, initial=state["step"], desc="flow training", unit="step", disable=not progress,
                    dynamic_ncols=True)
         t_start = time.perf_counter() - state["seconds"]
-        run_loss, run_n = 0.0, 0
+        run_loss, run_n, run_census = 0.0, 0, 0.0
         model.train()
         last = cfg.stop_after_steps if 0 < cfg.stop_after_steps < cfg.max_steps else cfg.max_steps
         while state["step"] < last and time.perf_counter() - t_start < limit:
@@ -446,6 +465,16 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
             with torch.autocast(dev.type, dtype=torch.bfloat16):
                 outs = model(b["img0"], b["img1"])
             loss = multiscale_loss([o.float() for o in outs], b["flow"], cfg.level_weights)
+            if use_real:
+                from deepslam.vo.flow_unsup import unsupervised_loss
+
+                rb = real_pairs.batch(np.random.default_rng([cfg.seed, state["step"], 1]), cfg.real_batch_size, cfg.crop)
+                if dev.type != "cpu":
+                    rb = {k: v.to(dev) for k, v in rb.items()}
+                uloss, parts = unsupervised_loss(model, rb["img0"], rb["img1"], rb["aug0"], rb["aug1"],
+                                                 cfg.smooth_weight, dev.type)
+                run_census += parts["census"]
+                loss = loss + cfg.real_weight * uloss
             if not torch.isfinite(loss):
                 raise RuntimeError(f"non-finite flow loss at step {state['step']}")
             opt.zero_grad(set_to_none=True)
@@ -461,8 +490,11 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
             if state["step"] % 50 == 0:
                 bar.set_postfix(loss=f"{run_loss / run_n:.3g}")
             if state["step"] % cfg.checkpoint_steps == 0:
-                state["history"].append({"step": state["step"], "loss": run_loss / max(run_n, 1), "seconds": state["seconds"]})
-                run_loss, run_n = 0.0, 0
+                entry = {"step": state["step"], "loss": run_loss / max(run_n, 1), "seconds": state["seconds"]}
+                if use_real:
+                    entry["real_census"] = run_census / max(run_n, 1)
+                state["history"].append(entry)
+                run_loss, run_n, run_census = 0.0, 0, 0.0
                 save(CHECKPOINT_FORMAT, ck)
         bar.close()
         save(CHECKPOINT_FORMAT, ck)

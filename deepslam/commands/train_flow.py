@@ -1,4 +1,5 @@
-"""``deepslam train-flow``: train the compact learned flow estimator on rendered pairs with exact flow."""
+"""``deepslam train-flow``: train the compact learned flow estimator on rendered pairs with exact flow, and
+optionally fine-tune it on real unlabelled pairs beside them (``--real``, :mod:`vo.flow_unsup`)."""
 from __future__ import annotations
 
 import argparse
@@ -25,6 +26,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--init", default="", metavar="FLOW_MODEL",
                    help="start from this flow model's weights (fine-tuning, e.g. models/flow_learned.safetensors "
                         "on new renders); default: random initialisation")
+    p.add_argument("--real", nargs="+", default=[], metavar="DIR",
+                   help="real sequences without flow (e.g. ../shared/data/kitti/sequences/06; stereo: both cameras) "
+                        "for unsupervised fine-tuning beside the rendered pairs: census photometric loss with "
+                        "forward-backward occlusion masks and edge-aware smoothness (vo/flow_unsup.py)")
+    p.add_argument("--real-batch", type=int, default=4, help="real pairs per step with --real (4)")
+    p.add_argument("--real-weight", type=float, default=1.0, help="weight of the unsupervised loss (1.0)")
+    p.add_argument("--smooth-weight", type=float, default=4.0, help="weight of its smoothness term (4.0)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -60,10 +68,14 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(None, f"{name} must be in [{lo}, {hi}], got {v}")
     if not (args.lr > 0 and args.lr < 1) or not (args.max_minutes >= 0):
         raise InputError(None, "--lr must be in (0, 1) and --max-minutes >= 0")
+    if args.real and not (1 <= args.real_batch <= 1024 and 0 < args.real_weight < 1e3 and 0 <= args.smooth_weight < 1e3):
+        raise InputError(None, "--real-batch must be in [1, 1024], --real-weight in (0, 1000), --smooth-weight in [0, 1000)")
     device = resolve_device(args.device)
     cfg = FlowTrainConfig(crop=(ch, cw), batch_size=args.batch, lr=args.lr, max_steps=args.max_steps,
                           max_minutes=args.max_minutes, stop_after_steps=args.stop_after, seed=args.seed,
-                          threads=args.threads, device=str(device), init=args.init)
+                          threads=args.threads, device=str(device), init=args.init,
+                          real_batch_size=args.real_batch if args.real else 0, real_weight=args.real_weight,
+                          smooth_weight=args.smooth_weight)
     init_meta = {}
     if args.init:  # checked before minutes of loading frames
         import hashlib
@@ -74,8 +86,16 @@ def run(args: argparse.Namespace) -> int:
         initial_weights(cfg)
         init_meta["init_sha256"] = hashlib.sha256(Path(args.init).read_bytes()).hexdigest()
     seqs = [open_sequence(d) for d in _sequence_dirs(args.sequences)]
+    real = [open_sequence(d) for d in args.real]
     pairs = FlowPairs(seqs, progress=not args.quiet)
     meta = {"sequences": [str(s.root) for s in seqs], "pairs": len(pairs), **init_meta}
-    path = train_flow(cfg, pairs, args.out, resume=args.resume, progress=not args.quiet, meta=meta)
+    real_pairs = None
+    if real:
+        from deepslam.vo.flow_unsup import RealPairs
+
+        real_pairs = RealPairs(real, cfg.net.work_width, progress=not args.quiet)
+        meta.update(real_sequences=[str(s.root) for s in real], real_pairs=len(real_pairs))
+    path = train_flow(cfg, pairs, args.out, resume=args.resume, progress=not args.quiet, meta=meta,
+                      real_pairs=real_pairs)
     print(f"model: {path}")
     return 0
