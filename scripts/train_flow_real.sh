@@ -3,7 +3,7 @@
 # occlusion masks and edge-aware smoothness, vo/flow_unsup.py) beside rendered pairs with exact flow that keep it
 # anchored (the stage-1 `deepslam dataset` sequences and the six grainy-road streets of scripts/train_flow_model.sh).
 # KITTI 07 is never trained on: it is where the result is measured. Thirteenth session (2026-12-03). About
-# 40 minutes on 2 cores (renders ~8 min, 2,000 steps ~25 min); resumable.
+# 90 minutes on 2 cores (renders ~5 min, 2,000 steps ~37 min, twice); resumable.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export MUJOCO_GL=${MUJOCO_GL:-egl} PYOPENGL_PLATFORM=${PYOPENGL_PLATFORM:-egl}
@@ -24,3 +24,9 @@ $DS train-flow --init models/flow_learned.safetensors --lr 2e-4 --max-steps 2000
   --real $KITTI/06 --real-batch 4 --out out/flow_real $([ -d out/flow_real ] && echo --resume)
 .venv/bin/python -m bench.results_flow --model out/flow_real/flow.safetensors \
   --held out/flow_held/seq_0000 out/flow_held/seq_0001 $G/held_g41 --pairs 20 --out out/results/flow_real
+# the same with second-order smoothness (the first run over-moved the road: bench.results_road)
+$DS train-flow --init models/flow_learned.safetensors --lr 2e-4 --max-steps 2000 --quiet \
+  --sequences out/flow_data $G/varied_g31 $G/varied_g32 $G/varied_g33 $G/narrow_g34 $G/narrow_g35 $G/narrow_g36 \
+  --real $KITTI/06 --real-batch 4 --smooth-order 2 --out out/flow_real2 $([ -d out/flow_real2 ] && echo --resume)
+.venv/bin/python -m bench.results_flow --model out/flow_real2/flow.safetensors \
+  --held out/flow_held/seq_0000 out/flow_held/seq_0001 $G/held_g41 --pairs 20 --out out/results/flow_real2

@@ -13,8 +13,10 @@ on (UFlow, Jonschkowski et al. 2020; ARFlow, Liu et al. 2020), written for this 
   |b(x + f)|^2) + 0.5``, gradient stopped): occluded pixels have no match and are left out, as are
   pixels flowing out of the crop and the census's border (an untrained network fails the check almost
   everywhere; then only the in-image mask is used, :data:`MIN_CONSISTENT_SHARE`);
-- **edge-aware smoothness** of the flow (first order, at the estimate's 1/4 resolution, weighted by
-  ``exp(-150 |grad I|)``), which fills what the photometric term cannot see (textureless road, sky).
+- **edge-aware smoothness** of the flow (first or second order, at the estimate's 1/4 resolution,
+  weighted by ``exp(-150 |grad I|)``), which fills what the photometric term cannot see (textureless
+  road, sky). First order pulls a road plane's flow, which grows towards the image bottom, towards a
+  constant; second order leaves a linear change free.
 
 Both directions of each real pair are estimated and both are scored. The images the loss compares are
 the un-augmented ones; the network sees photometrically augmented copies (the same draw as the
@@ -100,19 +102,29 @@ def photometric_census_loss(img0: torch.Tensor, img1: torch.Tensor, flow: torch.
     return ((dist.abs() + 0.01) ** 0.4 * m).sum() / m.sum().clamp_min(1.0)
 
 
-def smoothness_loss(flow: torch.Tensor, img: torch.Tensor) -> torch.Tensor:
-    """First-order edge-aware smoothness of ``flow`` (B, 2, h, w) px at its own resolution, with edges of
-    ``img`` (B, 1, H, W) averaged down to it. A scalar (mean absolute gradient, px per pixel)."""
+def smoothness_loss(flow: torch.Tensor, img: torch.Tensor, order: int = 1) -> torch.Tensor:
+    """Edge-aware smoothness of ``flow`` (B, 2, h, w) px at its own resolution, with edges of ``img``
+    (B, 1, H, W) averaged down to it. ``order`` 1: mean absolute first difference (a constant flow is
+    free); 2: mean absolute second difference (a flow varying linearly across the image, as a road
+    plane's does, is free), each weighted by exp(-:data:`SMOOTH_EDGE_WEIGHT` |grad I|) summed over the
+    differences it spans. A scalar, px per pixel (per pixel squared)."""
+    if order not in (1, 2):
+        raise ValueError(f"smoothness order must be 1 or 2, got {order}")
     im = F.adaptive_avg_pool2d(img, flow.shape[-2:])
-    wx = torch.exp(-SMOOTH_EDGE_WEIGHT * (im[..., :, 1:] - im[..., :, :-1]).abs())
-    wy = torch.exp(-SMOOTH_EDGE_WEIGHT * (im[..., 1:, :] - im[..., :-1, :]).abs())
-    gx = (flow[..., :, 1:] - flow[..., :, :-1]).abs()
-    gy = (flow[..., 1:, :] - flow[..., :-1, :]).abs()
-    return (wx * gx).mean() + (wy * gy).mean()
+    ex = (im[..., :, 1:] - im[..., :, :-1]).abs()
+    ey = (im[..., 1:, :] - im[..., :-1, :]).abs()
+    gx = flow[..., :, 1:] - flow[..., :, :-1]
+    gy = flow[..., 1:, :] - flow[..., :-1, :]
+    if order == 2:
+        ex, ey = ex[..., :, 1:] + ex[..., :, :-1], ey[..., 1:, :] + ey[..., :-1, :]
+        gx, gy = gx[..., :, 1:] - gx[..., :, :-1], gy[..., 1:, :] - gy[..., :-1, :]
+    return ((torch.exp(-SMOOTH_EDGE_WEIGHT * ex) * gx.abs()).mean()
+            + (torch.exp(-SMOOTH_EDGE_WEIGHT * ey) * gy.abs()).mean())
 
 
 def unsupervised_loss(model, img0: torch.Tensor, img1: torch.Tensor, aug0: torch.Tensor, aug1: torch.Tensor,
-                      smooth_weight: float, autocast_device: str = "cpu") -> tuple[torch.Tensor, dict]:
+                      smooth_weight: float, autocast_device: str = "cpu", smooth_order: int = 1
+                      ) -> tuple[torch.Tensor, dict]:
     """The census + smoothness loss of ``model`` on real pairs (both directions), and its parts.
 
     Args:
@@ -120,6 +132,7 @@ def unsupervised_loss(model, img0: torch.Tensor, img1: torch.Tensor, aug0: torch
         img0, img1: (B, 1, H, W) float32 in [0, 1], the images the loss compares (H, W multiples of 32).
         aug0, aug1: the same pairs photometrically augmented: what the network is given.
         smooth_weight: weight of the smoothness term.
+        smooth_order: 1 or 2, the smoothness term's order (:func:`smoothness_loss`).
         autocast_device: device type for bf16 autocast of the network's forward pass.
     Returns:
         (loss scalar, {"census", "smooth", "non_occluded"} floats for the log).
@@ -133,7 +146,7 @@ def unsupervised_loss(model, img0: torch.Tensor, img1: torch.Tensor, aug0: torch
     fw, bw = full[:b], full[b:]
     m_fw, m_bw = non_occluded(fw, bw), non_occluded(bw, fw)
     census = 0.5 * (photometric_census_loss(img0, img1, fw, m_fw) + photometric_census_loss(img1, img0, bw, m_bw))
-    smooth = 0.5 * (smoothness_loss(coarse[:b], img0) + smoothness_loss(coarse[b:], img1))
+    smooth = 0.5 * (smoothness_loss(coarse[:b], img0, smooth_order) + smoothness_loss(coarse[b:], img1, smooth_order))
     loss = census + smooth_weight * smooth
     return loss, {"census": float(census.detach()), "smooth": float(smooth.detach()),
                   "non_occluded": float(0.5 * (m_fw.mean() + m_bw.mean()))}

@@ -254,6 +254,9 @@ class FlowTrainConfig:
     """Weight of the unsupervised loss on the real pairs against the supervised one on the renders."""
     smooth_weight: float = 4.0
     """Weight of the edge-aware smoothness term inside the unsupervised loss."""
+    smooth_order: int = 1
+    """Order of that smoothness term: 1 (first differences) or 2 (second differences: a linearly varying
+    flow, as a plane's, is free)."""
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
@@ -472,7 +475,7 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
                 if dev.type != "cpu":
                     rb = {k: v.to(dev) for k, v in rb.items()}
                 uloss, parts = unsupervised_loss(model, rb["img0"], rb["img1"], rb["aug0"], rb["aug1"],
-                                                 cfg.smooth_weight, dev.type)
+                                                 cfg.smooth_weight, dev.type, cfg.smooth_order)
                 run_census += parts["census"]
                 loss = loss + cfg.real_weight * uloss
             if not torch.isfinite(loss):

@@ -33,6 +33,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--real-batch", type=int, default=4, help="real pairs per step with --real (4)")
     p.add_argument("--real-weight", type=float, default=1.0, help="weight of the unsupervised loss (1.0)")
     p.add_argument("--smooth-weight", type=float, default=4.0, help="weight of its smoothness term (4.0)")
+    p.add_argument("--smooth-order", type=int, choices=(1, 2), default=1,
+                   help="order of the smoothness term: 1 (first differences) or 2 (second: a plane's flow is free)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -75,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
                           max_minutes=args.max_minutes, stop_after_steps=args.stop_after, seed=args.seed,
                           threads=args.threads, device=str(device), init=args.init,
                           real_batch_size=args.real_batch if args.real else 0, real_weight=args.real_weight,
-                          smooth_weight=args.smooth_weight)
+                          smooth_weight=args.smooth_weight, smooth_order=args.smooth_order)
     init_meta = {}
     if args.init:  # checked before minutes of loading frames
         import hashlib

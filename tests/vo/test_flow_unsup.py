@@ -62,6 +62,19 @@ def test_smoothness_is_zero_for_a_constant_flow_and_spares_image_edges():
     assert float(smoothness_loss(flow, img_edge)) < 0.05 * float(smoothness_loss(flow, img_flat))
 
 
+def test_second_order_smoothness_leaves_a_planes_linear_flow_free():
+    img = torch.full((1, 1, 16, 16), 0.5)
+    v = torch.arange(16, dtype=torch.float32)
+    flow = torch.zeros(1, 2, 16, 16)
+    flow[:, 1] = 0.3 * v.view(16, 1)  # dv grows linearly towards the bottom, as a road plane's does
+    assert float(smoothness_loss(flow, img, order=1)) > 0.1
+    assert float(smoothness_loss(flow, img, order=2)) == pytest.approx(0.0, abs=1e-6)
+    flow[:, 1, 8:] += 2.0  # a step is not free in either order
+    assert float(smoothness_loss(flow, img, order=2)) > 0.05
+    with pytest.raises(ValueError):
+        smoothness_loss(flow, img, order=3)
+
+
 def test_real_pairs_cover_both_stereo_cameras_at_the_network_width(plane_sequence):
     from deepslam.core.readers import open_sequence
 
