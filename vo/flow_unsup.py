@@ -140,9 +140,10 @@ def unsupervised_loss(model, img0: torch.Tensor, img1: torch.Tensor, aug0: torch
     b = img0.shape[0]
     with torch.autocast(autocast_device, dtype=torch.bfloat16):
         outs = model(torch.cat([aug0, aug1]), torch.cat([aug1, aug0]))
+    from deepslam.vo.flownet import upsample_flow
+
     coarse = outs[-1].float()  # (2B, 2, H/4, W/4) at the finest estimated level
-    f = img0.shape[-1] // coarse.shape[-1]
-    full = f * F.interpolate(coarse, scale_factor=f, mode="bilinear", align_corners=False)
+    full = upsample_flow(coarse, img0.shape[-1] // coarse.shape[-1])
     fw, bw = full[:b], full[b:]
     m_fw, m_bw = non_occluded(fw, bw), non_occluded(bw, fw)
     census = 0.5 * (photometric_census_loss(img0, img1, fw, m_fw) + photometric_census_loss(img1, img0, bw, m_bw))
@@ -166,16 +167,13 @@ class RealPairs:
     """
 
     def __init__(self, sequences, work_width: int, progress: bool = True):
-        import cv2
         from tqdm import tqdm
 
         from deepslam.vo.flow_estimators import to_grey
+        from deepslam.vo.flownet import resize_to_width
 
         def resized(img):
-            g = to_grey(img)
-            h0, w0 = g.shape
-            h = max(32, int(round(h0 * work_width / w0)))
-            return cv2.resize(g, (work_width, h), interpolation=cv2.INTER_AREA if work_width < w0 else cv2.INTER_LINEAR)
+            return resize_to_width(to_grey(img), work_width)
 
         self.grey0, self.grey1, self.names = [], [], []
         for seq in sequences:

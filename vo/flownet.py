@@ -133,14 +133,27 @@ class FlowNet(nn.Module):
         return outs
 
 
-def _prepare(grey: np.ndarray, width: int) -> tuple[torch.Tensor, int, int]:
-    """A grey uint8 image (H, W) resized to ``width`` and zero-padded to multiples of 32: (1, 1, Hp, Wp)
-    float32 in [0, 1], and the resized (h, w) before padding."""
+def resize_to_width(grey: np.ndarray, width: int) -> np.ndarray:
+    """A grey uint8 image (H, W) resized to ``width`` px, its height keeping the aspect (at least 32 px):
+    what the network is given (area averaging when shrinking, bilinear when enlarging)."""
     import cv2
 
     h0, w0 = grey.shape
     h = max(32, int(round(h0 * width / w0)))
-    img = cv2.resize(grey, (width, h), interpolation=cv2.INTER_AREA if width < w0 else cv2.INTER_LINEAR)
+    return cv2.resize(grey, (width, h), interpolation=cv2.INTER_AREA if width < w0 else cv2.INTER_LINEAR)
+
+
+def upsample_flow(flow: torch.Tensor, factor: int) -> torch.Tensor:
+    """A flow estimate (B, 2, h, w) in px of its level, bilinearly upsampled by ``factor`` and scaled to
+    px of the finer grid: (B, 2, h * factor, w * factor)."""
+    return factor * F.interpolate(flow, scale_factor=factor, mode="bilinear", align_corners=False)
+
+
+def _prepare(grey: np.ndarray, width: int) -> tuple[torch.Tensor, int, int]:
+    """A grey uint8 image (H, W) resized to ``width`` and zero-padded to multiples of 32: (1, 1, Hp, Wp)
+    float32 in [0, 1], and the resized (h, w) before padding."""
+    img = resize_to_width(grey, width)
+    h = img.shape[0]
     hp, wp = -(-h // 32) * 32, -(-width // 32) * 32
     t = torch.zeros(1, 1, hp, wp)
     t[0, 0, :h, :width] = torch.from_numpy(img.astype(np.float32) / 255.0)
@@ -184,9 +197,7 @@ class LearnedFlow:
         try:
             t0, h, w = _prepare(g0, self.model.cfg.work_width)
             t1 = _prepare(g1, self.model.cfg.work_width)[0]
-            flow = self.model(t0, t1)[-1]
-            f = 2 ** self.model.cfg.finest_level
-            up = f * F.interpolate(flow, scale_factor=f, mode="bilinear", align_corners=False)
+            up = upsample_flow(self.model(t0, t1)[-1], 2 ** self.model.cfg.finest_level)
         finally:
             torch.set_num_threads(before)
         work = up[0, :, :h, :w].permute(1, 2, 0).numpy()
@@ -458,6 +469,8 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
                    dynamic_ncols=True)
         t_start = time.perf_counter() - state["seconds"]
         run_loss, run_n, run_census = 0.0, 0, 0.0
+        if use_real:
+            from deepslam.vo.flow_unsup import unsupervised_loss
         model.train()
         last = cfg.stop_after_steps if 0 < cfg.stop_after_steps < cfg.max_steps else cfg.max_steps
         while state["step"] < last and time.perf_counter() - t_start < limit:
@@ -469,8 +482,6 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
                 outs = model(b["img0"], b["img1"])
             loss = multiscale_loss([o.float() for o in outs], b["flow"], cfg.level_weights)
             if use_real:
-                from deepslam.vo.flow_unsup import unsupervised_loss
-
                 rb = real_pairs.batch(np.random.default_rng([cfg.seed, state["step"], 1]), cfg.real_batch_size, cfg.crop)
                 if dev.type != "cpu":
                     rb = {k: v.to(dev) for k, v in rb.items()}

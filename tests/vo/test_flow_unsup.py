@@ -1,5 +1,5 @@
-"""Unsupervised fine-tuning of the learned flow on unlabelled pairs (vo.flow_unsup): the census loss,
-the occlusion mask, the smoothness term, the real-pair loader, and that the loss alone teaches a flow."""
+"""Unsupervised fine-tuning of the learned flow on unlabelled pairs (vo.flow_unsup): the census loss and
+its basin, the occlusion mask, the smoothness term, the real-pair loader, and training with real pairs."""
 import dataclasses
 
 import numpy as np
