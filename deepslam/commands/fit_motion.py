@@ -5,7 +5,8 @@ import argparse
 import json
 
 NAME = "fit-motion"
-HELP = "fit a Student-t per DoF to the relative motions of ground-truth camera trajectories (motion.json)"
+HELP = ("fit the motion model (a Student-t per DoF, or a joint KDE) to the relative motions of ground-truth "
+        "camera trajectories (motion.json)")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -20,6 +21,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--loop-fit", choices=("truncated", "plain"), default="truncated",
                    help="loop distribution's Student-t: refined for the truncation to the data's range (default), "
                         "or scipy's plain fit (narrower samples; what models/motion/kitti_s1.json's loops used)")
+    p.add_argument("--consecutive", choices=("student-t", "kde"), default="student-t",
+                   help="consecutive motions: an independent Student-t per DoF (the paper's; default) or a joint "
+                        "kernel density estimate of the motions themselves (keeps a turning car's sideways slide "
+                        "and the real speed distribution; the loop distribution stays Student-t)")
     p.add_argument("--plot", default=None, metavar="PNG", help="write the paper's Figure 3 (histograms + fitted densities)")
     p.add_argument("--json", action="store_true", help="print a JSON summary instead of a table")
 
@@ -38,17 +43,19 @@ def run(args: argparse.Namespace) -> int:
                                  max_angle_deg=args.loop_max_angle)
     try:
         model, vec, loop_vec = motion.fit_motion(trajectories, args.stride, args.loops, loop_cfg,
-                                                 sources=[Path(p).name for p in args.poses], loop_fit=args.loop_fit)
+                                                 sources=[Path(p).name for p in args.poses], loop_fit=args.loop_fit,
+                                                 consecutive_kind=args.consecutive)
     except ValueError as e:
         raise InputError(None, str(e)) from None
     model.save(args.out)
     ks = motion.ks_statistics(model.consecutive, vec)
-    summary = {"out": args.out, "stride": args.stride, "num_motions": len(vec),
-               "consecutive": {n: {**_d(d), "ks": float(k)} for n, d, k in zip(motion.DOF_NAMES, model.consecutive.dofs, ks)}}
+    summary = {"out": args.out, "stride": args.stride, "num_motions": len(vec), "consecutive_kind": args.consecutive,
+               "consecutive": {n: {**_d(model.consecutive, i), "ks": float(k)}
+                               for i, (n, k) in enumerate(zip(motion.DOF_NAMES, ks))}}
     if model.loop is not None:
         ks_loop = motion.ks_statistics(model.loop, loop_vec)
         summary["num_loop_motions"] = len(loop_vec)
-        summary["loop"] = {n: {**_d(d), "ks": float(k)} for n, d, k in zip(motion.DOF_NAMES, model.loop.dofs, ks_loop)}
+        summary["loop"] = {n: {**_d(model.loop, i), "ks": float(k)} for i, (n, k) in enumerate(zip(motion.DOF_NAMES, ks_loop))}
     if args.plot:
         motion.plot_motion_fit(args.plot, vec, model.consecutive,
                                title=f"Relative motions at stride {args.stride} ({', '.join(model.sources)})",
@@ -63,9 +70,15 @@ def run(args: argparse.Namespace) -> int:
                 continue
             print(f"  {part}:")
             for name, d in summary[part].items():
-                print(f"    {name:>8}: df={d['df']:.3g} loc={d['loc']:+.3g} scale={d['scale']:.3g} KS={d['ks']:.3f}")
+                fit = (f"bandwidth={d['bandwidth']:.3g}" if "bandwidth" in d
+                       else f"df={d['df']:.3g} loc={d['loc']:+.3g} scale={d['scale']:.3g}")
+                print(f"    {name:>8}: {fit} KS={d['ks']:.3f}")
     return 0
 
 
-def _d(d) -> dict:
+def _d(six, k: int) -> dict:
+    """Summary of DoF ``k`` of a Student-t (df, loc, scale) or KDE (bandwidth) distribution."""
+    if hasattr(six, "bandwidth"):
+        return {"bandwidth": float(six.bandwidth[k])}
+    d = six.dofs[k]
     return {"df": d.df, "loc": d.loc, "scale": d.scale}

@@ -1,4 +1,4 @@
-"""Student-t motion model: fit on KITTI ground truth, samples vs data, JSON, loops, the CLI."""
+"""Motion models (the paper's Student-t per DoF, the joint KDE): fit on KITTI ground truth, samples vs data, JSON, loops, the CLI."""
 from __future__ import annotations
 
 import json
@@ -12,8 +12,8 @@ from deepslam.core import se3
 from deepslam.core.errors import InputError
 from deepslam.core.trajectory import Trajectory
 from deepslam.cli import main
-from deepslam.gen.motion import (DOF_NAMES, LoopConfig, MotionModel, StudentT, fit_motion, fit_student_t, ks_statistics,
-                        loop_motions, relative_vectors)
+from deepslam.gen.motion import (DOF_NAMES, KdeSix, LoopConfig, MotionModel, StudentT, fit_motion, fit_six,
+                                 fit_student_t, ks_statistics, loop_motions, relative_vectors)
 
 
 @pytest.fixture(scope="module")
@@ -194,3 +194,93 @@ def test_cli_fit_motion(shared_data, tmp_path, capsys):
     assert main(["fit-motion", "--poses", poses[0], "--loops", "--loop-gap", "5000", "--out", str(tmp_path / "m3.json")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "loop motions" in err[0]
+
+
+# ------------------------------------------------------------------------------------ the joint KDE model
+
+@pytest.fixture(scope="module")
+def kitti_kde(shared_data):
+    """KDE of KITTI 00-05 and 08-10 (what models/motion/kitti_no0607_kde.json holds) and its data."""
+    from deepslam.core.trajio import read_trajectory
+
+    trajs = [read_trajectory(shared_data / "kitti" / "poses" / f"{k:02d}.txt") for k in (0, 1, 2, 3, 4, 5, 8, 9, 10)]
+    model, vec, _ = fit_motion(trajs, 1, consecutive_kind="kde")
+    return model, vec
+
+
+def test_kde_keeps_what_the_dofs_do_together(kitti_kde):
+    """The KDE draws the marginals as the data has them AND the turning camera's sideways slide
+    (t_x with yaw); the paper's independent Student-t reproduce the marginals but lose the slide."""
+    model, vec = kitti_kde
+    assert isinstance(model.consecutive, KdeSix) and model.consecutive.num_motions == len(vec) == 20990
+    draws = model.consecutive.sample(20_000, np.random.default_rng(0))
+    for k, name in enumerate(DOF_NAMES):
+        assert stats.ks_2samp(vec[:, k], draws[:, k]).statistic < 0.03, name
+        assert model.consecutive.lo[k] <= draws[:, k].min() and draws[:, k].max() <= model.consecutive.hi[k]
+    assert np.all(ks_statistics(model.consecutive, vec) < 0.03)
+    r_data = np.corrcoef(vec[:, 1], vec[:, 3])[0, 1]
+    r_kde = np.corrcoef(draws[:, 1], draws[:, 3])[0, 1]
+    t_draws = fit_six(vec).sample(20_000, np.random.default_rng(0))
+    r_t = np.corrcoef(t_draws[:, 1], t_draws[:, 3])[0, 1]
+    assert r_data > 0.45 and abs(r_kde - r_data) < 0.03 and abs(r_t) < 0.05, (r_data, r_kde, r_t)
+    # In turns (|yaw| > 0.02 rad a frame) the slide per radian of yaw is the data's.
+    turn = np.abs(draws[:, 1]) > 0.02
+    turn_data = np.abs(vec[:, 1]) > 0.02
+    assert abs(np.median(draws[turn, 3] / draws[turn, 1]) - np.median(vec[turn_data, 3] / vec[turn_data, 1])) < 0.05
+    # The jitter is small against each DoF's spread: draws do not repeat the data, nor blur it.
+    assert np.all(model.consecutive.bandwidth < 0.2 * vec.std(axis=0))
+    assert len(np.unique(draws[:, 5])) == len(draws)
+
+
+def test_kde_json_round_trip_and_same_draws(kitti_kde, tmp_path):
+    model = kitti_kde[0]
+    path = model.save(tmp_path / "m.json")
+    text = path.read_text()
+    assert len(text) < 120 * model.consecutive.num_motions  # one motion a line, not one number a line
+    back = MotionModel.load(path)
+    np.testing.assert_array_equal(back.consecutive.motions, model.consecutive.motions)
+    np.testing.assert_array_equal(back.consecutive.bandwidth, model.consecutive.bandwidth)
+    v1, _ = model.sample(50, np.random.default_rng(3))
+    v2, _ = back.sample(50, np.random.default_rng(3))
+    np.testing.assert_array_equal(v1, v2)
+    v3, _ = back.sample(50, np.random.default_rng(4))
+    assert not np.array_equal(v1, v3)
+
+
+@pytest.mark.parametrize("edit,what", [
+    (lambda c: c.__setitem__("kind", "gmm"), "consecutive.kind must be"),
+    (lambda c: c.__setitem__("motions", []), "non-empty list"),
+    (lambda c: c.__setitem__("motions", [[0.0] * 5] * 3), "shape"),
+    (lambda c: c.__setitem__("motions", [[0.0] * 6, ["a"] * 6]), "list of [6 numbers]"),
+    (lambda c: c["motions"][2].__setitem__(4, math.inf), "motions[2] holds a non-finite value"),
+    (lambda c: c.__setitem__("num_motions", 7), "but 30 motions are stored"),
+    (lambda c: c["bandwidth"].__setitem__("t_z", 0.0), "bandwidth.t_z must be > 0"),
+    (lambda c: c["bandwidth"].pop("t_x"), "bandwidth.t_x must be a finite number"),
+    (lambda c: c.pop("lo"), "missing key 'lo'"),
+    (lambda c: c["hi"].__setitem__("euler_y", -1.0), "lo must be below hi"),
+    (lambda c: c["motions"][0].__setitem__(0, 9.0), "beyond 3.14159 rad"),
+])
+def test_malformed_kde_names_the_file(tmp_path, edit, what):
+    from deepslam.gen.motion import fit_kde
+
+    rng = np.random.default_rng(0)
+    vec = rng.normal(0, 0.01, (30, 6)) + np.array([0, 0, 0, 0, 0, -1.0])
+    d = MotionModel(1, fit_kde(vec)).to_dict()
+    edit(d["consecutive"])
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(d))
+    with pytest.raises(InputError) as e:
+        MotionModel.load(path)
+    assert str(path) in str(e.value) and what in str(e.value)
+
+
+def test_cli_fit_motion_kde(shared_data, tmp_path, capsys):
+    poses = [str(shared_data / "kitti" / "poses" / f"{k:02d}.txt") for k in (4, 6)]
+    out, png = tmp_path / "kde.json", tmp_path / "kde.png"
+    assert main(["fit-motion", "--poses", *poses, "--consecutive", "kde", "--out", str(out), "--plot", str(png),
+                 "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["consecutive_kind"] == "kde" and set(summary["consecutive"]["t_z"]) == {"bandwidth", "ks"}
+    model = MotionModel.load(out)
+    assert isinstance(model.consecutive, KdeSix) and model.consecutive.num_motions == 270 + 1100
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
