@@ -134,6 +134,28 @@ def test_real_slice_table_says_what_each_model_saw(shared_data, tmp_path):
     assert "frames the model saw in training" in md and "KITTI 07 (160 frames" in md
 
 
+def test_turn_table_measures_both_sets_and_refuses_a_bad_model_spec(shared_data, tmp_path, monkeypatch, capsys):
+    """results_turn with few frames: the shipped DIS model on the held-out street and 06, each turn read
+    without and with the slide; a malformed --model is one line, exit 2."""
+    from bench import results_turn
+
+    monkeypatch.setattr(results_turn, "SAMPLES", 3)
+    monkeypatch.setattr(results_turn, "HELDOUT", ("street", "car", 8, 200, 7))
+    rep = results_turn.run([("dis", "kitti", "dis")], tmp_path, shared_data)
+    assert [r["frames"].split(" ")[0] for r in rep["rows"]] == ["simulated", "KITTI"]
+    for r in rep["rows"]:
+        assert r["model_file"] == "kitti_cons_dis" and len(r["reads"]) == 8
+        assert [x["slide_m"] != 0 for x in r["reads"]] == [False, True] * 4
+        assert all(0.5 < x["yaw_ratio_median"] < 1.5 for x in r["reads"]), r["reads"]
+        assert np.isfinite(r["yaw_gain"]) and np.isfinite(r["slide_read_fraction"])
+    assert rep["slide_per_yaw_per_m"] == pytest.approx(0.88)
+    assert "yaw gain from the slide" in (tmp_path / "results.md").read_text()
+    capsys.readouterr()
+    assert results_turn.main(["--no-shipped", "--model", "x=m.safetensors@raft", "--out", str(tmp_path / "b")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "NAME=PATH" in err[0]
+
+
 def test_tum_results_quick_rows_and_baselines(shared_data, tmp_path):
     """results_tum --quick: every row scored, the standing-still baseline is the ground truth's spread,
     the classical baseline with sensor depth beats it."""

@@ -7,6 +7,9 @@ estimator on a second view rendered from the frame), and the model's forward rea
 truth. A model that reads metric motion from the flow gives read/true = 1 at every speed; one that
 leans on its training motion prior pulls slow speeds up and fast ones down.
 
+:func:`turn_reads` does the same for turns: yaw and forward motion, without and with the sideways slide a
+car's camera makes in a turn, to see whether the model reads the slide or turns it into yaw.
+
 Nothing here uses poses of the frames: the same single-frame machinery as training
 (:class:`deepslam.vo.data.SyntheticSource`, :class:`deepslam.vo.data.EstimatedFlowSource`).
 """
@@ -80,3 +83,72 @@ def flatness(reads: list[SpeedRead], min_speed_mps: float = 2.0) -> dict:
     still = [r.read_median_m for r in reads if r.speed_mps == 0]
     return {"ratio_min": float(min(ratios)) if ratios else None, "ratio_max": float(max(ratios)) if ratios else None,
             "read_at_rest_m": still[0] if still else None, "min_speed_mps": min_speed_mps}
+
+
+# --------------------------------------------------------------------------------------- turns
+
+SLIDE_PER_YAW_PER_M = 0.88
+"""How far KITTI's camera slides sideways in a turn: metres of t_x (of cam1_from_cam0) per radian of yaw
+per metre forward, the median over the frames of KITTI 00-05, 08-10 turning by more than 0.02 rad (the
+arc's chord plus the camera ahead of the rear axle; t_x takes yaw's sign)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class TurnRead:
+    """The model's read of one turn (yaw + forward, with or without the sideways slide) over the frames."""
+
+    yaw_rad: float
+    """True yaw (euler_y of cam1_from_cam0), rad."""
+    forward_m: float
+    """True forward motion, metres (t_z = -forward_m)."""
+    slide_m: float
+    """True sideways slide t_x, metres (0, or :data:`SLIDE_PER_YAW_PER_M` x yaw x forward)."""
+    yaw_ratio_median: float
+    """Median of read yaw / true yaw."""
+    slide_read_median_m: float
+    """Median t_x read, metres."""
+    forward_ratio_median: float
+    """Median of read forward / true forward."""
+
+
+def turn_reads(predictor, make_source, n_frames: int, yaws_rad=(-0.04, 0.04), forwards_m=(0.5, 1.0),
+               slide_per_yaw_per_m: float = SLIDE_PER_YAW_PER_M, seed: int = 0) -> list[TurnRead]:
+    """The model's read of turns without and with the sideways slide a car's camera makes, same frames.
+
+    A model that reads the flow gives the same yaw either way and reads the slide in t_x; one trained on
+    motions whose yaw and t_x are independent (the paper's per-DoF prior) may read the slide as more yaw.
+
+    Args:
+        predictor, make_source, n_frames, seed: as :func:`speed_sweep`.
+        yaws_rad: yaws per frame, rad (both signs: left and right turns).
+        forwards_m: forward motions per frame, metres.
+        slide_per_yaw_per_m: t_x per rad of yaw per m forward of the "with slide" motions.
+
+    Returns:
+        For every yaw and forward motion, the read without the slide, then with it.
+    """
+    out = []
+    for yaw in yaws_rad:
+        for fwd in forwards_m:
+            for slide in (0.0, slide_per_yaw_per_m * yaw * fwd):
+                vec = np.array([0.0, float(yaw), 0.0, float(slide), 0.0, -float(fwd)])
+                batch = make_source(lambda n, rng, v=vec: np.tile(v, (n, 1))).make_batch(
+                    np.random.default_rng(seed), int(n_frames))
+                extra = (batch["inv_depth"],) if "inv_depth" in batch else ()
+                mean, _ = predictor.predict(batch["flow"], batch["intrinsics"], *extra)
+                out.append(TurnRead(float(yaw), float(fwd), float(slide), float(np.median(mean[:, 1] / yaw)),
+                                    float(np.median(mean[:, 3])), float(np.median(-mean[:, 5] / fwd))))
+    return out
+
+
+def slide_effect(reads: list[TurnRead]) -> dict:
+    """Summary of :func:`turn_reads`: ``yaw_gain`` (mean over the turns of the yaw ratio with the slide minus
+    without: 0 for a model that reads the flow, > 0 where the slide is read as yaw) and
+    ``slide_read_fraction`` (mean of (t_x read with - without) / true slide: 1 reads the slide, 0 ignores it)."""
+    plain = {(r.yaw_rad, r.forward_m): r for r in reads if r.slide_m == 0}
+    slid = [r for r in reads if r.slide_m != 0]
+    gain = [r.yaw_ratio_median - plain[(r.yaw_rad, r.forward_m)].yaw_ratio_median for r in slid]
+    frac = [(r.slide_read_median_m - plain[(r.yaw_rad, r.forward_m)].slide_read_median_m) / r.slide_m for r in slid]
+    return {"yaw_gain": float(np.mean(gain)), "slide_read_fraction": float(np.mean(frac)),
+            "yaw_ratio_range": [float(min(r.yaw_ratio_median for r in reads)),
+                                float(max(r.yaw_ratio_median for r in reads))]}

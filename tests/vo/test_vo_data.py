@@ -514,3 +514,37 @@ def test_train_and_vo_with_a_validity_channel(plane_sequence, motion_json, tmp_p
                  "--quiet", "--out", str(tmp_path / "shards")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--valid-channel" in err and not (tmp_path / "shards").exists()
+
+
+@pytest.mark.parametrize("reads_slide", [True, False])
+def test_turn_reads_tell_a_slide_reader_from_a_yaw_reader(plane_sequence, reads_slide):
+    """Two 'models' on the sweep's plumbing: one returns the true motion (yaw gain 0, slide read 1); one
+    ignores t_x and reads a tenth of the slide as extra yaw (what a network trained on the paper's
+    independent prior does on KITTI's turns): yaw gain > 0, slide read 0."""
+    from deepslam.vo import scale_sweep
+
+    seq = open_sequence(plane_sequence)
+    frames = data.load_frames([seq], 80, 24, progress=False)
+    seen = {}
+
+    class Model:
+        def predict(self, flow, intrinsics):
+            t = seen["target"].copy()
+            if not reads_slide:
+                t[1] += 0.1 * t[3]
+                t[3] = 0.0
+            return np.tile(t, (len(flow), 1)), np.ones((len(flow), 6))
+
+    def make(sample):
+        seen["target"] = sample(1, np.random.default_rng(0))[0]
+        return data.SyntheticSource(frames, sample, 4)
+
+    reads = scale_sweep.turn_reads(Model(), make, 4, yaws_rad=(-0.04, 0.04), forwards_m=(1.0,))
+    np.testing.assert_allclose([(r.yaw_rad, r.slide_m) for r in reads],
+                               [(-0.04, 0.0), (-0.04, -0.0352), (0.04, 0.0), (0.04, 0.0352)], atol=1e-12)
+    eff = scale_sweep.slide_effect(reads)
+    if reads_slide:
+        assert eff["yaw_gain"] == pytest.approx(0.0, abs=1e-12) and eff["slide_read_fraction"] == pytest.approx(1.0)
+    else:
+        assert eff["yaw_gain"] == pytest.approx(0.088) and eff["slide_read_fraction"] == pytest.approx(0.0)
+    assert all(r.forward_ratio_median == pytest.approx(1.0) for r in reads)

@@ -1,0 +1,120 @@
+"""Does a KITTI model read a turning camera's sideways slide, or read it as more yaw?
+
+A car's camera that turns also slides sideways (KITTI 00-05, 08-10: t_x = 0.88 x yaw x forward metres,
+:data:`deepslam.vo.scale_sweep.SLIDE_PER_YAW_PER_M`). Single frames of a held-out simulated street
+(seed 7, never trained on) and of the real KITTI 06 slice (stereo depth; its single frames were in the
+shipped models' training, without poses) are turned by +-0.04 rad at 0.5 and 1.0 m forward, without and
+with that slide, by single-frame synthesis; each model reads the flow it was made for (DIS or the learned
+estimator on a second view rendered from the frame). ``yaw_gain`` is how much the slide raises the yaw
+read (0 for a model that reads the flow), ``slide_read_fraction`` how much of the slide t_x reads
+(1 = all). No frame of KITTI 07 is used. Writes results.json and results.md into ``out/results/turn``
+(``python -m bench.results_turn [--model NAME=PATH[@FLOW]] [--no-shipped]``, about 2 minutes a model).
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+SAMPLES = 48
+"""Frames per turn."""
+HELDOUT = ("street", "car", 60, 414, 7)
+"""The held-out street: scene, trajectory, frames, width, seed (as bench.results_speed)."""
+
+
+def _reads(name: str, model: str, flow: str, frames, seq_root) -> dict:
+    from deepslam.vo import data, models, scale_sweep
+
+    path, shipped = models.locate(model, None, flow=flow)
+    pred = models.load(path, shipped)
+    h, w = pred.input_size
+    options = {"preset": "medium", **models.recorded_flow_options(path, "dis")} if flow == "dis" else {}
+
+    def make(sample):
+        return data.EstimatedFlowSource(frames, sample, flow, w, h, SAMPLES, estimator_options=options,
+                                        unknown=pred.model.cfg.unknown_flow)
+
+    reads = scale_sweep.turn_reads(pred, make, SAMPLES)
+    return {"model": name, "model_file": pred.name, "flow": flow, "reads": [dataclasses.asdict(r) for r in reads],
+            **scale_sweep.slide_effect(reads)}
+
+
+def run(candidates: list[tuple[str, str, str]], out: Path, data_dir: Path) -> dict:
+    from deepslam.core import atomic
+    from deepslam.core.errors import InputError
+    from deepslam.core.readers import open_sequence
+    from deepslam.studies.demo import render_once
+    from deepslam.vo import data
+
+    out.mkdir(parents=True, exist_ok=True)
+    scene, traj, n, width, seed = HELDOUT
+    held = render_once(scene, traj, n, width, seed, out / f"street_heldout_s{seed}", [])
+    k06 = data_dir / "kitti" / "sequences" / "06"
+    if not (k06 / "calib.txt").is_file():
+        raise InputError(k06, "KITTI 06 slice not found (../shared/data)")
+    sets = {"simulated street s7 (never trained on)": (open_sequence(held), "rendered"),
+            "KITTI 06 (single frames seen in training, no poses)": (open_sequence(k06), "stereo")}
+    rows = []
+    for set_name, (seq, kind) in sets.items():
+        frames = data.load_image_frames([seq], depth=kind, progress=False)
+        for name, model, flow in candidates:
+            r = _reads(name, model, flow, frames, seq.root)
+            rows.append({"frames": set_name, **r})
+            print(f"{name} on {set_name}: yaw gain {r['yaw_gain']:+.3f}, slide read {r['slide_read_fraction']:.2f}",
+                  flush=True)
+    report = {"rows": rows, "slide_per_yaw_per_m": rows[0]["reads"][1]["slide_m"] / (-0.04 * 0.5) if rows else None}
+    atomic.write_json(out / "results.json", report)
+    atomic.write_text(out / "results.md", markdown(report))
+    return report
+
+
+def markdown(report: dict) -> str:
+    lines = ["| frames | model (flow) | yaw read/true, no slide (range) | yaw gain from the slide | slide read by t_x |",
+             "|---|---|---|---|---|"]
+    for r in report["rows"]:
+        plain = [x["yaw_ratio_median"] for x in r["reads"] if x["slide_m"] == 0]
+        lines.append(f"| {r['frames']} | {r['model']} ({r['flow']}) | {min(plain):.3f}-{max(plain):.3f} | "
+                     f"{r['yaw_gain']:+.3f} | {r['slide_read_fraction']:.2f} |")
+    return ("Turns of +-0.04 rad at 0.5 and 1.0 m forward, without and with KITTI's sideways slide (median over "
+            f"{SAMPLES} frames; yaw gain 0 and slide read 1 = the flow read as it is)\n\n" + "\n".join(lines) + "\n")
+
+
+def main(argv: list[str] | None = None) -> int:
+    import os
+
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
+    from deepslam.core.errors import InputError
+    from deepslam.core.lock import output_lock
+    from deepslam.core.paths import out_dir, shared_data_dir
+
+    ap = argparse.ArgumentParser(prog="python -m bench.results_turn", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--model", action="append", default=[], metavar="NAME=PATH[@FLOW]",
+                    help="a candidate model beside the shipped ones (repeatable; FLOW dis or learned, default dis)")
+    ap.add_argument("--no-shipped", action="store_true", help="measure only the --model candidates")
+    ap.add_argument("--out", type=Path, default=None, help="output folder (default out/results/turn)")
+    ap.add_argument("--data", type=Path, default=None, help="shared data folder (default ../shared/data)")
+    args = ap.parse_args(argv)
+    cands = [] if args.no_shipped else [("shipped kitti_cons_dis", "kitti", "dis"),
+                                        ("shipped kitti_cons_learned", "kitti", "learned")]
+    for spec in args.model:
+        name, _, rest = spec.partition("=")
+        path, _, flow = rest.partition("@")
+        if not name or not path or (flow or "dis") not in ("dis", "learned"):
+            print(f"results_turn: error: --model {spec!r}: expected NAME=PATH[@dis|@learned]", file=sys.stderr)
+            return 2
+        cands.append((name, path, flow or "dis"))
+    out = args.out or out_dir() / "results" / "turn"
+    try:
+        with output_lock(out):
+            report = run(cands, out, args.data or shared_data_dir())
+    except InputError as e:
+        print(f"results_turn: error: {e.message()}", file=sys.stderr)
+        return 2
+    print(markdown(report))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
