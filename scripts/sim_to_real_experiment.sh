@@ -11,6 +11,7 @@
 #   K: J with every street re-rendered with --grainy-road (asphalt with visible grain)   K06: K + KITTI 06's single frames
 #   K06_seed1-4: K06 at other seeds; K06_ens5: seeds 0-4 as one ensemble file (the seed study; not shipped)
 #   L06: K06 on the learned flow of the rendered views (seeds 0-2; scored with vo --flow learned)
+#   M06: K06 with the joint KDE motion prior (seeds 0-4; fourteenth session)
 # KITTI 06 is the validation slice of the sim-only recipes (they never see a real frame); 07 is never trained on.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -75,6 +76,14 @@ for s in 0 1 2; do
       --data-threads 2 --seed $s --net cpu --appearance-noise 6 --quiet $NEW --camera-tilt-deg=-1:3:1 \
       --frames $GALL $K06 --out $out $([ -d $out ] && echo --resume)
 done
+# M06 (fourteenth session): K06 exactly, with the joint KDE prior (fit-motion --consecutive kde on 00-05, 08-10,
+# models/motion/kitti_no0607_kde_s1.json) in place of the independent Student-t, seeds 0-4
+KDE="--motion models/motion/kitti_no0607_kde_s1.json"
+for s in 0 1 2 3 4; do
+  out=$D/M06_kde_s$s
+  [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} $KDE --sample-pool 20000 --camera-tilt-deg=-1:3:1 \
+      --frames $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
+done
 .venv/bin/python -m bench.results_real --out $D/real \
   --model "A=$D/A_default/model.safetensors" --model "B=$D/B_varied/model.safetensors" \
   --model "C=$D/C_mixed/model.safetensors" --model "D=$D/D_mixed_06/model.safetensors" \
@@ -86,4 +95,7 @@ done
   --model "K06_seed1=$D/K06_seed1/model.safetensors" --model "K06_seed2=$D/K06_seed2/model.safetensors" \
   --model "K06_seed3=$D/K06_seed3/model.safetensors" --model "K06_seed4=$D/K06_seed4/model.safetensors" \
   --model "K06_ens5=$D/K06_ens5.safetensors" --model "L06=$D/L06_learned_s0/model.safetensors@learned" \
-  --model "L06_seed1=$D/L06_learned_s1/model.safetensors@learned" --model "L06_seed2=$D/L06_learned_s2/model.safetensors@learned"
+  --model "L06_seed1=$D/L06_learned_s1/model.safetensors@learned" --model "L06_seed2=$D/L06_learned_s2/model.safetensors@learned" \
+  --model "M06=$D/M06_kde_s0/model.safetensors" --model "M06_seed1=$D/M06_kde_s1/model.safetensors" \
+  --model "M06_seed2=$D/M06_kde_s2/model.safetensors" --model "M06_seed3=$D/M06_kde_s3/model.safetensors" \
+  --model "M06_seed4=$D/M06_kde_s4/model.safetensors"
