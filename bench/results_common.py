@@ -84,3 +84,28 @@ def reuse_only_with_same_settings(out: Path, settings: dict) -> None:
         raise InputError(out, "holds results from a run that recorded no settings.json; its models and records "
                          "would be reused: choose another --out or remove the folder")
     atomic.write_json(path, now)
+
+
+def parse_model_specs(specs: list[str], flows: tuple[str, ...]) -> list[tuple[str, str, str]]:
+    """``--model NAME=PATH[@FLOW]`` options as (name, model path or shipped spec, flow); FLOW defaults to
+    ``dis`` and must be one of ``flows``. InputError (one line) on a malformed spec."""
+    from deepslam.core.errors import InputError
+
+    out = []
+    for spec in specs:
+        name, _, rest = spec.partition("=")
+        path, _, flow = rest.partition("@")
+        flow = flow or "dis"
+        if not name or not path or flow not in flows:
+            raise InputError(None, f"--model {spec!r}: expected NAME=PATH[@{'|@'.join(flows)}]")
+        out.append((name, path, flow))
+    return out
+
+
+def write_report(out: Path, report: dict, markdown: Callable[[dict], str]) -> None:
+    """``results.json`` and ``results.md`` (the report's markdown table) into ``out``, atomically."""
+    from deepslam.core import atomic
+
+    out.mkdir(parents=True, exist_ok=True)
+    atomic.write_json(out / "results.json", report)
+    atomic.write_text(out / "results.md", markdown(report))

@@ -71,7 +71,7 @@ def score(cand: Candidate, seq) -> dict:
 
 
 def run(candidates: tuple[Candidate, ...], out: Path, data_dir: Path) -> dict:
-    from deepslam.core import atomic
+    from bench.results_common import write_report
     from deepslam.core.errors import InputError
     from deepslam.core.readers import open_sequence
 
@@ -86,9 +86,7 @@ def run(candidates: tuple[Candidate, ...], out: Path, data_dir: Path) -> dict:
             print(f"{c.name} on {sl}: path x{rows[-1]['path_length_ratio']:.3f}, "
                   f"drift {rows[-1]['endpoint_drift_pct']:.1f} %", flush=True)
     report = {"rows": rows, "targets": {"path_length_ratio": [0.95, 1.05], "endpoint_drift_pct_max": 5.0}}
-    out.mkdir(parents=True, exist_ok=True)
-    atomic.write_json(out / "results.json", report)
-    atomic.write_text(out / "results.md", markdown(report))
+    write_report(out, report, markdown)
     return report
 
 
@@ -105,6 +103,7 @@ def markdown(report: dict) -> str:
 def main(argv: list[str] | None = None) -> int:
     import os
 
+    from bench.results_common import parse_model_specs
     from deepslam.core.errors import InputError
     from deepslam.core.paths import out_dir, shared_data_dir
 
@@ -117,14 +116,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", type=Path, default=None, help="shared data folder (default ../shared/data)")
     args = ap.parse_args(argv)
     cands = [] if args.no_shipped else list(SHIPPED)
-    for spec in args.model:
-        name, _, rest = spec.partition("=")
-        path, _, flow = rest.partition("@")
-        cands.append(Candidate(name, path, flow or "dis"))
     from deepslam.core.lock import output_lock
 
     out = args.out or out_dir() / "results" / "real"
     try:
+        cands += [Candidate(*c) for c in parse_model_specs(args.model, ("dis", "learned", "gt"))]
         with output_lock(out):  # one writer per results folder
             report = run(tuple(cands), out, args.data or shared_data_dir())
     except InputError as e:

@@ -41,7 +41,7 @@ def _reads(name: str, model: str, flow: str, frames, seq_root) -> dict:
 
 
 def run(candidates: list[tuple[str, str, str]], out: Path, data_dir: Path) -> dict:
-    from deepslam.core import atomic
+    from bench.results_common import write_report
     from deepslam.core.errors import InputError
     from deepslam.core.readers import open_sequence
     from deepslam.studies.demo import render_once
@@ -64,8 +64,7 @@ def run(candidates: list[tuple[str, str, str]], out: Path, data_dir: Path) -> di
             print(f"{name} on {set_name}: yaw gain {r['yaw_gain']:+.3f}, slide read {r['slide_read_fraction']:.2f}",
                   flush=True)
     report = {"rows": rows, "slide_per_yaw_per_m": rows[0]["reads"][1]["slide_m"] / (-0.04 * 0.5) if rows else None}
-    atomic.write_json(out / "results.json", report)
-    atomic.write_text(out / "results.md", markdown(report))
+    write_report(out, report, markdown)
     return report
 
 
@@ -85,6 +84,7 @@ def main(argv: list[str] | None = None) -> int:
 
     os.environ.setdefault("MUJOCO_GL", "egl")
     os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
+    from bench.results_common import parse_model_specs
     from deepslam.core.errors import InputError
     from deepslam.core.lock import output_lock
     from deepslam.core.paths import out_dir, shared_data_dir
@@ -98,15 +98,9 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     cands = [] if args.no_shipped else [("shipped kitti_cons_dis", "kitti", "dis"),
                                         ("shipped kitti_cons_learned", "kitti", "learned")]
-    for spec in args.model:
-        name, _, rest = spec.partition("=")
-        path, _, flow = rest.partition("@")
-        if not name or not path or (flow or "dis") not in ("dis", "learned"):
-            print(f"results_turn: error: --model {spec!r}: expected NAME=PATH[@dis|@learned]", file=sys.stderr)
-            return 2
-        cands.append((name, path, flow or "dis"))
     out = args.out or out_dir() / "results" / "turn"
     try:
+        cands += parse_model_specs(args.model, ("dis", "learned"))
         with output_lock(out):
             report = run(cands, out, args.data or shared_data_dir())
     except InputError as e:
