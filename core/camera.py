@@ -81,6 +81,11 @@ class PinholeCamera:
             (self.cx + 0.5) * sx - 0.5, (self.cy + 0.5) * sy - 0.5,
         )
 
+    def mirrored(self) -> "PinholeCamera":
+        """The camera of the image flipped left-right (column u -> width - 1 - u): the principal point's
+        column becomes ``width - 1 - cx``; a point (x, y, z) of the original camera is seen at (-x, y, z)."""
+        return PinholeCamera(self.width, self.height, self.fx, self.fy, self.width - 1 - self.cx, self.cy)
+
     def pixel_grid(self) -> np.ndarray:
         """(H, W, 2) float64 array of (u, v) pixel centres."""
         u, v = np.meshgrid(np.arange(self.width, dtype=np.float64), np.arange(self.height, dtype=np.float64))

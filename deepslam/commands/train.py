@@ -84,6 +84,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--frame-scales", type=_floats, default=(1.0,), metavar="S,S...",
                    help="with --synthetic-flow NAME: also use each frame downscaled by these factors (e.g. 1,0.65), "
                         "as the estimator's errors depend on the resolution")
+    g.add_argument("--mirror-frames", action="store_true",
+                   help="synthetic mode: also train on every single frame flipped left-right (its camera mirrored): "
+                        "the near side of the street on the other hand, so the network does not take a scene's "
+                        "left-right asymmetry for a turn (held-out frames are mirrored on their own side)")
     g.add_argument("--appearance-noise", type=float, default=0.0, metavar="SIGMA",
                    help="with --synthetic-flow NAME: Gaussian noise (grey levels) on the rendered second view, for "
                         "the appearance changes a real next frame has and a resampled one lacks (0 = none)")
@@ -312,6 +316,7 @@ def run(args: argparse.Namespace) -> int:
     if args.mode != "synthetic" or args.shards or args.toy:  # no single frames to act on
         for flag, what, given in (("--scene-scale", "scales single frames", scene_scale is not None),
                                   ("--camera-tilt-deg", "rotates single frames", tilt is not None),
+                                  ("--mirror-frames", "mirrors single frames", args.mirror_frames),
                                   ("--depth-channel", "reads each single frame's depth", net.depth_channel)):
             if given:
                 raise InputError(None, f"{flag} {what}: it needs --mode synthetic with --frames "
@@ -355,6 +360,8 @@ def run(args: argparse.Namespace) -> int:
                 flow_estimators.estimator_options("exact", None, args.dis_min_texture, args.dis_fb_check)
                 frames = data.load_frames(seqs, w * f, h * f, args.frame_step, args.depth, args.max_frames, progress)
                 train_frames, hold_frames = frames.split(args.holdout, args.seed)
+                if args.mirror_frames:
+                    train_frames, hold_frames = data.with_mirrored(train_frames), data.with_mirrored(hold_frames)
 
                 def source(fr, n, seed):
                     return data.SyntheticSource(fr, sampler, n, seed, f, args.missing_depth, tilt=tilt,
@@ -366,6 +373,8 @@ def run(args: argparse.Namespace) -> int:
                 frames = data.load_image_frames(seqs, args.frame_step, args.depth, args.max_frames, progress,
                                                 scales=args.frame_scales)
                 train_frames, hold_frames = frames.split(args.holdout, args.seed)
+                if args.mirror_frames:
+                    train_frames, hold_frames = data.with_mirrored(train_frames), data.with_mirrored(hold_frames)
 
                 def source(fr, n, seed):
                     return data.EstimatedFlowSource(fr, sampler, args.synthetic_flow, w, h, n, seed, args.data_threads, opts,
@@ -382,7 +391,8 @@ def run(args: argparse.Namespace) -> int:
                             "holdout_samples": n_hold, "synth_factor": f, "missing_depth": args.missing_depth,
                             "sample_pool": args.sample_pool, "speed_range_mps_at_hz": speed_range,
                             "camera_tilt": tilt.to_dict() if tilt else None,
-                            "scene_scale": scene_scale.to_dict() if scene_scale else None}
+                            "scene_scale": scene_scale.to_dict() if scene_scale else None,
+                            **({"mirror_frames": True} if args.mirror_frames else {})}
             if estimator_name is not None:
                 meta["flow"] = {"estimator": args.synthetic_flow, "options": opts}  # what vo/slam set up to match
                 meta["data"].update(synth_factor=None, missing_depth=None, frame_scales=list(args.frame_scales),

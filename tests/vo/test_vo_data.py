@@ -150,6 +150,21 @@ def test_train_cli_synthetic_from_single_frames(plane_sequence, motion_json, tmp
     assert d["n_frames"] == 12 and d["n_holdout_frames"] == 1 and len(d["motion"]) == 2
     assert d["motion"][1]["weight"] == 0.5 and d["missing_depth"] == "infinity"
     assert (out / "model.safetensors").is_file()
+    assert "mirror_frames" not in d  # only recorded when asked, so older commands keep their bytes
+
+
+def test_train_cli_with_mirrored_frames_doubles_both_sides_of_the_split(plane_sequence, motion_json, tmp_path):
+    from deepslam.cli import main
+
+    out = tmp_path / "mir"
+    rc = main(["train", "--mode", "synthetic", "--frames", str(plane_sequence), "--motion", str(motion_json),
+               "--mirror-frames", "--net", "tiny", "--batch", "16", "--samples-per-epoch", "64", "--max-epochs", "1",
+               "--nll-epochs", "1", "--bf16", "off", "--threads", "1", "--quiet", "--out", str(out)])
+    assert rc == 0
+    d = json.loads((out / "config.json").read_text())["data"]["data"]
+    assert d["mirror_frames"] is True and d["n_train_frames"] == 2 * 11 and d["n_holdout_frames"] == 2 * 1
+    r = main(["train", "--mode", "synthetic", "--toy", "50", "--mirror-frames", "--out", str(tmp_path / "toy")])
+    assert r == 2 and not (tmp_path / "toy").exists()
 
 
 def test_estimated_flow_source_gives_dis_flow_of_a_rendered_second_view(plane_sequence):
@@ -548,3 +563,46 @@ def test_turn_reads_tell_a_slide_reader_from_a_yaw_reader(plane_sequence, reads_
     else:
         assert eff["yaw_gain"] == pytest.approx(0.088) and eff["slide_read_fraction"] == pytest.approx(0.0)
     assert all(r.forward_ratio_median == pytest.approx(1.0) for r in reads)
+
+
+def test_mirrored_frame_flow_is_the_mirror_of_the_mirrored_motion():
+    """A frame flipped left-right with its camera mirrored is the world seen in a mirror (x -> -x): the flow
+    a motion causes on it is, flipped back, the flow of the mirrored motion (yaw, roll and t_x negated) on
+    the original frame. This is what makes a mirrored single frame a valid training frame."""
+    from deepslam.core import se3
+    from deepslam.core.camera import PinholeCamera
+    from deepslam.gen.flow import synthesize
+
+    rng = np.random.default_rng(0)
+    cam = PinholeCamera(64, 24, 50.0, 52.0, 30.3, 11.7)  # principal point off-centre on purpose
+    depth = rng.uniform(2.0, 30.0, (24, 64)).astype(np.float32)
+    frames = data.Frames(depth[None], np.zeros(1, np.int64), [cam], ["f:0"])
+    both = data.with_mirrored(frames)
+    assert both.names == ["f:0", "f:0:mirror"] and len(both.cameras) == 2
+    mcam = both.cameras[both.camera_index[1]]
+    assert mcam.cx == pytest.approx(64 - 1 - 30.3) and mcam.mirrored().cx == pytest.approx(cam.cx)
+    np.testing.assert_array_equal(both.depth_z[1], depth[:, ::-1])
+    vec = np.array([0.01, 0.03, -0.02, 0.2, -0.05, -0.8])
+    mirror_vec = vec * np.array([1, -1, -1, -1, 1, 1])
+    flow_m, valid_m = synthesize(both.depth_z[1], mcam, se3.from_euler6(vec[None])[0])
+    flow_o, valid_o = synthesize(depth, cam, se3.from_euler6(mirror_vec[None])[0])
+    flow_m, valid_m = np.asarray(flow_m), np.asarray(valid_m)  # (H, W, 2) pixels, (H, W)
+    flow_o, valid_o = np.asarray(flow_o), np.asarray(valid_o)
+    back = flow_m[:, ::-1] * np.array([-1.0, 1.0], np.float32)  # flipped back: columns reversed, du negated
+    both_valid = valid_o & valid_m[:, ::-1]
+    assert both_valid.mean() > 0.5
+    np.testing.assert_allclose(back[both_valid], flow_o[both_valid], atol=2e-3)
+    # and it is not the unmirrored motion's flow (the check can fail)
+    flow_u, _ = synthesize(depth, cam, se3.from_euler6(vec[None])[0])
+    assert np.abs(np.asarray(flow_u) - flow_o).max() > 1.0
+
+
+def test_mirrored_image_frames_keep_the_sensor_depth_and_refuse_nothing(plane_sequence):
+    seq = open_sequence(plane_sequence)
+    fr = data.load_image_frames([seq], progress=False)
+    both = data.with_mirrored(fr)
+    n = len(fr)
+    assert len(both) == 2 * n and both.names[n:] == [f"{x}:mirror" for x in fr.names]
+    np.testing.assert_array_equal(both.grey[n], fr.grey[0][:, ::-1])
+    np.testing.assert_array_equal(both.depth_z[n + 1], fr.depth_z[1][:, ::-1])
+    assert all(both.cameras[both.camera_index[n + i]] == fr.cameras[fr.camera_index[i]].mirrored() for i in range(n))
