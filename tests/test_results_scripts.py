@@ -148,6 +148,8 @@ def test_turn_table_measures_both_sets_and_refuses_a_bad_model_spec(shared_data,
         assert [x["slide_m"] != 0 for x in r["reads"]] == [False, True] * 4
         assert all(0.5 < x["yaw_ratio_median"] < 1.5 for x in r["reads"]), r["reads"]
         assert np.isfinite(r["yaw_gain"]) and np.isfinite(r["slide_read_fraction"])
+        assert set(r["straight_yaw"]) == {"as is", "mirrored"}
+        assert all(abs(v["yaw_median_rad"]) < 0.02 for v in r["straight_yaw"].values())
     assert rep["slide_per_yaw_per_m"] == pytest.approx(0.88)
     assert "yaw gain from the slide" in (tmp_path / "results.md").read_text()
     capsys.readouterr()

@@ -838,27 +838,31 @@ def load_image_frames(sequences: Seq, frame_step: int = 1, depth: str = "auto", 
                        sensors if any(x is not None for x in sensors) else None)
 
 
-def with_mirrored(frames):
+def with_mirrored(frames, keep_original: bool = True):
     """``frames`` (:class:`Frames` or :class:`ImageFrames`) followed by each frame flipped left-right, with
-    its camera mirrored (:meth:`core.camera.PinholeCamera.mirrored`).
+    its camera mirrored (:meth:`core.camera.PinholeCamera.mirrored`); only the flipped frames with
+    ``keep_original=False``.
 
     A mirrored single frame is a valid scene of its own (the world seen in a mirror: traffic on the other
     side, the near kerb on the other hand), so the paper's training takes it as one more frame; the
     motions are drawn for it as for any other. Names get ``:mirror``. Mirror after a train / hold-out
     split, so that a frame and its mirror stay on the same side.
     """
-    cams = list(frames.cameras)
+    cams = list(frames.cameras) if keep_original else []
     for c in frames.cameras:
         if c.mirrored() not in cams:
             cams.append(c.mirrored())
     mirror_idx = np.array([cams.index(frames.cameras[i].mirrored()) for i in frames.camera_index], dtype=np.int64)
-    idx = np.concatenate([np.asarray(frames.camera_index, dtype=np.int64), mirror_idx])
-    names = list(frames.names) + [f"{n}:mirror" for n in frames.names]
+    kept = [np.asarray(frames.camera_index, dtype=np.int64)] if keep_original else []
+    idx = np.concatenate(kept + [mirror_idx])
+    names = (list(frames.names) if keep_original else []) + [f"{n}:mirror" for n in frames.names]
     if isinstance(frames, Frames):
-        return Frames(np.concatenate([frames.depth_z, frames.depth_z[:, :, ::-1]]), idx, cams, names)
+        flipped = frames.depth_z[:, :, ::-1]
+        return Frames(np.concatenate([frames.depth_z, flipped]) if keep_original else flipped.copy(), idx, cams, names)
 
     def flip(arrays):
-        return list(arrays) + [None if a is None else np.ascontiguousarray(a[:, ::-1]) for a in arrays]
+        out = [None if a is None else np.ascontiguousarray(a[:, ::-1]) for a in arrays]
+        return (list(arrays) + out) if keep_original else out
 
     return ImageFrames(flip(frames.grey), flip(frames.depth_z), idx, cams, names,
                        None if frames.depth_sensor is None else flip(frames.depth_sensor))

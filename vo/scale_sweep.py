@@ -152,3 +152,15 @@ def slide_effect(reads: list[TurnRead]) -> dict:
     return {"yaw_gain": float(np.mean(gain)), "slide_read_fraction": float(np.mean(frac)),
             "yaw_ratio_range": [float(min(r.yaw_ratio_median for r in reads)),
                                 float(max(r.yaw_ratio_median for r in reads))]}
+
+
+def straight_yaw_read(predictor, make_source, n_frames: int, forward_m: float, seed: int = 0) -> dict:
+    """The yaw a model reads on a straight drive of ``forward_m`` metres a frame (true yaw 0): a read that is
+    not 0 is a turn the model sees in the scene's layout (a near kerb on one hand), a heading drift on every
+    straight frame. Returns ``{"forward_m", "yaw_median_rad", "yaw_mean_rad"}`` over the frames."""
+    vec = np.array([0.0, 0.0, 0.0, 0.0, 0.0, -float(forward_m)])
+    batch = make_source(lambda n, rng: np.tile(vec, (n, 1))).make_batch(np.random.default_rng(seed), int(n_frames))
+    extra = (batch["inv_depth"],) if "inv_depth" in batch else ()
+    mean, _ = predictor.predict(batch["flow"], batch["intrinsics"], *extra)
+    return {"forward_m": float(forward_m), "yaw_median_rad": float(np.median(mean[:, 1])),
+            "yaw_mean_rad": float(np.mean(mean[:, 1]))}

@@ -563,6 +563,8 @@ def test_turn_reads_tell_a_slide_reader_from_a_yaw_reader(plane_sequence, reads_
     else:
         assert eff["yaw_gain"] == pytest.approx(0.088) and eff["slide_read_fraction"] == pytest.approx(0.0)
     assert all(r.forward_ratio_median == pytest.approx(1.0) for r in reads)
+    assert scale_sweep.straight_yaw_read(Model(), make, 4, 1.0) == {"forward_m": 1.0, "yaw_median_rad": 0.0,
+                                                                     "yaw_mean_rad": 0.0}
 
 
 def test_mirrored_frame_flow_is_the_mirror_of_the_mirrored_motion():
@@ -606,3 +608,6 @@ def test_mirrored_image_frames_keep_the_sensor_depth_and_refuse_nothing(plane_se
     np.testing.assert_array_equal(both.grey[n], fr.grey[0][:, ::-1])
     np.testing.assert_array_equal(both.depth_z[n + 1], fr.depth_z[1][:, ::-1])
     assert all(both.cameras[both.camera_index[n + i]] == fr.cameras[fr.camera_index[i]].mirrored() for i in range(n))
+    only = data.with_mirrored(fr, keep_original=False)
+    assert len(only) == n and only.names == both.names[n:] and only.cameras == [fr.cameras[0].mirrored()]
+    np.testing.assert_array_equal(only.grey[2], both.grey[n + 2])
