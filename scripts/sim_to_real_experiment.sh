@@ -12,6 +12,7 @@
 #   K06_seed1-4: K06 at other seeds; K06_ens5: seeds 0-4 as one ensemble file (the seed study; not shipped)
 #   L06: K06 on the learned flow of the rendered views (seeds 0-2; scored with vo --flow learned)
 #   M06: K06 with the joint KDE motion prior (seeds 0-4; fourteenth session)
+#   P06: K06 with every training frame also mirrored left-right (--mirror-frames; seeds 0-4; fourteenth session)
 # KITTI 06 is the validation slice of the sim-only recipes (they never see a real frame); 07 is never trained on.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -84,6 +85,12 @@ for s in 0 1 2 3 4; do
   [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} $KDE --sample-pool 20000 --camera-tilt-deg=-1:3:1 \
       --frames $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
+# P06 (fourteenth session): K06 exactly, with every training frame also mirrored left-right, seeds 0-4
+for s in 0 1 2 3 4; do
+  out=$D/P06_mirror_s$s
+  [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} $NEW --mirror-frames --sample-pool 20000 \
+      --camera-tilt-deg=-1:3:1 --frames $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
+done
 .venv/bin/python -m bench.results_real --out $D/real \
   --model "A=$D/A_default/model.safetensors" --model "B=$D/B_varied/model.safetensors" \
   --model "C=$D/C_mixed/model.safetensors" --model "D=$D/D_mixed_06/model.safetensors" \
@@ -98,4 +105,7 @@ done
   --model "L06_seed1=$D/L06_learned_s1/model.safetensors@learned" --model "L06_seed2=$D/L06_learned_s2/model.safetensors@learned" \
   --model "M06=$D/M06_kde_s0/model.safetensors" --model "M06_seed1=$D/M06_kde_s1/model.safetensors" \
   --model "M06_seed2=$D/M06_kde_s2/model.safetensors" --model "M06_seed3=$D/M06_kde_s3/model.safetensors" \
-  --model "M06_seed4=$D/M06_kde_s4/model.safetensors"
+  --model "M06_seed4=$D/M06_kde_s4/model.safetensors" \
+  --model "P06=$D/P06_mirror_s0/model.safetensors" --model "P06_seed1=$D/P06_mirror_s1/model.safetensors" \
+  --model "P06_seed2=$D/P06_mirror_s2/model.safetensors" --model "P06_seed3=$D/P06_mirror_s3/model.safetensors" \
+  --model "P06_seed4=$D/P06_mirror_s4/model.safetensors"
