@@ -109,3 +109,32 @@ def write_report(out: Path, report: dict, markdown: Callable[[dict], str]) -> No
     out.mkdir(parents=True, exist_ok=True)
     atomic.write_json(out / "results.json", report)
     atomic.write_text(out / "results.md", markdown(report))
+
+
+def run_locked(name: str, out: Path, work: Callable[[], dict], markdown: Callable[[dict], str]) -> int:
+    """``work()`` under the results folder's lock (one writer per folder), its markdown printed; an
+    InputError raised by ``work`` (a bad --model, a missing slice) is one line naming ``name``, exit 2."""
+    from deepslam.core.errors import InputError
+    from deepslam.core.lock import output_lock
+
+    try:
+        with output_lock(out):
+            report = work()
+    except InputError as e:
+        print(f"{name}: error: {e.message()}", file=sys.stderr)
+        return 2
+    print(markdown(report))
+    return 0
+
+
+def candidate_parser(name: str, doc: str, flows: tuple[str, ...]) -> argparse.ArgumentParser:
+    """The command line of a results script that scores the shipped models and ``--model`` candidates:
+    ``--model NAME=PATH[@FLOW]`` (repeatable; :func:`parse_model_specs`), ``--no-shipped``, ``--out``, ``--data``."""
+    ap = argparse.ArgumentParser(prog=f"python -m bench.{name}", description=doc.split("\n\n")[0])
+    ap.add_argument("--model", action="append", default=[], metavar="NAME=PATH[@FLOW]",
+                    help=f"a candidate model beside the shipped ones (repeatable; FLOW one of {', '.join(flows)}, "
+                         "default dis)")
+    ap.add_argument("--no-shipped", action="store_true", help="measure only the --model candidates")
+    ap.add_argument("--out", type=Path, default=None, help=f"output folder (default out/results/{name.split('_')[-1]})")
+    ap.add_argument("--data", type=Path, default=None, help="shared data folder (default ../shared/data)")
+    return ap

@@ -11,7 +11,6 @@ paper's unsupervised adaptation). 07 is never trained on. Writes results.json an
 """
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import sys
 from pathlib import Path
@@ -103,31 +102,19 @@ def markdown(report: dict) -> str:
 def main(argv: list[str] | None = None) -> int:
     import os
 
-    from bench.results_common import parse_model_specs
-    from deepslam.core.errors import InputError
+    from bench.results_common import candidate_parser, parse_model_specs, run_locked
     from deepslam.core.paths import out_dir, shared_data_dir
 
     os.environ.setdefault("MUJOCO_GL", "egl")
-    ap = argparse.ArgumentParser(prog="python -m bench.results_real", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--model", action="append", default=[], metavar="NAME=PATH[@FLOW]",
-                    help="a candidate model beside the shipped ones (repeatable; FLOW dis, learned or gt, default dis)")
-    ap.add_argument("--no-shipped", action="store_true", help="score only the --model candidates")
-    ap.add_argument("--out", type=Path, default=None, help="output folder (default out/results/real)")
-    ap.add_argument("--data", type=Path, default=None, help="shared data folder (default ../shared/data)")
-    args = ap.parse_args(argv)
-    cands = [] if args.no_shipped else list(SHIPPED)
-    from deepslam.core.lock import output_lock
-
+    args = candidate_parser("results_real", __doc__, ("dis", "learned", "gt")).parse_args(argv)
     out = args.out or out_dir() / "results" / "real"
-    try:
-        cands += [Candidate(*c) for c in parse_model_specs(args.model, ("dis", "learned", "gt"))]
-        with output_lock(out):  # one writer per results folder
-            report = run(tuple(cands), out, args.data or shared_data_dir())
-    except InputError as e:
-        print(f"results_real: error: {e.message()}", file=sys.stderr)
-        return 2
-    print(markdown(report))
-    return 0
+
+    def work() -> dict:
+        cands = ([] if args.no_shipped else list(SHIPPED)) + \
+            [Candidate(*c) for c in parse_model_specs(args.model, ("dis", "learned", "gt"))]
+        return run(tuple(cands), out, args.data or shared_data_dir())
+
+    return run_locked("results_real", out, work, markdown)
 
 
 if __name__ == "__main__":

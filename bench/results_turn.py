@@ -15,7 +15,6 @@ KITTI 07 is used. Writes results.json and results.md into ``out/results/turn``
 """
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import sys
 from pathlib import Path
@@ -97,30 +96,19 @@ def main(argv: list[str] | None = None) -> int:
 
     os.environ.setdefault("MUJOCO_GL", "egl")
     os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
-    from bench.results_common import parse_model_specs
-    from deepslam.core.errors import InputError
-    from deepslam.core.lock import output_lock
+    from bench.results_common import candidate_parser, parse_model_specs, run_locked
     from deepslam.core.paths import out_dir, shared_data_dir
 
-    ap = argparse.ArgumentParser(prog="python -m bench.results_turn", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--model", action="append", default=[], metavar="NAME=PATH[@FLOW]",
-                    help="a candidate model beside the shipped ones (repeatable; FLOW dis or learned, default dis)")
-    ap.add_argument("--no-shipped", action="store_true", help="measure only the --model candidates")
-    ap.add_argument("--out", type=Path, default=None, help="output folder (default out/results/turn)")
-    ap.add_argument("--data", type=Path, default=None, help="shared data folder (default ../shared/data)")
-    args = ap.parse_args(argv)
-    cands = [] if args.no_shipped else [("shipped kitti_cons_dis", "kitti", "dis"),
-                                        ("shipped kitti_cons_learned", "kitti", "learned")]
+    args = candidate_parser("results_turn", __doc__, ("dis", "learned")).parse_args(argv)
+    shipped = [] if args.no_shipped else [("shipped kitti_cons_dis", "kitti", "dis"),
+                                          ("shipped kitti_cons_learned", "kitti", "learned")]
     out = args.out or out_dir() / "results" / "turn"
-    try:
-        cands += parse_model_specs(args.model, ("dis", "learned"))
-        with output_lock(out):
-            report = run(cands, out, args.data or shared_data_dir())
-    except InputError as e:
-        print(f"results_turn: error: {e.message()}", file=sys.stderr)
-        return 2
-    print(markdown(report))
-    return 0
+
+    def work() -> dict:
+        cands = shipped + parse_model_specs(args.model, ("dis", "learned"))
+        return run(cands, out, args.data or shared_data_dir())
+
+    return run_locked("results_turn", out, work, markdown)
 
 
 if __name__ == "__main__":

@@ -155,7 +155,7 @@ def test_turn_table_measures_both_sets_and_refuses_a_bad_model_spec(shared_data,
     capsys.readouterr()
     assert results_turn.main(["--no-shipped", "--model", "x=m.safetensors@raft", "--out", str(tmp_path / "b")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "NAME=PATH[@dis|@learned]" in err[0]
+    assert len(err) == 1 and "NAME=PATH[@dis|@learned]" in err[0] and not (tmp_path / "b").exists()
 
 
 def test_tum_results_quick_rows_and_baselines(shared_data, tmp_path):
