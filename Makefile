@@ -41,6 +41,7 @@ results: $(STAMP)
 	$(PY) -m bench.results_speed
 	$(PY) -m bench.results_road
 	$(PY) -m bench.results_real
+	$(PY) -m bench.results_turn
 	$(PY) -m bench.results_tum
 
 # Every command of the README's examples block, in order, in a temporary folder: exit status and wall
