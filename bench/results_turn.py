@@ -22,9 +22,9 @@ from pathlib import Path
 SAMPLES = 48
 """Frames per turn."""
 HELDOUT = ("street", "car", 60, 414, 7)
+"""The held-out street: scene, trajectory, frames, width, seed (as bench.results_speed)."""
 STRAIGHT_M = 1.0
 """Forward metres a frame of the straight drive whose yaw read is reported (true yaw 0)."""
-"""The held-out street: scene, trajectory, frames, width, seed (as bench.results_speed)."""
 
 
 def _reads(name: str, model: str, flow: str, frames) -> dict:
@@ -54,7 +54,7 @@ def run(candidates: list[tuple[str, str, str]], out: Path, data_dir: Path) -> di
     from deepslam.core.errors import InputError
     from deepslam.core.readers import open_sequence
     from deepslam.studies.demo import render_once
-    from deepslam.vo import data
+    from deepslam.vo import data, scale_sweep
 
     out.mkdir(parents=True, exist_ok=True)
     scene, traj, n, width, seed = HELDOUT
@@ -72,7 +72,7 @@ def run(candidates: list[tuple[str, str, str]], out: Path, data_dir: Path) -> di
             rows.append({"frames": set_name, **r})
             print(f"{name} on {set_name}: yaw gain {r['yaw_gain']:+.3f}, slide read {r['slide_read_fraction']:.2f}",
                   flush=True)
-    report = {"rows": rows, "slide_per_yaw_per_m": rows[0]["reads"][1]["slide_m"] / (-0.04 * 0.5) if rows else None}
+    report = {"rows": rows, "slide_per_yaw_per_m": scale_sweep.SLIDE_PER_YAW_PER_M}
     write_report(out, report, markdown)
     return report
 

@@ -309,7 +309,7 @@ class MotionModel:
         if "consecutive" not in d:
             raise bad("missing key 'consecutive'")
         c = d["consecutive"]
-        if isinstance(c, dict) and c.get("kind", "student-t") not in ("student-t", "kde"):
+        if isinstance(c, dict) and c.get("kind", "student-t") not in CONSECUTIVE_KINDS:
             raise bad(f"consecutive.kind must be 'student-t' or 'kde', got {c.get('kind')!r}")
         consecutive = (_kde_from_dict(c, "consecutive", bad) if isinstance(c, dict) and c.get("kind") == "kde"
                        else _six_from_dict(c, "consecutive", bad))
@@ -342,6 +342,11 @@ class MotionModel:
         return cls.from_dict(d, path)
 
 
+def _dof_limit(name: str) -> tuple[float, str]:
+    """(largest |value| a parameter of DoF ``name`` may have, its unit): a motion between two frames."""
+    return (MAX_ABS_ROTATION_RAD, "rad") if name.startswith("euler") else (MAX_ABS_TRANSLATION_M, "m")
+
+
 def _six_from_dict(d, where: str, bad) -> SixDof:
     if not isinstance(d, dict):
         raise bad(f"{where} is not an object")
@@ -371,11 +376,11 @@ def _six_from_dict(d, where: str, bad) -> SixDof:
             raise bad(f"{where}.dofs.{name}.scale must be > 0, got {vals['scale']}")
         if not vals["lo"] < vals["hi"]:
             raise bad(f"{where}.dofs.{name}: lo must be below hi, got {vals['lo']} >= {vals['hi']}")
-        limit = MAX_ABS_ROTATION_RAD if name.startswith("euler") else MAX_ABS_TRANSLATION_M
+        limit, unit = _dof_limit(name)
         for key in ("loc", "scale", "lo", "hi"):
             if abs(vals[key]) > limit:
                 raise bad(f"{where}.dofs.{name}.{key} = {vals[key]:g} is beyond {limit:g} "
-                          f"{'rad' if name.startswith('euler') else 'm'}: not a camera motion between two frames")
+                          f"{unit}: not a camera motion between two frames")
         dofs.append(StudentT(**vals))
     return SixDof(tuple(dofs), n)
 
@@ -409,15 +414,14 @@ def _kde_from_dict(d: dict, where: str, bad) -> KdeSix:
             row.append(float(v))
         vals[key] = np.array(row)
     for k, name in enumerate(DOF_NAMES):
-        limit = MAX_ABS_ROTATION_RAD if name.startswith("euler") else MAX_ABS_TRANSLATION_M
+        limit, unit = _dof_limit(name)
         if not vals["bandwidth"][k] > 0:
             raise bad(f"{where}.bandwidth.{name} must be > 0, got {vals['bandwidth'][k]}")
         if not vals["lo"][k] < vals["hi"][k]:
             raise bad(f"{where}: {name}: lo must be below hi, got {vals['lo'][k]} >= {vals['hi'][k]}")
         worst = float(np.abs(arr[:, k]).max())
         if max(worst, abs(vals["lo"][k]), abs(vals["hi"][k]), vals["bandwidth"][k]) > limit:
-            raise bad(f"{where}: {name} has a value beyond {limit:g} {'rad' if name.startswith('euler') else 'm'}: "
-                      f"not a camera motion between two frames")
+            raise bad(f"{where}: {name} has a value beyond {limit:g} {unit}: not a camera motion between two frames")
     return KdeSix(arr, vals["bandwidth"], vals["lo"], vals["hi"])
 
 

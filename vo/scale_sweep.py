@@ -41,13 +41,18 @@ class SpeedRead:
     """Median of read/true over the frames (None at speed 0)."""
 
 
-def _forward(distance_m: float):
-    vec = np.array([0.0, 0.0, 0.0, 0.0, 0.0, -float(distance_m)])
+def _read(predictor, make_source, vec6: np.ndarray, n_frames: int, seed: int) -> np.ndarray:
+    """(n_frames, 6) the model's mean read of the one motion ``vec6`` (paper vector of cam1_from_cam0) on
+    ``n_frames`` frames drawn by ``seed`` (the same frames for every motion)."""
+    vec6 = np.asarray(vec6, dtype=np.float64)
 
     def sample(n: int, rng: np.random.Generator) -> np.ndarray:
-        return np.tile(vec, (n, 1))
+        return np.tile(vec6, (n, 1))
 
-    return sample
+    batch = make_source(sample).make_batch(np.random.default_rng(seed), int(n_frames))
+    extra = (batch["inv_depth"],) if "inv_depth" in batch else ()  # depth-channel models only
+    mean, _ = predictor.predict(batch["flow"], batch["intrinsics"], *extra)
+    return mean
 
 
 def speed_sweep(predictor, make_source, n_frames: int, rate_hz: float, speeds_mps=DEFAULT_SPEEDS_MPS,
@@ -67,10 +72,7 @@ def speed_sweep(predictor, make_source, n_frames: int, rate_hz: float, speeds_mp
     out = []
     for v in speeds_mps:
         d = float(v) / float(rate_hz)
-        batch = make_source(_forward(d)).make_batch(np.random.default_rng(seed), int(n_frames))
-        extra = (batch["inv_depth"],) if "inv_depth" in batch else ()  # depth-channel models only
-        mean, _ = predictor.predict(batch["flow"], batch["intrinsics"], *extra)
-        read = -mean[:, 5]
+        read = -_read(predictor, make_source, [0.0, 0.0, 0.0, 0.0, 0.0, -d], n_frames, seed)[:, 5]
         q25, q50, q75 = np.percentile(read, [25, 50, 75])
         ratio = float(np.median(read / d)) if d > 0 else None
         out.append(SpeedRead(float(v), d, float(q50), float(q25), float(q75), ratio))
@@ -131,11 +133,7 @@ def turn_reads(predictor, make_source, n_frames: int, yaws_rad=(-0.04, 0.04), fo
     for yaw in yaws_rad:
         for fwd in forwards_m:
             for slide in (0.0, slide_per_yaw_per_m * yaw * fwd):
-                vec = np.array([0.0, float(yaw), 0.0, float(slide), 0.0, -float(fwd)])
-                batch = make_source(lambda n, rng, v=vec: np.tile(v, (n, 1))).make_batch(
-                    np.random.default_rng(seed), int(n_frames))
-                extra = (batch["inv_depth"],) if "inv_depth" in batch else ()
-                mean, _ = predictor.predict(batch["flow"], batch["intrinsics"], *extra)
+                mean = _read(predictor, make_source, [0.0, yaw, 0.0, slide, 0.0, -fwd], n_frames, seed)
                 out.append(TurnRead(float(yaw), float(fwd), float(slide), float(np.median(mean[:, 1] / yaw)),
                                     float(np.median(mean[:, 3])), float(np.median(-mean[:, 5] / fwd))))
     return out
@@ -158,9 +156,6 @@ def straight_yaw_read(predictor, make_source, n_frames: int, forward_m: float, s
     """The yaw a model reads on a straight drive of ``forward_m`` metres a frame (true yaw 0): a read that is
     not 0 is a turn the model sees in the scene's layout (a near kerb on one hand), a heading drift on every
     straight frame. Returns ``{"forward_m", "yaw_median_rad", "yaw_mean_rad"}`` over the frames."""
-    vec = np.array([0.0, 0.0, 0.0, 0.0, 0.0, -float(forward_m)])
-    batch = make_source(lambda n, rng: np.tile(vec, (n, 1))).make_batch(np.random.default_rng(seed), int(n_frames))
-    extra = (batch["inv_depth"],) if "inv_depth" in batch else ()
-    mean, _ = predictor.predict(batch["flow"], batch["intrinsics"], *extra)
+    mean = _read(predictor, make_source, [0.0, 0.0, 0.0, 0.0, 0.0, -float(forward_m)], n_frames, seed)
     return {"forward_m": float(forward_m), "yaw_median_rad": float(np.median(mean[:, 1])),
             "yaw_mean_rad": float(np.mean(mean[:, 1]))}

@@ -21,6 +21,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--loop-fit", choices=("truncated", "plain"), default="truncated",
                    help="loop distribution's Student-t: refined for the truncation to the data's range (default), "
                         "or scipy's plain fit (narrower samples; what models/motion/kitti_s1.json's loops used)")
+    # the literal, not gen.motion.CONSECUTIVE_KINDS: importing gen.motion here costs every command 0.5 s of start-up
     p.add_argument("--consecutive", choices=("student-t", "kde"), default="student-t",
                    help="consecutive motions: an independent Student-t per DoF (the paper's; default) or a joint "
                         "kernel density estimate of the motions themselves (keeps a turning car's sideways slide "
@@ -78,7 +79,9 @@ def run(args: argparse.Namespace) -> int:
 
 def _d(six, k: int) -> dict:
     """Summary of DoF ``k`` of a Student-t (df, loc, scale) or KDE (bandwidth) distribution."""
-    if hasattr(six, "bandwidth"):
+    from deepslam.gen.motion import KdeSix
+
+    if isinstance(six, KdeSix):
         return {"bandwidth": float(six.bandwidth[k])}
     d = six.dofs[k]
     return {"df": d.df, "loc": d.loc, "scale": d.scale}

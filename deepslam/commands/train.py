@@ -360,8 +360,6 @@ def run(args: argparse.Namespace) -> int:
                 flow_estimators.estimator_options("exact", None, args.dis_min_texture, args.dis_fb_check)
                 frames = data.load_frames(seqs, w * f, h * f, args.frame_step, args.depth, args.max_frames, progress)
                 train_frames, hold_frames = frames.split(args.holdout, args.seed)
-                if args.mirror_frames:
-                    train_frames, hold_frames = data.with_mirrored(train_frames), data.with_mirrored(hold_frames)
 
                 def source(fr, n, seed):
                     return data.SyntheticSource(fr, sampler, n, seed, f, args.missing_depth, tilt=tilt,
@@ -373,13 +371,13 @@ def run(args: argparse.Namespace) -> int:
                 frames = data.load_image_frames(seqs, args.frame_step, args.depth, args.max_frames, progress,
                                                 scales=args.frame_scales)
                 train_frames, hold_frames = frames.split(args.holdout, args.seed)
-                if args.mirror_frames:
-                    train_frames, hold_frames = data.with_mirrored(train_frames), data.with_mirrored(hold_frames)
 
                 def source(fr, n, seed):
                     return data.EstimatedFlowSource(fr, sampler, args.synthetic_flow, w, h, n, seed, args.data_threads, opts,
                                                     args.appearance_noise, tilt=tilt, inv_depth=net.depth_channel,
                                                     scene_scale=scene_scale, unknown=net.unknown_flow)
+            if args.mirror_frames:  # after the split: a frame and its mirror stay on the same side
+                train_frames, hold_frames = data.with_mirrored(train_frames), data.with_mirrored(hold_frames)
             hold_src = source(hold_frames, n_hold, args.seed + 1).materialize(n_hold, args.seed + 1, progress)
             train_src = source(train_frames, args.samples_per_epoch, args.seed)
             estimator_name = getattr(train_src, "estimator_name", None)  # None: exact synthetic flow
