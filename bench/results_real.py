@@ -31,6 +31,9 @@ class Candidate:
     """Model file, or a shipped spec such as ``kitti`` (see deepslam.vo.models.resolve)."""
     flow: str = "dis"
     """Flow estimator: ``dis``, ``learned`` or ``gt`` (a name of :func:`deepslam.vo.flow_estimators.make`)."""
+    pose: str = "net"
+    """``net`` (the network's 6DoF) or ``epipolar`` (rotation and direction from the essential matrix, distance
+    from the network: ``deepslam vo --pose epipolar``)."""
 
 
 SHIPPED = (Candidate("shipped kitti_cons_dis", "kitti", "dis"), Candidate("shipped kitti_cons_learned", "kitti", "learned"))
@@ -59,10 +62,15 @@ def score(cand: Candidate, seq) -> dict:
     path, shipped = models.locate(cand.model, seq, flow=cand.flow)
     est, pred = models.flow_for_model(cand.flow, path), models.load(path, shipped)
     pairs = np.stack([np.arange(len(seq) - 1), np.arange(1, len(seq))], axis=1)
-    mean6, _ = pred.predict_pairs(seq, pairs, est, progress=False)
+    epi = None
+    if cand.pose == "epipolar":
+        from deepslam.vo.epipolar import EpipolarConfig
+
+        epi = EpipolarConfig()
+    mean6, _ = pred.predict_pairs(seq, pairs, est, progress=False, epipolar=epi)
     traj = Trajectory(chain_euler6(mean6), seq.timestamps_s)
     res = metrics.evaluate(seq.gt, traj, align="se3")
-    return {"model": cand.name, "model_file": pred.name, "flow": est.name, "slice": seq.name, "frames": len(seq),
+    return {"model": cand.name, "model_file": pred.name, "flow": est.name, "pose": cand.pose, "slice": seq.name, "frames": len(seq),
             "seen_in_training": seen_frames(pred.meta, Path(seq.root)), "gt_length_m": res["gt_length_m"],
             "path_length_ratio": res["path_length_ratio"], "endpoint_drift_pct": res["endpoint_drift_pct"],
             "ate_se3_m": res["ate_m"],
@@ -82,7 +90,7 @@ def run(candidates: tuple[Candidate, ...], out: Path, data_dir: Path) -> dict:
         seq = open_sequence(root)
         for c in candidates:
             rows.append(score(c, seq))
-            print(f"{c.name} on {sl}: path x{rows[-1]['path_length_ratio']:.3f}, "
+            print(f"{c.name} ({c.pose}) on {sl}: path x{rows[-1]['path_length_ratio']:.3f}, "
                   f"drift {rows[-1]['endpoint_drift_pct']:.1f} %", flush=True)
     report = {"rows": rows, "targets": {"path_length_ratio": [0.95, 1.05], "endpoint_drift_pct_max": 5.0}}
     write_report(out, report, markdown)
@@ -90,10 +98,10 @@ def run(candidates: tuple[Candidate, ...], out: Path, data_dir: Path) -> dict:
 
 
 def markdown(report: dict) -> str:
-    lines = ["| model | flow | slice | frames the model saw in training | path est/true | end-point drift | ATE (se3) | target met |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = ["| model | flow | pose | slice | frames the model saw in training | path est/true | end-point drift | ATE (se3) | target met |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for r in report["rows"]:
-        lines.append(f"| {r['model']} | {r['flow']} | KITTI {r['slice'].split('/')[-1]} ({r['frames']} frames, {r['gt_length_m']:.0f} m) | "
+        lines.append(f"| {r['model']} | {r['flow']} | {r.get('pose', 'net')} | KITTI {r['slice'].split('/')[-1]} ({r['frames']} frames, {r['gt_length_m']:.0f} m) | "
                      f"{r['seen_in_training']} | {r['path_length_ratio']:.3f} | {r['endpoint_drift_pct']:.1f} % | "
                      f"{r['ate_se3_m']:.2f} m | {'yes' if r['met'] else 'no'} |")
     return "\n".join(lines) + "\n"
@@ -106,12 +114,21 @@ def main(argv: list[str] | None = None) -> int:
     from deepslam.core.paths import out_dir, shared_data_dir
 
     os.environ.setdefault("MUJOCO_GL", "egl")
-    args = candidate_parser("results_real", __doc__, ("dis", "learned", "gt")).parse_args(argv)
+    ap = candidate_parser("results_real", __doc__, ("dis", "learned", "gt"))
+    ap.add_argument("--pose", default="net,epipolar", help="comma-separated pose modes each model is scored with: "
+                    "net (the network's 6DoF), epipolar (deepslam vo --pose epipolar); default both")
+    args = ap.parse_args(argv)
+    poses = [p for p in args.pose.split(",") if p]
     out = args.out or out_dir() / "results" / "real"
 
     def work() -> dict:
-        cands = ([] if args.no_shipped else list(SHIPPED)) + \
+        from deepslam.core.errors import InputError
+
+        if not poses or any(p not in ("net", "epipolar") for p in poses):
+            raise InputError(None, f"--pose {args.pose!r}: expected a comma-separated list of net, epipolar")
+        models = ([] if args.no_shipped else list(SHIPPED)) + \
             [Candidate(*c) for c in parse_model_specs(args.model, ("dis", "learned", "gt"))]
+        cands = [dataclasses.replace(c, pose=p) for c in models for p in poses]
         return run(tuple(cands), out, args.data or shared_data_dir())
 
     return run_locked("results_real", out, work, markdown)

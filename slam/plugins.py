@@ -173,7 +173,12 @@ def command_odometry(template: str, **kwargs) -> CheckedOdometry:
 def odometry_from_args(args, seq):
     """(odo_cons, odo_loops) from the command-line options of ``slam`` and ``tune-slam``: ``odometry``
     (model, gt-noisy or a plug-in spec), ``odometry_loops``, ``odometry_command``, ``model_cons``,
-    ``model_loops``, ``flow``, ``no_loops``, ``gt_noise``, ``gt_drift``, ``seed``, ``sequence``."""
+    ``model_loops``, ``flow``, ``no_loops``, ``gt_noise``, ``gt_drift``, ``seed``, ``sequence``, and ``pose``
+    (``epipolar``: the consecutive-frame network's rotation and direction from the essential matrix of the
+    flow, :mod:`vo.epipolar`; the network's alone where absent)."""
+    pose = getattr(args, "pose", "net")
+    if pose != "net" and (args.odometry != "model" or getattr(args, "odometry_command", None)):
+        raise InputError(None, f"--pose {pose} needs the network odometry (not a plug-in or gt-noisy)")
     if args.odometry == "gt-noisy":
         from deepslam.slam.odometry import GroundTruthOdometry, NoiseConfig
 
@@ -202,7 +207,7 @@ def odometry_from_args(args, seq):
     device = resolve_device(getattr(args, "device", "cpu"))
     estimators: dict[tuple, object] = {}  # one estimator per set-up: cons and loops share it where they agree
 
-    def odometry(spec, which):
+    def odometry(spec, which, epipolar=None):
         # each model gets the flow as it was trained on it (DIS's preset and texture threshold may differ)
         path, shipped = models.locate(spec, seq, which, args.flow)
         recorded = models.recorded_flow_options(path, args.flow)
@@ -210,8 +215,13 @@ def odometry_from_args(args, seq):
         if key not in estimators:
             estimators[key] = models.flow_for_model(args.flow, path, recorded)
         flow = estimators[key]
-        return models.load(path, shipped, device=device).as_odometry(flow)
+        return models.load(path, shipped, device=device).as_odometry(flow, epipolar=epipolar)
 
-    cons = odometry(args.model_cons, "cons")
+    epipolar = None
+    if pose == "epipolar":
+        from deepslam.vo.epipolar import EpipolarConfig
+
+        epipolar = EpipolarConfig()
+    cons = odometry(args.model_cons, "cons", epipolar)
     loops = None if args.no_loops else odometry(args.model_loops, "loops")
     return cons, loops

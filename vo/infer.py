@@ -110,14 +110,21 @@ class VOPredictor:
         return to_network_input(flow_full, camera, w, h, self.model.cfg.unknown_flow)
 
     def predict_pairs(self, seq, pairs: Seq[tuple[int, int]], flow_estimator, progress: bool = True,
-                      chunk: int = 64, inputs=None) -> tuple[np.ndarray, np.ndarray]:
+                      chunk: int = 64, inputs=None, epipolar=None,
+                      fits_out: list | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Flow for every pair (i, j) of ``seq`` by ``flow_estimator`` (and, for a depth-channel
         network, frame i's depth: :func:`vo.data.frame_inverse_depth`), then 6DoF of cam_j_from_cam_i.
 
         The flows are computed in a background thread (:class:`vo.prefetch.PairInputs`) while the
         network runs on the previous chunk. ``inputs``: a :class:`vo.prefetch.PairInputs` the caller
         started earlier for the same pairs (``deepslam vo`` starts it before loading torch); one made
-        for another input size is closed and replaced.
+        for another input size, or without the epipolar fit asked for, is closed and replaced.
+
+        ``epipolar``: a :class:`vo.epipolar.EpipolarConfig` to take each pair's rotation and direction of
+        travel from the essential matrix of its full-resolution flow and only the distance from the
+        network (``deepslam vo --pose epipolar``; pairs the fit cannot serve keep the network's motion);
+        ``(fit, used)`` of each pair, in the order of the pairs, is appended to ``fits_out`` when given
+        (``used``: :func:`vo.epipolar.fuse` took the fit). The std stays the network's.
 
         Returns (mean6, std6): float64 (P, 6) in the order of ``pairs``.
         """
@@ -129,12 +136,17 @@ class VOPredictor:
         pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
         h, w = self.input_size
         unknown = self.model.cfg.unknown_flow
+        fit = None
+        if epipolar is not None:
+            from deepslam.vo.epipolar import EpipolarFitter
+
+            fit = EpipolarFitter(epipolar)
         if inputs is not None and ((inputs.height, inputs.width, inputs.unknown) != (h, w, unknown)
-                                   or not np.array_equal(inputs.pairs, pairs)):
+                                   or not np.array_equal(inputs.pairs, pairs) or inputs.full_flow_fn != fit):
             inputs.close()
             inputs = None
         if inputs is None:
-            inputs = PairInputs(seq, pairs, flow_estimator, w, h, unknown=unknown)
+            inputs = PairInputs(seq, pairs, flow_estimator, w, h, unknown=unknown, full_flow_fn=fit)
         means, stds = [], []
         with inputs, tqdm(total=len(pairs), desc=f"vo {self.name}", unit="pair", disable=not progress,
                           leave=False) as bar:
@@ -154,24 +166,34 @@ class VOPredictor:
                 stds.append(sd)
         if not means:
             return np.zeros((0, 6)), np.zeros((0, 6))
-        return np.concatenate(means), np.concatenate(stds)
+        mean6, std6 = np.concatenate(means), np.concatenate(stds)
+        if fit is not None:
+            from deepslam.vo.epipolar import fuse_all
 
-    def as_odometry(self, flow_estimator, progress: bool = True) -> "PredictorOdometry":
-        """This predictor with a flow estimator, as the SLAM pipeline's odometry (name, predict(seq, pairs))."""
-        return PredictorOdometry(self, flow_estimator, progress)
+            mean6, used = fuse_all(mean6, inputs.side)
+            if fits_out is not None:
+                fits_out.extend(zip(inputs.side, used.tolist()))
+        return mean6, std6
+
+    def as_odometry(self, flow_estimator, progress: bool = True, epipolar=None) -> "PredictorOdometry":
+        """This predictor with a flow estimator, as the SLAM pipeline's odometry (name, predict(seq, pairs));
+        ``epipolar``: see :meth:`predict_pairs`."""
+        return PredictorOdometry(self, flow_estimator, progress, epipolar)
 
 
 class PredictorOdometry:
     """Adapter: ``predict(seq, pairs) -> (mean6, std6)`` with a fixed flow estimator."""
 
-    def __init__(self, predictor: VOPredictor, flow_estimator, progress: bool = True):
+    def __init__(self, predictor: VOPredictor, flow_estimator, progress: bool = True, epipolar=None):
         self.predictor = predictor
         self.flow_estimator = flow_estimator
         self.progress = progress
-        self.name = f"{predictor.name}+{getattr(flow_estimator, 'name', 'flow')}"
+        self.epipolar = epipolar
+        self.name = f"{predictor.name}+{getattr(flow_estimator, 'name', 'flow')}" + ("+epipolar" if epipolar else "")
 
     def predict(self, seq, pairs):
-        return self.predictor.predict_pairs(seq, pairs, self.flow_estimator, progress=self.progress)
+        return self.predictor.predict_pairs(seq, pairs, self.flow_estimator, progress=self.progress,
+                                            epipolar=self.epipolar)
 
 
 def chain(cam_next_from_cam: np.ndarray) -> np.ndarray:

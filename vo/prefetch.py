@@ -42,14 +42,20 @@ class PairInputs:
             :attr:`vo.net.NetConfig.unknown_flow`).
         ahead: how many pairs the worker may run ahead of the reader (bounds memory: 256 KB a pair at
             96 x 320).
+        full_flow_fn: optional ``f(flow, camera) -> object`` the worker also applies to each pair's
+            full-resolution flow (H, W, 2) px (the epipolar fit of :mod:`vo.epipolar`); its results, in the
+            order of the pairs, are :attr:`side` once the iteration is done.
 
     The worker starts at construction. An exception raised in the worker (a missing image: InputError)
     is raised again by the iterator, in the caller's thread, at the pair where it happened. Iterate
     once; :meth:`close` (or leaving a ``with`` block) stops the worker early.
     """
 
-    def __init__(self, seq, pairs, estimator, width: int, height: int, ahead: int = 512, unknown: str = "zero"):
+    def __init__(self, seq, pairs, estimator, width: int, height: int, ahead: int = 512, unknown: str = "zero",
+                 full_flow_fn=None):
         self.seq, self.estimator = seq, estimator
+        self.full_flow_fn = full_flow_fn
+        self.side: list = []
         self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
         self.width, self.height = int(width), int(height)
         self.unknown = unknown
@@ -66,6 +72,8 @@ class PairInputs:
                 if self._stop.is_set():
                     return
                 flow = self.estimator.pair_flow(self.seq, int(i), int(j))
+                if self.full_flow_fn is not None:
+                    self.side.append(self.full_flow_fn(flow, self.seq.camera))
                 if not self._put(to_network_input(flow, self.seq.camera, self.width, self.height, self.unknown)):
                     return
         except BaseException as e:  # noqa: BLE001 - handed to the reading thread, raised there

@@ -7,6 +7,7 @@ Writes, beside ``--out``: ``<stem>.motions.csv`` (the relative motions with thei
 from __future__ import annotations
 
 import argparse
+import dataclasses
 
 NAME = "vo"
 HELP = "learned visual odometry: flow between frames -> network -> chained trajectory (+ CSV of motions with std)"
@@ -34,6 +35,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="DIS flow is unknown where the backward flow does not bring a pixel back to within PX "
                         "pixels (occlusions, wrong matches; twice DIS's time; 0 = no check). Default: the model's, "
                         "as it was trained (0 where it does not say)")
+    p.add_argument("--pose", choices=("net", "epipolar"), default="net",
+                   help="net: the network's 6DoF (the paper); epipolar: the rotation and the direction of travel from "
+                        "the essential matrix of the full-resolution flow (OpenCV USAC), the distance from the network "
+                        "(pairs without parallax keep the network's motion; see vo/epipolar.py)")
     p.add_argument("--stride", type=int, default=1, help="frame gap k: predict cam_{t+k}_from_cam_t for t = 0, k, 2k, ...")
     p.add_argument("--start", type=int, default=0, help="first frame")
     p.add_argument("--end", type=int, default=None, help="one past the last frame (default: all)")
@@ -82,6 +87,8 @@ def run(args: argparse.Namespace) -> int:
     if plugin is not None:
         if args.model is not None:
             raise InputError(None, "--model and --odometry/--odometry-command exclude each other")
+        if args.pose != "net":
+            raise InputError(None, "--pose epipolar needs the network odometry (not --odometry/--odometry-command)")
         mean6, std6 = plugin.predict(seq, pairs)
         name, estimator, predictor = plugin.name, None, None
     else:
@@ -95,7 +102,14 @@ def run(args: argparse.Namespace) -> int:
 
         # the flows start before torch and the model load (seconds of start-up they overlap)
         spec = model_input(model_path)
-        inputs = None if spec is None else PairInputs(seq, pairs, estimator, spec[1], spec[0], unknown=spec[2])
+        epi = fitter = None
+        if args.pose == "epipolar":
+            from deepslam.vo.epipolar import EpipolarConfig, EpipolarFitter
+
+            epi = EpipolarConfig()
+            fitter = EpipolarFitter(epi)
+        inputs = None if spec is None else PairInputs(seq, pairs, estimator, spec[1], spec[0], unknown=spec[2],
+                                                      full_flow_fn=fitter)
         from deepslam.gen.device import resolve_device
 
         try:
@@ -105,8 +119,9 @@ def run(args: argparse.Namespace) -> int:
             if inputs is not None:
                 inputs.close()
             raise
+        fits: list = []
         mean6, std6 = predictor.predict_pairs(seq, pairs, estimator, progress=not (args.quiet or args.json),
-                                              inputs=inputs)
+                                              inputs=inputs, epipolar=epi, fits_out=fits)
         name = predictor.name
     from deepslam.vo.infer import chain_euler6
 
@@ -129,7 +144,9 @@ def run(args: argparse.Namespace) -> int:
     else:
         config.update(model=args.model or f"shipped:{models.kind_for_sequence(seq)}_cons", model_name=name,
                       model_net=predictor.model.cfg.to_dict(), flow=getattr(estimator, "name", args.flow),
-                      bf16=predictor.bf16, batch=args.batch, device=str(predictor.device))
+                      bf16=predictor.bf16, batch=args.batch, device=str(predictor.device), pose=args.pose)
+        if epi is not None:
+            config.update(epipolar=dataclasses.asdict(epi), epipolar_pairs_used=sum(u for _, u in fits))
     atomic.write_json(Path(f"{stem}.config.json"), config)
     say = (lambda *a, **k: None) if args.json else print
     say(f"wrote {out} ({len(frames)} poses, {fmt}) and {stem}.motions.csv")
