@@ -121,8 +121,14 @@ def test_real_slice_table_says_what_each_model_saw(shared_data, tmp_path):
     none of 07; the drift figures are those of core.metrics (checked there)."""
     from bench import results_real
 
-    rep = results_real.run(results_real.SHIPPED, tmp_path, shared_data)
-    assert len(rep["rows"]) == 2 * len(results_real.SHIPPED)  # each shipped model (DIS and learned flow) on 06 and 07
+    epi = dataclasses.replace(results_real.SHIPPED[0], pose="epipolar")
+    rep = results_real.run((*results_real.SHIPPED, epi), tmp_path, shared_data)
+    assert len(rep["rows"]) == 2 * 3  # each shipped model (DIS and learned flow), and DIS with --pose epipolar, on 06 and 07
+    for net, fused in ((rep["rows"][0], rep["rows"][2]), (rep["rows"][3], rep["rows"][5])):
+        assert (net["pose"], fused["pose"]) == ("net", "epipolar") and net["slice"] == fused["slice"]
+        # the distance is the network's: the same path length (to the float summation), another trajectory
+        assert fused["path_length_ratio"] == pytest.approx(net["path_length_ratio"], rel=1e-6)
+        assert fused["endpoint_drift_pct"] != net["endpoint_drift_pct"]
     for r in rep["rows"]:
         want = {"06": "single frames, no poses", "07": "none"}[r["slice"].split("/")[-1]]
         assert r["seen_in_training"] == want, r
@@ -131,7 +137,9 @@ def test_real_slice_table_says_what_each_model_saw(shared_data, tmp_path):
     for r in rep["rows"]:
         assert r["path_length_ratio"] > 0 and r["endpoint_drift_pct"] >= 0
     md = (tmp_path / "results.md").read_text()
-    assert "frames the model saw in training" in md and "KITTI 07 (160 frames" in md
+    assert "frames the model saw in training" in md and "KITTI 07 (160 frames" in md and "| epipolar |" in md
+    assert results_real.main(["--pose", "net,flat", "--out", str(tmp_path / "b")]) == 2
+    assert not (tmp_path / "b").exists()
 
 
 def test_turn_table_measures_both_sets_and_refuses_a_bad_model_spec(shared_data, tmp_path, monkeypatch, capsys):

@@ -57,6 +57,11 @@ class EpipolarConfig:
     min_parallax_px: float = 1.0
     """Median flow of the inliers once the fitted rotation is taken out, pixels; below it the direction of
     travel is undetermined (standing still, pure rotation) and the pair is left to the network."""
+    max_rotation_disagreement_deg: float = 2.0
+    """A fit whose rotation differs from the network's by more than this is not used (:func:`fuse`): near
+    standing still the essential matrix can decompose into the wrong one of its four poses (a 180-degree
+    twist, which then also passes the parallax test). A car's camera turns at most a few degrees a frame
+    and the network errs by tenths of one."""
 
     def __post_init__(self) -> None:
         if self.grid_step_px < 1:
@@ -66,7 +71,7 @@ class EpipolarConfig:
         if self.method not in METHODS:
             raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
         if not (self.threshold_px > 0 and 0 < self.confidence < 1 and 0 <= self.min_inlier_fraction <= 1
-                and self.min_parallax_px >= 0):
+                and self.min_parallax_px >= 0 and self.max_rotation_disagreement_deg > 0):
             raise ValueError(f"invalid epipolar settings: {self}")
 
 
@@ -159,20 +164,25 @@ def fit_essential(flow: np.ndarray, camera, cfg: EpipolarConfig = EpipolarConfig
     return EpipolarFit(True, np.asarray(rot, dtype=np.float64), d / np.linalg.norm(d), inl, n, parallax)
 
 
-def fuse(mean6: np.ndarray, fit: EpipolarFit) -> tuple[np.ndarray, bool]:
+def fuse(mean6: np.ndarray, fit: EpipolarFit, cfg: EpipolarConfig = EpipolarConfig()) -> tuple[np.ndarray, bool]:
     """One network motion with the fit's rotation and direction of travel, and the network's distance.
 
     Args:
         mean6: (6,) float the network's ``cam1_from_cam0`` (euler_x, euler_y, euler_z rad, t_x, t_y, t_z m).
         fit: :func:`fit_essential` of the same pair's flow.
+        cfg: the settings (:attr:`EpipolarConfig.max_rotation_disagreement_deg`).
 
     Returns:
         (mean6, used): the fused (6,) float64 motion, and whether the fit was used. It is not where the fit
-        failed, or where its direction of travel points more than 90 degrees away from the network's (the
-        cheirality sign disagreeing with the network: too little depth structure to trust either).
+        failed, where its rotation is more than ``cfg.max_rotation_disagreement_deg`` from the network's, or
+        where its direction of travel points more than 90 degrees away from the network's (the cheirality
+        sign disagreeing with the network: too little depth structure to trust either).
     """
     m = np.asarray(mean6, dtype=np.float64).reshape(6)
     if not fit.ok:
+        return m.copy(), False
+    net = se3.from_euler6(m)
+    if se3.rotation_angle(fit.cam1_from_cam0_rotation @ net[:3, :3].T) > np.radians(cfg.max_rotation_disagreement_deg):
         return m.copy(), False
     t_net = m[3:]
     length = float(np.linalg.norm(t_net))
@@ -181,7 +191,7 @@ def fuse(mean6: np.ndarray, fit: EpipolarFit) -> tuple[np.ndarray, bool]:
     return se3.to_euler6(se3.from_rt(fit.cam1_from_cam0_rotation, fit.direction_cam1 * length)), True
 
 
-def fuse_all(mean6: np.ndarray, fits) -> tuple[np.ndarray, np.ndarray]:
+def fuse_all(mean6: np.ndarray, fits, cfg: EpipolarConfig = EpipolarConfig()) -> tuple[np.ndarray, np.ndarray]:
     """:func:`fuse` for (P, 6) motions and their P fits -> ((P, 6) float64 motions, (P,) bool used)."""
     mean6 = np.asarray(mean6, dtype=np.float64).reshape(-1, 6)
     fits = list(fits)
@@ -190,7 +200,7 @@ def fuse_all(mean6: np.ndarray, fits) -> tuple[np.ndarray, np.ndarray]:
     out = np.empty_like(mean6)
     used = np.zeros(len(mean6), bool)
     for p, (m, fit) in enumerate(zip(mean6, fits)):
-        out[p], used[p] = fuse(m, fit)
+        out[p], used[p] = fuse(m, fit, cfg)
     return out, used
 
 

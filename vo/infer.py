@@ -170,7 +170,7 @@ class VOPredictor:
         if fit is not None:
             from deepslam.vo.epipolar import fuse_all
 
-            mean6, used = fuse_all(mean6, inputs.side)
+            mean6, used = fuse_all(mean6, inputs.side, epipolar)
             if fits_out is not None:
                 fits_out.extend(zip(inputs.side, used.tolist()))
         return mean6, std6

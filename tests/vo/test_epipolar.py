@@ -2,6 +2,7 @@
 from the network; ``deepslam vo --pose epipolar`` end to end."""
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -102,7 +103,7 @@ def test_flow_of_another_size_is_an_error():
 def test_fuse_keeps_the_network_distance_and_takes_the_fitted_rotation_and_direction():
     motion = car_motion(0.04, 1.0)
     fit = epipolar.fit_essential(exact_flow(motion), KITTI_LIKE)
-    net = np.array([0.002, 0.05, -0.001, 0.0, 0.01, -1.3])  # wrong rotation and direction, distance 1.30004 m
+    net = np.array([0.002, -0.05, -0.001, 0.0, 0.01, -1.3])  # rotation 0.6 deg off, direction off, distance 1.30004 m
     fused, used = epipolar.fuse(net, fit)
     assert used
     t = se3.from_euler6(fused)
@@ -110,12 +111,13 @@ def test_fuse_keeps_the_network_distance_and_takes_the_fitted_rotation_and_direc
     np.testing.assert_allclose(t[:3, :3], fit.cam1_from_cam0_rotation, atol=1e-12)
     assert angle_deg(t[:3, 3], motion[:3, 3]) < 0.1
     # a network that reads the opposite direction of travel: the fit's sign is not trusted, the network's motion kept
-    back, used = epipolar.fuse(-net, fit)
-    assert not used and np.array_equal(back, -net)
-    both, used_all = epipolar.fuse_all(np.stack([net, -net]), [fit, fit])
+    backward = np.r_[net[:3], -net[3:]]
+    back, used = epipolar.fuse(backward, fit)
+    assert not used and np.array_equal(back, backward)
+    both, used_all = epipolar.fuse_all(np.stack([net, backward]), [fit, fit])
     assert used_all.tolist() == [True, False]
     with pytest.raises(ValueError, match="2 motions but 1"):
-        epipolar.fuse_all(np.stack([net, -net]), [fit])
+        epipolar.fuse_all(np.stack([net, backward]), [fit])
 
 
 def test_same_flow_same_fit():
@@ -137,7 +139,8 @@ def test_outliers_are_rejected():
 
 
 @pytest.mark.parametrize("bad", [dict(method="lmeds"), dict(grid_step_px=0), dict(threshold_px=0.0),
-                                 dict(min_inliers=4), dict(confidence=1.0), dict(min_parallax_px=-1.0)])
+                                 dict(min_inliers=4), dict(confidence=1.0), dict(min_parallax_px=-1.0),
+                                 dict(max_rotation_disagreement_deg=0.0)])
 def test_bad_settings_are_refused(bad):
     with pytest.raises(ValueError):
         epipolar.EpipolarConfig(**bad)
@@ -225,3 +228,15 @@ def test_slam_pose_epipolar_refuses_a_plugin(street_sequence, tmp_path, capsys):
                  "--out", str(tmp_path / "t.txt")]) == 2
     assert "--pose epipolar needs the network" in capsys.readouterr().err
     assert not (tmp_path / "t.txt").exists()
+
+
+def test_a_fit_far_from_the_network_rotation_is_not_used():
+    """Near standing still the essential matrix can decompose into a 180-degree twist: left to the network."""
+    twisted = epipolar.EpipolarFit(True, se3.from_euler6(np.array([0.0, 0.0, np.pi, 0, 0, 0]))[:3, :3],
+                                   np.array([0.0, 0.0, -1.0]), 900, 1000, 600.0)
+    net = np.array([0.001, 0.006, 0.001, -0.001, 0.017, -0.08])
+    fused, used = epipolar.fuse(net, twisted)
+    assert not used and np.array_equal(fused, net)
+    near = dataclasses.replace(twisted, cam1_from_cam0_rotation=se3.from_euler6(np.array([0.0, 0.03, 0, 0, 0, 0]))[:3, :3])
+    assert epipolar.fuse(net, near)[1]  # 1.4 degrees from the network's: used
+    assert not epipolar.fuse(net, near, epipolar.EpipolarConfig(max_rotation_disagreement_deg=1.0))[1]
