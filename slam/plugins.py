@@ -175,9 +175,9 @@ def odometry_from_args(args, seq):
     (model, gt-noisy or a plug-in spec), ``odometry_loops``, ``odometry_command``, ``model_cons``,
     ``model_loops``, ``flow``, ``no_loops``, ``gt_noise``, ``gt_drift``, ``seed``, ``sequence``, and ``pose``
     (``epipolar``: the consecutive-frame network's rotation and direction from the essential matrix of the
-    flow, :mod:`vo.epipolar`; the network's alone where absent)."""
-    pose = getattr(args, "pose", "net")
-    if pose != "net" and (args.odometry != "model" or getattr(args, "odometry_command", None)):
+    flow, :mod:`vo.epipolar`; absent or None: the mode the NN_cons file records, :func:`vo.models.recorded_pose`)."""
+    pose = getattr(args, "pose", None)
+    if pose == "epipolar" and (args.odometry != "model" or getattr(args, "odometry_command", None)):
         raise InputError(None, f"--pose {pose} needs the network odometry (not a plug-in or gt-noisy)")
     if args.odometry == "gt-noisy":
         from deepslam.slam.odometry import GroundTruthOdometry, NoiseConfig
@@ -207,9 +207,14 @@ def odometry_from_args(args, seq):
     device = resolve_device(getattr(args, "device", "cpu"))
     estimators: dict[tuple, object] = {}  # one estimator per set-up: cons and loops share it where they agree
 
-    def odometry(spec, which, epipolar=None):
+    def odometry(spec, which, pose=None):
         # each model gets the flow as it was trained on it (DIS's preset and texture threshold may differ)
         path, shipped = models.locate(spec, seq, which, args.flow)
+        epipolar = None
+        if (pose or models.recorded_pose(path)) == "epipolar":
+            from deepslam.vo.epipolar import EpipolarConfig
+
+            epipolar = EpipolarConfig()
         recorded = models.recorded_flow_options(path, args.flow)
         key = tuple(sorted(recorded.items()))
         if key not in estimators:
@@ -217,11 +222,6 @@ def odometry_from_args(args, seq):
         flow = estimators[key]
         return models.load(path, shipped, device=device).as_odometry(flow, epipolar=epipolar)
 
-    epipolar = None
-    if pose == "epipolar":
-        from deepslam.vo.epipolar import EpipolarConfig
-
-        epipolar = EpipolarConfig()
-    cons = odometry(args.model_cons, "cons", epipolar)
-    loops = None if args.no_loops else odometry(args.model_loops, "loops")
+    cons = odometry(args.model_cons, "cons", pose)
+    loops = None if args.no_loops else odometry(args.model_loops, "loops", "net")  # loop pairs: NN_loops' 6DoF
     return cons, loops

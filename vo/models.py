@@ -113,6 +113,42 @@ def recorded_flow_options(path: str | Path, flow: str) -> dict:
     return dict(options)
 
 
+POSES = ("net", "epipolar")
+"""How a VO model's motions are used: ``net``, the network's 6DoF (the paper); ``epipolar``, the rotation and
+direction of travel from the essential matrix of the flow and the distance from the network (:mod:`vo.epipolar`)."""
+
+
+def recorded_pose(path: str | Path) -> str:
+    """The pose mode (:data:`POSES`) the VO model file at ``path`` records as its own (meta ``pose``,
+    written by ``deepslam set-pose``): what ``vo`` and ``slam`` use when ``--pose`` is not given.
+    ``net`` where the file records none or cannot be read (the loader reports that); read from the
+    header, no torch. InputError naming ``path`` for a value that is not a pose mode."""
+    from deepslam.vo import modeltree
+
+    try:
+        pose = modeltree.meta(modeltree.read_header_tree(path)).get("pose", "net")
+    except Exception:  # noqa: BLE001 - an unreadable file: the loader says what is wrong
+        return "net"
+    if pose not in POSES:
+        raise InputError(path, f"malformed VO model: its meta.pose {pose!r} is not one of {', '.join(POSES)}")
+    return pose
+
+
+def write_with_pose(path: str | Path, out: str | Path, pose: str) -> dict:
+    """Write the VO model file ``path`` (single network or ensemble) to ``out`` (atomically) with ``pose``
+    (:data:`POSES`) recorded as its pose mode: the same weights and meta otherwise. Returns the new meta.
+    InputError naming ``path`` when it is not a VO model file."""
+    from deepslam.vo import modelfile
+    from deepslam.vo.train import MODEL_FORMAT
+
+    if pose not in POSES:
+        raise InputError(None, f"pose must be one of {', '.join(POSES)}, got {pose!r}")
+    kind, tree = modelfile.load(path, (MODEL_FORMAT,))
+    meta = {**(tree.get("meta") if isinstance(tree.get("meta"), dict) else {}), "pose": pose}
+    modelfile.save(out, kind, {**tree, "meta": meta})
+    return meta
+
+
 def flow_for_model(flow: str, path: str | Path, recorded: dict | None = None, **given):
     """The flow estimator ``flow`` set up as the model file at ``path`` saw it in training
     (:func:`recorded_flow_options`: DIS's preset and texture threshold; ``recorded``: those options

@@ -29,10 +29,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="trajectory format (default: kitti)")
     p.add_argument("--plot", default=None, metavar="PNG", help="top-down plot of VO, SLAM and ground truth")
     p.add_argument("--flow", default="dis", help="optical flow estimator for the models (default: dis)")
-    p.add_argument("--pose", choices=("net", "epipolar"), default="net",
+    p.add_argument("--pose", choices=("net", "epipolar"), default=None,
                    help="consecutive-frame motions: net (the network's 6DoF) or epipolar (rotation and direction of "
                         "travel from the essential matrix of the flow, distance from the network; as deepslam vo "
-                        "--pose); loop pairs keep NN_loops' 6DoF")
+                        "--pose); loop pairs keep NN_loops' 6DoF. Default: the mode the NN_cons file records, net "
+                        "where it records none")
     p.add_argument("--vocabulary", default=None, metavar="NPZ",
                    help="BoW vocabulary (default: train one on the sequence's keyframes)")
     p.add_argument("--save-vocabulary", default=None, metavar="NPZ", help="write the vocabulary used")

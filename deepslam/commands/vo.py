@@ -35,10 +35,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="DIS flow is unknown where the backward flow does not bring a pixel back to within PX "
                         "pixels (occlusions, wrong matches; twice DIS's time; 0 = no check). Default: the model's, "
                         "as it was trained (0 where it does not say)")
-    p.add_argument("--pose", choices=("net", "epipolar"), default="net",
+    p.add_argument("--pose", choices=("net", "epipolar"), default=None,
                    help="net: the network's 6DoF (the paper); epipolar: the rotation and the direction of travel from "
                         "the essential matrix of the full-resolution flow (OpenCV USAC), the distance from the network "
-                        "(pairs without parallax keep the network's motion; see vo/epipolar.py)")
+                        "(pairs without parallax keep the network's motion; see vo/epipolar.py). Default: the mode the "
+                        "model file records (deepslam set-pose), net where it records none")
     p.add_argument("--stride", type=int, default=1, help="frame gap k: predict cam_{t+k}_from_cam_t for t = 0, k, 2k, ...")
     p.add_argument("--start", type=int, default=0, help="first frame")
     p.add_argument("--end", type=int, default=None, help="one past the last frame (default: all)")
@@ -87,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     if plugin is not None:
         if args.model is not None:
             raise InputError(None, "--model and --odometry/--odometry-command exclude each other")
-        if args.pose != "net":
+        if args.pose == "epipolar":
             raise InputError(None, "--pose epipolar needs the network odometry (not --odometry/--odometry-command)")
         mean6, std6 = plugin.predict(seq, pairs)
         name, estimator, predictor = plugin.name, None, None
@@ -103,7 +104,8 @@ def run(args: argparse.Namespace) -> int:
         # the flows start before torch and the model load (seconds of start-up they overlap)
         spec = model_input(model_path)
         epi = fitter = None
-        if args.pose == "epipolar":
+        pose = args.pose or models.recorded_pose(model_path)
+        if pose == "epipolar":
             from deepslam.vo.epipolar import EpipolarConfig, EpipolarFitter
 
             epi = EpipolarConfig()
@@ -144,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         config.update(model=args.model or f"shipped:{models.kind_for_sequence(seq)}_cons", model_name=name,
                       model_net=predictor.model.cfg.to_dict(), flow=getattr(estimator, "name", args.flow),
-                      bf16=predictor.bf16, batch=args.batch, device=str(predictor.device), pose=args.pose)
+                      bf16=predictor.bf16, batch=args.batch, device=str(predictor.device), pose=pose)
         if epi is not None:
             config.update(epipolar=dataclasses.asdict(epi), epipolar_pairs_used=sum(u for _, u in fits))
     atomic.write_json(Path(f"{stem}.config.json"), config)

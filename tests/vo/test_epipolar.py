@@ -240,3 +240,34 @@ def test_a_fit_far_from_the_network_rotation_is_not_used():
     near = dataclasses.replace(twisted, cam1_from_cam0_rotation=se3.from_euler6(np.array([0.0, 0.03, 0, 0, 0, 0]))[:3, :3])
     assert epipolar.fuse(net, near)[1]  # 1.4 degrees from the network's: used
     assert not epipolar.fuse(net, near, epipolar.EpipolarConfig(max_rotation_disagreement_deg=1.0))[1]
+
+
+def test_set_pose_records_the_mode_vo_uses_without_a_flag(street_sequence, street_model, tmp_path, capsys):
+    from deepslam.cli import main
+    from deepslam.vo import models, modelfile
+    from deepslam.vo.train import MODEL_FORMAT
+    from tests.vo.test_vo_cli import _vo
+
+    root, _ = street_sequence
+    marked = tmp_path / "marked.safetensors"
+    assert main(["set-pose", str(street_model), "--pose", "epipolar", "--out", str(marked)]) == 0
+    assert models.recorded_pose(street_model) == "net" and models.recorded_pose(marked) == "epipolar"
+    # the same weights: only the meta changed
+    w0, w1 = (modelfile.load(p, (MODEL_FORMAT,))[1] for p in (street_model, marked))
+    assert {k: v for k, v in w1["meta"].items() if k != "pose"} == w0["meta"]
+    for pose_flag, want in (([], "epipolar"), (["--pose", "net"], "net")):
+        out = tmp_path / f"vo_{want}.txt"
+        assert _vo("--sequence", root, "--model", marked, "--out", out, "--flow", "gt", "--quiet", *pose_flag) == 0
+        assert json.loads(out.with_suffix(".config.json").read_text())["pose"] == want
+    # a meta.pose that is not a mode: one line naming the file, exit 2, nothing written
+    kind, tree = modelfile.load(marked, (MODEL_FORMAT,))
+    bad = tmp_path / "bad.safetensors"
+    modelfile.save(bad, kind, {**tree, "meta": {**tree["meta"], "pose": "sideways"}})
+    capsys.readouterr()
+    assert _vo("--sequence", root, "--model", bad, "--out", tmp_path / "b.txt", "--flow", "gt", "--quiet") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "bad.safetensors" in err[0] and "meta.pose" in err[0]
+    assert not (tmp_path / "b.txt").exists()
+    (tmp_path / "junk.safetensors").write_bytes(b"junk")
+    assert main(["set-pose", str(tmp_path / "junk.safetensors"), "--pose", "net", "--out", str(tmp_path / "j2")]) == 2
+    assert not (tmp_path / "j2").exists()
