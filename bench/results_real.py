@@ -6,7 +6,9 @@ its flow estimator, ``deepslam vo``'s computation runs on ``../shared/data/kitti
 estimated / true path length and end-point drift in percent of the path (the issue's targets:
 0.95-1.05 and <= 5 %), plus the se3-aligned ATE. Each row says which of the slice's frames the model
 saw in training, from the model file's own record: ``none``, or ``single frames, no poses`` (the
-paper's unsupervised adaptation). 07 is never trained on. Writes results.json and results.md into
+paper's unsupervised adaptation). 07 is never trained on. Every model is scored with each pose mode of
+``--pose`` (default both): ``net``, the network's 6DoF, and ``epipolar``, the rotation and direction of
+travel from the essential matrix of the flow with the network's distance (``deepslam vo --pose``). Writes results.json and results.md into
 ``out/results/real`` (``python -m bench.results_real``, about 1 minute per model).
 """
 from __future__ import annotations

@@ -210,17 +210,12 @@ def odometry_from_args(args, seq):
     def odometry(spec, which, pose=None):
         # each model gets the flow as it was trained on it (DIS's preset and texture threshold may differ)
         path, shipped = models.locate(spec, seq, which, args.flow)
-        epipolar = None
-        if (pose or models.recorded_pose(path)) == "epipolar":
-            from deepslam.vo.epipolar import EpipolarConfig
-
-            epipolar = EpipolarConfig()
         recorded = models.recorded_flow_options(path, args.flow)
         key = tuple(sorted(recorded.items()))
         if key not in estimators:
             estimators[key] = models.flow_for_model(args.flow, path, recorded)
         flow = estimators[key]
-        return models.load(path, shipped, device=device).as_odometry(flow, epipolar=epipolar)
+        return models.load(path, shipped, device=device).as_odometry(flow, epipolar=models.epipolar_config(path, pose))
 
     cons = odometry(args.model_cons, "cons", pose)
     loops = None if args.no_loops else odometry(args.model_loops, "loops", "net")  # loop pairs: NN_loops' 6DoF

@@ -170,9 +170,10 @@ class VOPredictor:
         if fit is not None:
             from deepslam.vo.epipolar import fuse_all
 
-            mean6, used = fuse_all(mean6, inputs.side, epipolar)
+            side = inputs.side
+            mean6, used = fuse_all(mean6, side, epipolar)
             if fits_out is not None:
-                fits_out.extend(zip(inputs.side, used.tolist()))
+                fits_out.extend(zip(side, used.tolist()))
         return mean6, std6
 
     def as_odometry(self, flow_estimator, progress: bool = True, epipolar=None) -> "PredictorOdometry":

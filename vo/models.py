@@ -74,10 +74,13 @@ def load(path: Path, shipped: bool = False, **kwargs):
     return VOPredictor.from_file(path, **kwargs)
 
 
-def odometry(path: str | Path, flow: str = "dis", shipped: bool = False, progress: bool = False, **kwargs):
+def odometry(path: str | Path, flow: str = "dis", shipped: bool = False, progress: bool = False, pose: str | None = None,
+             **kwargs):
     """The VO model file at ``path`` as a SLAM odometry (:meth:`vo.infer.VOPredictor.as_odometry`) on flow
-    estimator ``flow`` set up as the file records (:func:`flow_for_model`); ``kwargs`` go to :func:`load`."""
-    return load(Path(path), shipped, **kwargs).as_odometry(flow_for_model(flow, path), progress=progress)
+    estimator ``flow`` set up as the file records (:func:`flow_for_model`), in pose mode ``pose``
+    (:data:`POSES`; None: the mode the file records, :func:`recorded_pose`); ``kwargs`` go to :func:`load`."""
+    return load(Path(path), shipped, **kwargs).as_odometry(flow_for_model(flow, path), progress=progress,
+                                                            epipolar=epipolar_config(path, pose))
 
 
 RECORDED_OPTIONS = {"dis": ("preset", "min_texture", "fb_max_px")}
@@ -132,6 +135,16 @@ def recorded_pose(path: str | Path) -> str:
     if pose not in POSES:
         raise InputError(path, f"malformed VO model: its meta.pose {pose!r} is not one of {', '.join(POSES)}")
     return pose
+
+
+def epipolar_config(path: str | Path, pose: str | None = None):
+    """The :class:`vo.epipolar.EpipolarConfig` to run the VO model file at ``path`` with in pose mode ``pose``
+    (None: the mode the file records, :func:`recorded_pose`); None in the ``net`` mode."""
+    if (pose or recorded_pose(path)) != "epipolar":
+        return None
+    from deepslam.vo.epipolar import EpipolarConfig
+
+    return EpipolarConfig()
 
 
 def write_with_pose(path: str | Path, out: str | Path, pose: str) -> dict:

@@ -42,9 +42,10 @@ class PairInputs:
             :attr:`vo.net.NetConfig.unknown_flow`).
         ahead: how many pairs the worker may run ahead of the reader (bounds memory: 256 KB a pair at
             96 x 320).
-        full_flow_fn: optional ``f(flow, camera) -> object`` the worker also applies to each pair's
-            full-resolution flow (H, W, 2) px (the epipolar fit of :mod:`vo.epipolar`); its results, in the
-            order of the pairs, are :attr:`side` once the iteration is done.
+        full_flow_fn: optional ``f(flow, camera) -> object`` applied to each pair's full-resolution flow
+            (H, W, 2) px (the epipolar fit of :mod:`vo.epipolar`) in a thread of its own, beside the flow
+            thread (OpenCV releases the GIL: on 2 cores the fit overlaps the next pair's DIS); its
+            results, in the order of the pairs, are :attr:`side` once the iteration is done.
 
     The worker starts at construction. An exception raised in the worker (a missing image: InputError)
     is raised again by the iterator, in the caller's thread, at the pair where it happened. Iterate
@@ -55,7 +56,12 @@ class PairInputs:
                  full_flow_fn=None):
         self.seq, self.estimator = seq, estimator
         self.full_flow_fn = full_flow_fn
-        self.side: list = []
+        self._side_futures: list = []
+        self._side_pool = None
+        if full_flow_fn is not None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._side_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="deepslam-flow-side")
         self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
         self.width, self.height = int(width), int(height)
         self.unknown = unknown
@@ -72,8 +78,8 @@ class PairInputs:
                 if self._stop.is_set():
                     return
                 flow = self.estimator.pair_flow(self.seq, int(i), int(j))
-                if self.full_flow_fn is not None:
-                    self.side.append(self.full_flow_fn(flow, self.seq.camera))
+                if self._side_pool is not None:
+                    self._side_futures.append(self._side_pool.submit(self.full_flow_fn, flow, self.seq.camera))
                 if not self._put(to_network_input(flow, self.seq.camera, self.width, self.height, self.unknown)):
                     return
         except BaseException as e:  # noqa: BLE001 - handed to the reading thread, raised there
@@ -108,10 +114,18 @@ class PairInputs:
         finally:
             self.close()
 
+    @property
+    def side(self) -> list:
+        """``full_flow_fn``'s results for the pairs done, in their order (waits for the ones still running;
+        raises what ``full_flow_fn`` raised)."""
+        return [f.result() for f in self._side_futures]
+
     def close(self) -> None:
         """Stop the worker (it finishes the pair it is on) and wait for it."""
         self._stop.set()
         self._thread.join()
+        if self._side_pool is not None:
+            self._side_pool.shutdown(wait=True)
 
     def __enter__(self) -> "PairInputs":
         return self

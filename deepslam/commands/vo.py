@@ -103,12 +103,12 @@ def run(args: argparse.Namespace) -> int:
 
         # the flows start before torch and the model load (seconds of start-up they overlap)
         spec = model_input(model_path)
-        epi = fitter = None
         pose = args.pose or models.recorded_pose(model_path)
-        if pose == "epipolar":
-            from deepslam.vo.epipolar import EpipolarConfig, EpipolarFitter
+        epi = models.epipolar_config(model_path, pose)
+        fitter = None
+        if epi is not None:
+            from deepslam.vo.epipolar import EpipolarFitter
 
-            epi = EpipolarConfig()
             fitter = EpipolarFitter(epi)
         inputs = None if spec is None else PairInputs(seq, pairs, estimator, spec[1], spec[0], unknown=spec[2],
                                                       full_flow_fn=fitter)
