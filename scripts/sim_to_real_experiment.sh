@@ -13,6 +13,7 @@
 #   L06: K06 on the learned flow of the rendered views (seeds 0-2; scored with vo --flow learned)
 #   M06: K06 with the joint KDE motion prior (seeds 0-4; fourteenth session)
 #   P06: K06 with every training frame also mirrored left-right (--mirror-frames; seeds 0-4; fourteenth session)
+#   E: every model above scored with vo --pose epipolar too (fifteenth session; no training): P06 seed 0 with it ships
 # KITTI 06 is the validation slice of the sim-only recipes (they never see a real frame); 07 is never trained on.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -91,6 +92,14 @@ for s in 0 1 2 3 4; do
   [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} $NEW --mirror-frames --sample-pool 20000 \
       --camera-tilt-deg=-1:3:1 --frames $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
+# E (fifteenth session): the same models with --pose epipolar (rotation and direction of travel from the essential
+# matrix of the flow, the network's distance): results_real below scores every model in both pose modes.
+# Shipped since the fifteenth session: P06 seed 0 with the epipolar pose recorded (rule: out/s15/criteria.md,
+# quoted in the README); kitti_cons_learned (L06 seed 0) got the same recorded mode.
+[ -f $D/kitti_cons_dis_P06_epipolar.safetensors ] || $DS set-pose $D/P06_mirror_s0/model.safetensors --pose epipolar \
+    --out $D/kitti_cons_dis_P06_epipolar.safetensors
+[ -f $D/kitti_cons_learned_L06_epipolar.safetensors ] || $DS set-pose $D/L06_learned_s0/model.safetensors --pose epipolar \
+    --out $D/kitti_cons_learned_L06_epipolar.safetensors
 .venv/bin/python -m bench.results_real --out $D/real \
   --model "A=$D/A_default/model.safetensors" --model "B=$D/B_varied/model.safetensors" \
   --model "C=$D/C_mixed/model.safetensors" --model "D=$D/D_mixed_06/model.safetensors" \
