@@ -94,7 +94,7 @@ for s in 0 1 2 3 4; do
 done
 # E (fifteenth session): the same models with --pose epipolar (rotation and direction of travel from the essential
 # matrix of the flow, the network's distance): results_real below scores every model in both pose modes.
-# Shipped since the fifteenth session: P06 seed 0 with the epipolar pose recorded (rule: out/s15/criteria.md,
+# Shipped since the fifteenth session: P06 seed 0 with the epipolar pose recorded (rule: bench/criteria/2026-12-03_s15_epipolar.md,
 # quoted in the README); kitti_cons_learned (L06 seed 0) got the same recorded mode.
 [ -f $D/kitti_cons_dis_P06_epipolar.safetensors ] || $DS set-pose $D/P06_mirror_s0/model.safetensors --pose epipolar \
     --out $D/kitti_cons_dis_P06_epipolar.safetensors
