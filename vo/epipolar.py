@@ -143,7 +143,8 @@ def fit_essential(flow: np.ndarray, camera, cfg: EpipolarConfig = EpipolarConfig
     if n < cfg.min_inliers:
         return _failed(n, f"{n} flow vectors sampled, fewer than {cfg.min_inliers}")
     k = camera.k
-    e, mask = cv2.findEssentialMat(pts0, pts1, k, method=getattr(cv2, cfg.method.upper()), prob=cfg.confidence, threshold=cfg.threshold_px)
+    e, mask = cv2.findEssentialMat(pts0, pts1, k, method=getattr(cv2, cfg.method.upper()), prob=cfg.confidence,
+                                   threshold=cfg.threshold_px)
     if e is None or e.shape[0] < 3:
         return _failed(n, "no essential matrix found")
     sel = mask.ravel() > 0

@@ -163,9 +163,10 @@ def run(args: argparse.Namespace) -> int:
         report["ate_unaligned_m"] = res_none["ate_m"]
         report["frames_scored"], report["frames"] = len(gt), int(len(frames))
         atomic.write_json(Path(f"{stem}.metrics.json"), report)
+        how = [config["flow"]] if "flow" in config else []
+        how += ["pose epipolar"] if config.get("pose") == "epipolar" else []
         plots.plot_trajectories_topdown(Path(f"{stem}.png"), {"ground truth": gt.positions, name: est_scored.positions},
-                                        title=f"{seq.name}: {name}" + (f" ({config['flow']}" + (", pose epipolar" if config.get("pose") == "epipolar" else "")
-                                                                   + ")" if "flow" in config else ""))
+                                        title=f"{seq.name}: {name}" + (f" ({', '.join(how)})" if how else ""))
         line = (f"ATE {res['ate_m']:.3f} m (se3-aligned; {res_none['ate_m']:.3f} m unaligned), "
                 f"RPE {res['rpe_t_m']:.3f} m / {res['rpe_r_deg']:.3f} deg per {args.stride} frame(s)")
         if "kitti_t_err_pct" in res:
