@@ -35,15 +35,17 @@ def test_pair_errors_known_answers():
     assert results_vo.pair_errors(seq, pairs, rot)["r_rmse_deg"] == pytest.approx(2.0, abs=1e-6)
 
 
-def _rec(t_err: float, ate: float) -> dict:
+def _rec(t_err: float, ate: float, t_err_epipolar: float | None = None) -> dict:
     vo = {"ate_m": ate, "rpe_t_m": 0.1, "rpe_r_deg": 0.1, "kitti_t_err_pct": t_err, "kitti_r_err_deg_per_100m": 1.0}
     loops = {"pairs": 10, "t_rmse_m": 0.5, "r_rmse_deg": 1.0, "true_t_mean_m": 1.0}
     street = {"vo": vo, "slam": dict(vo, ate_m=ate / 2), "loops": loops, "loop_edges": 3}
+    if t_err_epipolar is not None:
+        street["vo_epipolar"] = dict(vo, kitti_t_err_pct=t_err_epipolar)
     return {"street_gt": street, "street_dis": street, "kitti06_dis": {k: vo[k] for k in ("ate_m", "rpe_t_m", "rpe_r_deg")}}
 
 
 def test_summary_means_stds_and_the_headline_ratio():
-    per_seed = {"synthetic": [_rec(6.0, 3.0), _rec(10.0, 5.0)], "supervised": [_rec(2.0, 1.0), _rec(2.0, 1.0)]}
+    per_seed = {"synthetic": [_rec(6.0, 3.0, 3.0), _rec(10.0, 5.0, 3.0)], "supervised": [_rec(2.0, 1.0, 2.0), _rec(2.0, 1.0, 2.0)]}
     kitti_plus = [{"seed": 0, "kitti06_dis": _rec(1, 2.0)["kitti06_dis"]}]
     held = type("Held", (), {"name": "held", "__len__": lambda self: 300})()
     rep = results_vo.summarize(results_vo.ResultsVOConfig(), per_seed, kitti_plus, held)
@@ -56,6 +58,9 @@ def test_summary_means_stds_and_the_headline_ratio():
     rep["commands"], rep["minutes"] = [], 1.0
     md = results_vo.markdown(rep)
     assert "8 ± 2.83" in md and "4.00 with exact flow" in md
+    # the epipolar pose's own ratio (3 / 2), beside the network's
+    assert rep["ratio_synthetic_over_supervised_t_err"]["gt_epipolar"] == pytest.approx(1.5)
+    assert "epipolar pose" in md and "1.50 with exact flow" in md
 
 
 def test_slam_table_marks_the_half_target():
