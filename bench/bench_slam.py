@@ -154,7 +154,8 @@ def _odometry_for_fps(seq):
         from deepslam.vo import models
 
         # each shipped model on DIS as its file records
-        cons, loops = (models.odometry(models.shipped_path("kitti", which, "dis"), "dis", True) for which in ("cons", "loops"))
+        cons, loops = (models.odometry(models.shipped_path("kitti", which, "dis"), "dis", True, pose=pose)
+                       for which, pose in (("cons", None), ("loops", "net")))
         return cons, loops, "shipped VO models + DIS flow"
     except Exception:  # models not shipped yet (or vo incomplete): measure the SLAM back end alone
         from deepslam.slam.odometry import GroundTruthOdometry, NoiseConfig

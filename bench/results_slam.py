@@ -107,7 +107,9 @@ def _odometry(seq, flow: str):
     its file records (:func:`vo.models.flow_for_model`)."""
     from deepslam.vo import models
 
-    return tuple(models.odometry(path, flow, True) for path in _shipped_paths(seq, flow))
+    cons, loops = _shipped_paths(seq, flow)
+    # NN_cons in the mode its file records (as deepslam slam runs it); loop pairs always NN_loops' 6DoF
+    return models.odometry(cons, flow, True), models.odometry(loops, flow, True, pose="net")
 
 
 def _loop_record(seq, loops, res) -> dict | None:

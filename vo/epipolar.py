@@ -51,7 +51,9 @@ class EpipolarConfig:
     confidence: float = 0.999
     """RANSAC's confidence that a sample of inliers was drawn."""
     min_inliers: int = 200
-    """Fewer inliers (that also pass the cheirality check) than this: the pair is left to the network."""
+    """Fewer RANSAC inliers than this: the pair is left to the network. (The cheirality check of
+    ``recoverPose`` only picks the decomposition; a wrong pick near standing still is caught by
+    :attr:`max_rotation_disagreement_deg`.)"""
     min_inlier_fraction: float = 0.4
     """A smaller fraction of the sampled vectors as inliers: the pair is left to the network."""
     min_parallax_px: float = 1.0
@@ -75,7 +77,7 @@ class EpipolarConfig:
             raise ValueError(f"invalid epipolar settings: {self}")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class EpipolarFit:
     """The essential-matrix fit of one flow."""
 
@@ -213,7 +215,13 @@ class EpipolarFitter:
         self.cfg = cfg
 
     def __call__(self, flow: np.ndarray, camera) -> EpipolarFit:
-        return fit_essential(flow, camera, self.cfg)
+        import cv2
+
+        try:
+            return fit_essential(flow, camera, self.cfg)
+        except cv2.error as e:  # a degenerate point set OpenCV refuses: this pair is left to the network
+            first = str(e).strip().splitlines()[-1] if str(e).strip() else "cv2.error"
+            return _failed(0, f"OpenCV could not fit it ({first})")
 
     def __eq__(self, other) -> bool:
         return isinstance(other, EpipolarFitter) and other.cfg == self.cfg

@@ -140,6 +140,8 @@ def recorded_pose(path: str | Path) -> str:
 def epipolar_config(path: str | Path, pose: str | None = None):
     """The :class:`vo.epipolar.EpipolarConfig` to run the VO model file at ``path`` with in pose mode ``pose``
     (None: the mode the file records, :func:`recorded_pose`); None in the ``net`` mode."""
+    if pose not in (None, *POSES):
+        raise ValueError(f"pose must be one of {', '.join(POSES)} or None, got {pose!r}")
     if (pose or recorded_pose(path)) != "epipolar":
         return None
     from deepslam.vo.epipolar import EpipolarConfig

@@ -58,10 +58,13 @@ class PairInputs:
         self.full_flow_fn = full_flow_fn
         self._side_futures: list = []
         self._side_pool = None
+        self._finished = False
         if full_flow_fn is not None:
             from concurrent.futures import ThreadPoolExecutor
 
             self._side_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="deepslam-flow-side")
+            # full-resolution flows wait for their fit: at most ``ahead`` of them (3.6 MB each on KITTI)
+            self._side_slots = threading.BoundedSemaphore(max(1, int(ahead)))
         self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
         self.width, self.height = int(width), int(height)
         self.unknown = unknown
@@ -79,7 +82,12 @@ class PairInputs:
                     return
                 flow = self.estimator.pair_flow(self.seq, int(i), int(j))
                 if self._side_pool is not None:
-                    self._side_futures.append(self._side_pool.submit(self.full_flow_fn, flow, self.seq.camera))
+                    while not self._side_slots.acquire(timeout=0.1):
+                        if self._stop.is_set():
+                            return
+                    future = self._side_pool.submit(self.full_flow_fn, flow, self.seq.camera)
+                    future.add_done_callback(lambda _: self._side_slots.release())
+                    self._side_futures.append(future)
                 if not self._put(to_network_input(flow, self.seq.camera, self.width, self.height, self.unknown)):
                     return
         except BaseException as e:  # noqa: BLE001 - handed to the reading thread, raised there
@@ -100,7 +108,7 @@ class PairInputs:
 
     def __iter__(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         try:
-            for _ in range(len(self.pairs)):
+            for k in range(len(self.pairs)):
                 while True:
                     try:
                         item = self._q.get(timeout=0.1)
@@ -110,22 +118,25 @@ class PairInputs:
                             raise RuntimeError("the flow prefetch thread ended early (closed, or iterated twice)") from None
                 if isinstance(item, _Failed):
                     raise item.error
+                self._finished = k == len(self.pairs) - 1  # every pair handed out: their fits are wanted
                 yield item
         finally:
             self.close()
 
     @property
     def side(self) -> list:
-        """``full_flow_fn``'s results for the pairs done, in their order (waits for the ones still running;
-        raises what ``full_flow_fn`` raised)."""
+        """``full_flow_fn``'s results for every pair, in their order, once the iteration has gone through all
+        of them (waits for the ones still running; raises what ``full_flow_fn`` raised)."""
+        if not self._finished:
+            raise RuntimeError("PairInputs.side is read after iterating over every pair")
         return [f.result() for f in self._side_futures]
 
     def close(self) -> None:
         """Stop the worker (it finishes the pair it is on) and wait for it."""
         self._stop.set()
         self._thread.join()
-        if self._side_pool is not None:
-            self._side_pool.shutdown(wait=True)
+        if self._side_pool is not None:  # an early close drops the fits not started
+            self._side_pool.shutdown(wait=True, cancel_futures=not self._finished)
 
     def __enter__(self) -> "PairInputs":
         return self

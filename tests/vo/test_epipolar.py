@@ -255,6 +255,10 @@ def test_set_pose_records_the_mode_vo_uses_without_a_flag(street_sequence, stree
     # the same weights: only the meta changed
     w0, w1 = (modelfile.load(p, (MODEL_FORMAT,))[1] for p in (street_model, marked))
     assert {k: v for k, v in w1["meta"].items() if k != "pose"} == w0["meta"]
+    from deepslam.vo.infer import VOPredictor
+
+    s0, s1 = (VOPredictor.from_file(p).model.state_dict() for p in (street_model, marked))
+    assert s0.keys() == s1.keys() and all(torch_equal(s0[k], s1[k]) for k in s0)
     for pose_flag, want in (([], "epipolar"), (["--pose", "net"], "net")):
         out = tmp_path / f"vo_{want}.txt"
         assert _vo("--sequence", root, "--model", marked, "--out", out, "--flow", "gt", "--quiet", *pose_flag) == 0
@@ -271,3 +275,30 @@ def test_set_pose_records_the_mode_vo_uses_without_a_flag(street_sequence, stree
     (tmp_path / "junk.safetensors").write_bytes(b"junk")
     assert main(["set-pose", str(tmp_path / "junk.safetensors"), "--pose", "net", "--out", str(tmp_path / "j2")]) == 2
     assert not (tmp_path / "j2").exists()
+
+
+def torch_equal(a, b) -> bool:
+    import torch
+
+    return bool(torch.equal(a, b))
+
+
+def test_slam_takes_the_recorded_mode_for_consecutive_pairs_only(street_sequence, street_model, tmp_path):
+    """A marked file as NN_cons: epipolar; the same file as NN_loops: the network's 6DoF (loop pairs)."""
+    from types import SimpleNamespace
+
+    from deepslam.core.readers import open_sequence
+    from deepslam.slam.plugins import odometry_from_args
+    from deepslam.vo import models
+
+    root, _ = street_sequence
+    marked = tmp_path / "marked.safetensors"
+    models.write_with_pose(street_model, marked, "epipolar")
+    args = SimpleNamespace(odometry="model", odometry_command=None, model_cons=str(marked), model_loops=str(marked),
+                           flow="gt", no_loops=False, sequence=str(root), device="cpu", pose=None)
+    cons, loops = odometry_from_args(args, open_sequence(root))
+    assert cons.epipolar is not None and loops.epipolar is None
+    cons, _ = odometry_from_args(SimpleNamespace(**{**vars(args), "pose": "net"}), open_sequence(root))
+    assert cons.epipolar is None
+    with pytest.raises(ValueError, match="pose must be"):
+        models.epipolar_config(marked, "epi")

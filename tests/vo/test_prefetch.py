@@ -129,3 +129,46 @@ def test_vo_reports_an_image_missing_mid_sequence_as_one_line(plane_sequence, tm
     err = capsys.readouterr().err
     assert rc == 2 and len(err.strip().splitlines()) == 1 and missing.name in err and "Traceback" not in err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("ahead", [1, 2, 512])
+def test_full_flow_results_come_in_pair_order_from_their_own_thread(plane_sequence, ahead):
+    """``full_flow_fn`` (the epipolar fit) sees each pair's full-resolution flow, in a thread of its own; its
+    results are in the order of the pairs, whatever the backlog bound."""
+    import time
+
+    seq = open_sequence(plane_sequence)
+    pairs = [(0, 1), (4, 6), (1, 2), (10, 11), (2, 9)]
+    serial = flow_estimators.make("dis", preset="fast")
+    threads = []
+
+    def fn(flow, camera):
+        threads.append(threading.current_thread().name)
+        time.sleep(0.02)  # slower than the flow: the backlog bound is exercised
+        return float(np.nansum(flow)), camera.width
+
+    inputs = PairInputs(seq, pairs, flow_estimators.make("dis", preset="fast"), 80, 24, ahead=ahead, full_flow_fn=fn)
+    with pytest.raises(RuntimeError, match="after iterating"):
+        inputs.side  # noqa: B018 - not before every pair was handed out
+    assert len(list(inputs)) == len(pairs)
+    assert inputs.side == [(float(np.nansum(serial.pair_flow(seq, i, j))), seq.camera.width) for i, j in pairs]
+    assert set(threads) == {t for t in threads if t.startswith("deepslam-flow-side")} and threads
+
+
+def test_a_failing_full_flow_fn_reaches_the_caller_and_an_early_close_drops_the_rest(plane_sequence):
+    seq = open_sequence(plane_sequence)
+    pairs = [(i, i + 1) for i in range(10)]
+
+    def boom(flow, camera):
+        raise ValueError("fit failed")
+
+    inputs = PairInputs(seq, pairs, flow_estimators.make("dis", preset="fast"), 80, 24, full_flow_fn=boom)
+    list(inputs)
+    with pytest.raises(ValueError, match="fit failed"):
+        inputs.side  # noqa: B018
+    calls = []
+    inputs = PairInputs(seq, pairs, flow_estimators.make("dis", preset="fast"), 80, 24, ahead=1,
+                        full_flow_fn=lambda f, c: calls.append(1) or __import__("time").sleep(0.05))
+    next(iter(inputs))
+    inputs.close()  # returns without running the whole backlog: at most the running fit and the bounded ones
+    assert len(calls) < len(pairs)
