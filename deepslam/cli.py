@@ -53,10 +53,17 @@ def main(argv: list[str] | None = None) -> int:
 
     args = build_parser().parse_args(argv)
     try:
-        return int(args._run(args) or 0)
+        rc = int(args._run(args) or 0)
+        sys.stdout.flush()  # a reader gone away shows here, not in Python's own flush at exit
+        return rc
     except InputError as e:
         print(f"deepslam {args.command}: error: {e.message()}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        # the reader of stdout went away (`deepslam vo ... | head -1`): stop quietly, as a shell tool does;
+        # stdout is pointed at devnull so that Python's own flush at exit does not raise again
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except OSError as e:
         # The file system refused (a full disk, no permission, a read-only or failing device, a folder
         # where a file should be): the environment, not a bug. One line naming the file, exit 2;

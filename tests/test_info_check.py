@@ -53,3 +53,23 @@ def test_info_check_refuses_each_fault(rendered, tmp_path, capsys, what):
     assert main(["info", str(seq), "--check"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and where in err[0] and text in err[0], err
+
+
+@pytest.mark.parametrize("unbuffered", ["1", ""])
+def test_a_reader_that_goes_away_is_no_traceback(shared_data, unbuffered):
+    """`deepslam ... | head -1`: the command stops quietly with 141 (as a shell tool), whether stdout is
+    line-buffered or block-buffered."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONUNBUFFERED": unbuffered}
+    r, w = os.pipe()
+    os.close(r)  # the reader is gone before the first line
+    p = subprocess.run([sys.executable, "-m", "deepslam", "eval", "--gt", str(shared_data / "kitti" / "poses" / "00.txt"),
+                        "--est", str(shared_data / "reference" / "KITTI_00_ORB.txt")], cwd=repo, env=env, stdout=w,
+                       stderr=subprocess.PIPE, text=True)
+    os.close(w)
+    assert p.returncode == 141 and p.stderr == "", p.stderr
