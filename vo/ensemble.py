@@ -150,5 +150,11 @@ def write_ensemble(paths: Sequence[str | Path], out: str | Path) -> dict:
         meta["data"] = {"frames": frames, "sequences": {s: None for s in seqs}, "members_differ": True}
     if metas[0].get("flow") is not None:
         meta["flow"] = metas[0]["flow"]  # what vo.models.flow_for_model reads
+    poses = {m.get("pose", "net") for m in metas}
+    if poses != {"net"}:  # a pose mode the members record (deepslam set-pose) carries over when they agree
+        if len(poses) > 1:
+            raise InputError(paths[0], f"the members record different pose modes ({', '.join(sorted(poses))}); "
+                                       "set one with deepslam set-pose first")
+        meta["pose"] = poses.pop()
     modelfile.save(out, MODEL_FORMAT, ensemble_tree(trees, meta))
     return meta

@@ -119,6 +119,25 @@ def test_the_members_flow_record_becomes_the_ensembles(tmp_path):
     assert "flow" not in write_ensemble(_files(tmp_path), tmp_path / "plain.safetensors")
 
 
+def test_the_members_pose_mode_becomes_the_ensembles(tmp_path):
+    """Members that record the epipolar pose (deepslam set-pose): so does their ensemble; members that disagree
+    are refused, naming the first file; members that record none give an ensemble that records none."""
+    from deepslam.core.errors import InputError
+    from deepslam.vo import models
+
+    paths = []
+    for s in (0, 1):
+        paths.append(tmp_path / f"p{s}.safetensors")
+        save_model(paths[-1], _net(s), {"train": {"seed": s}, "pose": "epipolar"})
+    assert write_ensemble(paths, tmp_path / "e.safetensors")["pose"] == "epipolar"
+    assert models.recorded_pose(tmp_path / "e.safetensors") == "epipolar"
+    save_model(paths[1], _net(1), {"train": {"seed": 1}})
+    with pytest.raises(InputError, match="different pose modes") as e:
+        write_ensemble(paths, tmp_path / "mixed.safetensors")
+    assert e.value.path == str(paths[0]) and not (tmp_path / "mixed.safetensors").exists()
+    assert "pose" not in write_ensemble(_files(tmp_path), tmp_path / "plain.safetensors")
+
+
 @pytest.mark.parametrize("bad", ["one_file", "other_input", "other_flow", "nested", "missing", "malformed_tree"])
 def test_bad_ensembles_are_refused_with_the_file_named(bad, tmp_path, capsys, plane_sequence):
     from deepslam.cli import main
