@@ -64,12 +64,7 @@ def score(cand: Candidate, seq) -> dict:
     path, shipped = models.locate(cand.model, seq, flow=cand.flow)
     est, pred = models.flow_for_model(cand.flow, path), models.load(path, shipped)
     pairs = np.stack([np.arange(len(seq) - 1), np.arange(1, len(seq))], axis=1)
-    epi = None
-    if cand.pose == "epipolar":
-        from deepslam.vo.epipolar import EpipolarConfig
-
-        epi = EpipolarConfig()
-    mean6, _ = pred.predict_pairs(seq, pairs, est, progress=False, epipolar=epi)
+    mean6, _ = pred.predict_pairs(seq, pairs, est, progress=False, epipolar=models.epipolar_config(path, cand.pose))
     traj = Trajectory(chain_euler6(mean6), seq.timestamps_s)
     res = metrics.evaluate(seq.gt, traj, align="se3")
     return {"model": cand.name, "model_file": pred.name, "flow": est.name, "pose": cand.pose, "slice": seq.name, "frames": len(seq),
@@ -125,9 +120,10 @@ def main(argv: list[str] | None = None) -> int:
 
     def work() -> dict:
         from deepslam.core.errors import InputError
+        from deepslam.vo.models import POSES
 
-        if not poses or any(p not in ("net", "epipolar") for p in poses):
-            raise InputError(None, f"--pose {args.pose!r}: expected a comma-separated list of net, epipolar")
+        if not poses or any(p not in POSES for p in poses):
+            raise InputError(None, f"--pose {args.pose!r}: expected a comma-separated list of {', '.join(POSES)}")
         models = ([] if args.no_shipped else list(SHIPPED)) + \
             [Candidate(*c) for c in parse_model_specs(args.model, ("dis", "learned", "gt"))]
         cands = [dataclasses.replace(c, pose=p) for c in models for p in poses]

@@ -8,8 +8,8 @@ there a turning car's sideways slide (a 2-degree shift of the direction of trave
 left-right layout are read as yaw (measured in ``bench.results_turn``); the essential matrix of the
 full-resolution flow tells them apart.
 
-:func:`fit_essential` fits OpenCV's essential matrix (``cv2.findEssentialMat``, USAC: RANSAC with local optimisation, then
-``cv2.recoverPose`` for the cheirality) to flow correspondences on a regular grid; :func:`fuse`
+:func:`fit_essential` fits OpenCV's essential matrix (``cv2.findEssentialMat``, USAC: RANSAC with local
+optimisation, then ``cv2.recoverPose`` for the cheirality) to flow correspondences on a regular grid; :func:`fuse`
 replaces a network motion's rotation and translation direction by the fit's, keeping the network's
 translation length. A pair is left to the network where the fit cannot be trusted: too few flow
 vectors or inliers, or too little parallax once the rotation is taken out (a car standing still, a
@@ -135,6 +135,9 @@ def fit_essential(flow: np.ndarray, camera, cfg: EpipolarConfig = EpipolarConfig
         flow: (H, W, 2) float32 px at the full resolution of ``camera`` (NaN = unknown).
         camera: a :class:`core.camera.PinholeCamera` of the images (undistorted).
         cfg: the fit's settings.
+
+    A point set OpenCV refuses (``cv2.error``) is a failed fit, not an exception; a flow of another size
+    than the camera's is a ValueError.
     """
     import cv2
 
@@ -145,16 +148,20 @@ def fit_essential(flow: np.ndarray, camera, cfg: EpipolarConfig = EpipolarConfig
     if n < cfg.min_inliers:
         return _failed(n, f"{n} flow vectors sampled, fewer than {cfg.min_inliers}")
     k = camera.k
-    e, mask = cv2.findEssentialMat(pts0, pts1, k, method=getattr(cv2, cfg.method.upper()), prob=cfg.confidence,
-                                   threshold=cfg.threshold_px)
-    if e is None or e.shape[0] < 3:
-        return _failed(n, "no essential matrix found")
-    sel = mask.ravel() > 0
-    inl = int(sel.sum())
-    if inl < cfg.min_inliers or inl < cfg.min_inlier_fraction * n:
-        return _failed(n, f"{inl} of {n} vectors are inliers", inl)
-    # the decomposition whose triangulated inliers lie in front of both cameras (cheirality)
-    _, rot, t, _ = cv2.recoverPose(e[:3], pts0, pts1, k, mask=mask.copy())
+    try:
+        e, mask = cv2.findEssentialMat(pts0, pts1, k, method=getattr(cv2, cfg.method.upper()), prob=cfg.confidence,
+                                       threshold=cfg.threshold_px)
+        if e is None or e.shape[0] < 3:
+            return _failed(n, "no essential matrix found")
+        sel = mask.ravel() > 0
+        inl = int(sel.sum())
+        if inl < cfg.min_inliers or inl < cfg.min_inlier_fraction * n:
+            return _failed(n, f"{inl} of {n} vectors are inliers", inl)
+        # the decomposition whose triangulated inliers lie in front of both cameras (cheirality)
+        _, rot, t, _ = cv2.recoverPose(e[:3], pts0, pts1, k, mask=mask.copy())
+    except cv2.error as err:  # a degenerate point set OpenCV refuses: the pair is left to the network
+        last = str(err).strip().splitlines()[-1] if str(err).strip() else "cv2.error"
+        return _failed(n, f"OpenCV could not fit it ({last})")
     # the rotation's own flow: where each inlier would land under the rotation alone (infinitely far points)
     rays = np.c_[(pts0[sel, 0] - camera.cx) / camera.fx, (pts0[sel, 1] - camera.cy) / camera.fy, np.ones(int(sel.sum()))]
     r = rays @ rot.T
@@ -215,13 +222,7 @@ class EpipolarFitter:
         self.cfg = cfg
 
     def __call__(self, flow: np.ndarray, camera) -> EpipolarFit:
-        import cv2
-
-        try:
-            return fit_essential(flow, camera, self.cfg)
-        except cv2.error as e:  # a degenerate point set OpenCV refuses: this pair is left to the network
-            first = str(e).strip().splitlines()[-1] if str(e).strip() else "cv2.error"
-            return _failed(0, f"OpenCV could not fit it ({first})")
+        return fit_essential(flow, camera, self.cfg)
 
     def __eq__(self, other) -> bool:
         return isinstance(other, EpipolarFitter) and other.cfg == self.cfg

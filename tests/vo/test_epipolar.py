@@ -302,3 +302,17 @@ def test_slam_takes_the_recorded_mode_for_consecutive_pairs_only(street_sequence
     assert cons.epipolar is None
     with pytest.raises(ValueError, match="pose must be"):
         models.epipolar_config(marked, "epi")
+
+
+def test_a_point_set_opencv_refuses_is_a_failed_fit(monkeypatch):
+    """fit_essential turns OpenCV's refusal into a failed fit (the pair is left to the network), for vo's
+    fitter and for a plug-in calling it alike."""
+    import cv2
+
+    def refuse(*a, **k):
+        raise cv2.error("OpenCV(4.x) five-point.cpp: error: (-215:Assertion failed) npoints >= 0")
+
+    monkeypatch.setattr(cv2, "findEssentialMat", refuse)
+    flow = exact_flow(car_motion(0.02, 1.0))
+    for fit in (epipolar.fit_essential(flow, KITTI_LIKE), epipolar.EpipolarFitter()(flow, KITTI_LIKE)):
+        assert not fit.ok and "OpenCV could not fit it" in fit.reason and fit.sampled > 0
