@@ -20,7 +20,9 @@ Estimators are made by name from a registry (:func:`make`, :func:`register`, :fu
 
 A learned estimator (RAFT, PWC-Net...) is added by registering a factory that returns an object with
 ``name``, ``estimate(img0, img1)`` and, if it can do better than reading the two images,
-``pair_flow(seq, i, j)``.
+``pair_flow(seq, i, j)``. One that offers ``replica()`` (an estimator with the same settings, giving
+the same flows, that another thread may use while this one runs) lets :class:`vo.prefetch.PairInputs`
+compute several pairs at once (DIS does: each replica single-threaded, one per core).
 """
 from __future__ import annotations
 
@@ -65,19 +67,26 @@ def to_grey(img: np.ndarray) -> np.ndarray:
 
 class GreyCache:
     """Grey image i of a sequence, decoded once for the consecutive pairs (i-1, i), (i, i+1): the last
-    two are kept, keyed by the image file (an object id could be reused by the next sequence)."""
+    ``keep`` are kept, keyed by the image file (an object id could be reused by the next sequence).
+    Thread-safe: the replicas of an estimator (:meth:`DISFlow.replica`) share one cache, so two workers
+    on the interleaved pairs (0, 1) and (1, 2) decode frame 1 once."""
 
-    def __init__(self):
+    def __init__(self, keep: int = 4):
+        import threading
+
+        self.keep = max(1, int(keep))
         self._cache: dict[str, np.ndarray] = {}
+        self._lock = threading.Lock()
 
     def __call__(self, seq, i: int) -> np.ndarray:
         key = str(seq.image_paths[i])
-        img = self._cache.get(key)
-        if img is None:
-            img = to_grey(seq.image(i))
-            if len(self._cache) >= 2:
-                self._cache.pop(next(iter(self._cache)))
-            self._cache[key] = img
+        with self._lock:  # held while decoding: a second worker wanting the same frame waits for it
+            img = self._cache.get(key)
+            if img is None:
+                img = to_grey(seq.image(i))
+                if len(self._cache) >= self.keep:
+                    self._cache.pop(next(iter(self._cache)))
+                self._cache[key] = img
         return img
 
 
@@ -173,6 +182,13 @@ class DISFlow:
 
     def pair_flow(self, seq, i: int, j: int) -> np.ndarray:
         return self.estimate(self._grey(seq, i), self._grey(seq, j))
+
+    def replica(self) -> "DISFlow":
+        """An estimator with the same settings (the same flows, bit for bit) for another thread; it shares
+        this one's decoded images (:class:`GreyCache`)."""
+        twin = DISFlow(self.preset, self.min_texture, self.fb_max_px)
+        twin._grey = self._grey
+        return twin
 
 
 class GroundTruthFlow:

@@ -20,16 +20,21 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 class _Recording:
-    """A DIS estimator that records the thread and order of its calls."""
+    """A DIS estimator that records the thread and order of its calls (its replicas record in the same list)."""
 
-    def __init__(self):
+    def __init__(self, calls=None):
         self.inner = flow_estimators.make("dis", preset="fast")
-        self.calls: list[tuple[int, int, str]] = []
+        self.calls: list[tuple[int, int, str]] = [] if calls is None else calls
         self.name = "recording"
 
     def pair_flow(self, seq, i, j):
         self.calls.append((i, j, threading.current_thread().name))
         return self.inner.pair_flow(seq, i, j)
+
+
+class _Replicable(_Recording):
+    def replica(self):
+        return _Replicable(self.calls)
 
 
 @pytest.mark.parametrize("ahead", [1, 3, 512])
@@ -48,12 +53,95 @@ def test_prefetched_inputs_equal_serial_ones_in_order(plane_sequence, ahead):
     assert {c[2] for c in rec.calls} == {"deepslam-flow-prefetch"}
 
 
-def test_a_failure_in_the_worker_is_raised_to_the_reader(plane_sequence, tmp_path):
+@pytest.mark.parametrize("workers", [2, 3, 8])
+def test_several_workers_give_the_serial_inputs_in_order(plane_sequence, workers):
+    """Worker w computes pairs w, w + W, ... with its own replica; the reader gets every pair in order, the
+    same bytes as one thread; OpenCV's thread count is its own again after the close."""
+    import cv2
+
+    seq = open_sequence(plane_sequence)
+    pairs = [(0, 1), (4, 6), (1, 2), (10, 11), (2, 9), (3, 4), (5, 6)]
+    rec = _Replicable()
+    before = cv2.getNumThreads()
+    inputs = PairInputs(seq, pairs, rec, 80, 24, ahead=2, workers=workers)
+    assert inputs.workers == min(workers, len(pairs))
+    got = list(inputs)
+    assert cv2.getNumThreads() == before
+    serial = flow_estimators.make("dis", preset="fast")
+    for (flow, intr), (i, j) in zip(got, pairs, strict=True):
+        want_flow, want_intr = to_network_input(serial.pair_flow(seq, i, j), seq.camera, 80, 24)
+        np.testing.assert_array_equal(flow, want_flow)
+        np.testing.assert_array_equal(intr, want_intr)
+    by_thread: dict[str, list] = {}
+    for i, j, name in rec.calls:
+        by_thread.setdefault(name, []).append((i, j))
+    w = inputs.workers
+    assert by_thread == {f"deepslam-flow-prefetch-{k}": pairs[k::w] for k in range(w)}
+
+
+def test_dis_uses_one_worker_a_core_by_default_and_others_one(plane_sequence, monkeypatch):
+    from deepslam.vo import prefetch
+
+    seq = open_sequence(plane_sequence)
+    pairs = [(k, k + 1) for k in range(6)]
+    monkeypatch.setattr(prefetch, "default_workers", lambda: 2)
+    assert PairInputs(seq, pairs, flow_estimators.make("dis", preset="fast"), 80, 24).workers == 2
+    assert PairInputs(seq, pairs, _Recording(), 80, 24).workers == 1  # no replica(): one thread
+    with pytest.raises(ValueError, match="no replica"):
+        PairInputs(seq, pairs, _Recording(), 80, 24, workers=2)
+    with pytest.raises(ValueError, match="workers must be >= 1"):
+        PairInputs(seq, pairs, flow_estimators.make("dis", preset="fast"), 80, 24, workers=0)
+    monkeypatch.undo()
+    monkeypatch.delenv(prefetch.WORKERS_ENV, raising=False)
+    assert 1 <= prefetch.default_workers() <= 8
+    monkeypatch.setenv(prefetch.WORKERS_ENV, "3")
+    assert prefetch.default_workers() == 3
+    for bad in ("0", "two", "-1"):
+        monkeypatch.setenv(prefetch.WORKERS_ENV, bad)
+        with pytest.raises(InputError, match=prefetch.WORKERS_ENV):
+            prefetch.default_workers()
+
+
+def test_a_dis_replica_gives_the_same_flows_and_shares_the_decoded_images(plane_sequence):
+    seq = open_sequence(plane_sequence)
+    dis = flow_estimators.make("dis", preset="medium", min_texture=0.5)
+    twin = dis.replica()
+    assert twin is not dis and twin.name == dis.name and twin._grey is dis._grey
+    np.testing.assert_array_equal(twin.pair_flow(seq, 2, 3), flow_estimators.make("dis", preset="medium",
+                                                                                  min_texture=0.5).pair_flow(seq, 2, 3))
+    assert dis._grey(seq, 3) is twin._grey(seq, 3)  # decoded once
+
+
+def test_the_grey_cache_decodes_each_frame_once_across_threads(plane_sequence, monkeypatch):
+    seq = open_sequence(plane_sequence)
+    decoded = []
+    real = seq.image
+    monkeypatch.setattr(seq, "image", lambda i: decoded.append(i) or real(i))
+    cache = flow_estimators.GreyCache()
+    barrier = threading.Barrier(2)
+
+    def run(frames):
+        barrier.wait()
+        for i in frames:
+            cache(seq, i)
+
+    # four frames in all: the cache keeps four, so a second decode could only come from a race
+    threads = [threading.Thread(target=run, args=([0, 1, 2],)), threading.Thread(target=run, args=([1, 2, 3],))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert sorted(decoded) == [0, 1, 2, 3]
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_failure_in_the_worker_is_raised_to_the_reader(plane_sequence, tmp_path, workers):
     root = tmp_path / "seq"
     shutil.copytree(plane_sequence, root)
     seq = open_sequence(root)
     seq.image_paths[3].unlink()  # the fourth frame's image goes missing after the sequence was opened
-    it = iter(PairInputs(seq, [(0, 1), (1, 2), (2, 3), (3, 4)], flow_estimators.make("dis", preset="fast"), 80, 24))
+    it = iter(PairInputs(seq, [(0, 1), (1, 2), (2, 3), (3, 4)], flow_estimators.make("dis", preset="fast"), 80, 24,
+                         workers=workers))
     next(it), next(it)  # the pairs before the missing frame come through
     with pytest.raises(InputError, match="000003"):
         next(it)
@@ -65,7 +153,7 @@ def test_closing_early_stops_the_worker(plane_sequence):
     inputs = PairInputs(seq, [(k, k + 1) for k in range(11)] * 20, rec, 80, 24, ahead=2)
     with inputs:
         next(iter(inputs))
-    assert not inputs._thread.is_alive()
+    assert not any(t.is_alive() for t in inputs._threads)
     assert len(rec.calls) <= 5  # the one read, two queued, and at most the pair in hand
 
 
@@ -110,7 +198,7 @@ def test_a_worker_failing_on_a_full_queue_never_blocks_close(plane_sequence, rea
     time.sleep(0.3)  # the worker fills the queue and then fails
     t0 = time.perf_counter()
     inputs.close()
-    assert time.perf_counter() - t0 < 2.0 and not inputs._thread.is_alive()
+    assert time.perf_counter() - t0 < 2.0 and not any(t.is_alive() for t in inputs._threads)
     with pytest.raises(RuntimeError, match="ended early"):
         list(PairInputs.__iter__(inputs))
 
