@@ -11,6 +11,9 @@
 Writes ``out/results/flow/results.json`` and ``results.md``. Usage::
 
     python -m bench.results_flow [--model models/flow_learned.safetensors] [--held DIR ...]
+
+Estimators: DIS medium, the learned network, and the learned network's flow as DIS's start
+(``learned-dis``, :class:`vo.flownet.LearnedDISFlow`), all on the same pairs.
 """
 from __future__ import annotations
 
@@ -51,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     from deepslam.core.paths import out_dir, shared_data_dir
     from deepslam.core.readers import open_sequence
     from deepslam.vo.flow_estimators import DISFlow, to_grey
-    from deepslam.vo.flownet import LearnedFlow, endpoint_error
+    from deepslam.vo.flownet import LearnedDISFlow, LearnedFlow, endpoint_error
 
     ap = argparse.ArgumentParser(prog="python -m bench.results_flow")
     ap.add_argument("--model", default=None, help="learned flow model (default: the shipped one)")
@@ -60,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=str(out_dir() / "results" / "flow"))
     args = ap.parse_args(argv)
     learned = LearnedFlow(args.model)
-    ests = {"dis-medium": DISFlow("medium"), "learned": learned}
+    ests = {"dis-medium": DISFlow("medium"), "learned": learned, "learned-dis": LearnedDISFlow(args.model)}
     held = args.held if args.held is not None else sorted(str(p) for p in (out_dir() / "flow_held").glob("seq_*"))
     rows = []
     for d in held:

@@ -11,6 +11,8 @@ Estimators are made by name from a registry (:func:`make`, :func:`register`, :fu
   stereo depth + ground-truth motion is 1.3 px vs 2.4 px for ``ultrafast``, at ~10x the time).
 - ``learned``: the compact PWC-style network the harness trains on its own renders
   (:mod:`vo.flownet`, ``deepslam train-flow``; shipped as ``models/flow_learned.safetensors``).
+- ``learned-dis``: that network's flow as the start of DIS medium, which refines it
+  (:class:`vo.flownet.LearnedDISFlow`).
 - ``gt``: the simulator's exact flow. Consecutive frames read the flow the sequence stores
   (``flow/NNNNNN.npy``, frame i to i+1: exact for static, moving and deforming surfaces). Pairs
   further apart (loop pairs) are computed from geometry (:func:`exact_pair_flow`: frame i's depth, the
@@ -295,22 +297,37 @@ def register(name: str) -> Callable[[Callable[..., FlowEstimator]], Callable[...
     return deco
 
 
-def _learned(path=None, threads: int = 0):
-    """The shipped learned estimator (:class:`vo.flownet.LearnedFlow`), or the model file ``path``."""
+def _learned_model_path(path=None):
+    """The learned flow model file: ``path``, or the shipped one; InputError when it is not there."""
     from pathlib import Path
 
-    from deepslam.vo.flownet import LearnedFlow
     from deepslam.vo.models import models_dir
 
     p = Path(path) if path else models_dir() / "flow_learned.safetensors"
     if not p.is_file():
         raise InputError(p, "no learned flow model here (train one with `deepslam train-flow`; README: Learned flow)")
-    return LearnedFlow(p, threads=threads)
+    return p
+
+
+def _learned(path=None, threads: int = 0):
+    """The shipped learned estimator (:class:`vo.flownet.LearnedFlow`), or the model file ``path``."""
+    from deepslam.vo.flownet import LearnedFlow
+
+    return LearnedFlow(_learned_model_path(path), threads=threads)
+
+
+def _learned_dis(path=None, threads: int = 0):
+    """The learned flow as DIS's starting point (:class:`vo.flownet.LearnedDISFlow`), with the shipped learned
+    model or the flow model file ``path``."""
+    from deepslam.vo.flownet import LearnedDISFlow
+
+    return LearnedDISFlow(_learned_model_path(path), threads=threads)
 
 
 register("dis")(DISFlow)
 register("gt")(GroundTruthFlow)
 register("learned")(_learned)
+register("learned-dis")(_learned_dis)
 
 
 def estimator_options(name: str, dis_preset: str | None = "medium", dis_min_texture: float | None = 0.0,

@@ -28,7 +28,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--format", choices=("kitti", "tum", "euroc"), default="kitti",
                    help="trajectory format (default: kitti)")
     p.add_argument("--plot", default=None, metavar="PNG", help="top-down plot of VO, SLAM and ground truth")
-    p.add_argument("--flow", default="dis", help="optical flow estimator for the models (default: dis)")
+    p.add_argument("--flow", default="dis", help="optical flow estimator for the models: dis (default), learned, learned-dis, gt or a "
+                   "plug-in MODULE:FACTORY (as deepslam vo)")
     p.add_argument("--pose", choices=("net", "epipolar"), default=None,
                    help="consecutive-frame motions: net (the network's 6DoF) or epipolar (rotation and direction of "
                         "travel from the essential matrix of the flow, distance from the network; as deepslam vo "

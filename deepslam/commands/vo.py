@@ -23,7 +23,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--format", choices=("kitti", "tum"), default=None,
                    help="trajectory format (default: kitti for KITTI sequences, tum otherwise)")
     p.add_argument("--flow", default="dis", help="flow estimator: dis (OpenCV DIS, default), learned (the network "
-                   "`deepslam train-flow` trains on renders), gt (the sequence's ground-truth flow, our format), or a "
+                   "`deepslam train-flow` trains on renders), learned-dis (that network's flow refined by DIS: the most "
+                   "consistent on real KITTI, 2.5x DIS's time), gt (the sequence's ground-truth flow, our format), or a "
                    "plug-in MODULE:FACTORY")
     p.add_argument("--dis-preset", default=None, choices=("ultrafast", "fast", "medium"),
                    help="DIS preset (default: the one the model was trained on, medium where it does not say)")

@@ -153,3 +153,52 @@ def test_flow_pairs_keep_flow_float16_cannot_hold_as_nan(plane_sequence):
     assert np.isnan(kept[1, 2]).sum() == 1 and kept[1, 2, 1] == -3.0
     assert np.isnan(kept[3, 4, 0]) and kept[3, 4, 1] == 1.0
     assert (kept[0] == 2.5).all()
+
+
+class _StartAt:
+    """Stands in for the network in LearnedDISFlow: a constant flow as DIS's start."""
+
+    def __init__(self, du: float, dv: float):
+        self.du, self.dv = du, dv
+
+    def estimate(self, g0, g1):
+        f = np.zeros((*g0.shape, 2), np.float32)
+        f[..., 0], f[..., 1] = self.du, self.dv
+        return f
+
+
+def _textured(h: int, w: int, seed: int = 0) -> np.ndarray:
+    import cv2
+
+    noise = np.random.default_rng(seed).random((h, w)).astype(np.float32)
+    return np.clip(cv2.GaussianBlur(noise, (0, 0), 2.0) * 255 * 4 - 400, 0, 255).astype(np.uint8)
+
+
+def test_learned_dis_starts_dis_from_the_learned_flow_and_refines_it():
+    """A 64 px shift that DIS misses from a zero start: from a start 1.5 px off it recovers the shift to a
+    tenth of a pixel (the refinement ran), and the estimator is registered beside DIS."""
+    from deepslam.vo import flow_estimators
+    from deepslam.vo.flownet import LearnedDISFlow
+
+    big = _textured(160, 544)
+    img0, img1 = big[:, 64:], big[:, :480]  # the scene moves right by 64 px
+    inner = (slice(16, -16), slice(80, -80))
+    plain = flow_estimators.make("dis", preset="medium").estimate(img0, img1)
+    assert np.median(np.abs(plain[inner][..., 0] - 64.0)) > 5.0  # beyond DIS's reach from zero
+    est = flow_estimators.make("learned-dis")
+    assert isinstance(est, LearnedDISFlow) and est.name == "learned-dis"
+    est.learned = _StartAt(65.5, -1.0)
+    flow = est.estimate(img0, img1)
+    assert flow.shape == (160, 480, 2) and flow.dtype == np.float32
+    err = np.hypot(flow[inner][..., 0] - 64.0, flow[inner][..., 1])
+    assert np.median(err) < 0.1
+    with pytest.raises(InputError, match="no learned flow model"):
+        flow_estimators.make("learned-dis", path="/nonexistent/flow.safetensors")
+
+
+def test_learned_dis_is_read_by_the_dis_models():
+    from deepslam.vo import models
+
+    assert models.flow_variant("learned-dis") == "dis"
+    assert models.shipped_path("kitti", "cons", "learned-dis").name == "kitti_cons_dis.safetensors"
+    assert models.shipped_path("kitti", "cons", "learned").name == "kitti_cons_learned.safetensors"

@@ -134,6 +134,18 @@ def test_shipped_models_follow_the_flow_estimator(monkeypatch, tmp_path, street_
     assert models.shipped_path("kitti", "cons", "dis").name == "kitti_cons_dis.safetensors"
     assert models.resolve("kitti", None, "cons", "dis").name == "kitti_cons_dis"
     assert models.resolve(str(tmp_path / "kitti_cons.safetensors"), None, "cons", "dis").name != "kitti_cons_dis"
+    assert models.shipped_path("kitti", "cons", "learned-dis").name == "kitti_cons_dis.safetensors"
+
+
+def test_vo_runs_on_the_learned_flow_refined_by_dis(plane_sequence, tmp_path):
+    """``--flow learned-dis`` with no model: the shipped DIS model reads it; the flow is recorded."""
+    import json
+
+    assert _vo("--sequence", plane_sequence, "--flow", "learned-dis", "--end", "5", "--out", tmp_path / "t.txt",
+               "--quiet") == 0
+    cfg = json.loads((tmp_path / "t.config.json").read_text())
+    assert cfg["flow"] == "learned-dis" and cfg["model_name"] == "kitti_cons_dis"
+    assert len([ln for ln in (tmp_path / "t.txt").read_text().splitlines() if not ln.startswith("#")]) == 5
 
 
 def test_vo_picks_the_rgbd_model_for_a_tum_sequence(shared_data, tmp_path):
