@@ -11,14 +11,18 @@ Rows (each against a baseline measured in the same run):
   SLAM ATE vs odometry ATE on the synthetic loop trajectory (target: at most half);
 - :func:`vo_end_to_end_fps`: ``deepslam vo`` on the real KITTI 07 slice as a user runs it (a fresh
   process, the default flow and model, start-up, reading, trajectory and plot included) against DIS
-  alone on the same pairs (issue 12's target: >= 20 frames/s end to end); skipped without the slice;
-- :func:`pipeline_fps`: frames per second of the whole pipeline on KITTI-size frames (target >= 10).
+  alone on the same pairs (issue 12's target: >= 20 frames/s end to end), and, in turn with it, with the
+  network's pose and with the flows on one worker; skipped without the slice;
+- :func:`pipeline_fps`: frames per second of the whole pipeline on KITTI-size frames (target >= 10), and at
+  keyframe stride 1 with the flows on one worker (``DEEPSLAM_FLOW_WORKERS=1``) right after.
   It uses the shipped VO models with DIS flow when ``vo.models`` can load them, otherwise the
   ground-truth odometry (the row's name says which), so until the models exist it measures
   relocalization + pose graph only.
 """
 from __future__ import annotations
 
+import contextlib
+import os
 import tempfile
 import time
 
@@ -173,6 +177,7 @@ def pipeline_fps(quick: bool) -> list[dict]:
     from deepslam.slam.pipeline import PipelineConfig, SlamParams, run_slam
     from deepslam.slam.reloc import FeatureExtractor, RelocConfig, train_vocabulary
     from deepslam.slam.synthetic import write_loop_sequence
+    from deepslam.vo.prefetch import WORKERS_ENV, default_workers
 
     n = 40 if quick else 120
     reloc = RelocConfig()
@@ -188,15 +193,38 @@ def pipeline_fps(quick: bool) -> list[dict]:
         params = SlamParams(t_loop=10)
         rows = []
         base = run_slam(seq, cons, None, params, PipelineConfig(loops=False), show_progress=False)
+        fps = {}
         for stride in (1, 2):
             res = run_slam(seq, cons, loops, params, PipelineConfig(keyframe_stride=stride), vocabulary=vocab,
                            show_progress=False)
             t = res.timings
+            fps[stride] = t["fps"]
             rows.append(_row(f"pipeline frames/s on 1241x376 frames ({n} frames, keyframe stride {stride}, {label})",
                              t["fps"], "frames/s", "odometry only (no relocalization, no loops)", base.timings["fps"],
                              ">= 10 frames/s", t["fps"] >= 10, loops=len(res.loops), vocabulary_training_s=vocab_s,
                              stage_seconds={k: v for k, v in t.items() if k.endswith("_s")}))
+        # the flows on one worker (DIS on OpenCV's threads, as before the sixteenth session), right after
+        with _environ(WORKERS_ENV, "1"):
+            one = run_slam(seq, cons, loops, params, PipelineConfig(keyframe_stride=1), vocabulary=vocab,
+                           show_progress=False)
+        rows.append(_row(f"pipeline frames/s, keyframe stride 1, {default_workers()} flow workers (the default) against "
+                         f"one ({WORKERS_ENV}=1), run after it", fps[1], "frames/s", "one flow worker",
+                         one.timings["fps"]))
     return rows
+
+
+@contextlib.contextmanager
+def _environ(name: str, value: str):
+    """``os.environ[name] = value`` inside the block, the old state restored after."""
+    old = os.environ.get(name)
+    os.environ[name] = value
+    try:
+        yield
+    finally:
+        if old is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = old
 
 
 def vo_end_to_end_fps(quick: bool) -> list[dict]:
