@@ -56,6 +56,27 @@ def default_workers() -> int:
     return max(1, min(8, cores))
 
 
+_OPENCV_LOCK = threading.Lock()
+_OPENCV_HOLDERS = [0, None]  # [PairInputs with several workers alive, OpenCV's thread count before the first]
+
+
+def _opencv_single_threaded(on: bool) -> None:
+    """OpenCV single-threaded while at least one multi-worker :class:`PairInputs` is alive (a process-wide
+    setting, counted: the last one to close gives OpenCV back the thread count it had before the first)."""
+    import cv2
+
+    with _OPENCV_LOCK:
+        if on:
+            if _OPENCV_HOLDERS[0] == 0:
+                _OPENCV_HOLDERS[1] = cv2.getNumThreads()
+                cv2.setNumThreads(1)
+            _OPENCV_HOLDERS[0] += 1
+        else:
+            _OPENCV_HOLDERS[0] -= 1
+            if _OPENCV_HOLDERS[0] == 0:
+                cv2.setNumThreads(_OPENCV_HOLDERS[1])
+
+
 class PairInputs:
     """Iterates ``(flow_chw, intrinsics)`` for each pair (i, j) of ``pairs``, in order: flow float32
     (2, height, width) px at network resolution and intrinsics float32 (4,) fx, fy, cx, cy at that
@@ -76,7 +97,7 @@ class PairInputs:
             results, in the order of the pairs, are :attr:`side` once the iteration is done.
         workers: flow threads; None: :func:`default_workers` where the estimator offers ``replica()``
             (DIS), else 1. With W > 1, worker w computes pairs w, w + W, ... with its own replica, and
-            OpenCV runs single-threaded in each while the workers run (restored by :meth:`close`): on 2
+            OpenCV runs single-threaded while the workers run (given back by the last :meth:`close`): on 2
             cores two single-threaded DIS on two pairs do 1.33x the pairs a second of one DIS on two
             threads (KITTI 07, 1226x370, medium: 24.9 against 33.2 ms a pair). The flows are the same,
             bit for bit, whatever W.
@@ -103,6 +124,7 @@ class PairInputs:
                              "more than one worker")
         n_workers = max(1, min(int(workers), len(self.pairs)))
         self.workers = n_workers
+        estimators = [estimator] + [estimator.replica() for _ in range(n_workers - 1)]
         self._side_futures: list = [None] * len(self.pairs)
         self._side_pool = None
         self._finished = False
@@ -112,13 +134,9 @@ class PairInputs:
             self._side_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="deepslam-flow-side")
             # full-resolution flows wait for their fit: at most ``ahead`` of them (3.6 MB each on KITTI)
             self._side_slots = threading.BoundedSemaphore(max(1, int(ahead)))
-        self._opencv_threads = None
-        if n_workers > 1:
-            import cv2
-
-            self._opencv_threads = cv2.getNumThreads()
-            cv2.setNumThreads(1)
-        estimators = [estimator] + [estimator.replica() for _ in range(n_workers - 1)]
+        self._single_threaded_opencv = n_workers > 1
+        if self._single_threaded_opencv:
+            _opencv_single_threaded(True)
         per_queue = max(1, -(-int(ahead) // n_workers))
         self._queues = [queue.Queue(maxsize=per_queue) for _ in range(n_workers)]
         self._stop = threading.Event()
@@ -196,11 +214,9 @@ class PairInputs:
             t.join()
         if self._side_pool is not None:  # an early close drops the fits not started
             self._side_pool.shutdown(wait=True, cancel_futures=not self._finished)
-        if self._opencv_threads is not None:
-            import cv2
-
-            cv2.setNumThreads(self._opencv_threads)
-            self._opencv_threads = None
+        if self._single_threaded_opencv:
+            self._single_threaded_opencv = False
+            _opencv_single_threaded(False)
 
     def __enter__(self) -> "PairInputs":
         return self

@@ -79,6 +79,23 @@ def test_several_workers_give_the_serial_inputs_in_order(plane_sequence, workers
     assert by_thread == {f"deepslam-flow-prefetch-{k}": pairs[k::w] for k in range(w)}
 
 
+def test_opencv_gets_its_threads_back_when_the_last_of_overlapping_inputs_closes(plane_sequence):
+    import cv2
+
+    seq = open_sequence(plane_sequence)
+    pairs = [(k, k + 1) for k in range(4)]
+    before = cv2.getNumThreads()
+    a = PairInputs(seq, pairs, flow_estimators.make("dis", preset="fast"), 80, 24, workers=2)
+    b = PairInputs(seq, pairs, flow_estimators.make("dis", preset="fast"), 80, 24, workers=2)
+    assert cv2.getNumThreads() == 1
+    a.close()
+    assert cv2.getNumThreads() == 1  # b still runs
+    list(b)
+    assert cv2.getNumThreads() == before
+    b.close()  # a second close changes nothing
+    assert cv2.getNumThreads() == before
+
+
 def test_dis_uses_one_worker_a_core_by_default_and_others_one(plane_sequence, monkeypatch):
     from deepslam.vo import prefetch
 
