@@ -206,6 +206,15 @@ class LearnedFlow:
     def pair_flow(self, seq, i: int, j: int) -> np.ndarray:
         return self.estimate(self._grey(seq, i), self._grey(seq, j))
 
+    def replica(self) -> "LearnedFlow":
+        """An estimator on the same network (shared, not copied: its forward pass keeps no state) for
+        another thread, sharing the decoded images. It leaves torch's thread count as it is (``threads``
+        0: that setting is process-wide). On 2 cores two of them do 1.4x the pairs a second of one
+        (KITTI 07: 33 against 46 ms a pair)."""
+        twin = object.__new__(LearnedFlow)
+        twin.model, twin.meta, twin.threads, twin.name, twin._grey = self.model, self.meta, 0, self.name, self._grey
+        return twin
+
 
 class LearnedDISFlow:
     """The learned flow as the starting point of OpenCV's DIS (``--flow learned-dis``).
@@ -242,6 +251,16 @@ class LearnedDISFlow:
 
     def pair_flow(self, seq, i: int, j: int) -> np.ndarray:
         return self.estimate(self._grey(seq, i), self._grey(seq, j))
+
+    def replica(self) -> "LearnedDISFlow":
+        """An estimator for another thread: the same network (:meth:`LearnedFlow.replica`), a DIS of its own,
+        the decoded images shared; the same flows."""
+        import cv2
+
+        twin = object.__new__(LearnedDISFlow)
+        twin.learned, twin.name, twin._grey = self.learned.replica(), self.name, self._grey
+        twin._dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+        return twin
 
 
 def load_flow_model(path: str | Path) -> tuple[FlowNet, dict]:

@@ -202,3 +202,25 @@ def test_learned_dis_is_read_by_the_dis_models():
     assert models.flow_variant("learned-dis") == "dis"
     assert models.shipped_path("kitti", "cons", "learned-dis").name == "kitti_cons_dis.safetensors"
     assert models.shipped_path("kitti", "cons", "learned").name == "kitti_cons_learned.safetensors"
+
+
+@pytest.mark.parametrize("name", ["learned", "learned-dis"])
+def test_learned_estimators_run_on_several_workers_with_the_same_flows(plane_sequence, name):
+    """A replica shares the network (not copied) and the decoded images, and gives the same flows; with
+    replicas the prefetch runs one worker a core and hands out what one thread computes."""
+    from deepslam.core.readers import open_sequence
+    from deepslam.vo import flow_estimators
+    from deepslam.vo.prefetch import PairInputs
+
+    seq = open_sequence(plane_sequence)
+    est = flow_estimators.make(name)
+    twin = est.replica()
+    inner = (lambda e: e.learned) if name == "learned-dis" else (lambda e: e)
+    assert twin is not est and inner(twin).model is inner(est).model and twin._grey is est._grey
+    np.testing.assert_array_equal(twin.pair_flow(seq, 3, 4), flow_estimators.make(name).pair_flow(seq, 3, 4))
+    pairs = [(k, k + 1) for k in range(6)]
+    serial = list(PairInputs(seq, pairs, flow_estimators.make(name), 80, 24, workers=1))
+    inputs = PairInputs(seq, pairs, flow_estimators.make(name), 80, 24, workers=2)
+    assert inputs.workers == 2
+    for (a, _), (b, _) in zip(list(inputs), serial, strict=True):
+        np.testing.assert_array_equal(a, b)
