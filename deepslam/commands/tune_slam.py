@@ -53,7 +53,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"C_r values (default: {DEFAULT_C_R})")
     p.add_argument("--t-loop", type=_ints, default=None, metavar="LIST",
                    help=f"T_loop values, frames (default: {DEFAULT_T_LOOP})")
-    p.add_argument("--flow", default="dis", help="optical flow estimator for the models (default: dis)")
+    p.add_argument("--flow", default="dis", help="optical flow estimator for the models (default: dis; as deepslam slam)")
+    p.add_argument("--pose", choices=("net", "epipolar"), default=None,
+                   help="consecutive-frame motions as deepslam slam --pose (tune with the mode slam will run): net or "
+                        "epipolar; default: the mode the NN_cons file records")
     p.add_argument("--keyframe-stride", type=int, default=1, metavar="K", help="relocalize every K-th frame")
     p.add_argument("--robust", choices=("none", "huber", "cauchy"), default="cauchy", help="robust kernel on loops")
     p.add_argument("--vocabulary", default=None, metavar="NPZ", help="BoW vocabulary (default: train per sequence)")

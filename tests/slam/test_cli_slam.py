@@ -78,6 +78,11 @@ def test_tune_slam_cli_writes_params_the_slam_cli_reads(seq_dir, tmp_path, capsy
         main(["tune-slam", "--sequence", str(seq_dir), "--odometry", "gt-noisy", "--out", str(out), "--c-s", "x"])
     assert exc.value.code == 2
     assert "--c-s" in capsys.readouterr().err
+    # --pose as slam's: the epipolar mode needs the network odometry, one line, exit 2, nothing written
+    out.unlink()
+    rc = main(["tune-slam", "--sequence", str(seq_dir), "--odometry", "gt-noisy", "--out", str(out), "--pose", "epipolar"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "--pose epipolar" in err[0] and not out.exists()
 
 
 def test_tune_cli_defaults_match_the_search_space():
