@@ -7,7 +7,7 @@ KITTI); one that under-moves it a larger height. Sets: a held-out simulated stre
 trained on; exact flow as the check that the fit is right), the same street with ``--grainy-road``
 (asphalt with visible grain), and the real KITTI slices 06 and 07 (no
 flow ground truth: the ground-truth poses give the motion). Estimators: DIS (medium, the default of
-``deepslam vo``) and the shipped learned flow.
+``deepslam vo``), the shipped learned flow, and the learned flow refined by DIS (``learned-dis``).
 
 Second table, how near the roadside is: on straight driving (yaw < 0.5 deg per frame), the median
 learned-flow magnitude per metre of motion in the image's left and right fifths around the horizon
@@ -39,7 +39,7 @@ class ResultsRoadConfig:
     """Every pair_step-th consecutive pair is measured."""
     min_motion_m: float = 0.3
     """Pairs that move less are skipped (the road's flow is then too small to read)."""
-    estimators: tuple[str, ...] = ("dis", "learned")
+    estimators: tuple[str, ...] = ("dis", "learned", "learned-dis")
     """Flow estimators measured (registry names)."""
 
 
