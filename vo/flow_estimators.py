@@ -67,29 +67,55 @@ def to_grey(img: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(img)
 
 
+class _Decoding:
+    """One cache entry: the grey image once ``done`` is set (None if its decode failed)."""
+
+    def __init__(self):
+        import threading
+
+        self.done = threading.Event()
+        self.image: np.ndarray | None = None
+
+
 class GreyCache:
     """Grey image i of a sequence, decoded once for the consecutive pairs (i-1, i), (i, i+1): the last
-    ``keep`` are kept, keyed by the image file (an object id could be reused by the next sequence).
-    Thread-safe: the replicas of an estimator (:meth:`DISFlow.replica`) share one cache, so two workers
-    on the interleaved pairs (0, 1) and (1, 2) decode frame 1 once."""
+    ``keep`` are kept (first in, first out), keyed by the image file (an object id could be reused by
+    the next sequence). Thread-safe: the replicas of an estimator (:meth:`DISFlow.replica`) share one
+    cache, so the workers on the interleaved pairs (0, 1) and (1, 2) decode frame 1 once; a worker
+    wanting a frame another is decoding waits for that decode, and different frames decode at once.
+    ``keep`` (10) covers the W + 1 frames that W workers (at most 8) hold at a time."""
 
-    def __init__(self, keep: int = 4):
+    def __init__(self, keep: int = 10):
         import threading
 
         self.keep = max(1, int(keep))
-        self._cache: dict[str, np.ndarray] = {}
+        self._cache: dict[str, _Decoding] = {}
         self._lock = threading.Lock()
 
     def __call__(self, seq, i: int) -> np.ndarray:
         key = str(seq.image_paths[i])
-        with self._lock:  # held while decoding: a second worker wanting the same frame waits for it
-            img = self._cache.get(key)
-            if img is None:
-                img = to_grey(seq.image(i))
-                if len(self._cache) >= self.keep:
+        with self._lock:
+            entry = self._cache.get(key)
+            mine = entry is None
+            if mine:
+                entry = self._cache[key] = _Decoding()
+                while len(self._cache) > self.keep:
                     self._cache.pop(next(iter(self._cache)))
-                self._cache[key] = img
-        return img
+        if mine:
+            try:
+                entry.image = to_grey(seq.image(i))
+            except BaseException:
+                with self._lock:
+                    if self._cache.get(key) is entry:
+                        del self._cache[key]
+                raise
+            finally:
+                entry.done.set()
+        else:
+            entry.done.wait()
+            if entry.image is None:  # its decode failed in another thread: fail here with this thread's own error
+                return to_grey(seq.image(i))
+        return entry.image
 
 
 def texture_strength(grey: np.ndarray, block: int = 7) -> np.ndarray:
@@ -165,9 +191,9 @@ class DISFlow:
         self.fb_max_px = fb_max_px
         self.name = (f"dis-{preset}" + (f"-tex{min_texture:g}" if min_texture > 0 else "")
                      + (f"-fb{fb_max_px:g}" if fb_max_px > 0 else ""))
-        code = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
-                "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}[preset]
-        self._dis = cv2.DISOpticalFlow_create(code)
+        self._preset_code = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
+                             "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}[preset]
+        self._dis = cv2.DISOpticalFlow_create(self._preset_code)
         self._grey = GreyCache()
 
     def estimate(self, img0: np.ndarray, img1: np.ndarray) -> np.ndarray:
@@ -186,10 +212,15 @@ class DISFlow:
         return self.estimate(self._grey(seq, i), self._grey(seq, j))
 
     def replica(self) -> "DISFlow":
-        """An estimator with the same settings (the same flows, bit for bit) for another thread; it shares
-        this one's decoded images (:class:`GreyCache`)."""
-        twin = DISFlow(self.preset, self.min_texture, self.fb_max_px)
-        twin._grey = self._grey
+        """An estimator with the same settings (the same flows, bit for bit) for another thread: a shallow copy
+        (a subclass stays its class) with an OpenCV DIS of its own; it shares this one's decoded images
+        (:class:`GreyCache`)."""
+        import copy
+
+        import cv2
+
+        twin = copy.copy(self)
+        twin._dis = cv2.DISOpticalFlow_create(self._preset_code)
         return twin
 
 

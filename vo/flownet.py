@@ -191,15 +191,16 @@ class LearnedFlow:
         g0, g1 = to_grey(img0), to_grey(img1)
         if g0.shape != g1.shape:
             raise ValueError(f"images differ in size: {g0.shape} vs {g1.shape}")
-        before = torch.get_num_threads()
-        if self.threads > 0:
+        before = torch.get_num_threads() if self.threads > 0 else None  # 0: torch's setting left alone
+        if before is not None:
             torch.set_num_threads(self.threads)
         try:
             t0, h, w = _prepare(g0, self.model.cfg.work_width)
             t1 = _prepare(g1, self.model.cfg.work_width)[0]
             up = upsample_flow(self.model(t0, t1)[-1], 2 ** self.model.cfg.finest_level)
         finally:
-            torch.set_num_threads(before)
+            if before is not None:
+                torch.set_num_threads(before)
         work = up[0, :, :h, :w].permute(1, 2, 0).numpy()
         return resize_flow(work, g0.shape[1], g0.shape[0])
 
@@ -209,10 +210,12 @@ class LearnedFlow:
     def replica(self) -> "LearnedFlow":
         """An estimator on the same network (shared, not copied: its forward pass keeps no state) for
         another thread, sharing the decoded images. It leaves torch's thread count as it is (``threads``
-        0: that setting is process-wide). On 2 cores two of them do 1.4x the pairs a second of one
+        0: that setting is process-wide, and replicas setting and restoring it in turn would race). On 2 cores two of them do 1.4x the pairs a second of one
         (KITTI 07: 33 against 46 ms a pair)."""
-        twin = object.__new__(LearnedFlow)
-        twin.model, twin.meta, twin.threads, twin.name, twin._grey = self.model, self.meta, 0, self.name, self._grey
+        import copy
+
+        twin = copy.copy(self)  # a shallow copy: the same model object and image cache; a subclass stays its class
+        twin.threads = 0
         return twin
 
 
@@ -255,10 +258,12 @@ class LearnedDISFlow:
     def replica(self) -> "LearnedDISFlow":
         """An estimator for another thread: the same network (:meth:`LearnedFlow.replica`), a DIS of its own,
         the decoded images shared; the same flows."""
+        import copy
+
         import cv2
 
-        twin = object.__new__(LearnedDISFlow)
-        twin.learned, twin.name, twin._grey = self.learned.replica(), self.name, self._grey
+        twin = copy.copy(self)
+        twin.learned = self.learned.replica()
         twin._dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
         return twin
 

@@ -134,17 +134,22 @@ class PairInputs:
             self._side_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="deepslam-flow-side")
             # full-resolution flows wait for their fit: at most ``ahead`` of them (3.6 MB each on KITTI)
             self._side_slots = threading.BoundedSemaphore(max(1, int(ahead)))
-        self._single_threaded_opencv = n_workers > 1
-        if self._single_threaded_opencv:
-            _opencv_single_threaded(True)
         per_queue = max(1, -(-int(ahead) // n_workers))
         self._queues = [queue.Queue(maxsize=per_queue) for _ in range(n_workers)]
         self._stop = threading.Event()
         self._threads = [threading.Thread(target=self._work, args=(w, estimators[w]), daemon=True,
                                           name="deepslam-flow-prefetch" + (f"-{w}" if n_workers > 1 else ""))
                          for w in range(n_workers)]
-        for t in self._threads:
-            t.start()
+        # held last, once nothing before can fail; released by close()
+        self._single_threaded_opencv = n_workers > 1
+        if self._single_threaded_opencv:
+            _opencv_single_threaded(True)
+        try:
+            for t in self._threads:
+                t.start()
+        except BaseException:
+            self.close()
+            raise
 
     def _work(self, w: int, estimator) -> None:
         from deepslam.vo.flow_estimators import to_network_input
@@ -211,11 +216,13 @@ class PairInputs:
         """Stop the workers (each finishes the pair it is on), wait for them, and give OpenCV its threads back."""
         self._stop.set()
         for t in self._threads:
-            t.join()
+            if t.ident is not None:  # started
+                t.join()
         if self._side_pool is not None:  # an early close drops the fits not started
             self._side_pool.shutdown(wait=True, cancel_futures=not self._finished)
-        if self._single_threaded_opencv:
-            self._single_threaded_opencv = False
+        with _OPENCV_LOCK:  # two threads closing at once give the count back once
+            release, self._single_threaded_opencv = self._single_threaded_opencv, False
+        if release:
             _opencv_single_threaded(False)
 
     def __enter__(self) -> "PairInputs":

@@ -96,6 +96,48 @@ def test_opencv_gets_its_threads_back_when_the_last_of_overlapping_inputs_closes
     assert cv2.getNumThreads() == before
 
 
+def test_a_constructor_that_fails_holds_nothing(plane_sequence):
+    import cv2
+
+    seq = open_sequence(plane_sequence)
+    before = cv2.getNumThreads()
+    with pytest.raises(TypeError):
+        PairInputs(seq, [(0, 1), (1, 2)], flow_estimators.make("dis", preset="fast"), 80, 24, ahead=None, workers=2)
+    assert cv2.getNumThreads() == before
+
+
+def test_a_replica_of_a_subclass_is_of_that_subclass(plane_sequence):
+    """A plug-in that subclasses DISFlow and changes its flow keeps its change on every worker."""
+
+    class Halved(flow_estimators.DISFlow):
+        def estimate(self, img0, img1):
+            return super().estimate(img0, img1) * np.float32(0.5)
+
+    seq = open_sequence(plane_sequence)
+    est = Halved("fast")
+    assert type(est.replica()) is Halved
+    pairs = [(k, k + 1) for k in range(4)]
+    one = list(PairInputs(seq, pairs, Halved("fast"), 80, 24, workers=1))
+    two = list(PairInputs(seq, pairs, Halved("fast"), 80, 24, workers=2))
+    for (a, _), (b, _) in zip(one, two, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_a_failed_decode_is_not_cached(plane_sequence, tmp_path):
+    import shutil
+
+    root = tmp_path / "seq"
+    shutil.copytree(plane_sequence, root)
+    seq = open_sequence(root)
+    saved = seq.image_paths[2].read_bytes()
+    seq.image_paths[2].unlink()
+    cache = flow_estimators.GreyCache()
+    with pytest.raises(InputError):
+        cache(seq, 2)
+    seq.image_paths[2].write_bytes(saved)
+    assert cache(seq, 2).shape == (seq.camera.height, seq.camera.width)
+
+
 def test_dis_uses_one_worker_a_core_by_default_and_others_one(plane_sequence, monkeypatch):
     from deepslam.vo import prefetch
 
