@@ -13,6 +13,7 @@
 #   L06: K06 on the learned flow of the rendered views (seeds 0-2; scored with vo --flow learned)
 #   M06: K06 with the joint KDE motion prior (seeds 0-4; fourteenth session)
 #   P06: K06 with every training frame also mirrored left-right (--mirror-frames; seeds 0-4; fourteenth session)
+#   LP06: P06 on the learned flow of the rendered views (seeds 0-2; sixteenth session)
 #   E: every model above scored with vo --pose epipolar too (fifteenth session; no training): P06 seed 0 with it ships
 # KITTI 06 is the validation slice of the sim-only recipes (they never see a real frame); 07 is never trained on.
 set -euo pipefail
@@ -90,6 +91,14 @@ done
 for s in 0 1 2 3 4; do
   out=$D/P06_mirror_s$s
   [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} $NEW --mirror-frames --sample-pool 20000 \
+      --camera-tilt-deg=-1:3:1 --frames $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
+done
+# LP06 (sixteenth session): P06 exactly on the LEARNED flow of the rendered views (seeds 0-2; scored with
+# vo --flow learned --pose epipolar; rule: bench/criteria/2026-12-03_s16_lp06.md)
+for s in 0 1 2; do
+  out=$D/LP06_learned_s$s
+  LEARNED=${DIS/--synthetic-flow dis --dis-preset medium/--synthetic-flow learned}
+  [ -f "$out/model.safetensors" ] || $DS train ${LEARNED/--seed 0/--seed $s} $NEW --mirror-frames --sample-pool 20000 \
       --camera-tilt-deg=-1:3:1 --frames $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
 # E (fifteenth session): the same models with --pose epipolar (rotation and direction of travel from the essential
