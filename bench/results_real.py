@@ -21,6 +21,8 @@ import numpy as np
 
 SLICES = ("06", "07")
 """KITTI sequences with images in ../shared/data."""
+FLOWS = ("dis", "learned", "learned-dis", "gt")
+"""Flow estimators a ``--model NAME=PATH@FLOW`` candidate may read."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -32,7 +34,7 @@ class Candidate:
     model: str
     """Model file, or a shipped spec such as ``kitti`` (see deepslam.vo.models.resolve)."""
     flow: str = "dis"
-    """Flow estimator: ``dis``, ``learned`` or ``gt`` (a name of :func:`deepslam.vo.flow_estimators.make`)."""
+    """Flow estimator: one of :data:`FLOWS` (a name of :func:`deepslam.vo.flow_estimators.make`)."""
     pose: str = "net"
     """``net`` (the network's 6DoF) or ``epipolar`` (rotation and direction from the essential matrix, distance
     from the network: ``deepslam vo --pose epipolar``)."""
@@ -111,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     from deepslam.core.paths import out_dir, shared_data_dir
 
     os.environ.setdefault("MUJOCO_GL", "egl")
-    ap = candidate_parser("results_real", __doc__, ("dis", "learned", "gt"))
+    ap = candidate_parser("results_real", __doc__, FLOWS)
     ap.add_argument("--pose", default="net,epipolar", help="comma-separated pose modes each model is scored with: "
                     "net (the network's 6DoF), epipolar (deepslam vo --pose epipolar); default both")
     args = ap.parse_args(argv)
@@ -125,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
         if not poses or any(p not in POSES for p in poses):
             raise InputError(None, f"--pose {args.pose!r}: expected a comma-separated list of {', '.join(POSES)}")
         models = ([] if args.no_shipped else list(SHIPPED)) + \
-            [Candidate(*c) for c in parse_model_specs(args.model, ("dis", "learned", "gt"))]
+            [Candidate(*c) for c in parse_model_specs(args.model, FLOWS)]
         cands = [dataclasses.replace(c, pose=p) for c in models for p in poses]
         return run(tuple(cands), out, args.data or shared_data_dir())
 
