@@ -126,4 +126,6 @@ done
   --model "M06_seed4=$D/M06_kde_s4/model.safetensors" \
   --model "P06=$D/P06_mirror_s0/model.safetensors" --model "P06_seed1=$D/P06_mirror_s1/model.safetensors" \
   --model "P06_seed2=$D/P06_mirror_s2/model.safetensors" --model "P06_seed3=$D/P06_mirror_s3/model.safetensors" \
-  --model "P06_seed4=$D/P06_mirror_s4/model.safetensors"
+  --model "P06_seed4=$D/P06_mirror_s4/model.safetensors" \
+  --model "LP06=$D/LP06_learned_s0/model.safetensors@learned" --model "LP06_seed1=$D/LP06_learned_s1/model.safetensors@learned" \
+  --model "LP06_seed2=$D/LP06_learned_s2/model.safetensors@learned"
