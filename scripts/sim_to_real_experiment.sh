@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Issue 12's sim-to-real experiment (README "Sim-to-real"): four DIS-flow NN_cons recipes, then the
-# real KITTI slices. About 160 minutes on 2 cores; resumable (finished steps are skipped).
+# Issue 12's sim-to-real experiment (README "Sim-to-real"): the NN_cons recipes below, then the
+# real KITTI slices. Many hours on 2 cores (each recipe 10-40 minutes, LP06 40 a seed on an AVX2 machine);
+# resumable (finished steps are skipped).
 #   A: 3 default streets   B: 3 varied streets   C: 3 default + 6 varied   D: C + KITTI 06's single frames
 #   F: C with the training cameras tilted (pitch -1..3 deg, roll +-1 deg)   G: F + KITTI 06's single frames
 #   (A-G draw motions from models/motion/kitti_s1.json, fitted on KITTI 00-05 and 07-10: 07's ground truth
