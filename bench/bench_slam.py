@@ -21,10 +21,10 @@ Rows (each against a baseline measured in the same run):
 """
 from __future__ import annotations
 
-import contextlib
 import os
 import tempfile
 import time
+from unittest import mock
 
 import numpy as np
 
@@ -204,7 +204,7 @@ def pipeline_fps(quick: bool) -> list[dict]:
                              ">= 10 frames/s", t["fps"] >= 10, loops=len(res.loops), vocabulary_training_s=vocab_s,
                              stage_seconds={k: v for k, v in t.items() if k.endswith("_s")}))
         # the flows on one worker (DIS on OpenCV's threads, as before the sixteenth session), right after
-        with _environ(WORKERS_ENV, "1"):
+        with mock.patch.dict(os.environ, {WORKERS_ENV: "1"}):
             one = run_slam(seq, cons, loops, params, PipelineConfig(keyframe_stride=1), vocabulary=vocab,
                            show_progress=False)
         rows.append(_row(f"pipeline frames/s, keyframe stride 1, {default_workers()} flow workers (the default) against "
@@ -213,27 +213,12 @@ def pipeline_fps(quick: bool) -> list[dict]:
     return rows
 
 
-@contextlib.contextmanager
-def _environ(name: str, value: str):
-    """``os.environ[name] = value`` inside the block, the old state restored after."""
-    old = os.environ.get(name)
-    os.environ[name] = value
-    try:
-        yield
-    finally:
-        if old is None:
-            os.environ.pop(name, None)
-        else:
-            os.environ[name] = old
-
-
 def vo_end_to_end_fps(quick: bool) -> list[dict]:
     """``deepslam vo --sequence <KITTI 07>`` with no flags (the shipped model's recorded pose: epipolar; one
     flow worker a core) in a fresh process, median wall time of 1 or 3 runs, against DIS medium alone on the
     same consecutive pairs in this process (images read beforehand, OpenCV's threads); and, run in turn with
     it, the same with ``--pose net``, with one flow worker (``DEEPSLAM_FLOW_WORKERS=1``: DIS on OpenCV's
     threads, the code before the sixteenth session) and with ``--flow learned``."""
-    import os
     import subprocess
     import sys
 

@@ -196,11 +196,13 @@ class DISFlow:
         self._dis = cv2.DISOpticalFlow_create(self._preset_code)
         self._grey = GreyCache()
 
-    def estimate(self, img0: np.ndarray, img1: np.ndarray) -> np.ndarray:
+    def estimate(self, img0: np.ndarray, img1: np.ndarray, start: np.ndarray | None = None) -> np.ndarray:
+        """Flow (H, W, 2) float32 px from ``img0`` to ``img1`` (uint8 (H, W) grey or (H, W, 3) RGB); ``start``:
+        an optional (H, W, 2) float32 px flow DIS starts from at its coarsest level (the forward flow only)."""
         g0, g1 = to_grey(img0), to_grey(img1)
         if g0.shape != g1.shape:
             raise ValueError(f"images differ in size: {g0.shape} vs {g1.shape}")
-        flow = np.ascontiguousarray(self._dis.calc(g0, g1, None), dtype=np.float32)
+        flow = np.ascontiguousarray(self._dis.calc(g0, g1, start), dtype=np.float32)
         if self.fb_max_px > 0:
             back = np.ascontiguousarray(self._dis.calc(g1, g0, None), dtype=np.float32)
             flow[~(forward_backward_error(flow, back) <= self.fb_max_px)] = np.nan

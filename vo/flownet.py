@@ -235,13 +235,11 @@ class LearnedDISFlow:
     """
 
     def __init__(self, path: str | Path | None = None, threads: int = 0):
-        import cv2
-
-        from deepslam.vo.flow_estimators import GreyCache
+        from deepslam.vo.flow_estimators import DISFlow, GreyCache
 
         self.learned = LearnedFlow(path, threads=threads)
+        self.dis = DISFlow("medium")
         self.name = "learned-dis"
-        self._dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
         self._grey = GreyCache()
 
     def estimate(self, img0: np.ndarray, img1: np.ndarray) -> np.ndarray:
@@ -250,7 +248,7 @@ class LearnedDISFlow:
 
         g0, g1 = to_grey(img0), to_grey(img1)
         start = np.ascontiguousarray(self.learned.estimate(g0, g1), dtype=np.float32)
-        return np.ascontiguousarray(self._dis.calc(g0, g1, start), dtype=np.float32)
+        return self.dis.estimate(g0, g1, start=start)
 
     def pair_flow(self, seq, i: int, j: int) -> np.ndarray:
         return self.estimate(self._grey(seq, i), self._grey(seq, j))
@@ -260,11 +258,8 @@ class LearnedDISFlow:
         the decoded images shared; the same flows."""
         import copy
 
-        import cv2
-
         twin = copy.copy(self)
-        twin.learned = self.learned.replica()
-        twin._dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+        twin.learned, twin.dis = self.learned.replica(), self.dis.replica()
         return twin
 
 
