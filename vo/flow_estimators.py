@@ -177,20 +177,35 @@ class DISFlow:
             it back to within this many pixels (occlusions, pixels leaving the view, matches DIS got
             wrong), or lands outside the image; 0 (default): no check. Twice DIS's time. In the name:
             ``dis-medium-tex0.5-fb0.5``.
+        max_width: DIS runs on images wider than this many pixels downscaled to this width (aspect kept;
+            cv2.INTER_AREA), and its flow comes back resized to the images' size with its vectors scaled to
+            match (:func:`resize_flow`), so callers see a full-size flow either way; 0 (default): the images
+            as given. About (max_width / width)^2 of DIS's time: an odometry that reads 96x320 flow does not
+            read the detail of a 1241-wide frame. A limit in pixels, not a factor, so a model trained on
+            640-wide renders and 1241-wide KITTI frames sees DIS at the same working size in training and on
+            a KITTI camera. The forward-backward check runs at the reduced size, with ``fb_max_px`` in
+            full-size pixels; the texture threshold on the full-size first image. In the name:
+            ``dis-medium-w640``.
     """
 
-    def __init__(self, preset: str = "medium", min_texture: float = 0.0, fb_max_px: float = 0.0):
+    def __init__(self, preset: str = "medium", min_texture: float = 0.0, fb_max_px: float = 0.0,
+                 max_width: int = 0):
         import cv2
 
         if preset not in DIS_PRESETS:
             raise InputError(None, f"unknown DIS preset {preset!r} (one of {', '.join(DIS_PRESETS)})")
         min_texture = _non_negative(min_texture, "DIS min_texture (--dis-min-texture)")
         fb_max_px = _non_negative(fb_max_px, "DIS fb_max_px (--dis-fb-check)")
+        width_limit = _non_negative(max_width, "DIS max_width (--dis-max-width)")
+        if width_limit != int(width_limit) or 0 < width_limit < 16:
+            raise InputError(None, f"DIS max_width (--dis-max-width) must be 0 (no limit) or a whole number of "
+                                   f"pixels >= 16, got {max_width!r}")
         self.preset = preset
+        self.max_width = int(width_limit)
         self.min_texture = min_texture
         self.fb_max_px = fb_max_px
         self.name = (f"dis-{preset}" + (f"-tex{min_texture:g}" if min_texture > 0 else "")
-                     + (f"-fb{fb_max_px:g}" if fb_max_px > 0 else ""))
+                     + (f"-fb{fb_max_px:g}" if fb_max_px > 0 else "") + (f"-w{self.max_width}" if self.max_width else ""))
         self._preset_code = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
                              "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}[preset]
         self._dis = cv2.DISOpticalFlow_create(self._preset_code)
@@ -202,10 +217,23 @@ class DISFlow:
         g0, g1 = to_grey(img0), to_grey(img1)
         if g0.shape != g1.shape:
             raise ValueError(f"images differ in size: {g0.shape} vs {g1.shape}")
-        flow = np.ascontiguousarray(self._dis.calc(g0, g1, start), dtype=np.float32)
+        h, w = g0.shape
+        a, b = g0, g1
+        if self.max_width and w > self.max_width:
+            import cv2
+
+            size = (self.max_width, max(8, round(h * self.max_width / w)))
+            a = cv2.resize(g0, size, interpolation=cv2.INTER_AREA)
+            b = cv2.resize(g1, size, interpolation=cv2.INTER_AREA)
+            if start is not None:
+                start = np.ascontiguousarray(resize_flow(start, *size))
+        flow = np.ascontiguousarray(self._dis.calc(a, b, start), dtype=np.float32)
         if self.fb_max_px > 0:
-            back = np.ascontiguousarray(self._dis.calc(g1, g0, None), dtype=np.float32)
-            flow[~(forward_backward_error(flow, back) <= self.fb_max_px)] = np.nan
+            back = np.ascontiguousarray(self._dis.calc(b, a, None), dtype=np.float32)
+            fb_max = self.fb_max_px * a.shape[1] / w  # full-size pixels at the size DIS ran at
+            flow[~(forward_backward_error(flow, back) <= fb_max)] = np.nan
+        if a is not g0:
+            flow = resize_flow(flow, w, h, unknown="nan")
         if self.min_texture > 0:
             flow[texture_strength(g0) < self.min_texture] = np.nan
         return flow
@@ -364,18 +392,21 @@ register("learned-dis")(_learned_dis)
 
 
 def estimator_options(name: str, dis_preset: str | None = "medium", dis_min_texture: float | None = 0.0,
-                      dis_fb_check: float | None = None) -> dict:
+                      dis_fb_check: float | None = None, dis_max_width: int | None = None) -> dict:
     """The options :func:`make` passes to ``name``'s factory from the command line's DIS flags
-    (``--dis-preset``, ``--dis-min-texture``, ``--dis-fb-check``; None = not given): those of
-    :class:`DISFlow` for ``dis``, none otherwise (a check not given is left out, so a model trained
-    without one records what files from before the check record). InputError when a texture threshold
-    or a forward-backward check is given for another estimator (it would be silently ignored)."""
+    (``--dis-preset``, ``--dis-min-texture``, ``--dis-fb-check``, ``--dis-max-width``; None = not given): those of
+    :class:`DISFlow` for ``dis``, none otherwise (a check or width limit not given is left out, so a model trained
+    without one records what files from before it record). InputError when a texture threshold, a
+    forward-backward check or a width limit is given for another estimator (it would be silently ignored)."""
     if name == "dis":
         opts = {"preset": dis_preset, "min_texture": dis_min_texture}
         if dis_fb_check is not None:
             opts["fb_max_px"] = dis_fb_check
+        if dis_max_width is not None:
+            opts["max_width"] = dis_max_width
         return opts
-    for flag, given in (("--dis-min-texture", dis_min_texture), ("--dis-fb-check", dis_fb_check)):
+    for flag, given in (("--dis-min-texture", dis_min_texture), ("--dis-fb-check", dis_fb_check),
+                        ("--dis-max-width", dis_max_width)):
         if given:
             raise InputError(None, f"{flag} applies to DIS flow only, not to flow estimator {name!r}")
     return {}

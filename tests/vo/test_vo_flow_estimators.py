@@ -338,3 +338,51 @@ def test_fb_check_options_and_refusals():
             fe.DISFlow("medium", 0.0, bad)
     with pytest.raises(InputError, match="--dis-fb-check applies to DIS flow only"):
         fe.estimator_options("learned", None, None, 1.0)
+
+
+@pytest.mark.parametrize("max_width", [0, 80, 160, 400])
+def test_dis_max_width_gives_full_size_flow_in_full_size_pixels(max_width):
+    """DIS on images wider than the limit runs downscaled; the flow comes back at the images' size with its
+    vectors in full-size pixels (a 6 px shift reads about 6, not 6 x the scale); at or under the limit the
+    flow is DIS's own, bit for bit."""
+    img = _texture(120, 320)
+    shifted = np.roll(img, (2, 6), axis=(0, 1))  # content moves +6 px in u, +2 px in v
+    dis = fe.DISFlow("medium", max_width=max_width)
+    flow = dis.estimate(img, shifted)
+    assert flow.shape == (120, 320, 2) and flow.dtype == np.float32 and np.isfinite(flow).all()
+    np.testing.assert_allclose(np.median(flow[24:-24, 24:-24].reshape(-1, 2), axis=0), [6.0, 2.0], atol=0.3)
+    assert dis.name == ("dis-medium" if max_width == 0 else f"dis-medium-w{max_width}")
+    full = fe.DISFlow("medium").estimate(img, shifted)
+    assert np.array_equal(flow, full) == (max_width in (0, 400))
+
+
+def test_dis_max_width_with_a_start_flow_and_the_fb_check():
+    """The start flow is scaled down with the images, and the forward-backward check runs at the reduced size:
+    the seen scene stays known, pixels leaving the view go unknown, a tighter threshold leaves more out."""
+    img0, img1 = _occluder_pair()
+    h, w = img0.shape[:2]
+    start = np.zeros((h, w, 2), np.float32)
+    start[..., 0] = 4.0
+    small = fe.DISFlow("medium", max_width=w // 2)
+    flow = small.estimate(img0, img1, start=start)
+    assert flow.shape == (h, w, 2) and np.allclose(np.median(flow[5:30, 20:170, 0]), 4.0, atol=0.2)
+    share = []
+    for fb in (0.25, 3.0):
+        unknown = np.isnan(fe.DISFlow("medium", fb_max_px=fb, max_width=w // 2).estimate(img0, img1)[..., 0])
+        assert not unknown[5:30, 20:170].any() and unknown[:, -2:].all()
+        share.append(unknown.mean())
+    assert share[0] > share[1] > 0
+
+
+@pytest.mark.parametrize("bad", [-1, 8, 15, 12.5, float("nan"), "x"])
+def test_dis_max_width_refuses_bad_values(bad):
+    with pytest.raises(InputError, match="max_width"):
+        fe.DISFlow("medium", max_width=bad)
+
+
+def test_dis_max_width_options():
+    assert "max_width" not in fe.estimator_options("dis", "medium", 0.0)  # not given: as old records
+    assert fe.estimator_options("dis", "medium", 0.0, None, 640)["max_width"] == 640
+    assert fe.estimator_options("dis", "medium", 0.0, None, 0)["max_width"] == 0  # given: overrides a model's record
+    with pytest.raises(InputError, match="--dis-max-width applies to DIS flow only"):
+        fe.estimator_options("learned", None, None, None, 640)
