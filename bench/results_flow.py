@@ -7,13 +7,16 @@
   the flow)) and the photometric error (mean absolute grey difference between frame t and frame t+1
   sampled at x + flow, pixels landing inside the image), per estimator on the same pairs.
 - Frames/s of each estimator on 1241x376 KITTI pairs (this machine, the threads torch and OpenCV use).
+- On the renders also EPE and Fl-all at the odometry's input size (``--net-size``, 96x320): both flows
+  resized as the network's input is (:func:`vo.flow_estimators.resize_flow`), what the odometry reads.
 
 Writes ``out/results/flow/results.json`` and ``results.md``. Usage::
 
     python -m bench.results_flow [--model models/flow_learned.safetensors] [--held DIR ...]
 
-Estimators: DIS medium, the learned network, and the learned network's flow as DIS's start
-(``learned-dis``, :class:`vo.flownet.LearnedDISFlow`), all on the same pairs.
+Estimators: DIS medium, DIS medium on frames downscaled to each ``--dis-widths`` width (``dis-medium-w640``:
+:class:`vo.flow_estimators.DISFlow`'s ``max_width``), the learned network, and the learned network's flow as
+DIS's start (``learned-dis``, :class:`vo.flownet.LearnedDISFlow`), all on the same pairs.
 """
 from __future__ import annotations
 
@@ -53,29 +56,47 @@ def main(argv: list[str] | None = None) -> int:
     from deepslam.core import atomic
     from deepslam.core.paths import out_dir, shared_data_dir
     from deepslam.core.readers import open_sequence
-    from deepslam.vo.flow_estimators import DISFlow, to_grey
+    from deepslam.vo.flow_estimators import DISFlow, resize_flow, to_grey
     from deepslam.vo.flownet import LearnedDISFlow, LearnedFlow, endpoint_error
 
     ap = argparse.ArgumentParser(prog="python -m bench.results_flow")
     ap.add_argument("--model", default=None, help="learned flow model (default: the shipped one)")
     ap.add_argument("--held", nargs="*", default=None, help="held-out rendered sequences (default: out/flow_held/seq_*)")
     ap.add_argument("--pairs", type=int, default=30, help="pairs per sequence (evenly spread)")
+    ap.add_argument("--dis-widths", default="640", help="comma-separated widths DIS also runs at (frames downscaled; "
+                    "'' for none)")
+    ap.add_argument("--net-size", default="96x320", help="HxW the odometry reads, for the EPE at its input size")
     ap.add_argument("--out", default=str(out_dir() / "results" / "flow"))
     args = ap.parse_args(argv)
+    try:
+        widths = [int(w) for w in args.dis_widths.split(",") if w.strip()]
+        net_h, net_w = (int(x) for x in args.net_size.lower().split("x"))
+    except ValueError:
+        ap.error(f"--dis-widths must be integers and --net-size HxW, got {args.dis_widths!r}, {args.net_size!r}")
     learned = LearnedFlow(args.model)
-    ests = {"dis-medium": DISFlow("medium"), "learned": learned, "learned-dis": LearnedDISFlow(args.model)}
+    ests = {"dis-medium": DISFlow("medium")}
+    for w in widths:
+        dis = DISFlow("medium", max_width=w)
+        ests[dis.name] = dis
+    ests.update({"learned": learned, "learned-dis": LearnedDISFlow(args.model)})
     held = args.held if args.held is not None else sorted(str(p) for p in (out_dir() / "flow_held").glob("seq_*"))
     rows = []
     for d in held:
         seq = open_sequence(d)
         idx = np.unique(np.linspace(0, len(seq) - 2, min(args.pairs, len(seq) - 1)).astype(int))
         for name, est in ests.items():
-            epe, fl = [], []
+            epe, fl, epe_net, fl_net = [], [], [], []
             for i in idx:
-                r = endpoint_error(est.pair_flow(seq, int(i), int(i) + 1), seq.flow(int(i)))
+                pred, gt = est.pair_flow(seq, int(i), int(i) + 1), seq.flow(int(i))
+                r = endpoint_error(pred, gt)
                 epe.append(r["epe"])
                 fl.append(r["fl_all"])
-            rows.append({"data": f"held-out render {Path(d).parent.name}/{Path(d).name}", "estimator": name, "pairs": len(idx), "epe_px": float(np.mean(epe)), "fl_all": float(np.mean(fl))})
+                r = endpoint_error(resize_flow(pred, net_w, net_h, "nan"), resize_flow(gt, net_w, net_h, "nan"))
+                epe_net.append(r["epe"])
+                fl_net.append(r["fl_all"])
+            rows.append({"data": f"held-out render {Path(d).parent.name}/{Path(d).name} ({seq.camera.width}x{seq.camera.height})",
+                         "estimator": name, "pairs": len(idx), "epe_px": float(np.mean(epe)), "fl_all": float(np.mean(fl)),
+                         "epe_net_px": float(np.mean(epe_net)), "fl_all_net": float(np.mean(fl_net))})
     shared = shared_data_dir()
     for sl in ("06", "07"):
         root = shared / "kitti" / "sequences" / sl
@@ -98,17 +119,18 @@ def main(argv: list[str] | None = None) -> int:
             rows.append({"data": f"KITTI {sl} (real, {seq.camera.width}x{seq.camera.height})", "estimator": name,
                          "pairs": len(idx), "fb_consistent": float(np.mean(fb)), "photometric_err": float(np.mean(ph)),
                          "frames_per_s": len(idx) / secs})
-    res = {"model": str(args.model or "shipped"), "meta": learned.meta, "rows": rows}
+    res = {"model": str(args.model or "shipped"), "meta": learned.meta, "net_size": [net_h, net_w], "rows": rows}
     out = Path(args.out)
     atomic.write_json(out / "results.json", res)
-    lines = ["| data | estimator | pairs | EPE px | Fl-all | fwd-bwd consistent | photometric err | frames/s |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = [f"| data | estimator | pairs | EPE px | Fl-all | EPE px at {net_h}x{net_w} | Fl-all at {net_h}x{net_w} | "
+             "fwd-bwd consistent | photometric err | frames/s |", "|---|---|---|---|---|---|---|---|---|---|"]
     def cell(r: dict, key: str, fmt: str) -> str:
         return fmt % r[key] if key in r else ""
 
     for r in rows:
         lines.append(f"| {r['data']} | {r['estimator']} | {r['pairs']} | {cell(r, 'epe_px', '%.2f')} | "
-                     f"{cell(r, 'fl_all', '%.3f')} | {cell(r, 'fb_consistent', '%.3f')} | "
+                     f"{cell(r, 'fl_all', '%.3f')} | {cell(r, 'epe_net_px', '%.2f')} | {cell(r, 'fl_all_net', '%.3f')} | "
+                     f"{cell(r, 'fb_consistent', '%.3f')} | "
                      f"{cell(r, 'photometric_err', '%.2f')} | {cell(r, 'frames_per_s', '%.1f')} |")
     atomic.write_text(out / "results.md", "\n".join(lines) + "\n")
     print("\n".join(lines))

@@ -15,6 +15,7 @@
 #   M06: K06 with the joint KDE motion prior (seeds 0-4; fourteenth session)
 #   P06: K06 with every training frame also mirrored left-right (--mirror-frames; seeds 0-4; fourteenth session)
 #   LP06: P06 on the learned flow of the rendered views (seeds 0-2; sixteenth session)
+#   W06: P06 with DIS on frames at most 640 px wide (seeds 0-2; eighteenth session)
 #   E: every model above scored with vo --pose epipolar too (fifteenth session; no training): P06 seed 0 with it ships
 # KITTI 06 is the validation slice of the sim-only recipes (they never see a real frame); 07 is never trained on.
 set -euo pipefail
@@ -102,6 +103,14 @@ for s in 0 1 2; do
   [ -f "$out/model.safetensors" ] || $DS train ${LEARNED/--seed 0/--seed $s} $NEW --mirror-frames --sample-pool 20000 \
       --camera-tilt-deg=-1:3:1 --frames $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
+# W06 (eighteenth session): P06 exactly with DIS on frames at most 640 px wide (--dis-max-width 640: the renders as
+# before, KITTI 06's frames downscaled to 640 wide; the model records it, so vo/slam run DIS so; seeds 0-2;
+# rule: bench/criteria/2026-12-03_s18_dis_scale.md)
+for s in 0 1 2; do
+  out=$D/W06_w640_s$s
+  [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} --dis-max-width 640 $NEW --mirror-frames \
+      --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
+done
 # E (fifteenth session): the same models with --pose epipolar (rotation and direction of travel from the essential
 # matrix of the flow, the network's distance): results_real below scores every model in both pose modes.
 # Shipped since the fifteenth session: P06 seed 0 with the epipolar pose recorded (rule: bench/criteria/2026-12-03_s15_epipolar.md,
@@ -129,4 +138,6 @@ done
   --model "P06_seed2=$D/P06_mirror_s2/model.safetensors" --model "P06_seed3=$D/P06_mirror_s3/model.safetensors" \
   --model "P06_seed4=$D/P06_mirror_s4/model.safetensors" \
   --model "LP06=$D/LP06_learned_s0/model.safetensors@learned" --model "LP06_seed1=$D/LP06_learned_s1/model.safetensors@learned" \
-  --model "LP06_seed2=$D/LP06_learned_s2/model.safetensors@learned"
+  --model "LP06_seed2=$D/LP06_learned_s2/model.safetensors@learned" \
+  --model "W06=$D/W06_w640_s0/model.safetensors" --model "W06_seed1=$D/W06_w640_s1/model.safetensors" \
+  --model "W06_seed2=$D/W06_w640_s2/model.safetensors"
