@@ -56,9 +56,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--motion", action="append", default=[], metavar="FILE[:loops][@WEIGHT]",
                    help="gen.motion JSON (deepslam fit-motion); ':loops' samples its loop distribution (NN_loops); "
                         "repeat for a mixture (strides 1, 2, 3...), optional @weight")
-    g.add_argument("--speed-range", default=None, metavar="MIN:MAX",
+    g.add_argument("--speed-range", default=None, metavar="MIN:MAX[@FRACTION]",
                    help="draw the forward speed uniformly in MIN:MAX m/s (at --rate-hz) instead of from the motion "
-                        "model, keeping its other DoFs: the network must read speed from the flow, not a prior")
+                        "model, keeping its other DoFs: the network must read speed from the flow, not a prior. "
+                        "@FRACTION: only that share of the motions (e.g. 0:30@0.2: a flat tail to 30 m/s beside "
+                        "the fitted prior)")
     g.add_argument("--rate-hz", type=float, default=10.0, help="frame rate of the motion model, for --speed-range")
     g.add_argument("--camera-tilt-deg", default=None, metavar="PMIN:PMAX[:ROLL]",
                    help="rotate each sample's camera by a pitch drawn uniformly in [PMIN, PMAX] degrees (positive: "
@@ -346,14 +348,10 @@ def run(args: argparse.Namespace) -> int:
                 raise InputError(None, "synthetic mode needs --motion FILE (a gen.motion JSON; repeat for a mixture)")
             motions = [_load_motion(m) for m in args.motion]
             sampler = data.MotionMixture([m[0] for m in motions], [m[1] for m in motions])
-            speed_range = None
+            speed_range, flat_speed = None, None
             if args.speed_range:
-                try:
-                    lo, hi = (float(x) for x in args.speed_range.split(":"))
-                except ValueError:
-                    raise InputError(None, f"--speed-range must be MIN:MAX in m/s, got {args.speed_range!r}") from None
-                sampler = data.FlatSpeed(sampler, lo, hi, args.rate_hz)
-                speed_range = [lo, hi, args.rate_hz]
+                sampler = flat_speed = data.FlatSpeed.parse(sampler, args.speed_range, args.rate_hz)
+                speed_range = [flat_speed.min_mps, flat_speed.max_mps, flat_speed.rate_hz]
             f = max(1, args.synth_factor)
             seqs = [open_sequence(d) for d in args.frames]
             if args.missing_depth is None:
@@ -393,6 +391,8 @@ def run(args: argparse.Namespace) -> int:
                             "motion": [m[2] for m in motions], "samples_per_epoch": args.samples_per_epoch,
                             "holdout_samples": n_hold, "synth_factor": f, "missing_depth": args.missing_depth,
                             "sample_pool": args.sample_pool, "speed_range_mps_at_hz": speed_range,
+                            **({"speed_range_fraction": flat_speed.fraction}
+                               if flat_speed is not None and flat_speed.fraction < 1 else {}),
                             "camera_tilt": tilt.to_dict() if tilt else None,
                             "scene_scale": scene_scale.to_dict() if scene_scale else None,
                             **({"mirror_frames": True} if args.mirror_frames else {})}

@@ -357,6 +357,55 @@ def test_flat_speed_replaces_only_the_forward_motion_and_covers_the_range():
             FlatSpeed(base, *bad, 10.0)
 
 
+@pytest.mark.parametrize("fraction", [0.2, 0.5])
+def test_flat_speed_fraction_gives_a_flat_tail_beside_the_prior(fraction):
+    from deepslam.vo.data import FlatSpeed
+
+    base = lambda n, rng: np.tile(np.array([0.01, 0.02, 0.03, 0.1, 0.2, -0.9]), (n, 1))  # noqa: E731
+    out = FlatSpeed(base, 0.0, 30.0, 10.0, fraction)(40000, np.random.default_rng(1))
+    kept = out[:, 5] == -0.9  # the prior's draw (a flat draw hits -0.9 exactly with probability 0)
+    assert abs(1 - kept.mean() - fraction) < 0.01
+    fwd = -out[~kept, 5] * 10.0
+    assert fwd.min() >= 0 and fwd.max() <= 30
+    hist, _ = np.histogram(fwd, bins=6, range=(0, 30))
+    assert hist.min() > 0.85 * hist.mean()
+    np.testing.assert_array_equal(out[:, :5], np.tile([0.01, 0.02, 0.03, 0.1, 0.2], (40000, 1)))
+    np.testing.assert_array_equal(out, FlatSpeed(base, 0.0, 30.0, 10.0, fraction)(40000, np.random.default_rng(1)))
+
+
+@pytest.mark.parametrize("text, expect", [("0:30", (0.0, 30.0, 1.0)), ("0:30@0.2", (0.0, 30.0, 0.2)),
+                                          ("5:25@1", (5.0, 25.0, 1.0))])
+def test_flat_speed_parses_the_flag(text, expect):
+    from deepslam.vo.data import FlatSpeed
+
+    s = FlatSpeed.parse(lambda n, rng: np.zeros((n, 6)), text, 10.0)
+    assert (s.min_mps, s.max_mps, s.fraction) == expect
+
+
+@pytest.mark.parametrize("text", ["0:30@0", "0:30@1.5", "0:30@x", "30", "0:30:5", "0:30@nan", "10:5@0.2"])
+def test_flat_speed_rejects_a_bad_flag_with_one_line(text):
+    from deepslam.vo.data import FlatSpeed
+
+    with pytest.raises(InputError):
+        FlatSpeed.parse(lambda n, rng: np.zeros((n, 6)), text, 10.0)
+
+
+def test_train_refuses_a_bad_speed_range_fraction_before_writing(tmp_path):
+    """`train --speed-range 0:30@2`: one line naming the flag, exit 2, no output folder."""
+    import subprocess
+    import sys
+
+    from deepslam.core.paths import base_dir
+
+    motion = base_dir() / "models" / "motion" / "kitti_no0607_s1.json"
+    r = subprocess.run([sys.executable, "-m", "deepslam", "train", "--mode", "synthetic", "--frames", str(tmp_path),
+                        "--motion", str(motion), "--speed-range", "0:30@2", "--out", str(tmp_path / "o")],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "fraction" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()
+
+
 def test_speed_sweep_of_a_perfect_reader_is_flat(plane_sequence):
     """A 'model' that reads forward motion exactly from the synthesized flow's intrinsics-free target
     gives read/true = 1 at every speed; the sweep plumbing (frames, motions, signs) is what is tested."""
