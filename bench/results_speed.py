@@ -5,8 +5,10 @@ the real KITTI 06 slice (depth from stereo; its single frames WERE in the shippe
 without poses) are driven straight forward at 0-30 m/s (10 Hz) by single-frame synthesis; each
 model reads the flow it was made for: ``kitti_cons`` the exact synthetic flow, ``kitti_cons_dis``
 DIS on a second view rendered from the frame. read/true = 1 at every speed is a model that reads
-metric motion from flow; a slope is a learned speed prior. Writes results.json, results.md and
-speed_sweep.png into ``out/results/speed`` (``python -m bench.results_speed``, about 2 minutes).
+metric motion from flow; a slope is a learned speed prior. Candidates beside the shipped models:
+``--model NAME=PATH[@FLOW]`` (FLOW: exact, dis, learned or learned-dis; a DIS model's recorded DIS
+options are used). Writes results.json, results.md and speed_sweep.png into ``out/results/speed``
+(``python -m bench.results_speed [--model NAME=PATH[@FLOW]] [--no-shipped]``, about 1 minute a model).
 """
 from __future__ import annotations
 
@@ -14,7 +16,6 @@ import dataclasses
 import sys
 from pathlib import Path
 
-import numpy as np
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,36 +39,43 @@ class ResultsSpeedConfig:
 QUICK = ResultsSpeedConfig(heldout_frames=12, samples=8)
 
 
-def _sweeps(seq, kind: str, cfg: ResultsSpeedConfig) -> dict:
+FLOWS = ("exact", "dis", "learned", "learned-dis")
+"""Flows a candidate may read: the exact synthetic flow, or an estimator run on the rendered second view."""
+SHIPPED = (("shipped kitti_cons", "kitti", "exact"), ("shipped kitti_cons_dis", "kitti", "dis"))
+"""The shipped KITTI models swept by default: (row name, model, flow)."""
+
+
+def _sweep(name: str, model: str, flow: str, seq, kind: str, cfg: ResultsSpeedConfig) -> dict:
+    """One model's sweep on one sequence's frames (``kind``: ``rendered`` or ``stereo`` depth)."""
     from deepslam.vo import data, models, scale_sweep
 
-    out = {}
-    for flow in ("exact", "dis"):
-        path = models.shipped_path("kitti", "cons", None if flow == "exact" else "dis")
-        pred = models.load(path, True)
-        h, w = pred.input_size
-        unknown = pred.model.cfg.unknown_flow
-        if flow == "exact":
-            frames = data.load_frames([seq], 2 * w, 2 * h, depth=kind, progress=False)
+    path, shipped = models.locate(model, None, flow=None if flow == "exact" else flow)
+    pred = models.load(path, shipped)
+    h, w = pred.input_size
+    unknown = pred.model.cfg.unknown_flow
+    if flow == "exact":
+        frames = data.load_frames([seq], 2 * w, 2 * h, depth=kind, progress=False)
 
-            def make(sample, frames=frames, unknown=unknown):
-                return data.SyntheticSource(frames, sample, cfg.samples, synth_factor=2, unknown=unknown)
-        else:
-            frames = data.load_image_frames([seq], depth=kind, progress=False)
-            # DIS set up as the model's file records it (medium on every pixel for today's file)
-            options = {"preset": "medium", **models.recorded_flow_options(path, "dis")}
+        def make(sample, frames=frames, unknown=unknown):
+            return data.SyntheticSource(frames, sample, cfg.samples, synth_factor=2, unknown=unknown)
+    else:
+        frames = data.load_image_frames([seq], depth=kind, progress=False)
+        # DIS set up as the model's file records it (medium on every pixel for today's file)
+        options = {"preset": "medium", **models.recorded_flow_options(path, "dis")} if flow == "dis" else {}
 
-            def make(sample, frames=frames, h=h, w=w, unknown=unknown, options=options):
-                return data.EstimatedFlowSource(frames, sample, "dis", w, h, cfg.samples, estimator_options=options,
-                                                unknown=unknown)
-        reads = scale_sweep.speed_sweep(pred, make, cfg.samples, cfg.rate_hz, seed=cfg.seed)
-        out[flow] = {"model": pred.name, "reads": [dataclasses.asdict(r) for r in reads],
-                     "flatness": scale_sweep.flatness(reads)}
-    return out
+        def make(sample, frames=frames, h=h, w=w, unknown=unknown, options=options):
+            return data.EstimatedFlowSource(frames, sample, flow, w, h, cfg.samples, estimator_options=options,
+                                            unknown=unknown)
+    reads = scale_sweep.speed_sweep(pred, make, cfg.samples, cfg.rate_hz, seed=cfg.seed)
+    return {"name": name, "model": pred.name, "flow": flow, "reads": [dataclasses.asdict(r) for r in reads],
+            "flatness": scale_sweep.flatness(reads, min_speed_mps=2.5)}
 
 
-def run(cfg: ResultsSpeedConfig, out: Path, data_dir: Path) -> dict:
-    from deepslam.core import atomic
+def run(cfg: ResultsSpeedConfig, out: Path, data_dir: Path,
+        candidates: tuple[tuple[str, str, str], ...] = SHIPPED) -> dict:
+    """Sweep each candidate (row name, model file or shipped spec, flow in :data:`FLOWS`) on the held-out
+    street and on KITTI 06's frames; results.json, results.md and speed_sweep.png into ``out``."""
+    from bench.results_common import write_report
     from deepslam.core.readers import open_sequence
     from deepslam.studies.demo import render_once
 
@@ -76,13 +84,18 @@ def run(cfg: ResultsSpeedConfig, out: Path, data_dir: Path) -> dict:
     held = render_once("street", "car", cfg.heldout_frames, cfg.width, cfg.heldout_seed,
                        out / f"street_heldout_s{cfg.heldout_seed}", log)
     report = {"config": dataclasses.asdict(cfg), "sets": {}}
-    report["sets"]["simulated street, held out (seed 7; never trained on)"] = _sweeps(open_sequence(held), "rendered", cfg)
+    sets = {"simulated street, held out (seed 7; never trained on)": (open_sequence(held), "rendered")}
     k06 = data_dir / "kitti" / "sequences" / "06"
     if (k06 / "calib.txt").is_file():
-        report["sets"]["KITTI 06 slice (stereo depth; its single frames were in training, no poses)"] = \
-            _sweeps(open_sequence(k06), "stereo", cfg)
-    atomic.write_json(out / "results.json", report)
-    atomic.write_text(out / "results.md", markdown(report))
+        sets["KITTI 06 slice (stereo depth; its single frames were in training, no poses)"] = (open_sequence(k06),
+                                                                                              "stereo")
+    for set_name, (seq, kind) in sets.items():
+        rows = report["sets"][set_name] = {}
+        for name, model, flow in candidates:
+            rows[name] = r = _sweep(name, model, flow, seq, kind, cfg)
+            print(f"{name} on {set_name.split(' (')[0]}: read/true {r['flatness']['ratio_min']:.3f}-"
+                  f"{r['flatness']['ratio_max']:.3f} over 2.5-30 m/s", flush=True)
+    write_report(out, report, markdown)
     _plot(report, out / "speed_sweep.png")
     return report
 
@@ -97,10 +110,10 @@ def _plot(report: dict, path: Path) -> None:
 
     fig, ax = plt.subplots(figsize=(7, 4))
     for name, sweeps in report["sets"].items():
-        for flow, s in sweeps.items():
+        for s in sweeps.values():
             rs = [r for r in s["reads"] if r["ratio_median"] is not None]
             ax.plot([r["speed_mps"] for r in rs], [r["ratio_median"] for r in rs], marker="o",
-                    label=f"{s['model']} ({flow} flow), {name.split(' (')[0]}")
+                    label=f"{s['name']} ({s['flow']} flow), {name.split(' (')[0]}")
     ax.axhline(1.0, color="k", lw=0.8)
     ax.set(xlabel="true speed [m/s] (10 Hz)", ylabel="forward read / true (median)",
            title="translation read vs true speed (straight forward)")
@@ -113,21 +126,39 @@ def _plot(report: dict, path: Path) -> None:
 
 def markdown(report: dict) -> str:
     speeds = [r["speed_mps"] for r in next(iter(next(iter(report["sets"].values())).values()))["reads"]]
-    lines = ["| frames | model (flow) | " + " | ".join(f"{v:g} m/s" for v in speeds) + " |",
-             "|---|---|" + "---|" * len(speeds)]
+    lines = ["| frames | model (flow) | " + " | ".join(f"{v:g} m/s" for v in speeds) + " | largest abs(read/true - 1), "
+             "2.5-30 m/s |", "|---|---|" + "---|" * (len(speeds) + 1)]
     for name, sweeps in report["sets"].items():
-        for flow, s in sweeps.items():
-            cells = [f"{r['read_median_m']:.3f} m" if r["ratio_median"] is None else f"{r['ratio_median']:.2f}"
+        for s in sweeps.values():
+            cells = [f"{r['read_median_m']:.3f} m" if r["ratio_median"] is None else f"{r['ratio_median']:.3f}"
                      for r in s["reads"]]
-            lines.append(f"| {name} | {s['model']} ({flow}) | " + " | ".join(cells) + " |")
+            lines.append(f"| {name} | {s['name']} ({s['flow']}) | " + " | ".join(cells)
+                         + f" | {s['flatness']['max_abs_dev']:.3f} |")
     return ("read/true of the forward translation (median over frames; at 0 m/s the read itself)\n\n"
             + "\n".join(lines) + "\n")
 
 
 def main(argv: list[str] | None = None) -> int:
-    from bench.results_common import results_main
+    import os
 
-    return results_main("results_speed", __doc__, ResultsSpeedConfig(), QUICK, "speed", run, markdown, argv)
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
+    from bench.results_common import candidate_parser, parse_model_specs, run_locked
+    from deepslam.core.paths import out_dir, shared_data_dir
+
+    ap = candidate_parser("results_speed", __doc__, FLOWS)
+    ap.add_argument("--quick", action="store_true", help="small sizes (a smoke run)")
+    args = ap.parse_args(argv)
+    out = args.out or out_dir() / "results" / ("speed_quick" if args.quick else "speed")
+
+    def work() -> dict:
+        cands = ([] if args.no_shipped else list(SHIPPED)) + parse_model_specs(args.model, FLOWS)
+        return run(QUICK if args.quick else ResultsSpeedConfig(), out, args.data or shared_data_dir(), tuple(cands))
+
+    code = run_locked("results_speed", out, work, markdown)
+    if code == 0:
+        print(f"wrote {out / 'results.json'}, {out / 'results.md'} and {out / 'speed_sweep.png'}")
+    return code
 
 
 if __name__ == "__main__":

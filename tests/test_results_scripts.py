@@ -171,6 +171,30 @@ def test_turn_table_measures_both_sets_and_refuses_a_bad_model_spec(shared_data,
     assert len(err) == 1 and "NAME=PATH[@dis|@learned]" in err[0] and not (tmp_path / "b").exists()
 
 
+def test_speed_table_sweeps_each_candidate_on_both_sets_and_refuses_a_bad_model_spec(shared_data, tmp_path, capsys):
+    """results_speed with few frames: a shipped model and a --model candidate (the same file, named) each swept on
+    the held-out street and 06, with the flatness the rule of the nineteenth session reads; a malformed --model is
+    one line, exit 2."""
+    from bench import results_speed
+
+    cfg = results_speed.ResultsSpeedConfig(width=200, heldout_frames=6, samples=3)
+    rep = results_speed.run(cfg, tmp_path, shared_data, (("shipped", "kitti", "dis"), ("again", "kitti", "dis")))
+    assert [k.split(" ")[0] for k in rep["sets"]] == ["simulated", "KITTI"]
+    for rows in rep["sets"].values():
+        assert list(rows) == ["shipped", "again"]
+        a, b = rows["shipped"], rows["again"]
+        assert a["model"] == "kitti_cons_dis" and a["flow"] == "dis" and a["reads"] == b["reads"]  # deterministic
+        ratios = [r["ratio_median"] for r in a["reads"] if r["speed_mps"] >= 2.5]
+        assert a["flatness"]["max_abs_dev"] == pytest.approx(max(abs(x - 1) for x in ratios))
+        assert all(0.5 < x < 1.5 for x in ratios), ratios
+    assert "largest abs(read/true - 1)" in (tmp_path / "results.md").read_text()
+    assert (tmp_path / "speed_sweep.png").stat().st_size > 0
+    capsys.readouterr()
+    assert results_speed.main(["--no-shipped", "--model", "x=m.safetensors@raft", "--out", str(tmp_path / "b")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "@learned-dis" in err[0] and not (tmp_path / "b").exists()
+
+
 def test_tum_results_quick_rows_and_baselines(shared_data, tmp_path):
     """results_tum --quick: every row scored, the standing-still baseline is the ground truth's spread,
     the classical baseline with sensor depth beats it."""

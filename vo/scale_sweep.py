@@ -80,10 +80,12 @@ def speed_sweep(predictor, make_source, n_frames: int, rate_hz: float, speeds_mp
 
 
 def flatness(reads: list[SpeedRead], min_speed_mps: float = 2.0) -> dict:
-    """Summary of a sweep: the range of read/true over speeds >= ``min_speed_mps`` and the read at rest."""
+    """Summary of a sweep: the range of read/true over speeds >= ``min_speed_mps``, the largest |read/true - 1|
+    there (``max_abs_dev``: 0 for a model that reads speed from the flow at every speed) and the read at rest."""
     ratios = [r.ratio_median for r in reads if r.ratio_median is not None and r.speed_mps >= min_speed_mps]
     still = [r.read_median_m for r in reads if r.speed_mps == 0]
     return {"ratio_min": float(min(ratios)) if ratios else None, "ratio_max": float(max(ratios)) if ratios else None,
+            "max_abs_dev": float(max(abs(x - 1.0) for x in ratios)) if ratios else None,
             "read_at_rest_m": still[0] if still else None, "min_speed_mps": min_speed_mps}
 
 

@@ -429,7 +429,8 @@ def test_speed_sweep_of_a_perfect_reader_is_flat(plane_sequence):
     assert reads[0].ratio_median is None and reads[0].read_median_m == 0.0
     assert [r.ratio_median for r in reads[1:]] == pytest.approx([1.0, 1.0])
     assert reads[2].true_m == pytest.approx(2.0)
-    assert scale_sweep.flatness(reads) == {"ratio_min": 1.0, "ratio_max": 1.0, "read_at_rest_m": 0.0, "min_speed_mps": 2.0}
+    assert scale_sweep.flatness(reads) == {"ratio_min": 1.0, "ratio_max": 1.0, "max_abs_dev": 0.0,
+                                             "read_at_rest_m": 0.0, "min_speed_mps": 2.0}
 
 
 @pytest.mark.parametrize("keep_sky", [True, False])
