@@ -16,6 +16,7 @@
 #   P06: K06 with every training frame also mirrored left-right (--mirror-frames; seeds 0-4; fourteenth session)
 #   LP06: P06 on the learned flow of the rendered views (seeds 0-2; sixteenth session)
 #   W06: P06 with DIS on frames at most 640 px wide (seeds 0-2; eighteenth session)
+#   U06: P06 with a flat speed tail in the motion prior, 0-30 m/s for a fifth of the samples (seeds 0-2; nineteenth session)
 #   E: every model above scored with vo --pose epipolar too (fifteenth session; no training): P06 seed 0 with it ships
 # KITTI 06 is the validation slice of the sim-only recipes (they never see a real frame); 07 is never trained on.
 set -euo pipefail
@@ -111,6 +112,14 @@ for s in 0 1 2; do
   [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} --dis-max-width 640 $NEW --mirror-frames \
       --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
+# U06 (nineteenth session): P06 exactly with a flat speed tail in the prior (--speed-range 0:30@0.2: a fifth of the
+# motions get a forward speed uniform in 0-30 m/s, the rest the fitted prior; seeds 0-2;
+# rule: bench/criteria/2026-12-03_s19_speed_tail.md; the sweep: python -m bench.results_speed --model U06=...)
+for s in 0 1 2; do
+  out=$D/U06_tail_s$s
+  [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} --speed-range 0:30@0.2 $NEW --mirror-frames \
+      --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
+done
 # E (fifteenth session): the same models with --pose epipolar (rotation and direction of travel from the essential
 # matrix of the flow, the network's distance): results_real below scores every model in both pose modes.
 # Shipped since the fifteenth session: P06 seed 0 with the epipolar pose recorded (rule: bench/criteria/2026-12-03_s15_epipolar.md,
@@ -140,4 +149,10 @@ done
   --model "LP06=$D/LP06_learned_s0/model.safetensors@learned" --model "LP06_seed1=$D/LP06_learned_s1/model.safetensors@learned" \
   --model "LP06_seed2=$D/LP06_learned_s2/model.safetensors@learned" \
   --model "W06=$D/W06_w640_s0/model.safetensors" --model "W06_seed1=$D/W06_w640_s1/model.safetensors" \
-  --model "W06_seed2=$D/W06_w640_s2/model.safetensors"
+  --model "W06_seed2=$D/W06_w640_s2/model.safetensors" \
+  --model "U06=$D/U06_tail_s0/model.safetensors" --model "U06_seed1=$D/U06_tail_s1/model.safetensors" \
+  --model "U06_seed2=$D/U06_tail_s2/model.safetensors"
+# the forward read against the true speed (0-30 m/s) of P06 seed 0 (kitti_cons_dis as shipped in the fifteenth session) and U06
+.venv/bin/python -m bench.results_speed --no-shipped --model "P06=$D/P06_mirror_s0/model.safetensors" \
+  --model "U06=$D/U06_tail_s0/model.safetensors" --model "U06_seed1=$D/U06_tail_s1/model.safetensors" \
+  --model "U06_seed2=$D/U06_tail_s2/model.safetensors" --out $D/speed
