@@ -5,7 +5,9 @@ the real KITTI 06 slice (depth from stereo; its single frames WERE in the shippe
 without poses) are driven straight forward at 0-30 m/s (10 Hz) by single-frame synthesis; each
 model reads the flow it was made for: ``kitti_cons`` the exact synthetic flow, ``kitti_cons_dis``
 DIS on a second view rendered from the frame. read/true = 1 at every speed is a model that reads
-metric motion from flow; a slope is a learned speed prior. Candidates beside the shipped models:
+metric motion from flow; a slope is a learned speed prior. Beside each read: its spread from frame to
+frame and the model's own predicted std (a model whose std does not follow the spread does not know
+where its read is uncertain). Candidates beside the shipped models:
 ``--model NAME=PATH[@FLOW]`` (FLOW: exact, dis, learned or learned-dis; a DIS model's recorded DIS
 options are used). Writes results.json, results.md and speed_sweep.png into ``out/results/speed``
 (``python -m bench.results_speed [--model NAME=PATH[@FLOW]] [--no-shipped]``, about 1 minute a model).
@@ -134,8 +136,18 @@ def markdown(report: dict) -> str:
                      for r in s["reads"]]
             lines.append(f"| {name} | {s['name']} ({s['flow']}) | " + " | ".join(cells)
                          + f" | {s['flatness']['max_abs_dev']:.3f} |")
+    moving = [v for v in speeds if v > 0]
+    spread = ["| frames | model (flow) | " + " | ".join(f"{v:g} m/s" for v in moving) + " |",
+              "|---|---|" + "---|" * len(moving)]
+    for name, sweeps in report["sets"].items():
+        for s in sweeps.values():
+            cells = [f"{r['ratio_spread']:.3f} / {r['std_ratio_median']:.3f}" if r.get("ratio_spread") is not None
+                     else "-" for r in s["reads"] if r["speed_mps"] > 0]
+            spread.append(f"| {name} | {s['name']} ({s['flow']}) | " + " | ".join(cells) + " |")
     return ("read/true of the forward translation (median over frames; at 0 m/s the read itself)\n\n"
-            + "\n".join(lines) + "\n")
+            + "\n".join(lines) + "\n\nhow much the read varies from frame to frame (std of read/true over the frames) / "
+            "how much the model says it varies (median predicted std over the true motion)\n\n"
+            + "\n".join(spread) + "\n")
 
 
 def main(argv: list[str] | None = None) -> int:

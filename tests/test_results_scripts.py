@@ -187,7 +187,9 @@ def test_speed_table_sweeps_each_candidate_on_both_sets_and_refuses_a_bad_model_
         ratios = [r["ratio_median"] for r in a["reads"] if r["speed_mps"] >= 2.5]
         assert a["flatness"]["max_abs_dev"] == pytest.approx(max(abs(x - 1) for x in ratios))
         assert all(0.5 < x < 1.5 for x in ratios), ratios
-    assert "largest abs(read/true - 1)" in (tmp_path / "results.md").read_text()
+        assert all(r["ratio_spread"] >= 0 and r["std_ratio_median"] > 0 for r in a["reads"] if r["speed_mps"] > 0)
+    md = (tmp_path / "results.md").read_text()
+    assert "largest abs(read/true - 1)" in md and "median predicted std" in md
     assert (tmp_path / "speed_sweep.png").stat().st_size > 0
     capsys.readouterr()
     assert results_speed.main(["--no-shipped", "--model", "x=m.safetensors@raft", "--out", str(tmp_path / "b")]) == 2

@@ -39,11 +39,18 @@ class SpeedRead:
     """75th percentile of the forward read, metres."""
     ratio_median: float | None
     """Median of read/true over the frames (None at speed 0)."""
+    ratio_spread: float | None = None
+    """Standard deviation of read/true over the frames: how much the read varies from frame to frame (None at
+    speed 0)."""
+    std_ratio_median: float | None = None
+    """Median over the frames of the model's own predicted std of the forward motion, over the true motion: the
+    spread the model expects (None at speed 0)."""
 
 
-def _read(predictor, make_source, vec6: np.ndarray, n_frames: int, seed: int) -> np.ndarray:
+def _read(predictor, make_source, vec6: np.ndarray, n_frames: int, seed: int, with_std: bool = False):
     """(n_frames, 6) the model's mean read of the one motion ``vec6`` (paper vector of cam1_from_cam0) on
-    ``n_frames`` frames drawn by ``seed`` (the same frames for every motion)."""
+    ``n_frames`` frames drawn by ``seed`` (the same frames for every motion); with ``with_std`` the pair
+    (mean, predicted std), both (n_frames, 6)."""
     vec6 = np.asarray(vec6, dtype=np.float64)
 
     def sample(n: int, rng: np.random.Generator) -> np.ndarray:
@@ -51,8 +58,8 @@ def _read(predictor, make_source, vec6: np.ndarray, n_frames: int, seed: int) ->
 
     batch = make_source(sample).make_batch(np.random.default_rng(seed), int(n_frames))
     extra = (batch["inv_depth"],) if "inv_depth" in batch else ()  # depth-channel models only
-    mean, _ = predictor.predict(batch["flow"], batch["intrinsics"], *extra)
-    return mean
+    mean, std = predictor.predict(batch["flow"], batch["intrinsics"], *extra)
+    return (mean, std) if with_std else mean
 
 
 def speed_sweep(predictor, make_source, n_frames: int, rate_hz: float, speeds_mps=DEFAULT_SPEEDS_MPS,
@@ -72,10 +79,14 @@ def speed_sweep(predictor, make_source, n_frames: int, rate_hz: float, speeds_mp
     out = []
     for v in speeds_mps:
         d = float(v) / float(rate_hz)
-        read = -_read(predictor, make_source, [0.0, 0.0, 0.0, 0.0, 0.0, -d], n_frames, seed)[:, 5]
+        mean, std = _read(predictor, make_source, [0.0, 0.0, 0.0, 0.0, 0.0, -d], n_frames, seed, with_std=True)
+        read = -np.asarray(mean, dtype=np.float64)[:, 5]
         q25, q50, q75 = np.percentile(read, [25, 50, 75])
-        ratio = float(np.median(read / d)) if d > 0 else None
-        out.append(SpeedRead(float(v), d, float(q50), float(q25), float(q75), ratio))
+        ratio = spread = std_ratio = None
+        if d > 0:
+            ratio, spread = float(np.median(read / d)), float(np.std(read / d))
+            std_ratio = float(np.median(np.asarray(std, dtype=np.float64)[:, 5] / d))
+        out.append(SpeedRead(float(v), d, float(q50), float(q25), float(q75), ratio, spread, std_ratio))
     return out
 
 

@@ -428,6 +428,9 @@ def test_speed_sweep_of_a_perfect_reader_is_flat(plane_sequence):
     assert [r.speed_mps for r in reads] == [0.0, 5.0, 20.0]
     assert reads[0].ratio_median is None and reads[0].read_median_m == 0.0
     assert [r.ratio_median for r in reads[1:]] == pytest.approx([1.0, 1.0])
+    assert [r.ratio_spread for r in reads[1:]] == pytest.approx([0.0, 0.0])  # the same read on every frame
+    assert [r.std_ratio_median for r in reads[1:]] == pytest.approx([1 / 0.5, 1 / 2.0])  # std 1 m over the motion
+    assert reads[0].ratio_spread is None and reads[0].std_ratio_median is None
     assert reads[2].true_m == pytest.approx(2.0)
     assert scale_sweep.flatness(reads) == {"ratio_min": 1.0, "ratio_max": 1.0, "max_abs_dev": 0.0,
                                              "read_at_rest_m": 0.0, "min_speed_mps": 2.0}
