@@ -47,21 +47,29 @@ SHIPPED = (("shipped kitti_cons", "kitti", "exact"), ("shipped kitti_cons_dis", 
 """The shipped KITTI models swept by default: (row name, model, flow)."""
 
 
-def _sweep(name: str, model: str, flow: str, seq, kind: str, cfg: ResultsSpeedConfig) -> dict:
-    """One model's sweep on one sequence's frames (``kind``: ``rendered`` or ``stereo`` depth)."""
+def _sweep(name: str, model: str, flow: str, seq, kind: str, cfg: ResultsSpeedConfig, loaded: dict) -> dict:
+    """One model's sweep on one sequence's frames (``kind``: ``rendered`` or ``stereo`` depth). ``loaded``
+    keeps that sequence's frames for the next candidate (stereo depth of 06 is seconds a load): the images at
+    their size for every estimator, the depth at twice a model's input size for the exact flow."""
     from deepslam.vo import data, models, scale_sweep
 
     path, shipped = models.locate(model, None, flow=None if flow == "exact" else flow)
     pred = models.load(path, shipped)
     h, w = pred.input_size
     unknown = pred.model.cfg.unknown_flow
+
+    def frames_of(key, load):
+        if key not in loaded:
+            loaded[key] = load()
+        return loaded[key]
+
     if flow == "exact":
-        frames = data.load_frames([seq], 2 * w, 2 * h, depth=kind, progress=False)
+        frames = frames_of((2 * w, 2 * h), lambda: data.load_frames([seq], 2 * w, 2 * h, depth=kind, progress=False))
 
         def make(sample, frames=frames, unknown=unknown):
             return data.SyntheticSource(frames, sample, cfg.samples, synth_factor=2, unknown=unknown)
     else:
-        frames = data.load_image_frames([seq], depth=kind, progress=False)
+        frames = frames_of("images", lambda: data.load_image_frames([seq], depth=kind, progress=False))
         # DIS set up as the model's file records it (medium on every pixel for today's file)
         options = {"preset": "medium", **models.recorded_flow_options(path, "dis")} if flow == "dis" else {}
 
@@ -93,8 +101,9 @@ def run(cfg: ResultsSpeedConfig, out: Path, data_dir: Path,
                                                                                               "stereo")
     for set_name, (seq, kind) in sets.items():
         rows = report["sets"][set_name] = {}
+        loaded: dict = {}
         for name, model, flow in candidates:
-            rows[name] = r = _sweep(name, model, flow, seq, kind, cfg)
+            rows[name] = r = _sweep(name, model, flow, seq, kind, cfg, loaded)
             print(f"{name} on {set_name.split(' (')[0]}: read/true {r['flatness']['ratio_min']:.3f}-"
                   f"{r['flatness']['ratio_max']:.3f} over 2.5-30 m/s", flush=True)
     write_report(out, report, markdown)
