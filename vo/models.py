@@ -90,7 +90,7 @@ def odometry(path: str | Path, flow: str = "dis", shipped: bool = False, progres
                                                             epipolar=epipolar_config(path, pose))
 
 
-RECORDED_OPTIONS = {"dis": ("preset", "min_texture", "fb_max_px", "max_width")}
+RECORDED_OPTIONS = {"dis": ("preset", "min_texture", "fb_max_px", "max_width", "patch_stride")}
 """The options a model file's flow record may set, per estimator (:class:`vo.flow_estimators.DISFlow`'s)."""
 
 

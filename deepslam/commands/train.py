@@ -121,6 +121,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="DIS runs on frames wider than PX downscaled to PX wide, its flow resized back (about "
                         "(PX/width)^2 of DIS's time; 0 = full size); recorded in the model, so vo and slam set DIS "
                         "up the same way")
+    g.add_argument("--dis-patch-stride", type=int, default=None, metavar="PX",
+                   help="pixels between the patches DIS matches (0 = the preset's: medium 3; 4 takes about three "
+                        "quarters of medium's time); recorded in the model, so vo and slam set DIS up the same way")
     g = p.add_argument_group("network")
     g.add_argument("--net", choices=sorted(NET_PRESETS), default="paper", help="preset, refined by the options below")
     g.add_argument("--height", type=int, help="input rows")
@@ -360,7 +363,7 @@ def run(args: argparse.Namespace) -> int:
             if args.synthetic_flow == "exact":
                 # DIS's flags given for exact flow are refused, not ignored (the same check as for any other estimator)
                 flow_estimators.estimator_options("exact", None, args.dis_min_texture, args.dis_fb_check,
-                                                  args.dis_max_width)
+                                                  args.dis_max_width, args.dis_patch_stride)
                 frames = data.load_frames(seqs, w * f, h * f, args.frame_step, args.depth, args.max_frames, progress)
                 train_frames, hold_frames = frames.split(args.holdout, args.seed)
 
@@ -370,7 +373,8 @@ def run(args: argparse.Namespace) -> int:
                                                 unknown=net.unknown_flow)
             else:
                 opts = flow_estimators.estimator_options(args.synthetic_flow, args.dis_preset, args.dis_min_texture,
-                                                         args.dis_fb_check, args.dis_max_width)
+                                                         args.dis_fb_check, args.dis_max_width,
+                                                         args.dis_patch_stride)
                 frames = data.load_image_frames(seqs, args.frame_step, args.depth, args.max_frames, progress,
                                                 scales=args.frame_scales)
                 train_frames, hold_frames = frames.split(args.holdout, args.seed)
@@ -405,7 +409,7 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(None, "supervised mode needs --sequence DIR...")
 
         opts = flow_estimators.estimator_options(args.flow, args.dis_preset, args.dis_min_texture, args.dis_fb_check,
-                                                 args.dis_max_width)
+                                                 args.dis_max_width, args.dis_patch_stride)
         est = flow_estimators.make(args.flow, **opts)
         meta["flow"] = {"estimator": args.flow, "options": opts}
         spec = data.PairSpec(strides=tuple(args.strides), kind=args.pairs, max_pairs=args.max_pairs)

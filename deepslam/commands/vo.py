@@ -40,6 +40,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="DIS runs on frames wider than PX downscaled to PX wide, and its flow is resized back to the "
                         "frame's size (about (PX/width)^2 of DIS's time; 0 = full size). Default: the model's, as it "
                         "was trained (0 where it does not say)")
+    p.add_argument("--dis-patch-stride", type=int, default=None, metavar="PX",
+                   help="pixels between the patches DIS matches (0 = the preset's: medium 3). Default: the model's, "
+                        "as it was trained (the preset's where it does not say)")
     p.add_argument("--pose", choices=("net", "epipolar"), default=None,
                    help="net: the network's 6DoF (the paper); epipolar: the rotation and the direction of travel from "
                         "the essential matrix of the full-resolution flow (OpenCV USAC), the distance from the network "
@@ -102,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
 
         model_path, shipped = models.locate(args.model, seq, flow=args.flow)
         given = estimator_options(args.flow, args.dis_preset, args.dis_min_texture, args.dis_fb_check,
-                                  args.dis_max_width)
+                                  args.dis_max_width, args.dis_patch_stride)
         estimator = models.flow_for_model(args.flow, model_path, **given)  # DIS set up as the model was trained
         bf16 = None if args.bf16 == "auto" else args.bf16 == "on"
         from deepslam.vo.prefetch import PairInputs, model_input

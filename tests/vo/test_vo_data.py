@@ -206,14 +206,14 @@ def test_train_cli_synthetic_with_dis_flow_and_a_sample_pool(plane_sequence, mot
     out = tmp_path / "syn_dis"
     rc = main(["train", "--mode", "synthetic", "--synthetic-flow", "dis", "--dis-preset", "fast", "--sample-pool", "48",
                "--dis-min-texture", "0.5", "--dis-fb-check", "1", "--dis-max-width", "200",
-               "--frames", str(plane_sequence), "--motion", str(motion_json), "--net", "tiny", "--batch", "16",
+               "--dis-patch-stride", "4", "--frames", str(plane_sequence), "--motion", str(motion_json), "--net", "tiny", "--batch", "16",
                "--samples-per-epoch", "64", "--max-epochs", "2", "--nll-epochs", "1", "--bf16", "off", "--threads", "1",
                "--quiet", "--out", str(out)])
     assert rc == 0
     meta = json.loads((out / "config.json").read_text())["data"]
     d = meta["data"]
-    assert d["synthetic_flow"] == "dis-fast-tex0.5-fb1-w200" and d["sample_pool"] == 48 and d["synth_factor"] is None
-    recorded = {"preset": "fast", "min_texture": 0.5, "fb_max_px": 1.0, "max_width": 200}
+    assert d["synthetic_flow"] == "dis-fast-tex0.5-fb1-w200-s4" and d["sample_pool"] == 48 and d["synth_factor"] is None
+    recorded = {"preset": "fast", "min_texture": 0.5, "fb_max_px": 1.0, "max_width": 200, "patch_stride": 4}
     assert meta["flow"] == {"estimator": "dis", "options": recorded}
     # the model file records the flow it learned, and vo sets DIS up the same unless told otherwise
     from deepslam.vo import models
@@ -221,15 +221,16 @@ def test_train_cli_synthetic_with_dis_flow_and_a_sample_pool(plane_sequence, mot
     model = out / "model.safetensors"
     assert models.recorded_flow_options(model, "dis") == recorded
     assert models.recorded_flow_options(model, "learned") == {}
-    assert models.flow_for_model("dis", model).name == "dis-fast-tex0.5-fb1-w200"
-    assert models.flow_for_model("dis", model, min_texture=0.0, preset=None).name == "dis-fast-fb1-w200"
+    assert models.flow_for_model("dis", model).name == "dis-fast-tex0.5-fb1-w200-s4"
+    assert models.flow_for_model("dis", model, min_texture=0.0, preset=None).name == "dis-fast-fb1-w200-s4"
     with pytest.raises(InputError, match="--dis-fb-check") as bad:  # a bad flag is the flag's fault, not the file's
         models.flow_for_model("dis", model, fb_max_px=-1.0)
     assert "malformed" not in str(bad.value)
     odometry = models.odometry(model)  # as bench and SLAM take a model file: on the flow it records
-    assert odometry.flow_estimator.name == "dis-fast-tex0.5-fb1-w200" and not odometry.progress
-    for flags, name in (([], "dis-fast-tex0.5-fb1-w200"), (["--dis-min-texture", "0", "--dis-preset", "medium",
-                                                            "--dis-fb-check", "0", "--dis-max-width", "0"], "dis-medium")):
+    assert odometry.flow_estimator.name == "dis-fast-tex0.5-fb1-w200-s4" and not odometry.progress
+    for flags, name in (([], "dis-fast-tex0.5-fb1-w200-s4"), (["--dis-min-texture", "0", "--dis-preset", "medium",
+                                                            "--dis-fb-check", "0", "--dis-max-width", "0",
+                                                            "--dis-patch-stride", "0"], "dis-medium")):
         traj = tmp_path / f"vo{len(flags)}.txt"
         assert main(["vo", "--sequence", str(plane_sequence), "--model", str(model), "--out", str(traj), "--quiet",
                      *flags]) == 0

@@ -386,3 +386,32 @@ def test_dis_max_width_options():
     assert fe.estimator_options("dis", "medium", 0.0, None, 0)["max_width"] == 0  # given: overrides a model's record
     with pytest.raises(InputError, match="--dis-max-width applies to DIS flow only"):
         fe.estimator_options("learned", None, None, None, 640)
+
+
+@pytest.mark.parametrize("stride", [0, 3, 4, 6])
+def test_dis_patch_stride_keeps_the_motion_and_names_itself(stride):
+    """Fewer patches still read a shift; 0 and the preset's own stride (medium: 3) are the same DIS, bit for bit;
+    a replica (another thread's estimator) keeps the stride."""
+    img = _texture(120, 320)
+    shifted = np.roll(img, (2, 6), axis=(0, 1))
+    dis = fe.DISFlow("medium", patch_stride=stride)
+    flow = dis.estimate(img, shifted)
+    assert flow.shape == (120, 320, 2) and flow.dtype == np.float32 and np.isfinite(flow).all()
+    np.testing.assert_allclose(np.median(flow[24:-24, 24:-24].reshape(-1, 2), axis=0), [6.0, 2.0], atol=0.3)
+    assert dis.name == ("dis-medium" if stride == 0 else f"dis-medium-s{stride}")
+    medium = fe.DISFlow("medium").estimate(img, shifted)
+    assert np.array_equal(flow, medium) == (stride in (0, 3))
+    assert np.array_equal(dis.replica().estimate(img, shifted), flow)
+
+
+@pytest.mark.parametrize("bad", [-1, 9, 2.5, float("nan"), "x"])
+def test_dis_patch_stride_refuses_bad_values(bad):
+    with pytest.raises(InputError, match="patch_stride"):
+        fe.DISFlow("medium", patch_stride=bad)
+
+
+def test_dis_patch_stride_options():
+    assert "patch_stride" not in fe.estimator_options("dis", "medium", 0.0)  # not given: as old records
+    assert fe.estimator_options("dis", "medium", 0.0, dis_patch_stride=4)["patch_stride"] == 4
+    with pytest.raises(InputError, match="--dis-patch-stride applies to DIS flow only"):
+        fe.estimator_options("learned", None, None, dis_patch_stride=4)
