@@ -120,6 +120,14 @@ for s in 0 1 2; do
   [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} --speed-range 0:30@0.2 $NEW --mirror-frames \
       --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
+# S06 (twentieth session): P06 exactly with DIS matching 8-pixel patches every 4 pixels instead of 3
+# (--dis-patch-stride 4: about three quarters of DIS medium's time; the model records it; seeds 0-2;
+# rule: bench/criteria/2026-12-04_s20_dis_stride.md)
+for s in 0 1 2; do
+  out=$D/S06_stride4_s$s
+  [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} --dis-patch-stride 4 $NEW --mirror-frames \
+      --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
+done
 # E (fifteenth session): the same models with --pose epipolar (rotation and direction of travel from the essential
 # matrix of the flow, the network's distance): results_real below scores every model in both pose modes.
 # Shipped since the fifteenth session: P06 seed 0 with the epipolar pose recorded (rule: bench/criteria/2026-12-03_s15_epipolar.md,
@@ -151,7 +159,9 @@ done
   --model "W06=$D/W06_w640_s0/model.safetensors" --model "W06_seed1=$D/W06_w640_s1/model.safetensors" \
   --model "W06_seed2=$D/W06_w640_s2/model.safetensors" \
   --model "U06=$D/U06_tail_s0/model.safetensors" --model "U06_seed1=$D/U06_tail_s1/model.safetensors" \
-  --model "U06_seed2=$D/U06_tail_s2/model.safetensors"
+  --model "U06_seed2=$D/U06_tail_s2/model.safetensors" \
+  --model "S06=$D/S06_stride4_s0/model.safetensors" --model "S06_seed1=$D/S06_stride4_s1/model.safetensors" \
+  --model "S06_seed2=$D/S06_stride4_s2/model.safetensors"
 # the forward read against the true speed (0-30 m/s) of P06 seed 0 (kitti_cons_dis as shipped in the fifteenth session) and U06
 .venv/bin/python -m bench.results_speed --no-shipped --model "P06=$D/P06_mirror_s0/model.safetensors" \
   --model "U06=$D/U06_tail_s0/model.safetensors" --model "U06_seed1=$D/U06_tail_s1/model.safetensors" \
