@@ -81,12 +81,10 @@ def run(quick: bool = False) -> list[dict]:
                          "target": ">= 0.05 (KITTI city: often 5-30 %)", "met": bool(f.mean() >= 0.05),
                          "p90": round(float(np.percentile(f, 90)), 4), "max": round(float(f.max()), 4)})
     try:
-        import matplotlib
+        from deepslam.core.plots import new_figure, save_figure
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        fig, ax = plt.subplots(figsize=(6, 3.5))
+        fig = new_figure((6, 3.5))
+        ax = fig.subplots()
         bins = np.linspace(0, max(0.3, max(float(v.max()) for v in fr.values())), 31)
         for scene, f in fr.items():
             ax.hist(f, bins=bins, alpha=0.6, label=f"{scene} (8 movers)")
@@ -96,8 +94,7 @@ def run(quick: bool = False) -> list[dict]:
         ax.legend()
         fig.tight_layout()
         Path("out").mkdir(exist_ok=True)
-        fig.savefig("out/bench_dynamic_fraction.png", dpi=110)
-        plt.close(fig)
+        save_figure(fig, "out/bench_dynamic_fraction.png")
     except Exception:  # noqa: BLE001 - the plot is a convenience
         pass
     return rows

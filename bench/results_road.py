@@ -151,12 +151,7 @@ def run(cfg: ResultsRoadConfig, out: Path, data_dir: Path) -> dict:
 
 
 def _plot(report: dict, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from deepslam.core import atomic
+    from deepslam.core.plots import new_figure, save_figure
 
     data, labels = [], []
     for label, per in report["sets"].items():
@@ -164,15 +159,14 @@ def _plot(report: dict, path: Path) -> None:
             if r["heights_m"]:
                 data.append(np.clip(r["heights_m"], 0, 8))
                 labels.append(f"{label.split(' (')[0]}\n{name}")
-    fig, ax = plt.subplots(figsize=(max(6, 1.1 * len(data)), 4))
+    fig = new_figure((max(6, 1.1 * len(data)), 4))
+    ax = fig.subplots()
     ax.boxplot(data, showfliers=False)
     ax.set_xticks(range(1, len(labels) + 1), labels, fontsize=7)
     ax.axhline(report["true_height_m"], color="k", lw=0.8, ls="--")
     ax.set(ylabel="implied camera height above the road [m]", title="road motion shown by each flow (true: 1.65 m)")
     fig.tight_layout()
-    with atomic.atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=90)
-    plt.close(fig)
+    save_figure(fig, path, dpi=90)
 
 
 def markdown(report: dict) -> str:

@@ -112,14 +112,10 @@ def run(cfg: ResultsSpeedConfig, out: Path, data_dir: Path,
 
 
 def _plot(report: dict, path: Path) -> None:
-    import matplotlib
+    from deepslam.core.plots import new_figure, save_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from deepslam.core import atomic
-
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig = new_figure((7, 4))
+    ax = fig.subplots()
     for name, sweeps in report["sets"].items():
         for s in sweeps.values():
             rs = [r for r in s["reads"] if r["ratio_median"] is not None]
@@ -130,9 +126,7 @@ def _plot(report: dict, path: Path) -> None:
            title="translation read vs true speed (straight forward)")
     ax.legend(fontsize=7)
     fig.tight_layout()
-    with atomic.atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=90)
-    plt.close(fig)
+    save_figure(fig, path, dpi=90)
 
 
 def markdown(report: dict) -> str:

@@ -22,19 +22,23 @@ def topdown_axes(positions: Sequence[np.ndarray]) -> tuple[int, int]:
     return int(a), int(b)
 
 
-def _new_figure(size=(7.0, 6.0)):
+def new_figure(size: tuple[float, float] = (7.0, 6.0), dpi: int = 110):
+    """A matplotlib Figure of ``size`` inches on its own Agg canvas: no pyplot, so no global figure state to close,
+    no backend to switch, and safe beside other threads that draw."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=size, dpi=110)
+    fig = Figure(figsize=size, dpi=dpi)
     FigureCanvasAgg(fig)
     return fig
 
 
-def _save(fig, path_png: str | Path) -> Path:
+def save_figure(fig, path_png: str | Path, dpi: int | None = None) -> Path:
+    """Write ``fig`` as a PNG at ``path_png`` atomically (a reader never sees half a file); ``dpi``: the figure's
+    own where None."""
     path_png = Path(path_png)
     with atomic.atomic_path(path_png) as tmp:
-        fig.savefig(tmp, format="png")
+        fig.savefig(tmp, format="png", **({} if dpi is None else {"dpi": dpi}))
     return path_png
 
 
@@ -57,7 +61,7 @@ def plot_trajectories_topdown(path_png: str | Path, trajectories: Mapping[str, n
         raise ValueError("nothing to plot")
     pos = {k: np.asarray(v, dtype=np.float64).reshape(-1, 3) for k, v in trajectories.items()}
     a, b = axes if axes is not None else topdown_axes(list(pos.values()))
-    fig = _new_figure()
+    fig = new_figure()
     ax = fig.add_subplot(1, 1, 1)
     for n, (label, p) in enumerate(pos.items()):
         style = dict(color="black", linestyle="--", linewidth=1.2) if n == 0 else dict(linewidth=1.2)
@@ -72,7 +76,7 @@ def plot_trajectories_topdown(path_png: str | Path, trajectories: Mapping[str, n
     if title:
         ax.set_title(title)
     fig.tight_layout()
-    return _save(fig, path_png)
+    return save_figure(fig, path_png)
 
 
 def plot_kitti_per_length(path_png: str | Path, per_length: Mapping[str, Sequence[Mapping]], title: str = "") -> Path:
@@ -85,7 +89,7 @@ def plot_kitti_per_length(path_png: str | Path, per_length: Mapping[str, Sequenc
     if not per_length:
         raise ValueError("nothing to plot")
     lengths = sorted({float(r["length_m"]) for rows in per_length.values() for r in rows})
-    fig = _new_figure(size=(10.0, 4.0))
+    fig = new_figure(size=(10.0, 4.0))
     width = 0.8 / len(per_length)
     x = np.arange(len(lengths))
     for col, (key, unit) in enumerate((("t_err_pct", "translation error [%]"),
@@ -104,4 +108,4 @@ def plot_kitti_per_length(path_png: str | Path, per_length: Mapping[str, Sequenc
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    return _save(fig, path_png)
+    return save_figure(fig, path_png)

@@ -604,14 +604,12 @@ def _why(reason: str | None) -> str:
 
 
 def _plot_history(path: Path, history: list[dict]) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from deepslam.core.plots import new_figure, save_figure
 
     s1 = [h for h in history if h["stage"] == 1]
     s2 = [h for h in history if h["stage"] == 2]
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    fig = new_figure((10, 4))
+    axes = fig.subplots(1, 2)
     if s1:
         axes[0].semilogy([h["epoch"] for h in s1], [h["train_loss"] for h in s1], label="train")
         axes[0].semilogy([h["epoch"] for h in s1], [h["val_loss"] for h in s1], label="held-out")
@@ -621,9 +619,7 @@ def _plot_history(path: Path, history: list[dict]) -> None:
         axes[1].plot([h["epoch"] for h in s2], [h["holdout_nll"] for h in s2])
     axes[1].set(title="stage 2: Gaussian NLL (held-out)", xlabel="epoch")
     fig.tight_layout()
-    with atomic.atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=90)
-    plt.close(fig)
+    save_figure(fig, path, dpi=90)
 
 
 def load_model(path: str | Path) -> tuple[torch.nn.Module, dict]:
