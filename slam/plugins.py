@@ -204,16 +204,22 @@ def odometry_from_args(args, seq):
     from deepslam.gen.device import resolve_device
     from deepslam.vo import models
 
+    from deepslam.vo.flow_estimators import estimator_options
+
     device = resolve_device(getattr(args, "device", "cpu"))
+    given = estimator_options(args.flow, *(getattr(args, f"dis_{k}", None)
+                                           for k in ("preset", "min_texture", "fb_check", "max_width", "patch_stride")))
+    given = {k: v for k, v in given.items() if v is not None}
     estimators: dict[tuple, object] = {}  # one estimator per set-up: cons and loops share it where they agree
 
     def odometry(spec, which, pose=None):
-        # each model gets the flow as it was trained on it (DIS's preset and texture threshold may differ)
+        # each model gets the flow as it was trained on it (DIS's preset and texture threshold may differ),
+        # with the options given on the command line for both
         path, shipped = models.locate(spec, seq, which, args.flow)
         recorded = models.recorded_flow_options(path, args.flow)
-        key = tuple(sorted(recorded.items()))
+        key = tuple(sorted({**recorded, **given}.items()))
         if key not in estimators:
-            estimators[key] = models.flow_for_model(args.flow, path, recorded)
+            estimators[key] = models.flow_for_model(args.flow, path, recorded, **given)
         flow = estimators[key]
         return models.load(path, shipped, device=device).as_odometry(flow, epipolar=models.epipolar_config(path, pose))
 

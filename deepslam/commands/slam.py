@@ -13,6 +13,8 @@ import json
 import sys
 from pathlib import Path
 
+from deepslam.commands import _dis_flags
+
 NAME = "slam"
 HELP = "run SLAM (learned odometry + BoVW loop closure + gtsam pose graph) on a sequence"
 
@@ -30,6 +32,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plot", default=None, metavar="PNG", help="top-down plot of VO, SLAM and ground truth")
     p.add_argument("--flow", default="dis", help="optical flow estimator for the models: dis (default), learned, learned-dis, gt or a "
                    "plug-in MODULE:FACTORY (as deepslam vo)")
+    _dis_flags.add_arguments(p)  # NN_cons' and NN_loops' DIS, each flag given overriding both models' records
     p.add_argument("--pose", choices=("net", "epipolar"), default=None,
                    help="consecutive-frame motions: net (the network's 6DoF) or epipolar (rotation and direction of "
                         "travel from the essential matrix of the flow, distance from the network; as deepslam vo "
@@ -103,6 +106,8 @@ def run(args: argparse.Namespace) -> int:
         "config": {**config.to_dict(), "reloc": dataclasses.asdict(res.reloc) if res.reloc else None},
         "loops": res.loops.pairs.tolist(), "n_loops": len(res.loops),
         "loops_kept_by_pose_graph": None if res.loop_inliers is None else res.loop_inliers.tolist(),
+        "flow_cons": getattr(getattr(odo_cons, "flow_estimator", None), "name", None),
+        "flow_loops": getattr(getattr(odo_loops, "flow_estimator", None), "name", None),
         "n_candidates": len(res.candidates),
         "n_verified_ok": int(sum(c.verification.accepted for c in res.candidates)),
         "timings": res.timings, "graph_error": list(res.graph_error),

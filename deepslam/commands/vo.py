@@ -9,6 +9,8 @@ from __future__ import annotations
 import argparse
 import dataclasses
 
+from deepslam.commands import _dis_flags
+
 NAME = "vo"
 HELP = "learned visual odometry: flow between frames -> network -> chained trajectory (+ CSV of motions with std)"
 
@@ -26,23 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "`deepslam train-flow` trains on renders), learned-dis (that network's flow refined by DIS: the most "
                    "consistent on real KITTI, 2.5x DIS's time), gt (the sequence's ground-truth flow, our format), or a "
                    "plug-in MODULE:FACTORY")
-    p.add_argument("--dis-preset", default=None, choices=("ultrafast", "fast", "medium"),
-                   help="DIS preset (default: the one the model was trained on, medium where it does not say)")
-    p.add_argument("--dis-min-texture", type=float, default=None, metavar="T",
-                   help="DIS flow is unknown where the first image's texture is below T ((grey levels/px)^2: the "
-                        "structure tensor's smaller eigenvalue over 7x7 px; 0 = keep all). Default: the model's, "
-                        "as it was trained (0 where it does not say)")
-    p.add_argument("--dis-fb-check", type=float, default=None, metavar="PX",
-                   help="DIS flow is unknown where the backward flow does not bring a pixel back to within PX "
-                        "pixels (occlusions, wrong matches; twice DIS's time; 0 = no check). Default: the model's, "
-                        "as it was trained (0 where it does not say)")
-    p.add_argument("--dis-max-width", type=int, default=None, metavar="PX",
-                   help="DIS runs on frames wider than PX downscaled to PX wide, and its flow is resized back to the "
-                        "frame's size (about (PX/width)^2 of DIS's time; 0 = full size). Default: the model's, as it "
-                        "was trained (0 where it does not say)")
-    p.add_argument("--dis-patch-stride", type=int, default=None, metavar="PX",
-                   help="pixels between the patches DIS matches (0 = the preset's: medium 3). Default: the model's, "
-                        "as it was trained (the preset's where it does not say)")
+    _dis_flags.add_arguments(p)
     p.add_argument("--pose", choices=("net", "epipolar"), default=None,
                    help="net: the network's 6DoF (the paper); epipolar: the rotation and the direction of travel from "
                         "the essential matrix of the full-resolution flow (OpenCV USAC), the distance from the network "
@@ -104,8 +90,7 @@ def run(args: argparse.Namespace) -> int:
         from deepslam.vo.flow_estimators import estimator_options
 
         model_path, shipped = models.locate(args.model, seq, flow=args.flow)
-        given = estimator_options(args.flow, args.dis_preset, args.dis_min_texture, args.dis_fb_check,
-                                  args.dis_max_width, args.dis_patch_stride)
+        given = estimator_options(args.flow, *(getattr(args, f) for f in _dis_flags.FLAGS))
         estimator = models.flow_for_model(args.flow, model_path, **given)  # DIS set up as the model was trained
         bf16 = None if args.bf16 == "auto" else args.bf16 == "on"
         from deepslam.vo.prefetch import PairInputs, model_input

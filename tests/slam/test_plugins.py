@@ -253,3 +253,49 @@ def test_slam_gives_each_model_the_flow_it_was_trained_on(seq_dir, tmp_path):
     assert cons.flow_estimator.name == "dis-fast-tex0.5" and loops.flow_estimator.name == "dis-medium"
     cons, loops = odometry_from_args(args(tex, tex), seq)
     assert cons.flow_estimator is loops.flow_estimator
+
+
+@pytest.mark.parametrize("overrides, cons_name, loops_name, shared", [
+    ({}, "dis-fast-tex0.5", "dis-medium", False),  # nothing given: each model's record
+    ({"dis_patch_stride": 4}, "dis-fast-tex0.5-s4", "dis-medium-s4", False),  # given: for both models
+    ({"dis_preset": "medium", "dis_min_texture": 0.0}, "dis-medium", "dis-medium", True),  # now one set-up
+])
+def test_slam_dis_flags_override_both_models_records(seq_dir, tmp_path, overrides, cons_name, loops_name, shared):
+    """``slam --dis-*`` (as ``vo --dis-*``): a flag given sets DIS up so for NN_cons and NN_loops alike, the
+    options not given stay each model's recorded ones; models whose set-ups then agree share one estimator."""
+    import argparse
+
+    from deepslam.slam.plugins import odometry_from_args
+    from deepslam.vo.net import FlowPoseNet, NetConfig
+    from deepslam.vo.train import save_model
+
+    net = FlowPoseNet(NetConfig(input_height=24, input_width=80, filters=8, hidden_units=16))
+    tex, plain = tmp_path / "tex.safetensors", tmp_path / "plain.safetensors"
+    save_model(tex, net, {"flow": {"estimator": "dis", "options": {"preset": "fast", "min_texture": 0.5}}})
+    save_model(plain, net, {"flow": {"estimator": "dis", "options": {"preset": "medium", "min_texture": 0.0}}})
+    args = argparse.Namespace(odometry="model", odometry_command=None, model_cons=str(tex), model_loops=str(plain),
+                              flow="dis", no_loops=False, device="cpu", sequence=seq_dir, **overrides)
+    cons, loops = odometry_from_args(args, open_sequence(seq_dir))
+    assert (cons.flow_estimator.name, loops.flow_estimator.name) == (cons_name, loops_name)
+    assert (cons.flow_estimator is loops.flow_estimator) == shared
+
+
+@pytest.mark.parametrize("flow, overrides, message", [
+    ("dis", {"dis_patch_stride": 9}, "patch_stride"),  # larger than DIS's 8-pixel patch
+    ("learned", {"dis_patch_stride": 4}, "--dis-patch-stride applies to DIS flow only"),
+])
+def test_slam_dis_flags_refuse_what_dis_cannot_take(seq_dir, tmp_path, flow, overrides, message):
+    import argparse
+
+    from deepslam.core.errors import InputError
+    from deepslam.slam.plugins import odometry_from_args
+    from deepslam.vo.net import FlowPoseNet, NetConfig
+    from deepslam.vo.train import save_model
+
+    model = tmp_path / "m.safetensors"
+    save_model(model, FlowPoseNet(NetConfig(input_height=24, input_width=80, filters=8, hidden_units=16)),
+               {"flow": {"estimator": "dis", "options": {"preset": "medium", "min_texture": 0.0}}})
+    args = argparse.Namespace(odometry="model", odometry_command=None, model_cons=str(model), model_loops=str(model),
+                              flow=flow, no_loops=False, device="cpu", sequence=seq_dir, **overrides)
+    with pytest.raises(InputError, match=message):
+        odometry_from_args(args, open_sequence(seq_dir))
