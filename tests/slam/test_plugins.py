@@ -299,3 +299,17 @@ def test_slam_dis_flags_refuse_what_dis_cannot_take(seq_dir, tmp_path, flow, ove
                               flow=flow, no_loops=False, device="cpu", sequence=seq_dir, **overrides)
     with pytest.raises(InputError, match=message):
         odometry_from_args(args, open_sequence(seq_dir))
+
+
+def test_model_odometry_takes_flow_options_over_the_record(tmp_path):
+    """``vo.models.odometry(..., flow_options=...)`` (the benches' stride-4 rows): the given options over the
+    file's record, the rest of the record kept; none given: the record alone."""
+    from deepslam.vo import models
+    from deepslam.vo.net import FlowPoseNet, NetConfig
+    from deepslam.vo.train import save_model
+
+    path = tmp_path / "m.safetensors"
+    save_model(path, FlowPoseNet(NetConfig(input_height=24, input_width=80, filters=8, hidden_units=16)),
+               {"flow": {"estimator": "dis", "options": {"preset": "fast", "min_texture": 0.5}}})
+    assert models.odometry(path, "dis").flow_estimator.name == "dis-fast-tex0.5"
+    assert models.odometry(path, "dis", flow_options={"patch_stride": 4}).flow_estimator.name == "dis-fast-tex0.5-s4"
