@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import argparse
 
+from deepslam.commands import _dis_flags
+
 NAME = "train"
 HELP = "train the flow->6DoF network: --mode synthetic (single frames + depth + motion model) or supervised"
 
@@ -109,21 +111,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="consecutive pairs (NN_cons) or loop pairs far apart in time (NN_loops)")
     g.add_argument("--max-pairs", type=int, default=0, help="at most this many pairs per sequence (0 = all)")
     g.add_argument("--flow", default="dis", help="flow estimator: dis or gt")
-    g.add_argument("--dis-preset", default="medium", choices=("ultrafast", "fast", "medium"))
-    g.add_argument("--dis-min-texture", type=float, default=0.0, metavar="T",
-                   help="DIS flow is unknown (NaN, 0 in the network's input) where the first image's texture "
-                        "(structure tensor's smaller eigenvalue, (grey levels/px)^2) is below T (0 = keep all)")
-    g.add_argument("--dis-fb-check", type=float, default=None, metavar="PX",
-                   help="DIS flow is unknown where the backward flow does not bring a pixel back to within PX "
-                        "pixels (occlusions, wrong matches; twice DIS's time; 0 = no check); recorded in the model, "
-                        "so vo and slam set DIS up the same way")
-    g.add_argument("--dis-max-width", type=int, default=None, metavar="PX",
-                   help="DIS runs on frames wider than PX downscaled to PX wide, its flow resized back (about "
-                        "(PX/width)^2 of DIS's time; 0 = full size); recorded in the model, so vo and slam set DIS "
-                        "up the same way")
-    g.add_argument("--dis-patch-stride", type=int, default=None, metavar="PX",
-                   help="pixels between the patches DIS matches (0 = the preset's: medium 3; 4 takes about three "
-                        "quarters of medium's time); recorded in the model, so vo and slam set DIS up the same way")
+    _dis_flags.add_arguments(g, training=True)
     g = p.add_argument_group("network")
     g.add_argument("--net", choices=sorted(NET_PRESETS), default="paper", help="preset, refined by the options below")
     g.add_argument("--height", type=int, help="input rows")
