@@ -203,7 +203,6 @@ def odometry_from_args(args, seq):
         return cons, loops
     from deepslam.gen.device import resolve_device
     from deepslam.vo import models
-
     from deepslam.vo.flow_estimators import estimator_options
 
     device = resolve_device(getattr(args, "device", "cpu"))
