@@ -203,12 +203,10 @@ def odometry_from_args(args, seq):
         return cons, loops
     from deepslam.gen.device import resolve_device
     from deepslam.vo import models
-    from deepslam.vo.flow_estimators import estimator_options
+    from deepslam.vo.flow_estimators import given_estimator_options
 
     device = resolve_device(getattr(args, "device", "cpu"))
-    given = estimator_options(args.flow, *(getattr(args, f"dis_{k}", None)
-                                           for k in ("preset", "min_texture", "fb_check", "max_width", "patch_stride")))
-    given = {k: v for k, v in given.items() if v is not None}
+    given = given_estimator_options(args.flow, args)
     estimators: dict[tuple, object] = {}  # one estimator per set-up: cons and loops share it where they agree
 
     def odometry(spec, which, pose=None):

@@ -1,14 +1,11 @@
 """The command-line flags that set DIS up: in ``deepslam train`` (what the model is trained on, and records) and,
 overriding a model's record at inference, in ``deepslam vo`` and ``deepslam slam``. Not a subcommand (no
-``NAME``): the CLI's discovery skips it.
+``NAME``): the CLI's discovery skips it. They set the attributes ``vo.flow_estimators.DIS_FLAGS`` names, which
+``vo.flow_estimators.given_estimator_options`` reads.
 """
 from __future__ import annotations
 
 import argparse
-
-FLAGS = ("dis_preset", "dis_min_texture", "dis_fb_check", "dis_max_width", "dis_patch_stride")
-"""The attributes :func:`add_arguments` sets on the namespace, in :func:`vo.flow_estimators.estimator_options`'
-order."""
 
 _HELP = {
     "dis_min_texture": "DIS flow is unknown (0 in the network's input) where the first image's texture is below T "
@@ -24,8 +21,9 @@ _HELP = {
 
 def add_arguments(p: argparse.ArgumentParser, training: bool = False) -> None:
     """Add ``--dis-preset``, ``--dis-min-texture``, ``--dis-fb-check``, ``--dis-max-width`` and
-    ``--dis-patch-stride`` to ``p`` (a parser or one of its argument groups). ``training``: ``train``'s flags (preset medium and texture threshold 0 by
-    default, the rest None: not recorded); else inference overrides, each None when not given (the model's own)."""
+    ``--dis-patch-stride`` to ``p`` (a parser or one of its argument groups). ``training``: ``train``'s flags
+    (preset medium and texture threshold 0 by default, the rest None: not recorded); else inference overrides,
+    each None when not given (the model's own)."""
     if training:
         tail = "; recorded in the model, so vo and slam set DIS up the same way"
         p.add_argument("--dis-preset", default="medium", choices=("ultrafast", "fast", "medium"), help="DIS preset")

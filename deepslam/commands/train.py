@@ -350,8 +350,7 @@ def run(args: argparse.Namespace) -> int:
             n_hold = args.holdout_samples or max(args.batch, int(round(args.holdout * args.samples_per_epoch)))
             if args.synthetic_flow == "exact":
                 # DIS's flags given for exact flow are refused, not ignored (the same check as for any other estimator)
-                flow_estimators.estimator_options("exact", None, args.dis_min_texture, args.dis_fb_check,
-                                                  args.dis_max_width, args.dis_patch_stride)
+                flow_estimators.given_estimator_options("exact", args)
                 frames = data.load_frames(seqs, w * f, h * f, args.frame_step, args.depth, args.max_frames, progress)
                 train_frames, hold_frames = frames.split(args.holdout, args.seed)
 
@@ -360,9 +359,7 @@ def run(args: argparse.Namespace) -> int:
                                                 inv_depth=net.depth_channel, scene_scale=scene_scale,
                                                 unknown=net.unknown_flow)
             else:
-                opts = flow_estimators.estimator_options(args.synthetic_flow, args.dis_preset, args.dis_min_texture,
-                                                         args.dis_fb_check, args.dis_max_width,
-                                                         args.dis_patch_stride)
+                opts = flow_estimators.given_estimator_options(args.synthetic_flow, args)
                 frames = data.load_image_frames(seqs, args.frame_step, args.depth, args.max_frames, progress,
                                                 scales=args.frame_scales)
                 train_frames, hold_frames = frames.split(args.holdout, args.seed)
@@ -396,8 +393,7 @@ def run(args: argparse.Namespace) -> int:
         if not args.sequence:
             raise InputError(None, "supervised mode needs --sequence DIR...")
 
-        opts = flow_estimators.estimator_options(args.flow, args.dis_preset, args.dis_min_texture, args.dis_fb_check,
-                                                 args.dis_max_width, args.dis_patch_stride)
+        opts = flow_estimators.given_estimator_options(args.flow, args)
         est = flow_estimators.make(args.flow, **opts)
         meta["flow"] = {"estimator": args.flow, "options": opts}
         spec = data.PairSpec(strides=tuple(args.strides), kind=args.pairs, max_pairs=args.max_pairs)

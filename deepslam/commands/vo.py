@@ -87,10 +87,10 @@ def run(args: argparse.Namespace) -> int:
         mean6, std6 = plugin.predict(seq, pairs)
         name, estimator, predictor = plugin.name, None, None
     else:
-        from deepslam.vo.flow_estimators import estimator_options
+        from deepslam.vo.flow_estimators import given_estimator_options
 
         model_path, shipped = models.locate(args.model, seq, flow=args.flow)
-        given = estimator_options(args.flow, *(getattr(args, f) for f in _dis_flags.FLAGS))
+        given = given_estimator_options(args.flow, args)
         estimator = models.flow_for_model(args.flow, model_path, **given)  # DIS set up as the model was trained
         bf16 = None if args.bf16 == "auto" else args.bf16 == "on"
         from deepslam.vo.prefetch import PairInputs, model_input

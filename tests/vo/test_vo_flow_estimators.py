@@ -415,3 +415,17 @@ def test_dis_patch_stride_options():
     assert fe.estimator_options("dis", "medium", 0.0, dis_patch_stride=4)["patch_stride"] == 4
     with pytest.raises(InputError, match="--dis-patch-stride applies to DIS flow only"):
         fe.estimator_options("learned", None, None, dis_patch_stride=4)
+
+
+@pytest.mark.parametrize("given, expected", [
+    ({}, {}),  # nothing on the command line (vo, slam): the model's record alone
+    ({"dis_preset": "medium", "dis_min_texture": 0.0}, {"preset": "medium", "min_texture": 0.0}),  # train's defaults
+    ({"dis_patch_stride": 4, "dis_max_width": None}, {"patch_stride": 4}),
+])
+def test_given_estimator_options_reads_the_dis_flags(given, expected):
+    from types import SimpleNamespace
+
+    assert fe.given_estimator_options("dis", SimpleNamespace(**given)) == expected
+    assert fe.given_estimator_options("learned", SimpleNamespace()) == {}
+    with pytest.raises(InputError, match="--dis-patch-stride applies to DIS flow only"):
+        fe.given_estimator_options("learned", SimpleNamespace(dis_patch_stride=4))
