@@ -28,6 +28,7 @@ import numpy as np
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
+import torch.utils.data
 
 from deepslam.core.errors import InputError
 
@@ -312,6 +313,10 @@ class FlowTrainConfig:
     """torch CPU threads."""
     device: str = "cpu"
     """Torch device to train on (``cpu``, ``cuda``, ``cuda:N``); bf16 autocast on either."""
+    loader_workers: int = 0
+    """Processes that build the batches ahead of the training step (0: built in the training process).
+    Each step's batch is drawn from its own seed stream, so the batches (and the model) are the same
+    for any count; on a GPU machine the crops and photometric draws, not the network, bound the speed."""
     init: str = ""
     """A flow model file (or training checkpoint) whose weights start the training: fine-tuning a trained
     estimator on new data (its network must be ``net``). Empty: random initialisation from ``seed``."""
@@ -400,6 +405,38 @@ class FlowPairs:
             fl.append(np.ascontiguousarray(ff))
         return {"img0": torch.from_numpy(np.stack(i0)[:, None]), "img1": torch.from_numpy(np.stack(i1)[:, None]),
                 "flow": torch.from_numpy(np.stack(fl))}
+
+
+class _StepBatch(torch.utils.data.Dataset):
+    """Item ``i``: the batch of training step ``first + i``, drawn from the step's own seed stream."""
+
+    def __init__(self, pairs, cfg: "FlowTrainConfig", first: int, last: int):
+        self.pairs, self.cfg, self.first, self.last = pairs, cfg, first, last
+
+    def __len__(self) -> int:
+        return max(0, self.last - self.first)
+
+    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
+        rng = np.random.default_rng([self.cfg.seed, self.first + i])
+        return self.pairs.batch(rng, self.cfg.batch_size, self.cfg.crop)
+
+
+def step_batches(pairs, cfg: "FlowTrainConfig", first: int, last: int, pin: bool = False):
+    """Generator of the training batches of steps ``first`` .. ``last - 1`` in order, each from
+    ``np.random.default_rng([cfg.seed, step])``: the same tensors whether ``cfg.loader_workers`` processes
+    build them ahead (torch DataLoader, ``pin``: page-locked for a fast copy to the GPU) or this one does."""
+    steps = _StepBatch(pairs, cfg, first, last)
+    if cfg.loader_workers <= 0:
+        for i in range(len(steps)):
+            yield steps[i]
+        return
+    loader = torch.utils.data.DataLoader(steps, batch_size=None, shuffle=False, num_workers=cfg.loader_workers,
+                                         pin_memory=pin, prefetch_factor=4, persistent_workers=False)
+    it = iter(loader)
+    try:
+        yield from it
+    finally:
+        del it  # stops the workers when training ends before the last step (a time cap)
 
 
 def crop_pair(rng: np.random.Generator, g0: np.ndarray, g1: np.ndarray, crop: tuple[int, int],
@@ -501,7 +538,7 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
             _, d = modelfile.load(ck, (CHECKPOINT_FORMAT,))
             if d["config"] != json.loads(json.dumps(cfg.to_dict())):
                 diff = sorted(k for k in d["config"] if d["config"][k] != cfg.to_dict().get(k))
-                if any(k not in ("max_minutes", "threads", "stop_after_steps", "device") for k in diff):
+                if any(k not in ("max_minutes", "threads", "stop_after_steps", "device", "loader_workers") for k in diff):
                     raise InputError(ck, f"cannot resume: settings differ ({', '.join(diff)})")
             started = (d.get("meta") or {}).get("init_sha256")
             if cfg.init and started and started != (meta or {}).get("init_sha256", started):
@@ -529,9 +566,9 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
             from deepslam.vo.flow_unsup import unsupervised_loss
         model.train()
         last = cfg.stop_after_steps if 0 < cfg.stop_after_steps < cfg.max_steps else cfg.max_steps
+        batches = step_batches(pairs, cfg, state["step"], last, pin=dev.type == "cuda")
         while state["step"] < last and time.perf_counter() - t_start < limit:
-            rng = np.random.default_rng([cfg.seed, state["step"]])
-            b = pairs.batch(rng, cfg.batch_size, cfg.crop)
+            b = next(batches)
             if dev.type != "cpu":
                 b = {k: v.pin_memory().to(dev, non_blocking=True) for k, v in b.items()}
             with torch.autocast(dev.type, dtype=torch.bfloat16):
@@ -567,6 +604,7 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
                 run_loss, run_n, run_census = 0.0, 0, 0.0
                 save(CHECKPOINT_FORMAT, ck)
         bar.close()
+        batches.close()
         save(CHECKPOINT_FORMAT, ck)
         model_path = out / "flow.safetensors"
         model.eval()

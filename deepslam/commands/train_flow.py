@@ -22,6 +22,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate (1e-3, cosine decay)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=2, help="torch CPU threads (2)")
+    p.add_argument("--loader-workers", type=int, default=0, metavar="K",
+                   help="processes that build the batches ahead of each step (0: none); the same batches for any K. "
+                        "On a GPU machine the batches, not the network, bound the speed: use most of its cores")
     p.add_argument("--device", default="auto", help="auto (CUDA when torch sees one, else the CPU), cpu, cuda or cuda:N")
     p.add_argument("--init", default="", metavar="FLOW_MODEL",
                    help="start from this flow model's weights (fine-tuning, e.g. models/flow_learned.safetensors "
@@ -65,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     if ch % 32 or cw % 32 or not (32 <= ch <= 1024 and 32 <= cw <= 2048):
         raise InputError(None, f"--crop must be multiples of 32 within 1024x2048, got {args.crop}")
     for name, v, lo, hi in (("--max-steps", args.max_steps, 1, 10_000_000), ("--batch", args.batch, 1, 1024),
-                            ("--threads", args.threads, 1, 256)):
+                            ("--threads", args.threads, 1, 256), ("--loader-workers", args.loader_workers, 0, 256)):
         if not lo <= v <= hi:
             raise InputError(None, f"{name} must be in [{lo}, {hi}], got {v}")
     if not (args.lr > 0 and args.lr < 1) or not (args.max_minutes >= 0):
@@ -75,7 +78,8 @@ def run(args: argparse.Namespace) -> int:
     device = resolve_device(args.device)
     cfg = FlowTrainConfig(crop=(ch, cw), batch_size=args.batch, lr=args.lr, max_steps=args.max_steps,
                           max_minutes=args.max_minutes, stop_after_steps=args.stop_after, seed=args.seed,
-                          threads=args.threads, device=str(device), init=args.init,
+                          threads=args.threads, device=str(device), loader_workers=args.loader_workers,
+                          init=args.init,
                           real_batch_size=args.real_batch if args.real else 0, real_weight=args.real_weight,
                           smooth_weight=args.smooth_weight, smooth_order=args.smooth_order)
     init_meta = {}

@@ -224,3 +224,58 @@ def test_learned_estimators_run_on_several_workers_with_the_same_flows(plane_seq
     assert inputs.workers == 2
     for (a, _), (b, _) in zip(list(inputs), serial, strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+def test_loader_workers_give_the_batches_of_the_training_process():
+    """Each step's batch comes from the step's own seed stream: built ahead by two worker processes or
+    in the training process, the tensors are the same, in step order, from any starting step."""
+    from deepslam.vo.flownet import step_batches
+
+    cfg = FlowTrainConfig(net=SMALL, crop=(64, 128), batch_size=3, seed=5)
+    here = list(step_batches(_Shifted(), cfg, 7, 12))
+    ahead = list(step_batches(_Shifted(), dataclasses.replace(cfg, loader_workers=2), 7, 12))
+    assert len(here) == len(ahead) == 5
+    for a, b in zip(here, ahead):
+        assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    # a run stopped early (time cap) closes the generator and its workers
+    gen = step_batches(_Shifted(), dataclasses.replace(cfg, loader_workers=2), 0, 100)
+    next(gen)
+    gen.close()
+
+
+_NO_CUDA = "no CUDA device on this machine (the CPU path is tested above)"
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason=_NO_CUDA)
+def test_flow_network_on_cuda_agrees_with_the_cpu():
+    """The same weights in float32: the GPU's flow equals the CPU's to a small fraction of a pixel;
+    under bf16 autocast (how training runs) it stays within a tenth of the flow's size."""
+    torch.manual_seed(0)
+    net = FlowNet(SMALL).eval()
+    b = _Shifted().batch(np.random.default_rng(3), 4, (64, 128))
+    with torch.no_grad():
+        cpu = net(b["img0"], b["img1"])[-1]
+        gpu_net = net.to("cuda")
+        torch.backends.cudnn.allow_tf32 = torch.backends.cuda.matmul.allow_tf32 = False
+        gpu = gpu_net(b["img0"].cuda(), b["img1"].cuda())[-1].float().cpu()
+        with torch.autocast("cuda", dtype=torch.bfloat16):
+            bf = gpu_net(b["img0"].cuda(), b["img1"].cuda())[-1].float().cpu()
+    assert torch.allclose(gpu, cpu, atol=1e-3, rtol=1e-3)
+    assert float((bf - cpu).norm(dim=1).mean()) < 0.1 * float(cpu.norm(dim=1).mean()) + 0.05
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason=_NO_CUDA)
+def test_flow_training_on_cuda_with_loader_workers_learns_and_loads_on_the_cpu(tmp_path):
+    cfg = FlowTrainConfig(net=SMALL, crop=(64, 128), batch_size=16, lr=1e-3, max_steps=300,
+                          level_weights=(1.0, 0.5, 0.25), checkpoint_steps=100, device="cuda", loader_workers=2)
+    path = train_flow(cfg, _Shifted(), tmp_path / "run", progress=False)
+    model, meta = load_flow_model(path)
+    assert meta["steps"] == 300 and next(model.parameters()).device.type == "cpu"
+    b = _Shifted().batch(np.random.default_rng(99), 8, (64, 128))
+    with torch.no_grad():
+        pred = model(b["img0"], b["img1"])[-1]
+    gt = torch.nn.functional.avg_pool2d(b["flow"], 2) / 2
+    err = (pred - gt)[:, :, 4:-4, 4:-4].norm(dim=1).mean()
+    assert float(err) < 0.6 * float(gt[:, :, 4:-4, 4:-4].norm(dim=1).mean())

@@ -242,6 +242,7 @@ def test_device_flag_resolves_and_refuses_what_is_not_here(capsys):
     assert "no CUDA device here" in capsys.readouterr().err
 
 
+@pytest.mark.cuda
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device on this machine (the CPU path is tested above)")
 def test_cuda_training_matches_the_cpu_within_tolerance(toy, tmp_path):
     """The same seed on CPU and GPU: the same data and initial weights; float32 results agree to a few
