@@ -14,6 +14,9 @@ from typing import Callable
 import cv2
 import numpy as np
 
+_CV_MAJOR = int(cv2.__version__.split(".")[0])
+"""OpenCV's major version: 5 and later draw text on 8-bit images only."""
+
 Painter = Callable[[int, int, float, np.random.Generator], np.ndarray]
 
 _WORDS = ["CAFE", "BAR", "HOTEL", "PHARMACY", "BAKERY", "BOOKS", "SHOES", "BANK", "POST", "PIZZA",
@@ -88,7 +91,13 @@ def put_text_box(img: np.ndarray, x0: int, y0: int, x1: int, y1: int, text: str,
     thick = max(1, int(round(scale * 2)))
     (tw, th), _ = cv2.getTextSize(text, font, scale, thick)
     org = (x0 + (bw - tw) // 2, y0 + (bh + th) // 2)
-    cv2.putText(img, text, org, font, scale, tuple(float(c) for c in fg), thick, cv2.LINE_AA)
+    if img.dtype == np.uint8 or _CV_MAJOR < 5:
+        cv2.putText(img, text, org, font, scale, tuple(float(c) for c in fg), thick, cv2.LINE_AA)
+    else:  # OpenCV 5 draws text on 8-bit images only: its anti-aliased coverage, blended in
+        box = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        cv2.putText(box, text, (org[0] - x0, org[1] - y0), font, scale, 255, thick, cv2.LINE_AA)
+        a = (box.astype(np.float32) / 255.0)[..., None]
+        img[y0:y1, x0:x1] = img[y0:y1, x0:x1] * (1.0 - a) + np.asarray(fg, np.float32) * a
 
 
 def _blobs(img: np.ndarray, rng: np.random.Generator, n: int, size_px: float, alpha: float) -> None:

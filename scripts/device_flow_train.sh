@@ -37,9 +37,10 @@ if compgen -G ".whl/*.whl" >/dev/null; then
     || { echo "wheel install failed"; exit 2; }
 fi
 # the project pins Python 3.11 for its CPU stack; the GPU machine's python3 (3.12) holds the CUDA torch
-$PY -m pip install -q --no-index --no-deps --no-build-isolation --no-compile --ignore-requires-python --target /tmp/site . \
+$PY -m pip install -q --no-index --no-deps --no-build-isolation --no-compile --ignore-requires-python --upgrade --target /tmp/site . \
   || { echo "deepslam install failed"; exit 2; }
-export PYTHONPATH=/tmp/site
+# the installed package (its folders mapped under deepslam.*) before the repository root, which holds bench/
+export PYTHONPATH=/tmp/site:$PWD PYTHONSAFEPATH=1
 fi
 $PY -c "import torch; print('torch', torch.__version__, 'cuda', torch.cuda.is_available(), torch.cuda.get_device_name(0) if torch.cuda.is_available() else '')"
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader || true
@@ -79,7 +80,7 @@ EOF
    && echo "rendered ${scene}_$seed $*" || echo "FAILED ${scene}_$seed: $(tail -1 /tmp/render_$seed.log)"' <"$JOBS") &
 RENDER_PID=$!
 (
-  timeout 150 $PY -m pytest -q -p no:cacheprovider -m cuda -rA tests/vo/test_flownet.py tests/vo/test_vo_train.py \
+  timeout 150 $PY -m pytest -q -p no:cacheprovider --import-mode=importlib -m cuda -rA tests/vo/test_flownet.py tests/vo/test_vo_train.py \
     >/tmp/cuda_tests.txt 2>&1; echo "pytest exit $?" >>/tmp/cuda_tests.txt
   OMP_NUM_THREADS=2 timeout 150 $PY - >"$OUT/bench_device.json" 2>/tmp/bench_device.err <<'EOF'
 import json
