@@ -10,13 +10,16 @@ Three ways to plug an odometry into ``vo``, ``slam``, ``tune-slam`` and ``stress
 - ``--odometry-command 'CMD {sequence} {out}'`` (:class:`CommandOdometry`): an external program (ORB-SLAM,
   DPVO, a script) that reads the sequence folder and writes a trajectory to ``{out}`` (KITTI or TUM,
   detected); deepslam turns it into relative motions with a fixed std (``DEFAULT_COMMAND_STD6``) or
-  the six numbers the program writes to ``{out}.std`` (rad x3, m x3; applied to every pair).
+  the six numbers the program writes to ``{out}.std`` (rad x3, m x3; applied to every pair). No shell
+  runs it: the template is split once into arguments (:func:`command_argv`, shell quoting rules) and the
+  placeholders are replaced inside each argument, so a path is one argument whatever it holds.
 
 Every answer goes through :func:`checked`, which turns a plugin's failure (an import error, a missing
 attribute, an exception, wrong shapes, NaN, a std <= 0) into an InputError naming the plugin.
 """
 from __future__ import annotations
 
+import re
 import shlex
 import subprocess
 import tempfile
@@ -34,6 +37,40 @@ ENTRY_POINT_GROUP = ENTRY_POINT_GROUPS["odometry"]
 """Entry-point group of odometry plugins (``NAME = "module:factory"``)."""
 DEFAULT_COMMAND_STD6 = (0.002, 0.002, 0.002, 0.05, 0.05, 0.05)
 """Std of an external command's relative motions when it writes none (rad x3, m x3)."""
+DEFAULT_COMMAND_TIMEOUT_S = 3600.0
+"""Seconds an external odometry command may run on one sequence before it is stopped."""
+_PLACEHOLDER = re.compile(r"\{\{|\}\}|\{(sequence|out)\}")
+
+
+def command_argv(template: str, **values: str) -> list[str]:
+    """The argument vector of an external command: ``template`` split once by shell quoting rules
+    (:func:`shlex.split`; no shell ever runs it), then in each argument ``{sequence}`` and ``{out}``
+    replaced by ``values`` as they are (no quoting: each argument reaches the program intact, spaces and
+    ``$(...)`` included), ``{{`` and ``}}`` by single braces; any other brace text stays literal
+    (``awk '{print}'``).
+
+    Raises:
+        InputError: unbalanced quotes, an empty template, or no ``{out}`` placeholder.
+    """
+    try:
+        words = shlex.split(template)
+    except ValueError as e:
+        raise InputError(None, f"--odometry-command cannot be split into arguments ({e}): {_short(template)}") from None
+    if not words:
+        raise InputError(None, "--odometry-command is empty")
+    if not any(m.group(1) == "out" for w in words for m in _PLACEHOLDER.finditer(w)):
+        raise InputError(None, f"--odometry-command needs an {{out}} placeholder: {_short(template)}")
+
+    def sub(m: re.Match) -> str:
+        return {"{{": "{", "}}": "}"}.get(m.group(0)) or values[m.group(1)]
+
+    return [_PLACEHOLDER.sub(sub, w) for w in words]
+
+
+def _short(text: str, n: int = 120) -> str:
+    """``text`` for a message: repr'd and cut to ``n`` characters."""
+    r = repr(text)
+    return r if len(r) <= n else r[:n - 3] + "..."
 
 
 class CheckedOdometry:
@@ -80,21 +117,24 @@ def load_odometry(spec: str) -> CheckedOdometry:
 class CommandOdometry:
     """An external program that writes a trajectory, as an odometry.
 
-    The command template gets ``{sequence}`` (the sequence folder) and ``{out}`` (the trajectory file
-    to write) substituted, shell-quoted; it runs once per sequence and its trajectory is cached.
-    A KITTI-format answer must have one pose per frame (matched by index); a TUM answer is matched
-    to the frames by timestamp (nearest within ``max_diff_s``). Relative motions of the pairs come
-    from those poses; the std is ``std6``, or the six numbers the program writes to ``{out}.std``.
+    The command template (:func:`command_argv`) gets ``{sequence}`` (the sequence folder) and ``{out}``
+    (the trajectory file to write) substituted inside its arguments; it runs without a shell, once per
+    sequence, with ``timeout_s`` to answer, and its trajectory is cached. A KITTI-format answer must have
+    one pose per frame (matched by index); a TUM answer is matched to the frames by timestamp (nearest
+    within ``max_diff_s``). Relative motions of the pairs come from those poses; the std is ``std6``, or
+    the six numbers the program writes to ``{out}.std``.
     """
 
-    def __init__(self, template: str, std6=DEFAULT_COMMAND_STD6, max_diff_s: float = 0.02, timeout_s: float = 3600.0):
-        if "{out}" not in template:
-            raise InputError(None, f"--odometry-command needs an {{out}} placeholder: {template!r}")
+    def __init__(self, template: str, std6=DEFAULT_COMMAND_STD6, max_diff_s: float = 0.02,
+                 timeout_s: float = DEFAULT_COMMAND_TIMEOUT_S):
+        argv = command_argv(template, sequence="", out="")  # checked before anything runs
+        if not timeout_s > 0:
+            raise InputError(None, f"the odometry command's timeout must be > 0 s, got {timeout_s}")
         self.template = template
         self.std6 = np.asarray(std6, dtype=np.float64)
         self.max_diff_s = float(max_diff_s)
         self.timeout_s = float(timeout_s)
-        self.name = shlex.split(template)[0].rsplit("/", 1)[-1] if template.strip() else "command"
+        self.name = Path(argv[0]).name or "command"
         self._cache: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
     def _run(self, seq) -> tuple[np.ndarray, np.ndarray]:
@@ -105,27 +145,41 @@ class CommandOdometry:
             return self._cache[key]
         with tempfile.TemporaryDirectory(prefix="deepslam-odometry-") as tmp:
             out = Path(tmp) / "trajectory.txt"
-            cmd = self.template.format(sequence=shlex.quote(str(seq.root)), out=shlex.quote(str(out)))
+            argv = command_argv(self.template, sequence=str(seq.root), out=str(out))
             try:
-                r = subprocess.run(cmd, shell=True, capture_output=True, text=True, timeout=self.timeout_s)
+                r = subprocess.run(argv, shell=False, stdin=subprocess.DEVNULL, capture_output=True, text=True,
+                                   errors="replace", timeout=self.timeout_s)
             except subprocess.TimeoutExpired:
-                raise InputError(None, f"odometry command {self.name}: no answer within {self.timeout_s:.0f} s") from None
+                raise InputError(None, f"odometry command {self.name}: no answer within {self.timeout_s:g} s") from None
+            except FileNotFoundError:
+                raise InputError(argv[0], "odometry command: no such program") from None
+            except PermissionError:
+                raise InputError(argv[0], "odometry command: not executable") from None
+            except OSError as e:
+                raise InputError(argv[0], f"odometry command cannot start: {e.strerror or e}") from None
             if r.returncode != 0:
                 tail = (r.stderr.strip().splitlines() or [""])[-1][:200]
                 raise InputError(None, f"odometry command {self.name} failed with exit status {r.returncode}: {tail}")
             if not out.is_file() or out.stat().st_size == 0:
                 raise InputError(None, f"odometry command {self.name} wrote no trajectory to {{out}}")
-            traj, fmt = read_trajectory_and_format(out)
+            try:
+                traj, fmt = read_trajectory_and_format(out)
+            except InputError as e:
+                raise InputError(None, f"odometry command {self.name}: its trajectory is unreadable ({e.message()})") from None
+            except (ValueError, UnicodeDecodeError) as e:
+                raise InputError(None, f"odometry command {self.name}: its trajectory is unreadable ({e})") from None
             std_file = Path(f"{out}.std")
             std6 = self.std6
             if std_file.is_file():
                 try:
                     std6 = np.array([float(x) for x in std_file.read_text().split()], dtype=np.float64)
-                except ValueError:
+                except (ValueError, UnicodeDecodeError):
                     raise InputError(None, f"odometry command {self.name}: {{out}}.std is not six numbers") from None
                 if std6.shape != (6,) or not (np.isfinite(std6).all() and (std6 > 0).all()):
                     raise InputError(None, f"odometry command {self.name}: {{out}}.std must hold six positive numbers")
         poses = self._per_frame(seq, traj, fmt)
+        if not np.isfinite(poses).all():
+            raise InputError(None, f"odometry command {self.name}: its trajectory holds non-finite poses")
         self._cache[key] = (poses, std6)
         return poses, std6
 
@@ -154,12 +208,14 @@ class CommandOdometry:
         return mean6, np.tile(std6, (len(p), 1))
 
 
-def from_options(odometry: str | None, command: str | None) -> CheckedOdometry | None:
-    """The plug-in odometry the ``--odometry`` / ``--odometry-command`` flags name, or None."""
+def from_options(odometry: str | None, command: str | None,
+                 timeout_s: float = DEFAULT_COMMAND_TIMEOUT_S) -> CheckedOdometry | None:
+    """The plug-in odometry the ``--odometry`` / ``--odometry-command`` (``--command-timeout``) flags name,
+    or None."""
     if odometry and command:
         raise InputError(None, "give --odometry or --odometry-command, not both")
     if command:
-        return command_odometry(command)
+        return command_odometry(command, timeout_s=timeout_s)
     if odometry:
         return load_odometry(odometry)
     return None
@@ -167,7 +223,8 @@ def from_options(odometry: str | None, command: str | None) -> CheckedOdometry |
 
 def command_odometry(template: str, **kwargs) -> CheckedOdometry:
     """:class:`CommandOdometry` wrapped by :func:`checked`."""
-    return checked(CommandOdometry(template, **kwargs), f"command {template.split()[0] if template.split() else ''}")
+    odo = CommandOdometry(template, **kwargs)
+    return checked(odo, f"command {odo.name}")
 
 
 def odometry_from_args(args, seq):
@@ -197,7 +254,8 @@ def odometry_from_args(args, seq):
     if command or args.odometry != "model":
         if getattr(args, "model_cons", None) or getattr(args, "model_loops", None):
             raise InputError(None, "--model-cons/--model-loops and a plug-in odometry exclude each other")
-        cons = from_options(None if command else args.odometry, command)
+        cons = from_options(None if command else args.odometry, command,
+                            getattr(args, "command_timeout", DEFAULT_COMMAND_TIMEOUT_S))
         loops_spec = getattr(args, "odometry_loops", None)
         loops = load_odometry(loops_spec) if loops_spec else cons
         return cons, loops

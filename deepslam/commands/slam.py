@@ -60,6 +60,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--odometry-command", default=None, metavar="'CMD {sequence} {out}'",
                    help="an external program that reads the sequence folder and writes a KITTI or TUM trajectory to "
                         "{out}; used for consecutive and loop pairs")
+    p.add_argument("--command-timeout", type=float, default=3600.0, metavar="S",
+                   help="seconds the --odometry-command may run on the sequence (3600); it runs without a shell: "
+                        "the template is split into arguments once and {sequence}/{out} replaced inside them "
+                        "({{ and }} for literal braces)")
     p.add_argument("--gt-noise", default="0.002,0.02", help=argparse.SUPPRESS)
     p.add_argument("--gt-drift", type=float, default=0.002, help=argparse.SUPPRESS)
     p.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)

@@ -48,6 +48,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--odometry-command", default=None, metavar="'CMD {sequence} {out}'",
                    help="an external program that reads the sequence folder and writes a KITTI or TUM trajectory "
                         "to {out}; its poses become the relative motions")
+    p.add_argument("--command-timeout", type=float, default=3600.0, metavar="S",
+                   help="seconds the --odometry-command may run on the sequence (3600); it runs without a shell: "
+                        "the template is split into arguments once and {sequence}/{out} replaced inside them "
+                        "({{ and }} for literal braces)")
     p.add_argument("--json", action="store_true", help="print one JSON object: out, poses, format, model_name, and "
                    "metrics (ATE, RPE, drift: see deepslam eval --json) when the sequence has ground truth")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -78,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(args.sequence, f"needs at least two frames at stride {args.stride} in [{args.start}, {end})")
     fmt = args.format or ("kitti" if seq.kind == "kitti" else "tum")
     pairs = np.stack([frames[:-1], frames[1:]], axis=1)
-    plugin = plugins.from_options(args.odometry, args.odometry_command)
+    plugin = plugins.from_options(args.odometry, args.odometry_command, args.command_timeout)
     if plugin is not None:
         if args.model is not None:
             raise InputError(None, "--model and --odometry/--odometry-command exclude each other")

@@ -1,6 +1,7 @@
 """Plug-in odometry (MODULE:FACTORY, entry points, external commands) in vo and slam, and its refusals."""
 from __future__ import annotations
 
+import re
 import sys
 import textwrap
 from pathlib import Path
@@ -9,6 +10,7 @@ import numpy as np
 import pytest
 
 from deepslam.core import trajio
+from deepslam.core.errors import InputError
 from deepslam.core.readers import open_sequence
 
 PLUGIN = '''
@@ -313,3 +315,61 @@ def test_model_odometry_takes_flow_options_over_the_record(tmp_path):
                {"flow": {"estimator": "dis", "options": {"preset": "fast", "min_texture": 0.5}}})
     assert models.odometry(path, "dis").flow_estimator.name == "dis-fast-tex0.5"
     assert models.odometry(path, "dis", flow_options={"patch_stride": 4}).flow_estimator.name == "dis-fast-tex0.5-s4"
+
+
+@pytest.mark.parametrize("template,argv", [
+    ("run {sequence} {out}", ["run", "/d/my seq", "/t/o.txt"]),
+    ('run "{sequence}" "{out}"', ["run", "/d/my seq", "/t/o.txt"]),  # shell habit: still one argument each
+    ("run '{sequence}' --out={out}", ["run", "/d/my seq", "--out=/t/o.txt"]),
+    ("awk '{print}' {out}", ["awk", "{print}", "/t/o.txt"]),  # other brace text stays literal
+    ("echo {{sequence}} {{}} {out}", ["echo", "{sequence}", "{}", "/t/o.txt"]),
+    ('"/opt/my vo/run" {out}', ["/opt/my vo/run", "/t/o.txt"]),
+])
+def test_command_template_becomes_an_argument_vector(template, argv):
+    from deepslam.slam.plugins import command_argv
+
+    assert command_argv(template, sequence="/d/my seq", out="/t/o.txt") == argv
+
+
+@pytest.mark.parametrize("template,what", [
+    ("run {sequence}", "needs an {out} placeholder"),
+    ("run {{out}}", "needs an {out} placeholder"),
+    ("run '{out}", "cannot be split into arguments"),
+    ("   ", "is empty"),
+])
+def test_bad_command_template_is_refused_before_it_runs(template, what):
+    from deepslam.slam.plugins import command_argv
+
+    with pytest.raises(InputError, match=re.escape(what)):
+        command_argv(template, sequence="s", out="o")
+
+
+def test_shell_syntax_in_a_path_is_never_run(plugin_dir, seq_dir, tmp_path, capsys, monkeypatch):
+    """A sequence folder whose name holds ``$(...)``, backticks and a space, with the placeholders in double
+    quotes as shell habit says: the program gets the path as one argument and nothing in it runs."""
+    import shutil
+
+    monkeypatch.chdir(tmp_path)
+    odd = tmp_path / "seq $(touch PWNED1) `touch PWNED2`; touch PWNED3"
+    shutil.copytree(seq_dir, odd)
+    cmd = f'{sys.executable} "{plugin_dir / "writer.py"}" "{{sequence}}" "{{out}}" \'{{print}}\''
+    rc, cap = _main(["vo", "--sequence", odd, "--odometry-command", cmd, "--out", tmp_path / "t.txt"], capsys)
+    assert rc == 0, cap.err
+    assert "ATE 0.000 m" in cap.out
+    assert not list(tmp_path.glob("PWNED*")) and not list(odd.glob("PWNED*"))
+
+
+@pytest.mark.parametrize("cmd,extra,what", [
+    ("{py} -c 'import time; time.sleep(30)' {{out}}", ["--command-timeout", "0.5"], "no answer within 0.5 s"),
+    ("/no/such/program {{sequence}} {{out}}", [], "/no/such/program: odometry command: no such program"),
+    ("{py} {{out}}\"", [], "cannot be split into arguments"),
+    ("{py} -c 'open(__import__(\"sys\").argv[1], \"w\").write(\"1 2 x\\n\")' {{out}}", [], "trajectory is unreadable"),
+    ("{py} -c 'open(__import__(\"sys\").argv[1], \"w\").write(\"nan \" * 12 + \"\\n\")' {{out}}", [], ""),
+])
+def test_command_failures_are_one_line_exit_2(cmd, extra, what, seq_dir, tmp_path, capsys):
+    cmd = cmd.format(py=sys.executable)
+    rc, cap = _main(["vo", "--sequence", seq_dir, "--odometry-command", cmd, *extra, "--out", tmp_path / "t.txt"],
+                    capsys)
+    lines = cap.err.strip().splitlines()
+    assert rc == 2 and len(lines) == 1 and what in lines[0] and "Traceback" not in cap.err, cap.err
+    assert not (tmp_path / "t.txt").exists()
