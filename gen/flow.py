@@ -193,7 +193,7 @@ def _numba_kernel():
         if numba.config.THREADING_LAYER == "default":
             numba.config.THREADING_LAYER = "forksafe"
 
-        @numba.njit(cache=True, inline="always")
+        @numba.njit(inline="always")
         def project_row(z, coef, flow, valid, depth1, b, v, bd1, want_depth1, cu, cv, half_w, half_h):  # pragma: no cover - compiled
             """Row v of sample b: flow[b, :, v], valid[b, v] and (when asked) depth_z1 into depth1[bd1, v],
             from z[b, v] and the sample's (3, 4) coefficients coef[b]. Shared by the plain and the
@@ -225,7 +225,7 @@ def _numba_kernel():
                 if want_depth1:
                     depth1[bd1, v, u] = d * zz if ok else zero
 
-        @numba.njit(parallel=True, fastmath=_FASTMATH, cache=True)
+        @numba.njit(parallel=True, fastmath=_FASTMATH)
         def kernel(z, coef, flow, valid, depth1, want_depth1, cu, cv, half_w, half_h):  # pragma: no cover - compiled
             b_n, h, w = z.shape
             for r in numba.prange(b_n * h):
@@ -260,7 +260,7 @@ def _zbuffer_kernel():
             return None
         import numba
 
-        @numba.njit(cache=True, inline="always")
+        @numba.njit(inline="always")
         def msd(left, c, right):  # pragma: no cover - compiled
             """min one-sided |difference| of c to its neighbours (NaN = not valid or outside the image,
             then inf; 1 where no valid neighbour), as _min_one_sided_abs_diff."""
@@ -274,7 +274,7 @@ def _zbuffer_kernel():
 
         project_row = _PROJECT_ROW
 
-        @numba.njit(parallel=True, fastmath=_FASTMATH, cache=True)
+        @numba.njit(parallel=True, fastmath=_FASTMATH)
         def kernel(z, coef, flow, valid, depth1, want_depth1, cu, cv, half_w, half_h, tol, n_chunks,
                    windows, flat, centres, lists, d1scratch):  # pragma: no cover - compiled
             b_n, _, h, w = flow.shape

@@ -45,7 +45,7 @@ def _kernels():
         if _KERNELS is None:
             import numba
 
-            @numba.njit(nogil=True, cache=True)
+            @numba.njit(nogil=True)
             def splat(depth_z, m, zbuf):  # pragma: no cover - compiled
                 """z-buffer of depth_z1 at the four pixels around where each point of frame 0 lands."""
                 h, w = depth_z.shape
@@ -70,7 +70,7 @@ def _kernels():
                                 if 0 <= x < w and 0 <= y < h and z1 < zbuf[y, x]:
                                     zbuf[y, x] = z1
 
-            @numba.njit(nogil=True, cache=True)
+            @numba.njit(nogil=True)
             def classify(zbuf, depth_z, h_rot):  # pragma: no cover - compiled
                 """0: splatted; 1: sky (the ray rotated back hits a frame-0 pixel without depth); 2: to fill."""
                 h, w = zbuf.shape
@@ -91,7 +91,7 @@ def _kernels():
                                     out[v, u] = 1
                 return out
 
-            @numba.njit(nogil=True, cache=True)
+            @numba.njit(nogil=True)
             def back_map(zbuf, kind, k, k_inv, r, t, map_u, map_v):  # pragma: no cover - compiled
                 """Where each frame-1 pixel comes from in frame 0: R^T (z1 K^-1 p1 - t), or R^T K^-1 p1 for sky."""
                 h, w = zbuf.shape

@@ -111,11 +111,11 @@ def _occlusion_kernel():
         except ImportError:  # pragma: no cover - numba is a dependency
             _OCC_KERNEL = False
             return None
-        from deepslam.gen.flow import _numba_kernel
+        # a fork-safe threading layer, as gen.flow's kernels take (GNU OpenMP breaks fork())
+        if numba.config.THREADING_LAYER == "default":
+            numba.config.THREADING_LAYER = "forksafe"
 
-        _numba_kernel()  # sets the fork-safe threading layer
-
-        @numba.njit(cache=True)
+        @numba.njit
         def kernel(flow, z1, depth1, rel_tol, abs_tol, out):  # pragma: no cover - compiled
             h, w = z1.shape
             for v in range(h):
