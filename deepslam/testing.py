@@ -29,6 +29,9 @@ import os
 import numpy as np
 import pytest
 
+from deepslam.core import metrics, se3
+from deepslam.core.trajectory import Trajectory, associate
+
 __all__ = ["sim_sequence", "assert_trajectory_close", "assert_relative_motion_close"]
 
 
@@ -68,36 +71,77 @@ def sim_sequence(tmp_path_factory):
     return make
 
 
-def _as_poses(x) -> np.ndarray:
-    from deepslam.core.trajectory import Trajectory
-
+def _as_poses(x, what: str) -> np.ndarray:
     poses = x.world_from_cam if isinstance(x, Trajectory) else np.asarray(x, dtype=np.float64)
     if poses.ndim != 3 or poses.shape[1:] != (4, 4):
         raise AssertionError(f"expected (N, 4, 4) world_from_cam poses or a Trajectory, got shape {poses.shape}")
+    _check_finite(poses, what)
     return poses
 
 
+def _check_finite(poses: np.ndarray, what: str) -> None:
+    bad = ~np.isfinite(poses.reshape(len(poses), -1)).all(axis=1)
+    if bad.any():
+        raise AssertionError(f"{what} pose of frame {int(np.flatnonzero(bad)[0])} is not finite "
+                             f"({int(bad.sum())} such frames)")
+
+
+def _check_tolerance(name: str, value, allow_none: bool = False) -> None:
+    if value is None and allow_none:
+        return
+    try:
+        ok = np.isfinite(float(value)) and float(value) >= 0
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+
+
+def _matched(gt, est) -> tuple[np.ndarray, np.ndarray]:
+    """Matched (N, 4, 4) arrays covering EVERY ground-truth frame; AssertionError naming the first frame
+    the estimate lacks (by index, or by timestamp for two Trajectory objects with times)."""
+    if isinstance(gt, Trajectory) and isinstance(est, Trajectory):
+        _check_finite(gt.world_from_cam, "ground-truth")
+        _check_finite(est.world_from_cam, "estimated")
+        if gt.timestamps_s is not None and est.timestamps_s is not None:
+            ig, ie = associate(gt, est)
+            missing = np.setdiff1d(np.arange(len(gt)), ig)
+            if len(missing):
+                k = int(missing[0])
+                raise AssertionError(f"no estimated pose for ground-truth frame {k} (t = {gt.timestamps_s[k]:.6f} s); "
+                                     f"{len(missing)} of {len(gt)} frames have none")
+            return gt.world_from_cam[ig], est.world_from_cam[ie]
+        gt, est = gt.world_from_cam, est.world_from_cam
+    g, e = _as_poses(gt, "ground-truth"), _as_poses(est, "estimated")
+    if len(e) < len(g):
+        raise AssertionError(f"no estimated pose for ground-truth frame {len(e)}: {len(e)} estimated poses for "
+                             f"{len(g)} ground-truth poses")
+    if len(e) != len(g):
+        raise AssertionError(f"{len(e)} estimated poses for {len(g)} ground-truth poses")
+    return g, e
+
+
 def assert_trajectory_close(gt, est, ate_m: float, align: str = "se3", max_m: float | None = None) -> dict:
-    """Assert the absolute trajectory error of ``est`` against ``gt`` after ``align``.
+    """Assert the absolute trajectory error of ``est`` against ``gt`` after ``align``, over every frame of ``gt``.
 
     Args:
         gt, est: (N, 4, 4) world_from_cam arrays matched by index, or two Trajectory objects
             (matched by timestamp when both have times).
-        ate_m: largest allowed ATE (RMSE over poses), metres.
+        ate_m: largest allowed ATE (RMSE over poses), metres; finite and >= 0 (ValueError otherwise).
         align: ``none``, ``se3`` or ``sim3`` (monocular scale), as in ``deepslam eval``.
         max_m: optionally, the largest allowed error of any single pose, metres.
 
     Returns:
         The ATE figures (``rmse_m``, ``max_m``, ``worst_frame``, ``align``) when the assertion holds.
-    """
-    from deepslam.core import metrics
-    from deepslam.core.trajectory import Trajectory
 
-    if not (isinstance(gt, Trajectory) and isinstance(est, Trajectory)):
-        gt, est = _as_poses(gt), _as_poses(est)
-        if len(gt) != len(est):
-            raise AssertionError(f"{len(est)} estimated poses for {len(gt)} ground-truth poses")
-    res = metrics.ate(gt, est, align)
+    Raises:
+        AssertionError: the ATE or a pose error is too large, a ground-truth frame has no estimate, or a
+            pose is not finite (each message names the frame).
+    """
+    _check_tolerance("ate_m", ate_m)
+    _check_tolerance("max_m", max_m, allow_none=True)
+    g, e = _matched(gt, est)
+    res = metrics.ate(g, e, align)
     err = res["errors_m"]
     worst = int(np.argmax(err))
     out = {"rmse_m": res["rmse_m"], "max_m": res["max_m"], "worst_frame": worst, "align": align}
@@ -123,11 +167,9 @@ def assert_relative_motion_close(gt, est, trans_m: float, rot_deg: float, delta:
     Returns:
         ``{"t_max_m", "r_max_deg", "worst_t_pair", "worst_r_pair"}`` when the assertion holds.
     """
-    from deepslam.core import se3
-
-    g, e = _as_poses(gt), _as_poses(est)
-    if len(g) != len(e):
-        raise AssertionError(f"{len(e)} estimated poses for {len(g)} ground-truth poses")
+    _check_tolerance("trans_m", trans_m)
+    _check_tolerance("rot_deg", rot_deg)
+    g, e = _matched(gt, est)
     if not 1 <= delta < len(g):
         raise AssertionError(f"delta {delta} needs more than {len(g)} poses")
     i = np.arange(len(g) - delta)

@@ -80,7 +80,7 @@ def test_relative_motion_assertion_edge_cases(bad):
     est = gt.copy()
     if bad == "nan":
         est[5, 0, 3] = np.nan
-        match = "translation off"
+        match = "estimated pose of frame 5 is not finite"
     elif bad == "rotation":
         est[10:] = est[10:] @ se3.from_euler6(np.array([0.0, np.radians(3.0), 0.0, 0.0, 0.0, 0.0]))
         match = r"relative motion 9 -> 10: rotation off by 3 deg"
@@ -89,3 +89,43 @@ def test_relative_motion_assertion_edge_cases(bad):
         match = "19 estimated poses for 20"
     with pytest.raises(AssertionError, match=match):
         assert_relative_motion_close(gt, est, trans_m=0.1 if bad != "rotation" else 10.0, rot_deg=1.0)
+
+
+def _line(n: int) -> np.ndarray:
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    poses[:, 2, 3] = np.arange(n) * 0.5
+    return poses
+
+
+@pytest.mark.parametrize("est,what", [
+    (lambda g: g[:3], "no estimated pose for ground-truth frame 3"),
+    (lambda g: np.where(np.arange(len(g))[:, None, None] == 7, np.nan, g), "estimated pose of frame 7 is not finite"),
+])
+def test_trajectory_assertions_check_every_frame(est, what):
+    from deepslam.testing import assert_relative_motion_close, assert_trajectory_close
+
+    gt = _line(50)
+    with pytest.raises(AssertionError, match=what):
+        assert_trajectory_close(gt, est(gt), ate_m=1.0)
+    with pytest.raises(AssertionError, match=what):
+        assert_relative_motion_close(gt, est(gt), trans_m=1.0, rot_deg=1.0)
+
+
+def test_trajectories_with_times_must_cover_every_ground_truth_time():
+    from deepslam.core.trajectory import Trajectory
+    from deepslam.testing import assert_trajectory_close
+
+    gt = Trajectory(_line(50), np.arange(50) * 0.1)
+    keep = np.r_[0:20, 21:50]  # frame 20 missing
+    est = Trajectory(_line(50)[keep], (np.arange(50) * 0.1)[keep])
+    with pytest.raises(AssertionError, match=r"no estimated pose for ground-truth frame 20 \(t = 2.0"):
+        assert_trajectory_close(gt, est, ate_m=1.0)
+    assert assert_trajectory_close(gt, Trajectory(_line(50), np.arange(50) * 0.1), ate_m=1e-9)["rmse_m"] < 1e-9
+
+
+@pytest.mark.parametrize("kw", [{"ate_m": float("nan")}, {"ate_m": -1.0}, {"ate_m": 1.0, "max_m": float("inf")}])
+def test_nan_or_negative_tolerances_are_refused(kw):
+    from deepslam.testing import assert_trajectory_close
+
+    with pytest.raises(ValueError, match="must be a finite number >= 0"):
+        assert_trajectory_close(_line(5), _line(5), **kw)
