@@ -21,7 +21,7 @@ import time
 import numpy as np
 import torch
 
-from deepslam.vo.net import PAPER, FlowPoseNet, NetConfig, pose_loss
+from deepslam.vo.net import FlowPoseNet, NetConfig, PAPER, pose_loss
 
 CPU_PRESET = NetConfig(48, 160, filters=32, hidden_units=256, flow_scale=10.0)
 

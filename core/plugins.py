@@ -2,7 +2,7 @@
 
 Two entry-point groups: ``deepslam.odometry`` (odometries for vo, slam, tune-slam, stress; see
 :mod:`deepslam.slam.plugins`) and ``deepslam.flow`` (flow estimators for ``--flow``; see
-:func:`deepslam.vo.flow_estimators.make`). A package registers ``NAME = "module:factory"`` under one
+:func:`deepslam.vo.flow_registry.make`). A package registers ``NAME = "module:factory"`` under one
 of them in its ``pyproject.toml`` (``[project.entry-points."deepslam.flow"]``).
 """
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Unsupervised fine-tuning of the learned flow on real frame pairs without flow labels (issue 12).
+"""Unsupervised fine-tuning of the learned flow on real frame pairs without flow labels.
 
 The flow network trained on renders alone has its own sim-to-real gap (on real KITTI it is less
 forward-backward consistent than DIS, ``bench.results_flow``). Real video gives what it needs without
@@ -32,7 +32,12 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from tqdm import tqdm
+
 from deepslam.core.errors import InputError
+from deepslam.flow.augment import crop_pair, photometric_pair
+from deepslam.flow.estimators import to_grey
+from deepslam.flow.net import resize_to_width, upsample_flow, warp
 
 CENSUS_PATCH = 7
 """Census neighbourhood side, pixels (UFlow's)."""
@@ -70,8 +75,6 @@ def non_occluded(fw: torch.Tensor, bw: torch.Tensor) -> torch.Tensor:
     """(B, 1, H, W) float {0, 1}: 1 where the forward flow ``fw`` lands inside the image and the
     backward flow ``bw`` there brings it back (Brox's forward-backward test; when fewer than
     :data:`MIN_CONSISTENT_SHARE` of the landing-inside pixels pass, all of them are kept); no gradient."""
-    from deepslam.vo.flownet import warp
-
     with torch.no_grad():
         bw_at = warp(bw, fw)
         s = ((fw + bw_at) ** 2).sum(1, keepdim=True)
@@ -91,8 +94,6 @@ def photometric_census_loss(img0: torch.Tensor, img1: torch.Tensor, flow: torch.
                             mask: torch.Tensor) -> torch.Tensor:
     """Mean robust census distance between ``img0`` and ``img1`` sampled at pixel + ``flow`` over
     ``mask`` (B, 1, H, W), the census border left out. A scalar."""
-    from deepslam.vo.flownet import warp
-
     b, _, h, w = img0.shape
     with torch.no_grad():
         t0 = census_descriptor(img0)
@@ -128,7 +129,7 @@ def unsupervised_loss(model, img0: torch.Tensor, img1: torch.Tensor, aug0: torch
     """The census + smoothness loss of ``model`` on real pairs (both directions), and its parts.
 
     Args:
-        model: a :class:`vo.flownet.FlowNet`.
+        model: a :class:`flow.net.FlowNet`.
         img0, img1: (B, 1, H, W) float32 in [0, 1], the images the loss compares (H, W multiples of 32).
         aug0, aug1: the same pairs photometrically augmented: what the network is given.
         smooth_weight: weight of the smoothness term.
@@ -140,7 +141,6 @@ def unsupervised_loss(model, img0: torch.Tensor, img1: torch.Tensor, aug0: torch
     b = img0.shape[0]
     with torch.autocast(autocast_device, dtype=torch.bfloat16):
         outs = model(torch.cat([aug0, aug1]), torch.cat([aug1, aug0]))
-    from deepslam.vo.flownet import upsample_flow
 
     coarse = outs[-1].float()  # (2B, 2, H/4, W/4) at the finest estimated level
     full = upsample_flow(coarse, img0.shape[-1] // coarse.shape[-1])
@@ -155,7 +155,7 @@ def unsupervised_loss(model, img0: torch.Tensor, img1: torch.Tensor, aug0: torch
 
 class RealPairs:
     """Consecutive frame pairs of real sequences without flow labels, in memory as grey uint8 images
-    resized to the network's working width (what :class:`vo.flownet.LearnedFlow` gives it at run time).
+    resized to the network's working width (what :class:`flow.net.LearnedFlow` gives it at run time).
 
     Each stereo sequence gives its left and its right camera's pairs. ``batch`` crops both images of a
     pair at the same place; the loss scores both directions, so only i -> i+1 is stored.
@@ -167,11 +167,6 @@ class RealPairs:
     """
 
     def __init__(self, sequences, work_width: int, progress: bool = True):
-        from tqdm import tqdm
-
-        from deepslam.vo.flow_estimators import to_grey
-        from deepslam.vo.flownet import resize_to_width
-
         def resized(img):
             return resize_to_width(to_grey(img), work_width)
 
@@ -197,16 +192,14 @@ class RealPairs:
 
     def batch(self, rng: np.random.Generator, n: int, crop: tuple[int, int]) -> dict[str, torch.Tensor]:
         """``n`` crops: img0, img1 (n, 1, h, w) float32 in [0, 1] as recorded, and aug0, aug1 the same
-        photometrically augmented (:func:`vo.flownet._photometric_pair`); a random half mirrored."""
-        from deepslam.vo.flownet import _photometric_pair, crop_pair
-
+        photometrically augmented (:func:`flow.net.photometric_pair`); a random half mirrored."""
         out = {k: [] for k in ("img0", "img1", "aug0", "aug1")}
         for k in rng.integers(0, len(self), n):
             a, b, _ = crop_pair(rng, self.grey0[k], self.grey1[k], crop, "real frames (at the network's width)")
             if rng.random() < 0.5:
                 a, b = a[:, ::-1], b[:, ::-1]
             a, b = np.ascontiguousarray(a), np.ascontiguousarray(b)
-            aa, ab = _photometric_pair(a, b, rng)
+            aa, ab = photometric_pair(a, b, rng)
             for key, v in zip(("img0", "img1", "aug0", "aug1"), (a, b, aa, ab)):
                 out[key].append(v)
         return {k: torch.from_numpy(np.stack(v)[:, None]) for k, v in out.items()}

@@ -16,7 +16,7 @@
 # Fixed seeds throughout; the GPU's sums (and its EGL renders) are not bit-for-bit the CPU's.
 set -uo pipefail
 cd "$(dirname "$0")/.."
-OUT=${OUT:-out/device_flow}
+export OUT=${OUT:-out/device_flow}
 TOTAL_S=${TOTAL_S:-520}
 FRAMES=${FRAMES:-150}
 BATCH=${BATCH:-64}
@@ -85,7 +85,10 @@ RENDER_PID=$!
   OMP_NUM_THREADS=2 timeout 150 $PY - >"$OUT/bench_device.json" 2>/tmp/bench_device.err <<'EOF'
 import json
 from bench import bench_device
+from bench.stamp import write_stamp
+import os, torch
 print(json.dumps(bench_device.run(quick=True), indent=1))
+write_stamp(os.environ["OUT"])
 EOF
   echo "bench exit $?" >>/tmp/cuda_tests.txt
 ) &
@@ -103,7 +106,7 @@ TRAIN="--crop 128x320 --batch $BATCH --lr 1e-3 --seed 0 --device $DEVICE --loade
 say "calibration: 120 steps on one sequence"
 $DS train-flow --sequences $(echo "$SEQS" | head -1) --out /tmp/flowcal --max-steps 120 $TRAIN >/dev/null
 PER_STEP=$($PY -c "
-from deepslam.vo.flownet import load_flow_model
+from deepslam.flow.net import load_flow_model
 _, m = load_flow_model('/tmp/flowcal/flow.safetensors'); print(m['train_seconds'] / m['steps'])")
 LOAD_S=45   # reading the renders into memory, measured on this script's first runs
 LOAD_S=${LOAD_S:-$LOAD_S}

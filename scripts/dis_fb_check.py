@@ -18,7 +18,7 @@ import numpy as np
 
 def main(argv: list[str]) -> int:
     from deepslam.core.readers import open_sequence
-    from deepslam.vo import flow_estimators as fe
+    from deepslam.flow import estimators as fe
 
     for root in argv or ["out/tum_models/room_k2"]:
         seq = open_sequence(root)

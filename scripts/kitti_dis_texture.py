@@ -5,7 +5,7 @@ On KITTI 06 (its stereo depth, as ``deepslam train --frames`` computes it, and i
 consecutive pair: DIS medium's end-point error against the flow synthesized from the depth and the
 motion, on the real pair and on the view rendered from frame i with that motion (6 grey levels of
 noise, as ``train --appearance-noise 6``), by quartile of frame i's texture
-(:func:`vo.flow_estimators.texture_strength`), on pixels with a stereo depth under 80 m. About 1 minute:
+(:func:`flow.estimators.texture_strength`), on pixels with a stereo depth under 80 m. About 1 minute:
 
     .venv/bin/python scripts/kitti_dis_texture.py [KITTI_06_DIR]
 """
@@ -20,12 +20,12 @@ def main(argv: list[str]) -> int:
     from deepslam.core.readers import open_sequence
     from deepslam.gen.flow import synthesize
     from deepslam.gen.novel_view import render_novel_view
-    from deepslam.vo import flow_estimators as fe
+    from deepslam.flow import estimators as fe, registry
     from deepslam.vo.data import _depth_source, _frame_depth
 
     seq = open_sequence(argv[0] if argv else "../shared/data/kitti/sequences/06")
     how = _depth_source(seq, "auto")
-    dis = fe.make("dis", preset="medium")
+    dis = registry.make("dis", preset="medium")
     real, synthetic, texture = [], [], []
     for i in range(0, len(seq) - 1, 5):
         depth = _frame_depth(seq, i, how, False, seq.camera.width, seq.camera.height).astype(np.float32)

@@ -19,7 +19,7 @@ def main(argv: list[str]) -> int:
     args = p.parse_args(argv)
 
     from deepslam.vo.posesolve import unit_weight_net
-    from deepslam.vo.train import load_model, save_model
+    from deepslam.vo.modelio import load_model, save_model
 
     ref, meta = load_model(args.reference)
     out_meta = {"untrained": "solve head, every weight 1"}

@@ -7,7 +7,7 @@ with the sensor depth; no ground-truth pose is used). Printed: the median end-po
 and the same motion (what ``train --synthetic-flow dis`` makes), with 0-24 grey levels of Gaussian
 noise on that view (``--appearance-noise``); and of the learned flow (``models/flow_learned.safetensors``)
 on the real pair and the noise-free view. Then, over all these pixels pooled, DIS's error on the real
-pairs by quartile of the first image's texture (:func:`vo.flow_estimators.texture_strength`) and what
+pairs by quartile of the first image's texture (:func:`flow.estimators.texture_strength`) and what
 each ``--dis-min-texture`` threshold keeps (how 0.5 was chosen: no pose and no odometry score is
 used). Pixels with sensor depth only. About 2 minutes:
 
@@ -26,12 +26,12 @@ def main(argv: list[str]) -> int:
     from deepslam.gen.flow import synthesize
     from deepslam.gen.novel_view import render_novel_view
     from deepslam.slam.classical import make_pnp
-    from deepslam.vo import flow_estimators
+    from deepslam.flow import estimators as flow_estimators, registry as flow_registry
 
     root = argv[0] if argv else "../shared/data/tum/rgbd_dataset_freiburg3_teddy"
     seq = open_sequence(root)
-    dis = flow_estimators.make("dis", preset="medium")
-    learned = flow_estimators.make("learned")
+    dis = flow_registry.make("dis", preset="medium")
+    learned = flow_registry.make("learned")
     pairs = [(i, i + 1) for i in range(0, len(seq) - 1, 4)][:45]
     vec, _ = make_pnp().predict(seq, pairs)
     noises = (0, 6, 12, 18, 24)

@@ -34,7 +34,7 @@ def main(argv: list[str]) -> int:
     from deepslam.gen.flow import synthesize
     from deepslam.gen.novel_view import render_novel_view
     from deepslam.slam.classical import make_pnp
-    from deepslam.vo import flow_estimators as fe
+    from deepslam.flow import estimators as fe
     from deepslam.vo import models
     from deepslam.vo.data import frame_inverse_depth
     from deepslam.vo.infer import VOPredictor

@@ -261,7 +261,7 @@ def odometry_from_args(args, seq):
         return cons, loops
     from deepslam.gen.device import resolve_device
     from deepslam.vo import models
-    from deepslam.vo.flow_estimators import given_estimator_options
+    from deepslam.flow.registry import given_estimator_options
 
     device = resolve_device(getattr(args, "device", "cpu"))
     given = given_estimator_options(args.flow, args)

@@ -2,7 +2,7 @@
 
 Modules:
 
-- :mod:`vo.flow_estimators`: flow between two images behind one interface (OpenCV DIS, the
+- :mod:`flow.estimators`: flow between two images behind one interface (OpenCV DIS, the
   simulator's ground-truth flow, a registry for learned estimators), and resizing a flow to the
   network's input with its values rescaled.
 - :mod:`vo.net`: the paper's network (six convolutions, two fully connected branches, per-DoF

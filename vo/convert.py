@@ -1,11 +1,11 @@
-"""One-time conversion of old pickle-based VO files (``torch.save``) into :mod:`vo.modelfile` files."""
+"""One-time conversion of old pickle-based VO files (``torch.save``) into :mod:`models.modelfile` files."""
 from __future__ import annotations
 
 from pathlib import Path
 
 from deepslam.core.errors import InputError
-from deepslam.vo import modelfile
-from deepslam.vo.train import CHECKPOINT_FORMAT, MODEL_FORMAT, MODEL_VERSION
+from deepslam.models import modelfile
+from deepslam.vo.modelio import CHECKPOINT_FORMAT, MODEL_FORMAT, MODEL_VERSION
 
 
 def convert_legacy(src: str | Path, dst: str | Path) -> str:

@@ -252,9 +252,9 @@ def supervised_samples(seq, pairs: np.ndarray, estimator, width: int, height: in
     Args:
         seq: :class:`core.sequence.Sequence` with ``gt``.
         pairs: (P, 2) frame indices (i, j).
-        estimator: a :mod:`vo.flow_estimators` estimator (``pair_flow(seq, i, j)``).
+        estimator: a :mod:`flow.estimators` estimator (``pair_flow(seq, i, j)``).
         width, height: network input size.
-        unknown: how unknown flow is resized (:data:`vo.flow_estimators.UNKNOWN_FLOW`: ``nan`` for a
+        unknown: how unknown flow is resized (:data:`flow.estimators.UNKNOWN_FLOW`: ``nan`` for a
             network with a validity channel).
 
     Returns ``flow`` (P, 2, height, width) float32 px (NaN where unknown, with ``nan``), ``intrinsics`` (P, 4) float32, ``target``
@@ -262,7 +262,7 @@ def supervised_samples(seq, pairs: np.ndarray, estimator, width: int, height: in
     """
     from tqdm import tqdm
 
-    from deepslam.vo.flow_estimators import to_network_input
+    from deepslam.flow.estimators import to_network_input
 
     if seq.gt is None:
         raise InputError(seq.root, "supervised training needs ground-truth poses; this sequence has none")
@@ -702,13 +702,13 @@ class SyntheticSource(_OnTheFlySource):
         inv_depth: also give each sample's inverse depth at the network resolution (``"inv_depth"``).
         scene_scale: a :class:`SceneScale` applied to each sample's depth (None: the depth as it is).
         unknown: ``zero`` (flow 0 where no pixel of a network pixel is valid) or ``nan`` (NaN there:
-            for a network with a validity channel; :data:`vo.flow_estimators.UNKNOWN_FLOW`).
+            for a network with a validity channel; :data:`flow.estimators.UNKNOWN_FLOW`).
     """
 
     def __init__(self, frames: Frames, sample_motion, samples_per_epoch: int, seed: int = 0, synth_factor: int = 1,
                  missing_depth: str = "infinity", synthesize=None, tilt: CameraTilt | None = None,
                  inv_depth: bool = False, scene_scale: SceneScale | None = None, unknown: str = "zero"):
-        from deepslam.vo.flow_estimators import check_unknown
+        from deepslam.flow.estimators import check_unknown
 
         self.unknown = check_unknown(unknown)
         self.inv_depth = bool(inv_depth)
@@ -833,7 +833,7 @@ def load_image_frames(sequences: Seq, frame_step: int = 1, depth: str = "auto", 
     import cv2
     from tqdm import tqdm
 
-    from deepslam.vo.flow_estimators import to_grey
+    from deepslam.flow.estimators import to_grey
 
     if not scales or any(not (0.05 <= float(sc) <= 1.0) for sc in scales):
         raise InputError(None, f"frame scales must be in [0.05, 1], got {list(scales)}")
@@ -899,7 +899,7 @@ class EstimatedFlowSource(_OnTheFlySource):
     """The paper's synthetic samples, but with the flow a real estimator gives: for a random frame and
     a motion from the model, the second view is rendered from that single frame
     (:func:`gen.novel_view.render_novel_view`), the estimator runs on the pair at the frame's own
-    resolution and its flow is resized to the network input (:func:`vo.flow_estimators.to_network_input`,
+    resolution and its flow is resized to the network input (:func:`flow.estimators.to_network_input`,
     exactly as at test time). The target is the sampled motion; no pose of any frame is used.
 
     Batch b of epoch e is a function of (seed, e, b) only (the estimators are deterministic; each
@@ -908,7 +908,7 @@ class EstimatedFlowSource(_OnTheFlySource):
     Args:
         frames: :class:`ImageFrames`.
         sample_motion: ``(n, rng) -> (n, 6)`` paper vectors of cam1_from_cam0.
-        estimator: a :mod:`vo.flow_estimators` name (e.g. ``dis``) that can ``estimate(img0, img1)``.
+        estimator: a :mod:`flow.estimators` name (e.g. ``dis``) that can ``estimate(img0, img1)``.
         width, height: network input size.
         samples_per_epoch: samples per epoch.
         seed: data seed.
@@ -922,7 +922,7 @@ class EstimatedFlowSource(_OnTheFlySource):
         inv_depth: also give each sample's inverse depth at the network resolution (``"inv_depth"``).
         scene_scale: a :class:`SceneScale` applied to each sample's depth (None: the depth as it is).
         unknown: how the estimator's unknown flow (NaN) is resized to the network input
-            (:data:`vo.flow_estimators.UNKNOWN_FLOW`: ``nan`` for a network with a validity channel).
+            (:data:`flow.estimators.UNKNOWN_FLOW`: ``nan`` for a network with a validity channel).
     """
 
     def __init__(self, frames: ImageFrames, sample_motion, estimator: str, width: int, height: int,
@@ -931,18 +931,18 @@ class EstimatedFlowSource(_OnTheFlySource):
                  scene_scale: SceneScale | None = None, unknown: str = "zero"):
         import threading
 
-        from deepslam.vo.flow_estimators import check_unknown
+        from deepslam.flow.estimators import check_unknown
 
         self.unknown = check_unknown(unknown)
         self.inv_depth = bool(inv_depth)
         self.scene_scale = scene_scale
-        from deepslam.vo import flow_estimators
+        from deepslam.flow import registry as flow_registry
 
         self.frames = frames
         self.sample_motion = sample_motion
         self.estimator = estimator
         self.estimator_options = dict(estimator_options or {})
-        self.estimator_name = flow_estimators.make(estimator, **self.estimator_options).name  # fails early on a bad name
+        self.estimator_name = flow_registry.make(estimator, **self.estimator_options).name  # fails early on a bad name
         self.width, self.height = int(width), int(height)
         self.samples_per_epoch = int(samples_per_epoch)
         self.seed = int(seed)
@@ -959,11 +959,11 @@ class EstimatedFlowSource(_OnTheFlySource):
     def _one(self, k: int, motion: np.ndarray, noise_seed: int, rot: np.ndarray | None,
              scale: float = 1.0) -> tuple[np.ndarray, ...]:
         from deepslam.gen.novel_view import render_novel_view
-        from deepslam.vo import flow_estimators
+        from deepslam.flow import estimators as flow_estimators, registry as flow_registry
 
         est = getattr(self._local, "est", None)
         if est is None:
-            est = self._local.est = flow_estimators.make(self.estimator, **self.estimator_options)
+            est = self._local.est = flow_registry.make(self.estimator, **self.estimator_options)
         cam = self.frames.cameras[self.frames.camera_index[k]]
         grey0, depth0, seen0 = self.frames.grey[k], self.frames.depth_z[k], self.frames.network_depth(k)
         if rot is not None:

@@ -9,21 +9,20 @@ per DoF:
     mean = 1/N sum_i mean_i
     std^2 = 1/N sum_i (std_i^2 + mean_i^2) - mean^2   (the members' own variance plus their spread)
 
-An ensemble file is an ordinary VO model file (kind ``deepslam-vo-model``, :mod:`vo.modelfile`)
+An ensemble file is an ordinary VO model file (kind ``deepslam-vo-model``, :mod:`models.modelfile`)
 whose tree holds ``ensemble``: a list of member trees (``net``, ``state_dict``, ``meta``) with one
 network shape, so every command that takes ``--model`` takes it, and the pose graph gets the larger
 uncertainty where the members disagree.
 """
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Sequence
 
 import torch
 from torch import nn
 
-from deepslam.core.errors import InputError
 from deepslam.vo.net import LOG_STD_MAX, LOG_STD_MIN, PoseNet
+
 
 
 def mixture_moments(means: torch.Tensor, log_stds: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -91,70 +90,3 @@ def input_key(cfg) -> dict:
 def same_input(a, b) -> bool:
     """True when networks with configs ``a`` and ``b`` take the same prepared input."""
     return input_key(a) == input_key(b)
-
-
-def ensemble_tree(member_trees: Sequence[dict], meta: dict) -> dict:
-    """The model-file tree of an ensemble (see the module doc) from members' model trees."""
-    from deepslam.vo.train import MODEL_FORMAT, MODEL_VERSION
-
-    return {"format": MODEL_FORMAT, "version": MODEL_VERSION,
-            "ensemble": [{"net": t["net"], "state_dict": t["state_dict"], "meta": t.get("meta", {})}
-                         for t in member_trees],
-            "meta": meta}
-
-
-def write_ensemble(paths: Sequence[str | Path], out: str | Path) -> dict:
-    """Join the single-network model files ``paths`` into one ensemble file ``out`` (written atomically).
-
-    The ensemble's meta lists each member's file name, sha256 and training seed (each member's own meta
-    stays in its part of the tree); its data description is the members' when they share it (seeds of
-    one recipe), else the union of the frame folders and sequences any member saw.
-
-    Returns: the ensemble's meta.
-
-    Raises:
-        InputError: fewer than two files, a file that is not a single-network VO model, or members that
-            read different inputs or were trained on differently set-up flow (``meta.flow``; named by file).
-    """
-    import hashlib
-
-    from deepslam.vo import modelfile
-    from deepslam.vo.train import MODEL_FORMAT, load_model, model_tree
-
-    paths = [Path(p) for p in paths]
-    if len(paths) < 2:
-        raise InputError(paths[0] if paths else None, "an ensemble needs at least two model files")
-    trees, first = [], None
-    for p in paths:
-        model, meta = load_model(p)
-        if isinstance(model, EnsemblePoseNet):
-            raise InputError(p, "is an ensemble already; give its members' files")
-        if first is None:
-            first = model.cfg
-        elif not same_input(first, model.cfg):
-            raise InputError(p, f"reads another input than {paths[0]} ({input_key(model.cfg)} against {input_key(first)})")
-        trees.append(model_tree(model, meta))
-    metas = [t["meta"] for t in trees]
-    for p, m in zip(paths[1:], metas[1:]):  # one flow set-up for all: vo/slam give the ensemble one estimator
-        if m.get("flow") != metas[0].get("flow"):
-            raise InputError(p, f"was trained on other flow than {paths[0]} (meta.flow {m.get('flow')!r} against "
-                                f"{metas[0].get('flow')!r})")
-    meta = {"ensemble_of": [{"file": str(p), "sha256": hashlib.sha256(p.read_bytes()).hexdigest(),
-                             "seed": (m.get("train") or {}).get("seed")} for p, m in zip(paths, metas)]}
-    datas = [m.get("data") or {} for m in metas]
-    if all(d == datas[0] for d in datas):
-        meta["data"] = datas[0]
-    else:  # what any member saw: the union of their frame folders and supervised sequences
-        frames = sorted({str(f) for d in datas for f in d.get("frames", []) or []})
-        seqs = sorted({str(f) for d in datas for f in (d.get("sequences") or {})})
-        meta["data"] = {"frames": frames, "sequences": {s: None for s in seqs}, "members_differ": True}
-    if metas[0].get("flow") is not None:
-        meta["flow"] = metas[0]["flow"]  # what vo.models.flow_for_model reads
-    poses = {m.get("pose", "net") for m in metas}
-    if poses != {"net"}:  # a pose mode the members record (deepslam set-pose) carries over when they agree
-        if len(poses) > 1:
-            raise InputError(paths[0], f"the members record different pose modes ({', '.join(sorted(poses))}); "
-                                       "set one with deepslam set-pose first")
-        meta["pose"] = poses.pop()
-    modelfile.save(out, MODEL_FORMAT, ensemble_tree(trees, meta))
-    return meta

@@ -56,7 +56,7 @@ class VOPredictor:
     @classmethod
     def from_file(cls, path: str | Path, **kwargs) -> "VOPredictor":
         """Load a ``model.safetensors`` (or a training ``checkpoint.safetensors``); InputError when missing or malformed."""
-        from deepslam.vo.train import load_model
+        from deepslam.vo.modelio import load_model
 
         model, meta = load_model(path)
         kwargs.setdefault("name", Path(path).stem)
@@ -104,7 +104,7 @@ class VOPredictor:
 
     def prepare(self, flow_full: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
         """Full-resolution flow (H, W, 2) -> network input ((2, h, w) px, (4,) intrinsics)."""
-        from deepslam.vo.flow_estimators import to_network_input
+        from deepslam.flow.estimators import to_network_input
 
         h, w = self.input_size
         return to_network_input(flow_full, camera, w, h, self.model.cfg.unknown_flow)

@@ -92,11 +92,11 @@ def odometry(path: str | Path, flow: str = "dis", shipped: bool = False, progres
 
 
 RECORDED_OPTIONS = {"dis": ("preset", "min_texture", "fb_max_px", "max_width", "patch_stride")}
-"""The options a model file's flow record may set, per estimator (:class:`vo.flow_estimators.DISFlow`'s)."""
+"""The options a model file's flow record may set, per estimator (:class:`flow.estimators.DISFlow`'s)."""
 
 
 def recorded_flow_options(path: str | Path, flow: str) -> dict:
-    """The options of flow estimator ``flow`` (a :func:`vo.flow_estimators.make` name) that the VO model
+    """The options of flow estimator ``flow`` (a :func:`vo.flow_registry.make` name) that the VO model
     file at ``path`` was trained on: its meta's ``flow`` record (``deepslam train`` writes
     ``{"estimator": name, "options": {...}}`` for a model trained on an estimator's flow;
     ``ensemble-model`` copies its members' shared record). {} when the file records another estimator
@@ -161,8 +161,8 @@ def write_with_pose(path: str | Path, out: str | Path, pose: str) -> dict:
     """Write the VO model file ``path`` (single network or ensemble) to ``out`` (atomically) with ``pose``
     (:data:`POSES`) recorded as its pose mode: the same weights and meta otherwise. Returns the new meta.
     InputError naming ``path`` when it is not a VO model file."""
-    from deepslam.vo import modelfile
-    from deepslam.vo.train import MODEL_FORMAT
+    from deepslam.models import modelfile
+    from deepslam.vo.modelio import MODEL_FORMAT
 
     if pose not in POSES:
         raise InputError(None, f"pose must be one of {', '.join(POSES)}, got {pose!r}")
@@ -178,18 +178,18 @@ def flow_for_model(flow: str, path: str | Path, recorded: dict | None = None, **
     when the caller has read them already), with the options in ``given`` that are not None taking
     precedence (a command line's explicit flags). InputError naming ``path`` when its recorded
     options are not valid ones."""
-    from deepslam.vo import flow_estimators
+    from deepslam.flow import registry as flow_registry
 
     if recorded is None:
         recorded = recorded_flow_options(path, flow)
     options = {**recorded, **{k: v for k, v in given.items() if v is not None}}
     try:
-        return flow_estimators.make(flow, **options)
+        return flow_registry.make(flow, **options)
     except InputError as e:
         bad_record = bool(recorded)
         if recorded and options != recorded:
             try:
-                flow_estimators.make(flow, **recorded)
+                flow_registry.make(flow, **recorded)
                 bad_record = False  # the file's own options are fine: the command line's are not
             except InputError:
                 pass

@@ -1,6 +1,6 @@
 """Where things sit in a VO model file's tree, readable without torch.
 
-A VO model file (:mod:`vo.modelfile`: safetensors, its JSON tree in the header under ``tree``, the
+A VO model file (:mod:`models.modelfile`: safetensors, its JSON tree in the header under ``tree``, the
 file's kind under ``deepslam``) holds one of three layouts:
 
 - a model (``deepslam-vo-model``): ``net`` (:class:`vo.net.NetConfig` as a dict), ``state_dict``, ``meta``;
@@ -40,9 +40,9 @@ def meta(tree: dict) -> dict:
 
 def read_header_tree(path: str | Path) -> dict:
     """The tree of the model file at ``path`` from its header alone (no torch, no weights read; the
-    tensors appear as the references :mod:`vo.modelfile` wrote). Raises OSError, ValueError (incl.
+    tensors appear as the references :mod:`models.modelfile` wrote). Raises OSError, ValueError (incl.
     JSON errors), KeyError or safetensors' error on a missing or unreadable file: callers that only peek
-    catch them and leave the report to :func:`vo.modelfile.load`."""
+    catch them and leave the report to :func:`models.modelfile.load`."""
     from safetensors import safe_open
 
     with safe_open(str(path), framework="numpy") as f:

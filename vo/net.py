@@ -27,11 +27,16 @@ that covers both is their average.
 from __future__ import annotations
 
 import dataclasses
-import math
 import json
+import math
 
+import cv2
+import numpy as np
 import torch
 from torch import nn
+
+from deepslam.flow.estimators import unknown_flow
+
 
 LOG_STD_MIN = -12.0
 """Lower clamp of a predicted log-std (std >= 6e-6 in radians or metres)."""
@@ -70,7 +75,7 @@ class NetConfig:
     valid_channel: bool = False
     """Add a channel that is 1 where the flow is known and 0 where it is not (NaN in the input: DIS's
     textureless pixels, no depth); such a network's flow is resized over known pixels only
-    (:func:`vo.flow_estimators.resize_flow` with ``unknown="nan"``). False: unknown flow reads as 0."""
+    (:func:`flow.estimators.resize_flow` with ``unknown="nan"``). False: unknown flow reads as 0."""
     pose_head: str = "regress"
     """How the pose is read: ``regress`` (the paper: convolutions, fully connected branches, a linear
     output) or ``solve`` (:mod:`vo.posesolve`: a convolutional network weighs each pixel and the pose is
@@ -111,9 +116,7 @@ class NetConfig:
     @property
     def unknown_flow(self) -> str:
         """How this network's input flow is resized where the flow is unknown
-        (:data:`vo.flow_estimators.UNKNOWN_FLOW`): ``nan`` with a validity channel, else ``zero``."""
-        from deepslam.vo.flow_estimators import unknown_flow
-
+        (:data:`flow.estimators.UNKNOWN_FLOW`): ``nan`` with a validity channel, else ``zero``."""
         return unknown_flow(self.valid_channel)
 
     def feature_shape(self) -> tuple[int, int, int]:
@@ -293,17 +296,6 @@ def network_input(net: nn.Module, flow_px: torch.Tensor, intrinsics: torch.Tenso
     return x.contiguous(memory_format=torch.channels_last) if net.channels_last else x
 
 
-def make_net(cfg: NetConfig = PAPER) -> PoseNet:
-    """The network ``cfg`` describes: :class:`FlowPoseNet` (``pose_head="regress"``) or
-    :class:`vo.posesolve.FlowSolvePoseNet` (``"solve"``); both map ``(flow, intrinsics, inv_depth)`` to
-    ``(mean6, log_std6)`` and train in :mod:`vo.train`'s two stages."""
-    if cfg.pose_head == "solve":
-        from deepslam.vo.posesolve import FlowSolvePoseNet
-
-        return FlowSolvePoseNet(cfg)
-    return FlowPoseNet(cfg)
-
-
 def pose_loss(mean: torch.Tensor, target: torch.Tensor, rot_weight: float = 50.0) -> torch.Tensor:
     """The paper's first-stage loss: ``rot_weight * MSE(euler) + MSE(translation)`` (scalar).
 
@@ -327,9 +319,6 @@ def inverse_depth_input(depth_z, width: int, height: int):
     """The network's depth channel for one frame: (1, height, width) float32 ``1 / depth_z`` in 1/m,
     0 where the depth is unknown (0, negative, NaN, inf), area-averaged from ``depth_z`` (H, W) float
     metres of any size (numpy) to the network resolution."""
-    import cv2
-    import numpy as np
-
     d = np.asarray(depth_z, dtype=np.float32)
     ok = np.isfinite(d) & (d > 0)
     inv = np.zeros(d.shape, np.float32)

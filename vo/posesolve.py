@@ -21,10 +21,13 @@ Axes are OpenCV's (x right, y down, z forward); rotations and the output vector 
 """
 from __future__ import annotations
 
+import dataclasses
+
 import torch
 from torch import nn
 
 from deepslam.vo.net import LOG_STD_MAX, LOG_STD_MIN, NetConfig, PoseNet, register_input_buffers
+
 
 LOG_WEIGHT_LIMIT = 10.0
 """The learned log-weights are clamped to [-LOG_WEIGHT_LIMIT, LOG_WEIGHT_LIMIT] (weights in 1/px^2)."""
@@ -235,47 +238,6 @@ def unit_weight_net(cfg: NetConfig, robust: str = "none", iterations: int | None
     flow + depth odometry that runs through the learned models' path); ``robust="cauchy"`` makes it the
     iteratively reweighted fit (:func:`solve_pose`), with ``iterations`` Gauss-Newton steps (default:
     ``cfg``'s)."""
-    import dataclasses
-
     return FlowSolvePoseNet(dataclasses.replace(
         cfg, depth_channel=True, valid_channel=True, pose_head="solve", solve_robust=robust,
         solve_iterations=cfg.solve_iterations if iterations is None else iterations))
-
-
-def write_with_solve_kernel(path, out, robust: str, iterations: int | None = None) -> dict:
-    """Write the solve-head model file ``path`` to ``out`` (atomically) with the solve's kernel set to
-    ``robust`` (:data:`ROBUST_KERNELS`) and, when given, ``iterations`` Gauss-Newton steps: the same
-    learned weights and stage-2 calibration, a test-time change of the solve only. The file's meta keeps
-    everything it recorded and adds ``solve_changed``: the kernel and steps it was trained with and the
-    ones it now has.
-
-    Returns: the new file's meta.
-
-    Raises:
-        InputError: naming ``path`` when it is not a single-network solve-head VO model, or the
-            kernel or steps are not ones the head takes.
-    """
-    import dataclasses
-    from pathlib import Path
-
-    from deepslam.core.errors import InputError
-    from deepslam.vo.train import load_model, save_model
-
-    model, meta = load_model(path)
-    if not isinstance(model, FlowSolvePoseNet):
-        raise InputError(Path(path), "is not a single-network model with the solve pose head "
-                                     "(train --pose-head solve); its solve cannot be changed")
-    old = model.cfg
-    try:
-        cfg = dataclasses.replace(old, solve_robust=robust,
-                                  solve_iterations=old.solve_iterations if iterations is None else int(iterations))
-    except ValueError as e:
-        raise InputError(Path(path), f"cannot set its solve: {e}") from None
-    changed = FlowSolvePoseNet(cfg)
-    changed.load_state_dict(model.state_dict())
-    previous = meta.get("solve_changed", {}).get("trained_with",
-                                                 {"robust": old.solve_robust, "iterations": old.solve_iterations})
-    meta = {**meta, "solve_changed": {"trained_with": previous,
-                                      "now": {"robust": cfg.solve_robust, "iterations": cfg.solve_iterations}}}
-    save_model(Path(out), changed.eval(), meta)
-    return meta

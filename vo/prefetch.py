@@ -80,14 +80,14 @@ def _opencv_single_threaded(on: bool) -> None:
 class PairInputs:
     """Iterates ``(flow_chw, intrinsics)`` for each pair (i, j) of ``pairs``, in order: flow float32
     (2, height, width) px at network resolution and intrinsics float32 (4,) fx, fy, cx, cy at that
-    resolution (:func:`vo.flow_estimators.to_network_input` of ``estimator.pair_flow(seq, i, j)``).
+    resolution (:func:`flow.estimators.to_network_input` of ``estimator.pair_flow(seq, i, j)``).
 
     Args:
         seq: a :class:`core.sequence.Sequence`.
         pairs: (P, 2) int frame indices.
         estimator: a flow estimator (``pair_flow(seq, i, j)``); only the worker threads call it.
         width, height: the network's input size, pixels.
-        unknown: how unknown flow is resized (:data:`vo.flow_estimators.UNKNOWN_FLOW`; the network's
+        unknown: how unknown flow is resized (:data:`flow.estimators.UNKNOWN_FLOW`; the network's
             :attr:`vo.net.NetConfig.unknown_flow`).
         ahead: how many pairs the workers may run ahead of the reader (bounds memory: 256 KB a pair at
             96 x 320).
@@ -152,7 +152,7 @@ class PairInputs:
             raise
 
     def _work(self, w: int, estimator) -> None:
-        from deepslam.vo.flow_estimators import to_network_input
+        from deepslam.flow.estimators import to_network_input
 
         q = self._queues[w]
         try:
@@ -238,7 +238,7 @@ def model_input(path: str | Path) -> tuple[int, int, str] | None:
     alone (:mod:`vo.modeltree`: no torch, no tensors read); None when the file is missing or not a
     readable model file (the loader then says what is wrong)."""
     from deepslam.vo import modeltree
-    from deepslam.vo.flow_estimators import unknown_flow
+    from deepslam.flow.estimators import unknown_flow
 
     try:
         net = modeltree.net_config(modeltree.read_header_tree(path))

@@ -25,6 +25,7 @@ the weights of an uninterrupted run (same threads, same machine). A non-finite l
 """
 from __future__ import annotations
 
+import contextlib
 import copy
 import dataclasses
 import math
@@ -33,11 +34,18 @@ from pathlib import Path
 from typing import Iterator, Protocol
 
 import torch
+from tqdm import tqdm
 
 from deepslam.core import atomic
-from deepslam.vo import modelfile
+from deepslam.core.errors import InputError
+from deepslam.core.lock import output_lock
+from deepslam.core.plots import new_figure, save_figure
 from deepslam.vo.data import epoch_seed
-from deepslam.vo.net import NetConfig, PoseNet, gaussian_nll, make_net, pose_loss
+from deepslam.vo.distributed import agree, world
+from deepslam.vo.modelio import load_checkpoint, make_net, save_checkpoint, save_model
+from deepslam.vo.net import PoseNet, gaussian_nll, pose_loss
+from deepslam.vo.trainconfig import TrainConfig
+
 
 CHECKPOINT = "checkpoint.safetensors"
 MODEL = "model.safetensors"
@@ -45,77 +53,10 @@ LEGACY_CHECKPOINT = "checkpoint.pt"
 """The pickle-based checkpoint of older versions (refused; ``deepslam convert-model`` converts it)."""
 CONFIG = "config.json"
 HISTORY = "history.json"
-MODEL_FORMAT = "deepslam-vo-model"
-MODEL_VERSION = 2
-CHECKPOINT_FORMAT = "deepslam-vo-checkpoint"
 
 
 class TrainingDiverged(RuntimeError):
     """The loss became NaN or infinite; the message says where and what to try."""
-
-
-@dataclasses.dataclass(frozen=True)
-class TrainConfig:
-    """Optimisation settings (the defaults are the paper's recipe)."""
-
-    net: NetConfig = NetConfig()
-    """Network shape."""
-    batch_size: int = 128
-    """Samples per optimisation step."""
-    lr_min: float = 1e-4
-    """Lower bound of the cyclic learning rate."""
-    lr_max: float = 1e-3
-    """Upper bound of the cyclic learning rate."""
-    lr_half_cycle_steps: int = 0
-    """Steps from the lower to the upper bound (CyclicLR step_size_up); 0 = one epoch's steps."""
-    patience_epochs: int = 10
-    """Epochs without a held-out improvement after which both bounds are halved."""
-    lr_stop: float = 1e-5
-    """Stage 1 ends when the lower bound falls below this."""
-    max_epochs: int = 1000
-    """Cap on stage-1 epochs."""
-    max_minutes: float = 0.0
-    """Cap on the whole training's wall time in minutes, both stages (0 = none), checked after every
-    batch: stage 1 stops early enough to leave time for its last held-out evaluation and stage 2.
-    A run stopped by time is not bit-reproducible (use ``max_samples`` for that)."""
-    max_samples: int = 0
-    """Cap on stage-1 training samples (0 = none), checked after every batch: the deterministic way to
-    bound a run (same seed, same bytes)."""
-    rot_weight: float = 50.0
-    """Weight of the rotation (euler, radians) MSE against the translation (metres) MSE."""
-    holdout_fraction: float = 0.1
-    """Fraction of the data held out: stage-1 validation and the stage-2 (NLL) training set."""
-    nll_epochs: int = 20
-    """Stage-2 epochs (the log-std heads only)."""
-    nll_lr: float = 1e-3
-    """Stage-2 learning rate (Adam, amsgrad)."""
-    seed: int = 0
-    """Seed of the initial weights, the data and the shuffling."""
-    bf16: bool = True
-    """Run forward/backward under torch.autocast("cpu", bfloat16) (weights and the loss stay float32)."""
-    channels_last: bool = True
-    """Keep convolution weights and inputs channels-last (NHWC)."""
-    threads: int = 0
-    """torch intra-op threads (0 = leave torch's default)."""
-    device: str = "cpu"
-    """torch device the network trains on ("cpu", "cuda", "cuda:N"; the command's ``--device auto``
-    resolves to one). Weights are stored on the CPU, so a model trained on one device loads on any;
-    the data is made on the CPU and each batch moved to the device (pinned memory where CUDA)."""
-
-    def to_dict(self) -> dict:
-        d = dataclasses.asdict(self)
-        d["net"] = self.net.to_dict()
-        return d
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "TrainConfig":
-        d = dict(d)
-        d["net"] = NetConfig.from_dict(d.get("net", {}))
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(d) - names
-        if unknown:
-            raise ValueError(f"unknown TrainConfig fields: {sorted(unknown)}")
-        return cls(**d)
 
 
 class Source(Protocol):
@@ -173,32 +114,6 @@ def _stage2_optim(model: PoseNet, cfg: TrainConfig):
     for p in model.motion_parameters():
         p.requires_grad_(False)
     return torch.optim.Adam(model.uncertainty_parameters(), lr=cfg.nll_lr, amsgrad=True)
-
-
-def save_checkpoint(path: Path, state: dict) -> None:
-    """Write a training checkpoint atomically (safetensors + JSON tree, :mod:`vo.modelfile`)."""
-    modelfile.save(path, CHECKPOINT_FORMAT, state)
-
-
-def load_checkpoint(path: Path) -> dict:
-    """A checkpoint written by :func:`save_checkpoint`; InputError for anything else (nothing in the
-    file is executed)."""
-    return modelfile.load(path, (CHECKPOINT_FORMAT,))[1]
-
-
-def model_tree(model: PoseNet, meta: dict, half: bool = False) -> dict:
-    """What a model file holds: format, version, net config, weights (float16 with ``half``), meta."""
-    sd = {k: (v.half() if half and v.is_floating_point() else v).contiguous() for k, v in model.state_dict().items()}
-    return {"format": MODEL_FORMAT, "version": MODEL_VERSION, "net": model.cfg.to_dict(), "state_dict": sd,
-            "meta": meta}
-
-
-def save_model(path: Path, model: PoseNet, meta: dict, half: bool = False) -> None:
-    """The inference artifact: net config + weights (+ meta: training summary, data description).
-
-    ``half``: store the weights as float16 (half the size; loaded back as float32).
-    """
-    modelfile.save(path, MODEL_FORMAT, model_tree(model, meta, half))
 
 
 @torch.no_grad()
@@ -345,11 +260,6 @@ def train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_di
         TrainingDiverged: a non-finite loss.
         core.errors.InputError: ``resume`` with a checkpoint of another configuration.
     """
-    import contextlib
-
-    from deepslam.core.lock import output_lock
-    from deepslam.vo.distributed import world
-
     threads_before = torch.get_num_threads()
     if cfg.threads > 0:
         torch.set_num_threads(cfg.threads)
@@ -366,11 +276,6 @@ def train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_di
 
 def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_dir: Path, resume: bool,
            progress: bool, meta: dict | None, half_weights: bool) -> TrainResult:
-    from tqdm import tqdm
-
-    from deepslam.core.errors import InputError
-    from deepslam.vo.distributed import agree, world
-
     rank, n_ranks = world()
     writer = rank == 0
     if writer:
@@ -604,8 +509,6 @@ def _why(reason: str | None) -> str:
 
 
 def _plot_history(path: Path, history: list[dict]) -> None:
-    from deepslam.core.plots import new_figure, save_figure
-
     s1 = [h for h in history if h["stage"] == 1]
     s2 = [h for h in history if h["stage"] == 2]
     fig = new_figure((10, 4))
@@ -620,58 +523,3 @@ def _plot_history(path: Path, history: list[dict]) -> None:
     axes[1].set(title="stage 2: Gaussian NLL (held-out)", xlabel="epoch")
     fig.tight_layout()
     save_figure(fig, path, dpi=90)
-
-
-def load_model(path: str | Path) -> tuple[torch.nn.Module, dict]:
-    """(model in eval mode, float32; meta) from a ``model.safetensors`` or a ``checkpoint.safetensors``
-    (:mod:`vo.modelfile`: nothing in the file is executed). The model is a :class:`vo.net.PoseNet` (either pose head),
-    or for an ensemble file (:mod:`vo.ensemble`) an :class:`vo.ensemble.EnsemblePoseNet`; both map
-    ``(flow, intrinsics, inv_depth)`` to ``(mean6, log_std6)`` and carry the input's ``cfg``."""
-    path = Path(path)
-    _, d = modelfile.load(path, (MODEL_FORMAT, CHECKPOINT_FORMAT))
-    if d.get("format") == MODEL_FORMAT and "ensemble" in d:
-        return _load_ensemble(path, d)
-    return _model_from_tree(path, d), d.get("meta", {})
-
-
-def _load_ensemble(path: Path, d: dict):
-    """(:class:`vo.ensemble.EnsemblePoseNet` in eval mode, meta) from an ensemble file's tree."""
-    from deepslam.core.errors import InputError
-    from deepslam.vo.ensemble import EnsemblePoseNet
-
-    parts = d["ensemble"]
-    if not isinstance(parts, list) or len(parts) < 2 or not all(isinstance(t, dict) for t in parts):
-        raise InputError(path, "malformed VO ensemble (its 'ensemble' is not a list of two or more networks)")
-    members = [_model_from_tree(path, {"format": MODEL_FORMAT, **t}) for t in parts]
-    try:
-        model = EnsemblePoseNet(members)
-    except ValueError as e:
-        raise InputError(path, f"malformed VO ensemble ({e})") from None
-    return model.eval(), d.get("meta", {})
-
-
-def _model_from_tree(path: Path, d: dict) -> PoseNet:
-    """The network a model or checkpoint tree describes (InputError naming ``path`` when it does not fit)."""
-    from deepslam.core.errors import InputError
-
-    from deepslam.vo import modeltree
-
-    try:
-        if d.get("format") == MODEL_FORMAT:
-            sd = d["state_dict"]
-        elif "model" in d and "config" in d:
-            TrainConfig.from_dict(d["config"])  # a checkpoint's whole config must parse, not only its net
-            sd = d["model"]
-        else:
-            raise InputError(path, "not a deepslam VO model (no format/net/state_dict)")
-        net_cfg = NetConfig.from_dict(modeltree.net_config(d))
-    except (KeyError, TypeError, ValueError) as e:
-        raise InputError(path, f"malformed VO model ({type(e).__name__}: {e})") from None
-    if not isinstance(sd, dict) or not all(torch.is_tensor(v) for v in sd.values()):
-        raise InputError(path, "malformed VO model (its weights are not a dict of tensors)")
-    model = make_net(net_cfg)
-    try:
-        model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in sd.items()})
-    except RuntimeError as e:
-        raise InputError(path, f"weights do not fit the stored network config ({str(e).splitlines()[0]})") from None
-    return model.eval()

@@ -1,7 +1,7 @@
 """The command-line flags that set DIS up: in ``deepslam train`` (what the model is trained on, and records) and,
 overriding a model's record at inference, in ``deepslam vo`` and ``deepslam slam``. Not a subcommand (no
-``NAME``): the CLI's discovery skips it. They set the attributes ``vo.flow_estimators.DIS_FLAGS`` names, which
-``vo.flow_estimators.given_estimator_options`` reads.
+``NAME``): the CLI's discovery skips it. They set the attributes ``vo.flow_registry.DIS_FLAGS`` names, which
+``vo.flow_registry.given_estimator_options`` reads.
 """
 from __future__ import annotations
 

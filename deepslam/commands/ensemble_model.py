@@ -15,7 +15,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from deepslam.vo.ensemble import write_ensemble
+    from deepslam.vo.modelio import write_ensemble
 
     meta = write_ensemble(args.models, args.out)
     seeds = ", ".join(str(m["seed"]) for m in meta["ensemble_of"])

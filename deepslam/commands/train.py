@@ -281,7 +281,8 @@ def run(args: argparse.Namespace) -> int:
 
     from deepslam.core.errors import InputError
     from deepslam.core.readers import open_sequence
-    from deepslam.vo import data, flow_estimators
+    from deepslam.flow import registry as flow_registry
+    from deepslam.vo import data
     from deepslam.vo.infer import cpu_has_native_bf16
     from deepslam.vo.train import TrainConfig, TrainingDiverged, train
 
@@ -350,7 +351,7 @@ def run(args: argparse.Namespace) -> int:
             n_hold = args.holdout_samples or max(args.batch, int(round(args.holdout * args.samples_per_epoch)))
             if args.synthetic_flow == "exact":
                 # DIS's flags given for exact flow are refused, not ignored (the same check as for any other estimator)
-                flow_estimators.given_estimator_options("exact", args)
+                flow_registry.given_estimator_options("exact", args)
                 frames = data.load_frames(seqs, w * f, h * f, args.frame_step, args.depth, args.max_frames, progress)
                 train_frames, hold_frames = frames.split(args.holdout, args.seed)
 
@@ -359,7 +360,7 @@ def run(args: argparse.Namespace) -> int:
                                                 inv_depth=net.depth_channel, scene_scale=scene_scale,
                                                 unknown=net.unknown_flow)
             else:
-                opts = flow_estimators.given_estimator_options(args.synthetic_flow, args)
+                opts = flow_registry.given_estimator_options(args.synthetic_flow, args)
                 frames = data.load_image_frames(seqs, args.frame_step, args.depth, args.max_frames, progress,
                                                 scales=args.frame_scales)
                 train_frames, hold_frames = frames.split(args.holdout, args.seed)
@@ -393,8 +394,8 @@ def run(args: argparse.Namespace) -> int:
         if not args.sequence:
             raise InputError(None, "supervised mode needs --sequence DIR...")
 
-        opts = flow_estimators.given_estimator_options(args.flow, args)
-        est = flow_estimators.make(args.flow, **opts)
+        opts = flow_registry.given_estimator_options(args.flow, args)
+        est = flow_registry.make(args.flow, **opts)
         meta["flow"] = {"estimator": args.flow, "options": opts}
         spec = data.PairSpec(strides=tuple(args.strides), kind=args.pairs, max_pairs=args.max_pairs)
         parts, counts = [], {}

@@ -1,5 +1,5 @@
 """``deepslam train-flow``: train the compact learned flow estimator on rendered pairs with exact flow, and
-optionally fine-tune it on real unlabelled pairs beside them (``--real``, :mod:`vo.flow_unsup`)."""
+optionally fine-tune it on real unlabelled pairs beside them (``--real``, :mod:`flow.unsup`)."""
 from __future__ import annotations
 
 import argparse
@@ -32,7 +32,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--real", nargs="+", default=[], metavar="DIR",
                    help="real sequences without flow (e.g. ../shared/data/kitti/sequences/06; stereo: both cameras) "
                         "for unsupervised fine-tuning beside the rendered pairs: census photometric loss with "
-                        "forward-backward occlusion masks and edge-aware smoothness (vo/flow_unsup.py)")
+                        "forward-backward occlusion masks and edge-aware smoothness (flow/unsup.py)")
     p.add_argument("--real-batch", type=int, default=4, help="real pairs per step with --real (4)")
     p.add_argument("--real-weight", type=float, default=1.0, help="weight of the unsupervised loss (1.0)")
     p.add_argument("--smooth-weight", type=float, default=4.0, help="weight of its smoothness term (4.0)")
@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     from deepslam.core.errors import InputError
     from deepslam.core.readers import open_sequence
     from deepslam.gen.device import resolve_device
-    from deepslam.vo.flownet import FlowPairs, FlowTrainConfig, train_flow
+    from deepslam.flow.train import FlowPairs, FlowTrainConfig, train_flow
 
     try:
         ch, cw = (int(x) for x in args.crop.lower().split("x"))
@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
         import hashlib
         from pathlib import Path
 
-        from deepslam.vo.flownet import initial_weights
+        from deepslam.flow.train import initial_weights
 
         initial_weights(cfg)
         init_meta["init_sha256"] = hashlib.sha256(Path(args.init).read_bytes()).hexdigest()
@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     meta = {"sequences": [str(s.root) for s in seqs], "pairs": len(pairs), **init_meta}
     real_pairs = None
     if real:
-        from deepslam.vo.flow_unsup import RealPairs
+        from deepslam.flow.unsup import RealPairs
 
         real_pairs = RealPairs(real, cfg.net.work_width, progress=not args.quiet)
         meta.update(real_sequences=[str(s.root) for s in real], real_pairs=len(real_pairs))

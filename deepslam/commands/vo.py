@@ -91,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
         mean6, std6 = plugin.predict(seq, pairs)
         name, estimator, predictor = plugin.name, None, None
     else:
-        from deepslam.vo.flow_estimators import given_estimator_options
+        from deepslam.flow.registry import given_estimator_options
 
         model_path, shipped = models.locate(args.model, seq, flow=args.flow)
         given = given_estimator_options(args.flow, args)

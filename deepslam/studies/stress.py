@@ -313,7 +313,7 @@ class RigidFitOdometry:
     rotation-vector std taken as the Euler-angle std (equal to first order), floored at ``min_std``.
 
     Args:
-        flow_estimator: anything with ``name`` and ``pair_flow(seq, i, j) -> (H, W, 2)`` (vo.flow_estimators).
+        flow_estimator: anything with ``name`` and ``pair_flow(seq, i, j) -> (H, W, 2)`` (flow.estimators).
         max_points: most pixels used per pair.
         min_std: floor of the std (rad for rotations, m for translations).
     """
@@ -452,7 +452,7 @@ def load_plugins(specs) -> dict:
 
 
 def _main_odometries(config: StressConfig) -> OdometrySet:
-    from deepslam.vo.flow_estimators import DISFlow, GroundTruthFlow
+    from deepslam.flow.estimators import DISFlow, GroundTruthFlow
 
     flows = {"gt": GroundTruthFlow(), "dis": DISFlow(config.dis_preset)}
     note = None

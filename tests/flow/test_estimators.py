@@ -7,7 +7,7 @@ import pytest
 from deepslam.core import se3
 from deepslam.core.errors import InputError
 from deepslam.core.readers import open_sequence
-from deepslam.vo import flow_estimators as fe
+from deepslam.flow import estimators as fe, registry
 
 
 def _texture(h, w, seed=0):
@@ -22,7 +22,7 @@ def _texture(h, w, seed=0):
 def test_dis_recovers_a_translation(preset):
     img = _texture(120, 160)
     shifted = np.roll(img, (2, 3), axis=(0, 1))  # content moves +3 px in u, +2 px in v
-    flow = fe.make("dis", preset=preset).estimate(img, shifted)
+    flow = registry.make("dis", preset=preset).estimate(img, shifted)
     assert flow.shape == (120, 160, 2) and flow.dtype == np.float32
     inner = flow[20:-20, 20:-20]
     np.testing.assert_allclose(np.median(inner.reshape(-1, 2), axis=0), [3.0, 2.0], atol=0.25)
@@ -33,9 +33,9 @@ def test_dis_accepts_rgb_and_rejects_unknown_preset():
     rgb = np.repeat(img[..., None], 3, axis=2)
     assert fe.DISFlow().estimate(rgb, rgb).shape == (60, 80, 2)
     with pytest.raises(InputError):
-        fe.make("dis", preset="slowest")
+        registry.make("dis", preset="slowest")
     with pytest.raises(InputError, match="unknown flow estimator"):
-        fe.make("raft-not-registered")
+        registry.make("raft-not-registered")
 
 
 def test_texture_strength_is_the_structure_tensors_smaller_eigenvalue():
@@ -72,8 +72,8 @@ def test_dis_min_texture_marks_textureless_pixels_unknown(min_texture):
     img = _texture(96, 128)
     img[:, 64:] = 90
     shifted = np.roll(img, 2, axis=1)
-    plain = fe.make("dis", preset="medium").estimate(img, shifted)
-    dis = fe.make("dis", **fe.estimator_options("dis", "medium", min_texture))
+    plain = registry.make("dis", preset="medium").estimate(img, shifted)
+    dis = registry.make("dis", **registry.estimator_options("dis", "medium", min_texture))
     flow = dis.estimate(img, shifted)
     unknown = np.isnan(flow).any(axis=2)
     assert np.array_equal(unknown, fe.texture_strength(img) < min_texture)
@@ -88,21 +88,21 @@ def test_dis_min_texture_marks_textureless_pixels_unknown(min_texture):
     for bad in (-1.0, float("nan"), float("inf")):
         with pytest.raises(InputError, match="min_texture"):
             fe.DISFlow("medium", bad)
-    assert fe.estimator_options("learned", "fast", 0.0) == fe.estimator_options("gt", None, None) == {}
+    assert registry.estimator_options("learned", "fast", 0.0) == registry.estimator_options("gt", None, None) == {}
     with pytest.raises(InputError, match="DIS flow only"):
-        fe.estimator_options("learned", "fast", 3.0)
+        registry.estimator_options("learned", "fast", 3.0)
 
 
 def test_registry_takes_new_estimators():
-    @fe.register("zero-test")
+    @registry.register("zero-test")
     class Zero:
         name = "zero-test"
 
         def estimate(self, a, b):
             return np.zeros((*a.shape[:2], 2), np.float32)
 
-    assert "zero-test" in fe.names()
-    assert fe.make("zero-test").estimate(np.zeros((4, 5), np.uint8), None).shape == (4, 5, 2)
+    assert "zero-test" in registry.names()
+    assert registry.make("zero-test").estimate(np.zeros((4, 5), np.uint8), None).shape == (4, 5, 2)
 
 
 def test_resize_flow_rescales_values():
@@ -171,7 +171,7 @@ def test_ground_truth_flow_reads_and_chains(plane_sequence):
     from deepslam.vo.data import flow_from_depth_np
 
     seq = open_sequence(plane_sequence)
-    gt = fe.make("gt")
+    gt = registry.make("gt")
     np.testing.assert_array_equal(gt.pair_flow(seq, 3, 4), seq.flow(3))
     # chained 3 -> 5 vs the flow computed directly from depth and the relative pose
     direct, valid = flow_from_depth_np(seq.camera, seq.depth(3), se3.relative(seq.gt.world_from_cam[5], seq.gt.world_from_cam[3]))
@@ -188,7 +188,7 @@ def test_ground_truth_flow_reads_and_chains(plane_sequence):
 
 def test_dis_on_rendered_sequence_matches_ground_truth(plane_sequence):
     seq = open_sequence(plane_sequence)
-    dis = fe.make("dis", preset="medium")
+    dis = registry.make("dis", preset="medium")
     est = dis.pair_flow(seq, 2, 3)
     gt = seq.flow(2)
     ground = (seq.depth(2) > 0) & (seq.depth(2) < 25) & (np.abs(gt).sum(-1) > 0)  # lands inside frame 3
@@ -232,7 +232,7 @@ def test_exact_pair_flow_equals_the_simulators_flow_on_static_and_moving_pixels(
 
 def test_gt_pairs_far_apart_use_geometry_not_a_chain(street_with_movers):
     seq = open_sequence(street_with_movers)
-    got = fe.make("gt").pair_flow(seq, 0, 4)
+    got = registry.make("gt").pair_flow(seq, 0, 4)
     np.testing.assert_array_equal(got, fe.exact_pair_flow(seq, 0, 4))
     # the chain of the four stored flows agrees where nothing is occluded or leaves the view
     chained = fe.chain_flows([seq.flow(k) for k in range(4)])
@@ -245,14 +245,14 @@ def test_dis_pair_flow_reuses_decoded_images_but_never_across_sequences(plane_se
     import shutil
 
     seq = open_sequence(plane_sequence)
-    dis = fe.make("dis", preset="ultrafast")
-    np.testing.assert_array_equal(dis.pair_flow(seq, 2, 3), fe.make("dis", preset="ultrafast").estimate(seq.image(2), seq.image(3)))
+    dis = registry.make("dis", preset="ultrafast")
+    np.testing.assert_array_equal(dis.pair_flow(seq, 2, 3), registry.make("dis", preset="ultrafast").estimate(seq.image(2), seq.image(3)))
     other = tmp_path / "other"
     shutil.copytree(plane_sequence, other)
     imgs = sorted((other / "rgb").glob("*.png"))
     shutil.copy(imgs[4], imgs[2])  # frame 2 of the copy shows frame 4
     seq2 = open_sequence(other)
-    np.testing.assert_array_equal(dis.pair_flow(seq2, 2, 3), fe.make("dis", preset="ultrafast").estimate(seq2.image(2), seq2.image(3)))
+    np.testing.assert_array_equal(dis.pair_flow(seq2, 2, 3), registry.make("dis", preset="ultrafast").estimate(seq2.image(2), seq2.image(3)))
 
 
 @pytest.mark.parametrize("size", [(120, 40), (30, 20), (24, 8), (240, 80)])
@@ -330,14 +330,14 @@ def test_dis_forward_backward_check_leaves_occlusions_out(fb):
 
 
 def test_fb_check_options_and_refusals():
-    assert fe.estimator_options("dis", "medium", 0.5) == {"preset": "medium", "min_texture": 0.5}  # as old records
-    assert fe.estimator_options("dis", "medium", 0.5, 0.0)["fb_max_px"] == 0.0  # given: overrides a model's record
-    assert fe.estimator_options("dis", "medium", 0.5, 0.5)["fb_max_px"] == 0.5
+    assert registry.estimator_options("dis", "medium", 0.5) == {"preset": "medium", "min_texture": 0.5}  # as old records
+    assert registry.estimator_options("dis", "medium", 0.5, 0.0)["fb_max_px"] == 0.0  # given: overrides a model's record
+    assert registry.estimator_options("dis", "medium", 0.5, 0.5)["fb_max_px"] == 0.5
     for bad in (-1.0, float("nan"), "x"):
         with pytest.raises(InputError, match="fb_max_px"):
             fe.DISFlow("medium", 0.0, bad)
     with pytest.raises(InputError, match="--dis-fb-check applies to DIS flow only"):
-        fe.estimator_options("learned", None, None, 1.0)
+        registry.estimator_options("learned", None, None, 1.0)
 
 
 @pytest.mark.parametrize("max_width", [0, 80, 160, 400])
@@ -381,11 +381,11 @@ def test_dis_max_width_refuses_bad_values(bad):
 
 
 def test_dis_max_width_options():
-    assert "max_width" not in fe.estimator_options("dis", "medium", 0.0)  # not given: as old records
-    assert fe.estimator_options("dis", "medium", 0.0, None, 640)["max_width"] == 640
-    assert fe.estimator_options("dis", "medium", 0.0, None, 0)["max_width"] == 0  # given: overrides a model's record
+    assert "max_width" not in registry.estimator_options("dis", "medium", 0.0)  # not given: as old records
+    assert registry.estimator_options("dis", "medium", 0.0, None, 640)["max_width"] == 640
+    assert registry.estimator_options("dis", "medium", 0.0, None, 0)["max_width"] == 0  # given: overrides a model's record
     with pytest.raises(InputError, match="--dis-max-width applies to DIS flow only"):
-        fe.estimator_options("learned", None, None, None, 640)
+        registry.estimator_options("learned", None, None, None, 640)
 
 
 @pytest.mark.parametrize("stride", [0, 3, 4, 6])
@@ -411,10 +411,10 @@ def test_dis_patch_stride_refuses_bad_values(bad):
 
 
 def test_dis_patch_stride_options():
-    assert "patch_stride" not in fe.estimator_options("dis", "medium", 0.0)  # not given: as old records
-    assert fe.estimator_options("dis", "medium", 0.0, dis_patch_stride=4)["patch_stride"] == 4
+    assert "patch_stride" not in registry.estimator_options("dis", "medium", 0.0)  # not given: as old records
+    assert registry.estimator_options("dis", "medium", 0.0, dis_patch_stride=4)["patch_stride"] == 4
     with pytest.raises(InputError, match="--dis-patch-stride applies to DIS flow only"):
-        fe.estimator_options("learned", None, None, dis_patch_stride=4)
+        registry.estimator_options("learned", None, None, dis_patch_stride=4)
 
 
 @pytest.mark.parametrize("given, expected", [
@@ -425,7 +425,7 @@ def test_dis_patch_stride_options():
 def test_given_estimator_options_reads_the_dis_flags(given, expected):
     from types import SimpleNamespace
 
-    assert fe.given_estimator_options("dis", SimpleNamespace(**given)) == expected
-    assert fe.given_estimator_options("learned", SimpleNamespace()) == {}
+    assert registry.given_estimator_options("dis", SimpleNamespace(**given)) == expected
+    assert registry.given_estimator_options("learned", SimpleNamespace()) == {}
     with pytest.raises(InputError, match="--dis-patch-stride applies to DIS flow only"):
-        fe.given_estimator_options("learned", SimpleNamespace(dis_patch_stride=4))
+        registry.given_estimator_options("learned", SimpleNamespace(dis_patch_stride=4))

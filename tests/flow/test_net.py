@@ -1,4 +1,4 @@
-"""The learned flow estimator's parts (vo.flownet): cost volume, warping, loss, metrics, files, training."""
+"""The learned flow estimator's parts (flow.net): cost volume, warping, loss, metrics, files, training."""
 import dataclasses
 import json
 
@@ -7,8 +7,9 @@ import pytest
 import torch
 
 from deepslam.core.errors import InputError
-from deepslam.vo.flownet import (FlowNet, FlowNetConfig, FlowTrainConfig, LearnedFlow, correlation, endpoint_error,
-                                 load_flow_model, multiscale_loss, train_flow, warp)
+from deepslam.flow.estimators import endpoint_error
+from deepslam.flow.net import FlowNet, FlowNetConfig, LearnedFlow, correlation, load_flow_model, warp
+from deepslam.flow.train import FlowTrainConfig, multiscale_loss, train_flow
 
 SMALL = FlowNetConfig(channels=(8, 12, 16), estimator_channels=(16,), finest_level=1, work_width=128, search_px=2)
 
@@ -118,9 +119,9 @@ def test_a_pickle_is_refused_as_a_flow_model(tmp_path):
 
 
 def test_the_shipped_estimator_is_registered():
-    from deepslam.vo import flow_estimators
+    from deepslam.flow import registry as flow_registry
 
-    assert "learned" in flow_estimators.names()
+    assert "learned" in flow_registry.names()
 
 
 def test_a_crop_larger_than_the_frames_is_refused_before_anything_is_written(tmp_path):
@@ -139,7 +140,7 @@ def test_flow_pairs_keep_flow_float16_cannot_hold_as_nan(plane_sequence):
     import warnings
 
     from deepslam.core.readers import open_sequence
-    from deepslam.vo.flownet import FlowPairs
+    from deepslam.flow.train import FlowPairs
 
     pairs = FlowPairs([open_sequence(plane_sequence)], progress=False)
     g = np.zeros((4, 5), np.uint8)
@@ -177,15 +178,15 @@ def _textured(h: int, w: int, seed: int = 0) -> np.ndarray:
 def test_learned_dis_starts_dis_from_the_learned_flow_and_refines_it():
     """A 64 px shift that DIS misses from a zero start: from a start 1.5 px off it recovers the shift to a
     tenth of a pixel (the refinement ran), and the estimator is registered beside DIS."""
-    from deepslam.vo import flow_estimators
-    from deepslam.vo.flownet import LearnedDISFlow
+    from deepslam.flow import registry as flow_registry
+    from deepslam.flow.net import LearnedDISFlow
 
     big = _textured(160, 544)
     img0, img1 = big[:, 64:], big[:, :480]  # the scene moves right by 64 px
     inner = (slice(16, -16), slice(80, -80))
-    plain = flow_estimators.make("dis", preset="medium").estimate(img0, img1)
+    plain = flow_registry.make("dis", preset="medium").estimate(img0, img1)
     assert np.median(np.abs(plain[inner][..., 0] - 64.0)) > 5.0  # beyond DIS's reach from zero
-    est = flow_estimators.make("learned-dis")
+    est = flow_registry.make("learned-dis")
     assert isinstance(est, LearnedDISFlow) and est.name == "learned-dis"
     est.learned = _StartAt(65.5, -1.0)
     flow = est.estimate(img0, img1)
@@ -193,7 +194,7 @@ def test_learned_dis_starts_dis_from_the_learned_flow_and_refines_it():
     err = np.hypot(flow[inner][..., 0] - 64.0, flow[inner][..., 1])
     assert np.median(err) < 0.1
     with pytest.raises(InputError, match="no learned flow model"):
-        flow_estimators.make("learned-dis", path="/nonexistent/flow.safetensors")
+        flow_registry.make("learned-dis", path="/nonexistent/flow.safetensors")
 
 
 def test_learned_dis_is_read_by_the_dis_models():
@@ -209,18 +210,18 @@ def test_learned_estimators_run_on_several_workers_with_the_same_flows(plane_seq
     """A replica shares the network (not copied) and the decoded images, and gives the same flows; with
     replicas the prefetch runs one worker a core and hands out what one thread computes."""
     from deepslam.core.readers import open_sequence
-    from deepslam.vo import flow_estimators
+    from deepslam.flow import registry as flow_registry
     from deepslam.vo.prefetch import PairInputs
 
     seq = open_sequence(plane_sequence)
-    est = flow_estimators.make(name)
+    est = flow_registry.make(name)
     twin = est.replica()
     inner = (lambda e: e.learned) if name == "learned-dis" else (lambda e: e)
     assert twin is not est and inner(twin).model is inner(est).model and twin._grey is est._grey
-    np.testing.assert_array_equal(twin.pair_flow(seq, 3, 4), flow_estimators.make(name).pair_flow(seq, 3, 4))
+    np.testing.assert_array_equal(twin.pair_flow(seq, 3, 4), flow_registry.make(name).pair_flow(seq, 3, 4))
     pairs = [(k, k + 1) for k in range(6)]
-    serial = list(PairInputs(seq, pairs, flow_estimators.make(name), 80, 24, workers=1))
-    inputs = PairInputs(seq, pairs, flow_estimators.make(name), 80, 24, workers=2)
+    serial = list(PairInputs(seq, pairs, flow_registry.make(name), 80, 24, workers=1))
+    inputs = PairInputs(seq, pairs, flow_registry.make(name), 80, 24, workers=2)
     assert inputs.workers == 2
     for (a, _), (b, _) in zip(list(inputs), serial, strict=True):
         np.testing.assert_array_equal(a, b)
@@ -229,7 +230,7 @@ def test_learned_estimators_run_on_several_workers_with_the_same_flows(plane_seq
 def test_loader_workers_give_the_batches_of_the_training_process():
     """Each step's batch comes from the step's own seed stream: built ahead by two worker processes or
     in the training process, the tensors are the same, in step order, from any starting step."""
-    from deepslam.vo.flownet import step_batches
+    from deepslam.flow.train import step_batches
 
     cfg = FlowTrainConfig(net=SMALL, crop=(64, 128), batch_size=3, seed=5)
     here = list(step_batches(_Shifted(), cfg, 7, 12))

@@ -1,4 +1,4 @@
-"""Unsupervised fine-tuning of the learned flow on unlabelled pairs (vo.flow_unsup): the census loss and
+"""Unsupervised fine-tuning of the learned flow on unlabelled pairs (flow.unsup): the census loss and
 its basin, the occlusion mask, the smoothness term, the real-pair loader, and training with real pairs."""
 import dataclasses
 
@@ -7,9 +7,9 @@ import pytest
 import torch
 
 from deepslam.core.errors import InputError
-from deepslam.vo.flow_unsup import (RealPairs, non_occluded, photometric_census_loss, smoothness_loss,
-                                    unsupervised_loss)
-from deepslam.vo.flownet import FlowNetConfig, FlowTrainConfig, load_flow_model, train_flow
+from deepslam.flow.unsup import RealPairs, non_occluded, photometric_census_loss, smoothness_loss, unsupervised_loss
+from deepslam.flow.net import FlowNetConfig, load_flow_model
+from deepslam.flow.train import FlowTrainConfig, train_flow
 
 SMALL = FlowNetConfig(channels=(8, 12, 16), estimator_channels=(16,), finest_level=1, work_width=128, search_px=2)
 
@@ -161,7 +161,7 @@ def test_training_with_real_pairs_logs_their_loss_and_resumes(tmp_path):
 
 def test_the_unsupervised_loss_scores_both_directions():
     torch.manual_seed(0)
-    from deepslam.vo.flownet import FlowNet
+    from deepslam.flow.net import FlowNet
 
     model = FlowNet(SMALL)
     img0, img1, _ = _texture_pair(2, 1, h=64, w=128)

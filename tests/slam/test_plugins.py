@@ -50,7 +50,7 @@ class MyFlow:
     """A user's flow estimator: DIS fast under another name."""
     name = "my-dis"
     def __init__(self):
-        from deepslam.vo.flow_estimators import make
+        from deepslam.flow.registry import make
         self.inner = make("dis", preset="fast")
     def estimate(self, a, b): return self.inner.estimate(a, b)
     def pair_flow(self, seq, i, j): return self.inner.pair_flow(seq, i, j)
@@ -239,7 +239,7 @@ def test_slam_gives_each_model_the_flow_it_was_trained_on(seq_dir, tmp_path):
 
     from deepslam.slam.plugins import odometry_from_args
     from deepslam.vo.net import FlowPoseNet, NetConfig
-    from deepslam.vo.train import save_model
+    from deepslam.vo.modelio import save_model
 
     net = FlowPoseNet(NetConfig(input_height=24, input_width=80, filters=8, hidden_units=16))
     tex, plain = tmp_path / "tex.safetensors", tmp_path / "plain.safetensors"
@@ -269,7 +269,7 @@ def test_slam_dis_flags_override_both_models_records(seq_dir, tmp_path, override
 
     from deepslam.slam.plugins import odometry_from_args
     from deepslam.vo.net import FlowPoseNet, NetConfig
-    from deepslam.vo.train import save_model
+    from deepslam.vo.modelio import save_model
 
     net = FlowPoseNet(NetConfig(input_height=24, input_width=80, filters=8, hidden_units=16))
     tex, plain = tmp_path / "tex.safetensors", tmp_path / "plain.safetensors"
@@ -292,7 +292,7 @@ def test_slam_dis_flags_refuse_what_dis_cannot_take(seq_dir, tmp_path, flow, ove
     from deepslam.core.errors import InputError
     from deepslam.slam.plugins import odometry_from_args
     from deepslam.vo.net import FlowPoseNet, NetConfig
-    from deepslam.vo.train import save_model
+    from deepslam.vo.modelio import save_model
 
     model = tmp_path / "m.safetensors"
     save_model(model, FlowPoseNet(NetConfig(input_height=24, input_width=80, filters=8, hidden_units=16)),
@@ -308,7 +308,7 @@ def test_model_odometry_takes_flow_options_over_the_record(tmp_path):
     file's record, the rest of the record kept; none given: the record alone."""
     from deepslam.vo import models
     from deepslam.vo.net import FlowPoseNet, NetConfig
-    from deepslam.vo.train import save_model
+    from deepslam.vo.modelio import save_model
 
     path = tmp_path / "m.safetensors"
     save_model(path, FlowPoseNet(NetConfig(input_height=24, input_width=80, filters=8, hidden_units=16)),

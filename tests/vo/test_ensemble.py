@@ -8,12 +8,13 @@ import pytest
 import torch
 
 from deepslam.core.errors import InputError
-from deepslam.vo import modelfile
-from deepslam.vo.ensemble import EnsemblePoseNet, mixture_moments, write_ensemble
+from deepslam.models import modelfile
+from deepslam.vo.ensemble import EnsemblePoseNet, mixture_moments
+from deepslam.vo.modelio import write_ensemble
 from deepslam.vo.infer import VOPredictor
-from deepslam.vo.net import LOG_STD_MAX, LOG_STD_MIN, FlowPoseNet, NetConfig
+from deepslam.vo.net import FlowPoseNet, LOG_STD_MAX, LOG_STD_MIN, NetConfig
 from deepslam.vo.prefetch import model_input
-from deepslam.vo.train import MODEL_FORMAT, load_model, save_model
+from deepslam.vo.modelio import MODEL_FORMAT, load_model, save_model
 
 SMALL = NetConfig(input_height=24, input_width=80, filters=8, hidden_units=16, flow_scale=10.0)
 

@@ -244,8 +244,9 @@ def test_a_fit_far_from_the_network_rotation_is_not_used():
 
 def test_set_pose_records_the_mode_vo_uses_without_a_flag(street_sequence, street_model, tmp_path, capsys):
     from deepslam.cli import main
-    from deepslam.vo import models, modelfile
-    from deepslam.vo.train import MODEL_FORMAT
+    from deepslam.models import modelfile
+    from deepslam.vo import models
+    from deepslam.vo.modelio import MODEL_FORMAT
     from tests.vo.test_vo_cli import _vo
 
     root, _ = street_sequence

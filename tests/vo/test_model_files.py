@@ -14,8 +14,9 @@ import pytest
 import torch
 
 from deepslam.core.errors import InputError
-from deepslam.vo import modelfile
-from deepslam.vo.train import CHECKPOINT, CHECKPOINT_FORMAT, MODEL_FORMAT, load_model
+from deepslam.models import modelfile
+from deepslam.vo.modelio import CHECKPOINT_FORMAT, MODEL_FORMAT, load_model
+from deepslam.vo.train import CHECKPOINT
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -9,7 +9,8 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from deepslam.core import se3
-from deepslam.vo.net import NetConfig, make_net
+from deepslam.vo.modelio import make_net
+from deepslam.vo.net import NetConfig
 from deepslam.vo.posesolve import FlowSolvePoseNet, euler6, so3_exp, solve_pose, unit_weight_net
 
 H, W = 24, 32
@@ -203,7 +204,7 @@ def test_train_and_vo_with_the_solve_head(plane_sequence, motion_json, tmp_path,
     """`train --pose-head solve` trains a weight network (stage 1) and calibrates its uncertainty
     (stage 2); vo runs the model file with each frame's depth; without the channels it needs: one line, exit 2."""
     from deepslam.cli import main
-    from deepslam.vo.train import load_model
+    from deepslam.vo.modelio import load_model
 
     out = tmp_path / "solve"
     base = ["train", "--mode", "synthetic", "--frames", str(plane_sequence), "--motion", str(motion_json),

@@ -12,8 +12,8 @@ import pytest
 
 from deepslam.core.errors import InputError
 from deepslam.core.readers import open_sequence
-from deepslam.vo import flow_estimators
-from deepslam.vo.flow_estimators import to_network_input
+from deepslam.flow import estimators as flow_estimators, registry as flow_registry
+from deepslam.flow.estimators import to_network_input
 from deepslam.vo.prefetch import PairInputs, model_input
 
 REPO = Path(__file__).resolve().parents[2]
@@ -23,7 +23,7 @@ class _Recording:
     """A DIS estimator that records the thread and order of its calls (its replicas record in the same list)."""
 
     def __init__(self, calls=None):
-        self.inner = flow_estimators.make("dis", preset="fast")
+        self.inner = flow_registry.make("dis", preset="fast")
         self.calls: list[tuple[int, int, str]] = [] if calls is None else calls
         self.name = "recording"
 
@@ -43,7 +43,7 @@ def test_prefetched_inputs_equal_serial_ones_in_order(plane_sequence, ahead):
     pairs = [(0, 1), (4, 6), (1, 2), (10, 11), (2, 9)]
     rec = _Recording()
     got = list(PairInputs(seq, pairs, rec, 80, 24, ahead=ahead))
-    serial = flow_estimators.make("dis", preset="fast")
+    serial = flow_registry.make("dis", preset="fast")
     assert len(got) == len(pairs)
     for (flow, intr), (i, j) in zip(got, pairs):
         want_flow, want_intr = to_network_input(serial.pair_flow(seq, i, j), seq.camera, 80, 24)
@@ -67,7 +67,7 @@ def test_several_workers_give_the_serial_inputs_in_order(plane_sequence, workers
     assert inputs.workers == min(workers, len(pairs))
     got = list(inputs)
     assert cv2.getNumThreads() == before
-    serial = flow_estimators.make("dis", preset="fast")
+    serial = flow_registry.make("dis", preset="fast")
     for (flow, intr), (i, j) in zip(got, pairs, strict=True):
         want_flow, want_intr = to_network_input(serial.pair_flow(seq, i, j), seq.camera, 80, 24)
         np.testing.assert_array_equal(flow, want_flow)
@@ -85,8 +85,8 @@ def test_opencv_gets_its_threads_back_when_the_last_of_overlapping_inputs_closes
     seq = open_sequence(plane_sequence)
     pairs = [(k, k + 1) for k in range(4)]
     before = cv2.getNumThreads()
-    a = PairInputs(seq, pairs, flow_estimators.make("dis", preset="fast"), 80, 24, workers=2)
-    b = PairInputs(seq, pairs, flow_estimators.make("dis", preset="fast"), 80, 24, workers=2)
+    a = PairInputs(seq, pairs, flow_registry.make("dis", preset="fast"), 80, 24, workers=2)
+    b = PairInputs(seq, pairs, flow_registry.make("dis", preset="fast"), 80, 24, workers=2)
     assert cv2.getNumThreads() == 1
     a.close()
     assert cv2.getNumThreads() == 1  # b still runs
@@ -102,7 +102,7 @@ def test_a_constructor_that_fails_holds_nothing(plane_sequence):
     seq = open_sequence(plane_sequence)
     before = cv2.getNumThreads()
     with pytest.raises(TypeError):
-        PairInputs(seq, [(0, 1), (1, 2)], flow_estimators.make("dis", preset="fast"), 80, 24, ahead=None, workers=2)
+        PairInputs(seq, [(0, 1), (1, 2)], flow_registry.make("dis", preset="fast"), 80, 24, ahead=None, workers=2)
     assert cv2.getNumThreads() == before
 
 
@@ -144,12 +144,12 @@ def test_dis_uses_one_worker_a_core_by_default_and_others_one(plane_sequence, mo
     seq = open_sequence(plane_sequence)
     pairs = [(k, k + 1) for k in range(6)]
     monkeypatch.setattr(prefetch, "default_workers", lambda: 2)
-    assert PairInputs(seq, pairs, flow_estimators.make("dis", preset="fast"), 80, 24).workers == 2
+    assert PairInputs(seq, pairs, flow_registry.make("dis", preset="fast"), 80, 24).workers == 2
     assert PairInputs(seq, pairs, _Recording(), 80, 24).workers == 1  # no replica(): one thread
     with pytest.raises(ValueError, match="no replica"):
         PairInputs(seq, pairs, _Recording(), 80, 24, workers=2)
     with pytest.raises(ValueError, match="workers must be >= 1"):
-        PairInputs(seq, pairs, flow_estimators.make("dis", preset="fast"), 80, 24, workers=0)
+        PairInputs(seq, pairs, flow_registry.make("dis", preset="fast"), 80, 24, workers=0)
     monkeypatch.undo()
     monkeypatch.delenv(prefetch.WORKERS_ENV, raising=False)
     assert 1 <= prefetch.default_workers() <= 8
@@ -163,10 +163,10 @@ def test_dis_uses_one_worker_a_core_by_default_and_others_one(plane_sequence, mo
 
 def test_a_dis_replica_gives_the_same_flows_and_shares_the_decoded_images(plane_sequence):
     seq = open_sequence(plane_sequence)
-    dis = flow_estimators.make("dis", preset="medium", min_texture=0.5)
+    dis = flow_registry.make("dis", preset="medium", min_texture=0.5)
     twin = dis.replica()
     assert twin is not dis and twin.name == dis.name and twin._grey is dis._grey
-    np.testing.assert_array_equal(twin.pair_flow(seq, 2, 3), flow_estimators.make("dis", preset="medium",
+    np.testing.assert_array_equal(twin.pair_flow(seq, 2, 3), flow_registry.make("dis", preset="medium",
                                                                                   min_texture=0.5).pair_flow(seq, 2, 3))
     assert dis._grey(seq, 3) is twin._grey(seq, 3)  # decoded once
 
@@ -199,7 +199,7 @@ def test_a_failure_in_the_worker_is_raised_to_the_reader(plane_sequence, tmp_pat
     shutil.copytree(plane_sequence, root)
     seq = open_sequence(root)
     seq.image_paths[3].unlink()  # the fourth frame's image goes missing after the sequence was opened
-    it = iter(PairInputs(seq, [(0, 1), (1, 2), (2, 3), (3, 4)], flow_estimators.make("dis", preset="fast"), 80, 24,
+    it = iter(PairInputs(seq, [(0, 1), (1, 2), (2, 3), (3, 4)], flow_registry.make("dis", preset="fast"), 80, 24,
                          workers=workers))
     next(it), next(it)  # the pairs before the missing frame come through
     with pytest.raises(InputError, match="000003"):
@@ -286,7 +286,7 @@ def test_full_flow_results_come_in_pair_order_from_their_own_thread(plane_sequen
 
     seq = open_sequence(plane_sequence)
     pairs = [(0, 1), (4, 6), (1, 2), (10, 11), (2, 9)]
-    serial = flow_estimators.make("dis", preset="fast")
+    serial = flow_registry.make("dis", preset="fast")
     threads = []
 
     def fn(flow, camera):
@@ -294,7 +294,7 @@ def test_full_flow_results_come_in_pair_order_from_their_own_thread(plane_sequen
         time.sleep(0.02)  # slower than the flow: the backlog bound is exercised
         return float(np.nansum(flow)), camera.width
 
-    inputs = PairInputs(seq, pairs, flow_estimators.make("dis", preset="fast"), 80, 24, ahead=ahead, full_flow_fn=fn)
+    inputs = PairInputs(seq, pairs, flow_registry.make("dis", preset="fast"), 80, 24, ahead=ahead, full_flow_fn=fn)
     with pytest.raises(RuntimeError, match="after iterating"):
         inputs.side  # noqa: B018 - not before every pair was handed out
     assert len(list(inputs)) == len(pairs)
@@ -309,12 +309,12 @@ def test_a_failing_full_flow_fn_reaches_the_caller_and_an_early_close_drops_the_
     def boom(flow, camera):
         raise ValueError("fit failed")
 
-    inputs = PairInputs(seq, pairs, flow_estimators.make("dis", preset="fast"), 80, 24, full_flow_fn=boom)
+    inputs = PairInputs(seq, pairs, flow_registry.make("dis", preset="fast"), 80, 24, full_flow_fn=boom)
     list(inputs)
     with pytest.raises(ValueError, match="fit failed"):
         inputs.side  # noqa: B018
     calls = []
-    inputs = PairInputs(seq, pairs, flow_estimators.make("dis", preset="fast"), 80, 24, ahead=1,
+    inputs = PairInputs(seq, pairs, flow_registry.make("dis", preset="fast"), 80, 24, ahead=1,
                         full_flow_fn=lambda f, c: calls.append(1) or __import__("time").sleep(0.05))
     next(iter(inputs))
     inputs.close()  # returns without running the whole backlog: at most the running fit and the bounded ones

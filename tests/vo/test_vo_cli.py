@@ -61,17 +61,17 @@ def test_vo_cli_dis_stride_and_kitti_format(plane_sequence, street_model, tmp_pa
 
 
 def test_predict_pairs_matches_per_pair_predictions(plane_sequence, street_model):
-    from deepslam.vo import flow_estimators
+    from deepslam.flow import registry as flow_registry
 
     seq = open_sequence(plane_sequence)
     pred = VOPredictor.from_file(street_model, bf16=False)
     pairs = [(0, 1), (3, 5), (2, 3)]
-    mean, std = pred.predict_pairs(seq, pairs, flow_estimators.make("gt"), progress=False)
+    mean, std = pred.predict_pairs(seq, pairs, flow_registry.make("gt"), progress=False)
     for k, (i, j) in enumerate(pairs):
-        f, intr = pred.prepare(flow_estimators.make("gt").pair_flow(seq, i, j), seq.camera)
+        f, intr = pred.prepare(flow_registry.make("gt").pair_flow(seq, i, j), seq.camera)
         m1, s1 = pred.predict(f[None], intr[None])
         np.testing.assert_allclose(m1[0], mean[k], rtol=1e-5, atol=1e-7)
-    odo = pred.as_odometry(flow_estimators.make("gt"), progress=False)
+    odo = pred.as_odometry(flow_registry.make("gt"), progress=False)
     m2, _ = odo.predict(seq, pairs)
     np.testing.assert_array_equal(m2, mean)
 
@@ -118,13 +118,13 @@ def test_shipped_models_follow_the_flow_estimator(monkeypatch, tmp_path, street_
     the exact-flow model for ground-truth flow or where no variant is shipped."""
     import shutil
 
-    from deepslam.vo import flow_estimators
+    from deepslam.flow import registry as flow_registry
 
     monkeypatch.setattr(models, "models_dir", lambda: tmp_path)
     shutil.copy(street_model, tmp_path / "kitti_cons.safetensors")
     shutil.copy(street_model, tmp_path / "kitti_cons_dis.safetensors")
     assert models.shipped_path("kitti", "cons", "dis").name == "kitti_cons_dis.safetensors"
-    assert models.shipped_path("kitti", "cons", flow_estimators.make("dis", preset="fast")).name == "kitti_cons_dis.safetensors"
+    assert models.shipped_path("kitti", "cons", flow_registry.make("dis", preset="fast")).name == "kitti_cons_dis.safetensors"
     assert models.shipped_path("kitti", "cons", "gt").name == "kitti_cons.safetensors"
     assert models.shipped_path("kitti", "cons").name == "kitti_cons.safetensors"
     assert models.shipped_path("kitti", "loops", "dis").name == "kitti_loops.safetensors"   # no variant: the plain one

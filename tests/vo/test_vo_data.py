@@ -124,11 +124,11 @@ def test_frame_pairs_consecutive_strides_and_loops():
 
 
 def test_supervised_samples_targets_are_ground_truth(plane_sequence):
-    from deepslam.vo import flow_estimators
+    from deepslam.flow import registry as flow_registry
 
     seq = open_sequence(plane_sequence)
     pairs = data.frame_pairs(seq.gt.world_from_cam, data.PairSpec(strides=(1, 2)))[:5]
-    s = data.supervised_samples(seq, pairs, flow_estimators.make("gt"), 80, 24, progress=False)
+    s = data.supervised_samples(seq, pairs, flow_registry.make("gt"), 80, 24, progress=False)
     assert s["flow"].shape == (5, 2, 24, 80)
     for k, (i, j) in enumerate(pairs):
         expect = se3.to_euler6(se3.inverse(seq.gt.world_from_cam[j]) @ seq.gt.world_from_cam[i])
@@ -170,7 +170,7 @@ def test_train_cli_with_mirrored_frames_doubles_both_sides_of_the_split(plane_se
 def test_estimated_flow_source_gives_dis_flow_of_a_rendered_second_view(plane_sequence):
     """Single frames -> second view rendered from depth -> DIS: on the textured ground plane DIS is
     close to the exact flow of the sampled motion; batches are deterministic; targets are the motions."""
-    from deepslam.vo.flow_estimators import to_network_input
+    from deepslam.flow.estimators import to_network_input
 
     seq = open_sequence(plane_sequence)
     frames = data.load_image_frames([seq], frame_step=3, progress=False)
@@ -249,7 +249,7 @@ def test_a_malformed_flow_record_is_one_line_naming_the_model_file(options, plan
     """A model file whose meta.flow options DIS cannot take: vo exits 2 with one line naming the file."""
     from deepslam.cli import main
     from deepslam.vo.net import FlowPoseNet, NetConfig
-    from deepslam.vo.train import save_model
+    from deepslam.vo.modelio import save_model
 
     model = tmp_path / "bad_record.safetensors"
     save_model(model, FlowPoseNet(NetConfig(input_height=24, input_width=80, filters=8, hidden_units=16)),

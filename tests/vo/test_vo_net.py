@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from deepslam.vo.net import PAPER, FlowPoseNet, NetConfig, count_parameters, gaussian_nll, pose_loss
+from deepslam.vo.net import FlowPoseNet, NetConfig, PAPER, count_parameters, gaussian_nll, pose_loss
 
 
 def test_paper_architecture_layers_and_feature_shape():

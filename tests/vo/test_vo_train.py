@@ -18,7 +18,8 @@ from deepslam.core.camera import PinholeCamera
 from deepslam.vo import data
 from deepslam.vo.infer import VOPredictor
 from deepslam.vo.net import NetConfig
-from deepslam.vo.train import CHECKPOINT, TrainConfig, fit_uncertainty, load_checkpoint, load_model, train
+from deepslam.vo.modelio import load_checkpoint, load_model
+from deepslam.vo.train import CHECKPOINT, TrainConfig, fit_uncertainty, train
 
 REPO = Path(__file__).resolve().parents[2]
 CAM = PinholeCamera(1241, 376, 718.856, 718.856, 607.1928, 185.2157).scaled(80, 24)

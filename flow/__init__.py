@@ -1,0 +1,7 @@
+"""Optical flow between two frames: estimators behind one interface (:mod:`.estimators`: DIS, the simulator's
+exact flow), the registry that makes them by name (:mod:`.registry`), the compact learned flow network
+(:mod:`.net`), its supervised training on renders (:mod:`.train`, :mod:`.augment`) and its unsupervised
+fine-tuning on real pairs (:mod:`.unsup`).
+
+Imports: core, gen, models (files), torch, opencv; never vo or slam.
+"""
