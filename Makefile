@@ -43,6 +43,8 @@ results: $(STAMP)
 	$(PY) -m bench.results_real
 	$(PY) -m bench.results_turn
 	$(PY) -m bench.results_tum
+	$(PY) -m bench.results_flow
+	$(PY) -m bench.results_doc
 
 # Every command of the README's examples block, in order, in a temporary folder: exit status and wall
 # time of each against the time the README states (out/readme_check.md). Not part of `make test`.

@@ -103,12 +103,15 @@ def parse_model_specs(specs: list[str], flows: tuple[str, ...]) -> list[tuple[st
 
 
 def write_report(out: Path, report: dict, markdown: Callable[[dict], str]) -> None:
-    """``results.json`` and ``results.md`` (the report's markdown table) into ``out``, atomically."""
+    """``results.json``, ``results.md`` (the report's markdown table) and ``stamp.json`` (date, commit,
+    machine: :mod:`bench.stamp`) into ``out``, atomically."""
+    from bench.stamp import write_stamp
     from deepslam.core import atomic
 
     out.mkdir(parents=True, exist_ok=True)
     atomic.write_json(out / "results.json", report)
     atomic.write_text(out / "results.md", markdown(report))
+    write_stamp(out)
 
 
 def run_locked(name: str, out: Path, work: Callable[[], dict], markdown: Callable[[dict], str]) -> int:

@@ -8,31 +8,32 @@
   sampled at x + flow, pixels landing inside the image), per estimator on the same pairs.
 - Frames/s of each estimator on 1241x376 KITTI pairs (this machine, the threads torch and OpenCV use).
 - On the renders also EPE and Fl-all at the odometry's input size (``--net-size``, 96x320): both flows
-  resized as the network's input is (:func:`vo.flow_estimators.resize_flow`), what the odometry reads.
+  resized as the network's input is (:func:`flow.estimators.resize_flow`), what the odometry reads.
 
 Writes ``out/results/flow/results.json`` and ``results.md``. Usage::
 
     python -m bench.results_flow [--model models/flow_learned.safetensors] [--held DIR ...]
 
 Estimators: DIS medium, DIS medium on frames downscaled to each ``--dis-widths`` width (``dis-medium-w640``:
-:class:`vo.flow_estimators.DISFlow`'s ``max_width``), the learned network, and the learned network's flow as
-DIS's start (``learned-dis``, :class:`vo.flownet.LearnedDISFlow`), all on the same pairs.
+:class:`flow.estimators.DISFlow`'s ``max_width``), the learned network, and the learned network's flow as
+DIS's start (``learned-dis``, :class:`flow.net.LearnedDISFlow`), all on the same pairs.
 """
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from bench.stamp import write_stamp
+
 
 def fb_consistency(fw: np.ndarray, bw: np.ndarray) -> float:
     """Share of pixels whose forward flow ``fw`` (H, W, 2) and the backward flow ``bw`` sampled at the
     landing point cancel within max(1 px, 5 % of |fw|) (pixels landing outside left out)."""
-    from deepslam.vo.flow_estimators import forward_backward_error
+    from deepslam.flow.estimators import forward_backward_error
 
     err = forward_backward_error(fw, bw)  # forward then backward: 0 where they agree, NaN landing outside
     inside = np.isfinite(err)
@@ -56,8 +57,9 @@ def main(argv: list[str] | None = None) -> int:
     from deepslam.core import atomic
     from deepslam.core.paths import out_dir, shared_data_dir
     from deepslam.core.readers import open_sequence
-    from deepslam.vo.flow_estimators import DISFlow, resize_flow, to_grey
-    from deepslam.vo.flownet import LearnedDISFlow, LearnedFlow, endpoint_error
+    from deepslam.flow.estimators import DISFlow, resize_flow, to_grey
+    from deepslam.flow.estimators import endpoint_error
+    from deepslam.flow.net import LearnedDISFlow, LearnedFlow
 
     ap = argparse.ArgumentParser(prog="python -m bench.results_flow")
     ap.add_argument("--model", default=None, help="learned flow model (default: the shipped one)")
@@ -133,6 +135,7 @@ def main(argv: list[str] | None = None) -> int:
                      f"{cell(r, 'fb_consistent', '%.3f')} | "
                      f"{cell(r, 'photometric_err', '%.2f')} | {cell(r, 'frames_per_s', '%.1f')} |")
     atomic.write_text(out / "results.md", "\n".join(lines) + "\n")
+    write_stamp(out, model=str(args.model or "models/flow_learned.safetensors"))
     print("\n".join(lines))
     return 0
 

@@ -34,7 +34,7 @@ class Candidate:
     model: str
     """Model file, or a shipped spec such as ``kitti`` (see deepslam.vo.models.resolve)."""
     flow: str = "dis"
-    """Flow estimator: one of :data:`FLOWS` (a name of :func:`deepslam.vo.flow_estimators.make`)."""
+    """Flow estimator: one of :data:`FLOWS` (a name of :func:`deepslam.vo.flow_registry.make`)."""
     pose: str = "net"
     """``net`` (the network's 6DoF) or ``epipolar`` (rotation and direction from the essential matrix, distance
     from the network: ``deepslam vo --pose epipolar``)."""

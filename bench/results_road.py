@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.results_common import write_report
+
 
 @dataclasses.dataclass(frozen=True)
 class ResultsRoadConfig:
@@ -109,13 +111,12 @@ def roadside_flow(seq, flow_of, cfg: ResultsRoadConfig) -> dict:
 
 
 def run(cfg: ResultsRoadConfig, out: Path, data_dir: Path) -> dict:
-    from deepslam.core import atomic
     from deepslam.core.readers import open_sequence
     from deepslam.studies.demo import render_once
-    from deepslam.vo import flow_estimators
+    from deepslam.flow import registry as flow_registry
 
     out.mkdir(parents=True, exist_ok=True)
-    ests = {n: flow_estimators.make(n, **({"preset": "medium"} if n == "dis" else {})) for n in cfg.estimators}
+    ests = {n: flow_registry.make(n, **({"preset": "medium"} if n == "dis" else {})) for n in cfg.estimators}
     held = open_sequence(render_once("street", "car", cfg.heldout_frames, cfg.width, cfg.heldout_seed,
                                      out / f"street_heldout_s{cfg.heldout_seed}", []))
     grainy = open_sequence(render_once("street", "car", cfg.heldout_frames, cfg.width, cfg.heldout_seed,
@@ -144,8 +145,7 @@ def run(cfg: ResultsRoadConfig, out: Path, data_dir: Path) -> dict:
             report["sets"][label] = per_flow
             print(f"{label}: " + ", ".join(f"{k} {v['median_m']:.2f} m" for k, v in per_flow.items()
                                            if v["median_m"] is not None), file=sys.stderr)
-    atomic.write_json(out / "results.json", report)
-    atomic.write_text(out / "results.md", markdown(report))
+    write_report(out, report, markdown)
     _plot(report, out / "road_height.png")
     return report
 

@@ -30,6 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.results_common import write_report
+
 FLOWS = ("gt", "dis")
 
 
@@ -229,8 +231,7 @@ def run(cfg: ResultsSlamConfig, out: Path) -> dict:
                   f"(ratio {rec['ratio_tuned']:.2f})", flush=True)
     report = {"config": dataclasses.asdict(cfg), "cases": cases, "commands": log,
               "minutes": (time.perf_counter() - t0) / 60}
-    atomic.write_json(out / "results.json", report)
-    atomic.write_text(out / "results.md", markdown(report))
+    write_report(out, report, markdown)
     return report
 
 

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.results_common import write_report
+
 TEDDY = "tum/rgbd_dataset_freiburg3_teddy"
 
 
@@ -51,7 +53,7 @@ def _scored(seq, world_from_cam: np.ndarray, frames: np.ndarray) -> dict:
 
 
 def run(cfg: ResultsTumConfig, out: Path, data: Path) -> dict:
-    from deepslam.core import atomic, plots
+    from deepslam.core import plots
     from deepslam.core.readers import open_sequence
     from deepslam.slam.pipeline import PipelineConfig, SlamParams, run_slam
     from deepslam.slam.plugins import load_odometry
@@ -100,8 +102,7 @@ def run(cfg: ResultsTumConfig, out: Path, data: Path) -> dict:
     report = {"config": dataclasses.asdict(cfg), "frames": int(n), "rows": rows,
               "targets": {"vo_ate_m": 0.05, "slam_no_worse_than_vo": True}}
     out.mkdir(parents=True, exist_ok=True)
-    atomic.write_json(out / "results.json", report)
-    atomic.write_text(out / "results.md", markdown(report))
+    write_report(out, report, markdown)
     plots.plot_trajectories_topdown(out / "trajectories.png", tracks, title=f"TUM fr3/teddy, {n} frames")
     return report
 

@@ -30,6 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.results_common import write_report
+
 MODES = ("synthetic", "supervised")
 
 
@@ -260,8 +262,7 @@ def run(cfg: ResultsVOConfig, out: Path, data: Path) -> dict:
     report = summarize(cfg, per_seed, kitti_plus, seq_held)
     report["commands"] = log
     report["minutes"] = (time.perf_counter() - t0) / 60
-    atomic.write_json(out / "results.json", report)
-    atomic.write_text(out / "results.md", markdown(report))
+    write_report(out, report, markdown)
     return report
 
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import json
 import pkgutil
 import platform
 import sys
@@ -18,6 +17,7 @@ import time
 from pathlib import Path
 
 import bench as _bench
+from bench.stamp import stamp
 from deepslam.core import atomic
 
 
@@ -47,7 +47,8 @@ def main(argv: list[str] | None = None) -> int:
         rows.extend(got)
         print(f"   ({time.perf_counter() - t0:.1f} s)", flush=True)
     meta = {"python": sys.version.split()[0], "machine": platform.machine(), "processor": platform.processor(),
-            "cpus": __import__("os").cpu_count(), "quick": args.quick, "time": time.strftime("%Y-%m-%dT%H:%M:%S")}
+            "cpus": __import__("os").cpu_count(), "quick": args.quick, "time": time.strftime("%Y-%m-%dT%H:%M:%S"),
+            **stamp()}
     out = Path(args.out)
     atomic.write_json(out, {"meta": meta, "results": rows})
     atomic.write_text(out.with_suffix(".md"), to_markdown(rows))
