@@ -30,6 +30,7 @@ import numpy as np
 
 from deepslam.core import atomic
 from deepslam.core.errors import InputError
+from deepslam.core.kinds import kind_for_sequence
 from deepslam.core.progress import progress
 from deepslam.core.trajectory import Trajectory
 from deepslam.slam.odometry import Odometry, check_prediction
@@ -192,17 +193,9 @@ class SlamResult:
 
 
 def data_kind(seq) -> str:
-    """"kitti" (street, N_th 30) or "euroc" (indoor MAV, N_th 40) for a sequence: its reader's kind, or
-    for our format the rule of :func:`vo.models.kind_for_sequence` (scene name, else aspect ratio)."""
-    kind = getattr(seq, "kind", "")
-    if kind in ("kitti", "euroc"):
-        return kind
-    try:
-        from deepslam.vo.models import kind_for_sequence
-
-        return kind_for_sequence(seq)
-    except (ImportError, AttributeError):
-        return "kitti"
+    """The sequence's camera kind (:func:`core.kinds.kind_for_sequence`), which sets place recognition's
+    defaults (:meth:`slam.reloc.RelocConfig.for_kind`)."""
+    return kind_for_sequence(seq)
 
 
 def search_loops(detector: LoopDetector, keyframes: list[int], t_loop: int, show_progress: bool = False) -> list[LoopCandidate]:

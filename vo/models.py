@@ -14,10 +14,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from deepslam.core.errors import InputError
+from deepslam.core.kinds import KINDS, kind_for_sequence  # noqa: F401 - part of this module's API
 
-KINDS = ("kitti", "euroc", "tum")
-"""Camera kinds with a shipped model: KITTI-like street cameras, EuRoC-like MAV cameras, and 640x480
-hand-held RGB-D cameras (TUM RGB-D)."""
 WHICH = ("cons", "loops")
 """NN_cons (consecutive frames) and NN_loops (loop pairs)."""
 FLOW_VARIANTS = ("dis", "learned")
@@ -197,20 +195,6 @@ def flow_for_model(flow: str, path: str | Path, recorded: dict | None = None, **
             raise
         raise InputError(path, f"malformed VO model: its meta.flow options {recorded!r} do not set up flow "
                                f"estimator {flow} ({e.what})") from None
-
-
-def kind_for_sequence(seq) -> str:
-    """The shipped-model kind that suits a sequence: its reader's kind for KITTI/EuRoC/TUM; for our format
-    the scene's kind when sequence.json names one (``street`` -> kitti, ``room``/``indoor`` -> euroc),
-    else by the image's aspect ratio (wider than 2:1 -> kitti)."""
-    if seq.kind in KINDS:
-        return seq.kind
-    scene = str(seq.meta.get("scene", "")).lower() if isinstance(seq.meta, dict) else ""
-    if any(w in scene for w in ("street", "city", "road", "kitti")):
-        return "kitti"
-    if any(w in scene for w in ("room", "indoor", "euroc", "office")):
-        return "euroc"
-    return "kitti" if seq.camera.width > 2 * seq.camera.height else "euroc"
 
 
 def resolve_path(spec: str | None, seq=None, which: str = "cons", flow=None) -> Path:

@@ -248,32 +248,6 @@ def speed_summary(cfg, preset: str, data_meta: dict, n_train: int, n_hold: int) 
             f"stops at {' / '.join(caps)} (whichever first), or when the learning rate falls below {cfg.lr_stop:g}")
 
 
-def _load_motion(spec: str):
-    """(sampler, weight, description) from FILE[:loops][@WEIGHT]."""
-    import hashlib
-    from pathlib import Path
-
-    from deepslam.core.errors import InputError
-    from deepslam.gen.motion import MotionModel
-    from deepslam.vo.data import motion_sampler
-
-    rest, _, w = spec.rpartition("@") if "@" in spec else (spec, "", "")
-    try:
-        weight = float(w) if w else 1.0
-    except ValueError:
-        raise InputError(None, f"bad motion weight in {spec!r}") from None
-    loops = rest.endswith(":loops")
-    path = Path(rest[: -len(":loops")] if loops else rest.removesuffix(":cons"))
-    model = MotionModel.load(path)
-    try:
-        sampler = motion_sampler(model, loops)
-    except InputError as e:
-        raise InputError(path, e.what) from None
-    return sampler, weight, {"file": str(path), "distribution": "loops" if loops else "consecutive",
-                             "stride": model.stride, "weight": weight,
-                             "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
-
-
 def run(args: argparse.Namespace) -> int:
     import sys
 
@@ -284,6 +258,7 @@ def run(args: argparse.Namespace) -> int:
     from deepslam.flow import registry as flow_registry
     from deepslam.vo import data
     from deepslam.vo.infer import cpu_has_native_bf16
+    from deepslam.vo.recipe import SyntheticData, flow_options_for, synthetic_sources
     from deepslam.vo.train import TrainConfig, TrainingDiverged, train
 
     _check_ranges(args)
@@ -334,62 +309,17 @@ def run(args: argparse.Namespace) -> int:
             train_src, hold_src = data.TensorSamples(s["flow"], s["intrinsics"], s["target"], seed=args.seed).split(args.holdout, args.seed)
             meta["data"] = {"toy_samples": args.toy, "camera": cam.to_dict()}
         else:
-            if not args.frames:
-                raise InputError(None, "synthetic mode needs --frames DIR... (or --toy N)")
-            if not args.motion:
-                raise InputError(None, "synthetic mode needs --motion FILE (a gen.motion JSON; repeat for a mixture)")
-            motions = [_load_motion(m) for m in args.motion]
-            sampler = data.MotionMixture([m[0] for m in motions], [m[1] for m in motions])
-            speed_range, flat_speed = None, None
-            if args.speed_range:
-                sampler = flat_speed = data.FlatSpeed.parse(sampler, args.speed_range, args.rate_hz)
-                speed_range = [flat_speed.min_mps, flat_speed.max_mps, flat_speed.rate_hz]
-            f = max(1, args.synth_factor)
-            seqs = [open_sequence(d) for d in args.frames]
-            if args.missing_depth is None:
-                args.missing_depth = "invalid" if any(sq.kind == "tum" for sq in seqs) else "infinity"
-            n_hold = args.holdout_samples or max(args.batch, int(round(args.holdout * args.samples_per_epoch)))
-            if args.synthetic_flow == "exact":
-                # DIS's flags given for exact flow are refused, not ignored (the same check as for any other estimator)
-                flow_registry.given_estimator_options("exact", args)
-                frames = data.load_frames(seqs, w * f, h * f, args.frame_step, args.depth, args.max_frames, progress)
-                train_frames, hold_frames = frames.split(args.holdout, args.seed)
-
-                def source(fr, n, seed):
-                    return data.SyntheticSource(fr, sampler, n, seed, f, args.missing_depth, tilt=tilt,
-                                                inv_depth=net.depth_channel, scene_scale=scene_scale,
-                                                unknown=net.unknown_flow)
-            else:
-                opts = flow_registry.given_estimator_options(args.synthetic_flow, args)
-                frames = data.load_image_frames(seqs, args.frame_step, args.depth, args.max_frames, progress,
-                                                scales=args.frame_scales)
-                train_frames, hold_frames = frames.split(args.holdout, args.seed)
-
-                def source(fr, n, seed):
-                    return data.EstimatedFlowSource(fr, sampler, args.synthetic_flow, w, h, n, seed, args.data_threads, opts,
-                                                    args.appearance_noise, tilt=tilt, inv_depth=net.depth_channel,
-                                                    scene_scale=scene_scale, unknown=net.unknown_flow)
-            if args.mirror_frames:  # after the split: a frame and its mirror stay on the same side
-                train_frames, hold_frames = data.with_mirrored(train_frames), data.with_mirrored(hold_frames)
-            hold_src = source(hold_frames, n_hold, args.seed + 1).materialize(n_hold, args.seed + 1, progress)
-            train_src = source(train_frames, args.samples_per_epoch, args.seed)
-            estimator_name = getattr(train_src, "estimator_name", None)  # None: exact synthetic flow
-            if args.sample_pool:
-                train_src = train_src.materialize(args.sample_pool, args.seed, progress)
-            meta["data"] = {"frames": [str(s.root) for s in seqs], "depth": args.depth, "frame_step": args.frame_step,
-                            "n_frames": len(frames), "n_train_frames": len(train_frames), "n_holdout_frames": len(hold_frames),
-                            "motion": [m[2] for m in motions], "samples_per_epoch": args.samples_per_epoch,
-                            "holdout_samples": n_hold, "synth_factor": f, "missing_depth": args.missing_depth,
-                            "sample_pool": args.sample_pool, "speed_range_mps_at_hz": speed_range,
-                            **({"speed_range_fraction": flat_speed.fraction}
-                               if flat_speed is not None and flat_speed.fraction < 1 else {}),
-                            "camera_tilt": tilt.to_dict() if tilt else None,
-                            "scene_scale": scene_scale.to_dict() if scene_scale else None,
-                            **({"mirror_frames": True} if args.mirror_frames else {})}
-            if estimator_name is not None:
-                meta["flow"] = {"estimator": args.synthetic_flow, "options": opts}  # what vo/slam set up to match
-                meta["data"].update(synth_factor=None, missing_depth=None, frame_scales=list(args.frame_scales),
-                                    appearance_noise=args.appearance_noise, synthetic_flow=estimator_name)
+            spec = SyntheticData(
+                frames=tuple(args.frames or ()), motion=tuple(args.motion or ()), depth=args.depth,
+                frame_step=args.frame_step, max_frames=args.max_frames, samples_per_epoch=args.samples_per_epoch,
+                holdout=args.holdout, holdout_samples=args.holdout_samples, batch_size=args.batch,
+                synth_factor=args.synth_factor, synthetic_flow=args.synthetic_flow,
+                flow_options=flow_options_for(args.synthetic_flow, args), frame_scales=tuple(args.frame_scales),
+                appearance_noise=args.appearance_noise, data_threads=args.data_threads, sample_pool=args.sample_pool,
+                missing_depth=args.missing_depth, speed_range=args.speed_range, rate_hz=args.rate_hz,
+                camera_tilt_deg=args.camera_tilt_deg, scene_scale=args.scene_scale, mirror_frames=args.mirror_frames)
+            train_src, hold_src, data_meta = synthetic_sources(spec, net, args.seed, progress)
+            meta.update(data_meta)
     else:
         if not args.sequence:
             raise InputError(None, "supervised mode needs --sequence DIR...")

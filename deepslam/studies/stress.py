@@ -49,6 +49,7 @@ import numpy as np
 
 from deepslam.core import atomic, se3
 from deepslam.core.errors import InputError
+from deepslam.core.kinds import kind_for_scene
 
 SCENES = ("street", "room")
 ODOMETRIES = ("model", "rigid-fit")
@@ -394,8 +395,8 @@ class RigidFitOdometry:
 
 
 def camera_kind(scene: str) -> str:
-    """Shipped-model kind of a scene: street -> kitti, room -> euroc."""
-    return "kitti" if scene == "street" else "euroc"
+    """Shipped-model kind of a scene (:func:`core.kinds.kind_for_scene`; the study's scenes are street and room)."""
+    return kind_for_scene(scene) or "euroc"
 
 
 @dataclasses.dataclass
