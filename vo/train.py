@@ -42,7 +42,7 @@ from deepslam.core.lock import output_lock
 from deepslam.core.plots import new_figure, save_figure
 from deepslam.vo.data import epoch_seed
 from deepslam.vo.distributed import agree, world
-from deepslam.vo.modelio import load_checkpoint, make_net, save_checkpoint, save_model
+from deepslam.vo.modelio import load_checkpoint, load_model, make_net, save_checkpoint, save_model
 from deepslam.vo.net import PoseNet, gaussian_nll, pose_loss
 from deepslam.vo.trainconfig import TrainConfig
 
@@ -75,6 +75,17 @@ class TrainResult:
     stop_reason: str
     best_val_loss: float
     holdout_nll: float | None
+
+
+def initial_weights(cfg: TrainConfig) -> PoseNet:
+    """The network of the model file ``cfg.init`` (the start of a fine-tuning run); InputError when the file is
+    not a single-network VO model or holds another network than ``cfg.net``."""
+    start, _ = load_model(cfg.init)
+    if not isinstance(start, PoseNet):
+        raise InputError(cfg.init, "is not a single-network VO model (an ensemble cannot start a training run)")
+    if start.cfg.to_dict() != cfg.net.to_dict():
+        raise InputError(cfg.init, "its network differs from the one to train; cannot start from it")
+    return start
 
 
 def new_model(cfg: TrainConfig) -> PoseNet:
@@ -290,7 +301,10 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
             raise InputError(ckpt_path, "a training run is already here; pass --resume to continue it or choose another --out")
         if not resume and any(out_dir.iterdir()):
             raise InputError(out_dir, "output folder is not empty and holds no training run; choose another --out")
-    model = new_model(cfg).to(torch.device(cfg.device))
+    model = new_model(cfg)
+    if cfg.init and not (resume and ckpt_path.is_file()):
+        model.load_state_dict(initial_weights(cfg).state_dict())
+    model = model.to(torch.device(cfg.device))
     if cfg.channels_last:
         model.set_channels_last(True)
     if n_ranks > 1:

@@ -53,10 +53,15 @@ class TrainConfig:
     """torch device the network trains on ("cpu", "cuda", "cuda:N"; the command's ``--device auto``
     resolves to one). Weights are stored on the CPU, so a model trained on one device loads on any;
     the data is made on the CPU and each batch moved to the device (pinned memory where CUDA)."""
+    init: str = ""
+    """A single-network VO model file whose weights start the training (fine-tuning, ``deepslam adapt``); its
+    network must be ``net``. Empty: random initial weights from ``seed``."""
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d["net"] = self.net.to_dict()
+        if not d["init"]:
+            del d["init"]  # runs from random weights record what they always recorded
         return d
 
     @classmethod
