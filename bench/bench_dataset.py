@@ -1,5 +1,5 @@
 """``deepslam dataset`` throughput (local vs Ray with 2 workers), a worker's peak memory against the
-sequence length, and how much of the image the movers cover (issue 15).
+sequence length, and how much of the image the movers cover.
 
 Rows:
 - sequences/hour of the same dataset rendered locally and by Ray with 2 workers (same bytes: the

@@ -1,4 +1,4 @@
-"""Training and flow synthesis on each torch device present, against the CPU in the same run (issue 17).
+"""Training and flow synthesis on each torch device present, against the CPU in the same run.
 
 Rows: NN_cons training samples/s for a fixed sample budget of toy flows (the same seed and budget on
 every device; the held-out loss of each device's model against the CPU's), and flow synthesis

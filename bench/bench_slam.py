@@ -11,7 +11,7 @@ Rows (each against a baseline measured in the same run):
   SLAM ATE vs odometry ATE on the synthetic loop trajectory (target: at most half);
 - :func:`vo_end_to_end_fps`: ``deepslam vo`` on the real KITTI 07 slice as a user runs it (a fresh
   process, the default flow and model, start-up, reading, trajectory and plot included) against DIS
-  alone on the same pairs (issue 12's target: >= 20 frames/s end to end), and, in turn with it, with the
+  alone on the same pairs (target: >= 20 frames/s end to end), and, in turn with it, with the
   network's pose and with the flows on one worker; skipped without the slice;
 - :func:`pipeline_fps`: frames per second of the whole pipeline on KITTI-size frames (target >= 10), and at
   keyframe stride 1 with the flows on one worker (``DEEPSLAM_FLOW_WORKERS=1``) right after.
@@ -205,7 +205,7 @@ def pipeline_fps(quick: bool) -> list[dict]:
                              t["fps"], "frames/s", "odometry only (no relocalization, no loops)", base.timings["fps"],
                              ">= 10 frames/s", t["fps"] >= 10, loops=len(res.loops), vocabulary_training_s=vocab_s,
                              stage_seconds={k: v for k, v in t.items() if k.endswith("_s")}))
-        # the flows on one worker (DIS on OpenCV's threads, as before the sixteenth session), right after
+        # the flows on one worker (DIS on OpenCV's threads), right after
         with mock.patch.dict(os.environ, {WORKERS_ENV: "1"}):
             one = run_slam(seq, cons, loops, params, PipelineConfig(keyframe_stride=1), vocabulary=vocab,
                            show_progress=False)
@@ -229,7 +229,7 @@ def vo_end_to_end_fps(quick: bool) -> list[dict]:
     time of 1 or 3 runs, against that DIS alone on the same consecutive pairs in this process (images read
     beforehand, OpenCV's threads); and, run in turn with it, the same with ``--pose net``, with DIS on the
     full-size frames (``--dis-max-width 0``; only where the shipped model records a working width), with one
-    flow worker (``DEEPSLAM_FLOW_WORKERS=1``: DIS on OpenCV's threads, the code before the sixteenth session)
+    flow worker (``DEEPSLAM_FLOW_WORKERS=1``: DIS on OpenCV's threads)
     with ``--flow learned``, and with ``--dis-patch-stride 4`` (DIS matching a patch every 4 pixels, not the
     preset's 3: the speed option the README documents, run on the shipped model, which was trained on stride 3)."""
     import subprocess
@@ -273,15 +273,15 @@ def vo_end_to_end_fps(quick: bool) -> list[dict]:
              "DIS on full-size frames", fps["full width"], None, None, full_width_runs_s=times["full width"])]
     return [_row(f"deepslam vo end to end, KITTI 07 slice ({n} frames, {size}, no flags: the shipped model, DIS flow "
                  f"({dis.name}), its recorded epipolar pose, {workers} flow workers; a fresh process)", fps["default"],
-                 "frames/s", f"{dis.name} alone on the same pairs", (n - 1) / dis_s, ">= 20 frames/s (issue 12)",
+                 "frames/s", f"{dis.name} alone on the same pairs", (n - 1) / dis_s, ">= 20 frames/s",
                  fps["default"] >= 20, wall_s=wall["default"], runs_s=times["default"]),
             *full_width,
             _row(f"deepslam vo --pose net end to end, KITTI 07 slice ({n} frames, {size}, a fresh process)", fps["net"],
-                 "frames/s", "deepslam vo (no flags: epipolar pose) in turn", fps["default"], ">= 20 frames/s (issue 12)",
+                 "frames/s", "deepslam vo (no flags: epipolar pose) in turn", fps["default"], ">= 20 frames/s",
                  fps["net"] >= 20, wall_s=wall["net"], runs_s=times["net"]),
             _row(f"deepslam vo --flow learned end to end, KITTI 07 slice ({n} frames, {size}, {workers} flow workers; "
                  "a fresh process)", fps["learned"], "frames/s", "deepslam vo (no flags: DIS) in turn", fps["default"],
-                 ">= 20 frames/s (issue 12: or an option, the miss measured)", fps["learned"] >= 20,
+                 ">= 20 frames/s (or an option, the miss measured)", fps["learned"] >= 20,
                  wall_s=wall["learned"], runs_s=times["learned"]),
             _row(f"deepslam vo end to end with {workers} flow workers (the default) against one (DIS on OpenCV's "
                  f"threads; {WORKERS_ENV}=1), KITTI 07 slice, fresh processes in turn", fps["default"], "frames/s",
@@ -290,7 +290,7 @@ def vo_end_to_end_fps(quick: bool) -> list[dict]:
             _row(f"deepslam vo --dis-patch-stride 4 end to end (the shipped model, DIS matching a patch every 4 "
                  f"pixels instead of its preset's 3), KITTI 07 slice ({n} frames, {size}), fresh processes in turn",
                  fps["stride 4"], "frames/s", "deepslam vo (no flags) in turn", fps["default"],
-                 ">= 20 frames/s (issue 12)", fps["stride 4"] >= 20, wall_s=wall["stride 4"],
+                 ">= 20 frames/s", fps["stride 4"] >= 20, wall_s=wall["stride 4"],
                  runs_s=times["stride 4"])]
 
 

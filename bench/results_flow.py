@@ -1,4 +1,4 @@
-"""The learned flow estimator against DIS (issue 12, item 1): held-out renders and real KITTI.
+"""The learned flow estimator against DIS: held-out renders and real KITTI.
 
 - Held-out renders (sequences no flow model trained on): EPE (px) and Fl-all (KITTI 2015's outlier
   rate: EPE > 3 px and > 5 % of the true flow) against the simulator's exact flow, consecutive pairs.

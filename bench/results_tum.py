@@ -1,15 +1,15 @@
 """RGB-D odometry on the TUM fr3/teddy slice: the shipped learned models against two baselines.
 
 Rows: (a) ``tum_cons`` (the default for TUM: simulated rooms only, never a frame of teddy; DIS flow of
-rendered views, the solve pose head since the ninth session), (b) ``tum_cons_teddy`` (the paper's unsupervised adaptation: the
+rendered views, the solve pose head), (b) ``tum_cons_teddy`` (the paper's unsupervised adaptation: the
 same rooms plus teddy's single frames, no poses; trained on DIS flow of rendered views with DIS's
-textureless pixels left out, ``--dis-min-texture``; since the ninth session the solve pose head,
+textureless pixels left out, ``--dis-min-texture``; the solve pose head,
 :mod:`vo.posesolve`, which also reads each frame's sensor depth), each as VO and as SLAM (with ``tum_loops``), each
 on DIS set up as its model was trained (:func:`vo.models.flow_for_model`); baselines measured in the
 same run: standing still (every pose the first), the classical plug-in ``pnp`` (SIFT + PnP-RANSAC
 with the sensor depth) and the dense fit of DIS's flow with the sensor depth (the solve head with every
 weight 1), by least squares and Cauchy-reweighted (:func:`vo.posesolve.solve_pose`). ATE after se3 and sim3 alignment (evo's definition), RPE per frame, on the
-frames the ground truth covers. Targets (issue 14): VO ATE <= 0.05 m, SLAM no worse than VO. Writes
+frames the ground truth covers. Targets: VO ATE <= 0.05 m, SLAM no worse than VO. Writes
 results.json, results.md and trajectories.png into ``out/results/tum`` (``python -m bench.results_tum``,
 about 2.5 minutes).
 """

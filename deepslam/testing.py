@@ -53,7 +53,7 @@ def _render(out, scene: str, trajectory: str, frames: int, width, height, moving
 
 @pytest.fixture(scope="session")
 def sim_sequence(tmp_path_factory):
-    """Factory of rendered sequences with ground truth, cached per session per set of arguments."""
+    """Factory of rendered sequences with ground truth, cached per pytest run per set of arguments."""
     from deepslam.core.readers import open_sequence
 
     cache: dict = {}

@@ -20,7 +20,7 @@ Student-t around the median (KITTI drives 0-26 m/s). ``fit-motion --consecutive 
 kernel density estimate (:class:`KdeSix`): the ground-truth motions themselves, each drawn with a small
 Gaussian jitter. A network trained on the independent draws reads a turning camera's sideways slide as
 more yaw (the shipped KITTI model: +2-5 % yaw on held-out renders and KITTI 06 when the slide of a real
-turn is added; README, issue 12).
+turn is added).
 
 JSON file (``deepslam fit-motion`` writes it, :meth:`MotionModel.load` validates it)::
 

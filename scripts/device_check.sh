@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 17's device check, for a bare GPU machine (no network needed beyond what is installed there).
+# The device check, for a bare GPU machine (no network needed beyond what is installed there).
 # In under 10 minutes: the GPU tests, then NN_cons trained on the same toy samples with the same seed
 # and sample budget on the CPU and on the GPU (samples/s of both and the held-out loss difference),
 # and flow synthesis samples/s on both (bench/bench_device.py). Prints one table; exit 0 when it ran.

@@ -1,4 +1,4 @@
-"""Issue 12: would ``--dis-min-texture`` help on KITTI as it does on TUM fr3/teddy? DIS's error by texture.
+"""Would ``--dis-min-texture`` help on KITTI as it does on TUM fr3/teddy? DIS's error by texture.
 
 On KITTI 06 (its stereo depth, as ``deepslam train --frames`` computes it, and its ground-truth motion:
 06 is the slice whose single frames the shipped model trained on, never the scored 07), for every 5th

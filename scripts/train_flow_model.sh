@@ -20,7 +20,7 @@ for s in 4 5 6 7 8 9; do render $s $S/varied2_s$s --varied-layout; done
 $DS train-flow --sequences out/flow_data $S/street_s1 $S/street_s2 $S/street_s3 $S/varied_s1 $S/varied_s2 $S/varied_s3 \
   $S/varied2_s4 $S/varied2_s5 $S/varied2_s6 $S/varied2_s7 $S/varied2_s8 $S/varied2_s9 \
   --out out/flow_model --max-steps 20000 --stop-after 14500 --quiet $([ -d out/flow_model ] && echo --resume)
-# stage 2 (sixth session, 2026-12-02): fine-tuned on the same data plus six streets with grainy asphalt and three
+# stage 2: fine-tuned on the same data plus six streets with grainy asphalt and three
 # movers each (the learned flow read the grainy road at 3.2 m where it read the smooth one at 1.6); about 25 minutes
 G=out/flowg
 for s in 31 32 33; do render $s $G/varied_g$s "--varied-layout --grainy-road --moving-objects 3"; done

@@ -2,7 +2,7 @@
 # The learned flow fine-tuned on real, unlabelled KITTI 06 pairs (both cameras; census loss with forward-backward
 # occlusion masks and edge-aware smoothness, flow/unsup.py) beside rendered pairs with exact flow that keep it
 # anchored (the stage-1 `deepslam dataset` sequences and the six grainy-road streets of scripts/train_flow_model.sh).
-# KITTI 07 is never trained on: it is where the result is measured. Thirteenth session (2026-12-03). About
+# KITTI 07 is never trained on: it is where the result is measured. About
 # 90 minutes on 2 cores (renders ~5 min, 2,000 steps ~37 min, twice); resumable.
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -1,11 +1,11 @@
 #!/usr/bin/env bash
-# The shipped RGB-D models for 640x480 hand-held cameras (TUM RGB-D; issue 14): NN_cons / NN_loops on
+# The shipped RGB-D models for 640x480 hand-held cameras (TUM RGB-D): NN_cons / NN_loops on
 # single frames of simulated rooms rendered with a Kinect-like camera (640x480, f = 537 px, 30 Hz),
 # flow synthesized from each frame's depth and a hand-held motion model fitted on EuRoC's ground
 # truth resampled to 30 Hz (V1_01 left out; never the scored sequence's poses), and, as its own
 # variant, the same plus the TUM fr3/teddy slice's single frames (sensor depth, holes left out, no
-# poses). About 30 minutes on 2 cores (the two solve-head models of the ninth session: 35 minutes each more on a
-# machine without AVX-512; the tenth session's: 25 minutes more); resumable.
+# poses). About 30 minutes on 2 cores, plus about 25-35 minutes per solve-head model; resumable. Which file of this
+# script each shipped model is: docs/models.md; how they were chosen: docs/experiments/2026-12-03_tum_rgbd.md.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export MUJOCO_GL=${MUJOCO_GL:-egl} PYOPENGL_PLATFORM=${PYOPENGL_PLATFORM:-egl} OMP_NUM_THREADS=${OMP_NUM_THREADS:-2}
@@ -26,27 +26,27 @@ COMMON="--mode synthetic --frame-step 3 --net cpu --height 96 --width 128 --flow
 train() { local out=$1; shift; [ -f "$out/model.safetensors" ] || $DS train $COMMON "$@" --out "$out" $([ -d "$out" ] && echo --resume); }
 train $D/tum_cons --frames $ROOMS --motion models/motion/euroc_s1_30hz.json
 train $D/tum_loops --frames $ROOMS --motion models/motion/euroc_s1_30hz.json:loops
-train $D/tum_cons_teddy --frames $ROOMS $TEDDY --motion models/motion/euroc_s1_30hz.json  # exact flow; shipped until 2026-12-02
-# the adapted variant on DIS flow (seventh session; about 11 minutes; shipped as tum_cons_teddy): DIS of the view
+train $D/tum_cons_teddy --frames $ROOMS $TEDDY --motion models/motion/euroc_s1_30hz.json  # exact flow
+# the adapted variant on DIS flow (about 11 minutes): DIS of the view
 # rendered from each single frame, DIS's flow left out where the first image has no texture (--dis-min-texture 0.5:
 # the threshold from teddy's real pairs against the pnp baseline's motion, scripts/tum_dis_gap.py, no ground-truth
 # pose), 30 epochs over one pool of 10,000 samples (chosen over 8 by the held-out synthetic loss)
 DISCOMMON="--synthetic-flow dis --dis-preset medium --dis-min-texture 0.5 --appearance-noise 6 --sample-pool 10000
            --data-threads 2 --max-epochs 30"
-train $D/tum_cons_teddy_dis --frames $ROOMS $TEDDY --motion models/motion/euroc_s1_30hz.json $DISCOMMON  # shipped until the ninth session
-# the solve pose head (ninth session, 2026-12-02; shipped as tum_cons_teddy, about 35 minutes on 2 cores without
+train $D/tum_cons_teddy_dis --frames $ROOMS $TEDDY --motion models/motion/euroc_s1_30hz.json $DISCOMMON
+# the solve pose head (about 35 minutes on 2 cores without
 # AVX-512): the same data, the network weighs each pixel and the pose is the weighted Gauss-Newton fit of the flow
 # with the frame's depth (vo/posesolve.py); 10 epochs; float32 (--bf16 off: as it was trained, on any machine)
 SOLVE="--depth-channel --valid-channel --pose-head solve --bf16 off"
-train $D/tum_cons_teddy_solve --frames $ROOMS $TEDDY --motion models/motion/euroc_s1_30hz.json $DISCOMMON $SOLVE --max-epochs 10  # shipped until the tenth session
-# and on the rooms alone (shipped as tum_cons, the default for TUM, since the ninth session; tum_cons above before it)
+train $D/tum_cons_teddy_solve --frames $ROOMS $TEDDY --motion models/motion/euroc_s1_30hz.json $DISCOMMON $SOLVE --max-epochs 10
+# and on the rooms alone (the default for TUM, tum_cons, with the Cauchy kernel set below)
 train $D/tum_cons_solve --frames $ROOMS --motion models/motion/euroc_s1_30hz.json $DISCOMMON $SOLVE --max-epochs 10
-# with DIS's forward-backward check (tenth session, 2026-12-02; shipped as tum_cons_teddy since then, about 25 minutes
+# with DIS's forward-backward check (tum_cons_teddy with the Cauchy kernel set below; about 25 minutes
 # on 2 cores with AVX-512): DIS's flow is also left out where the backward flow does not return a pixel to within
 # 0.5 px (occlusions, wrong matches), in training and, from the file's record, in vo/slam
 train $D/tum_cons_teddy_fb --frames $ROOMS $TEDDY --motion models/motion/euroc_s1_30hz.json $DISCOMMON $SOLVE --max-epochs 10 \
     --dis-fb-check 0.5
-# the Cauchy kernel in the solve (eleventh and twelfth sessions, 2026-12-03; vo/posesolve.py): reweighted from the
+# the Cauchy kernel in the solve (vo/posesolve.py): reweighted from the
 # second Gauss-Newton step on, 6 steps. The shipped files are the models above with the kernel set at test time
 # (deepslam set-solve: the same weights); retrained with the kernel in the loop, on the rooms alone (not shipped: it
 # read teddy's motion x1.056 of the pnp one) and on rooms + teddy (about 20 minutes each on 2 cores with AVX-512)

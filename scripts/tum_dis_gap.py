@@ -1,4 +1,4 @@
-"""Issue 14: how far DIS's flow on TUM fr3/teddy's real pairs is from the training's synthetic views.
+"""How far DIS's flow on TUM fr3/teddy's real pairs is from the training's synthetic views.
 
 For every 4th consecutive pair of the slice (45 pairs), the reference flow is synthesized from frame i's
 sensor depth and the motion a classical RGB-D odometry finds (the ``pnp`` plug-in: SIFT + PnP-RANSAC

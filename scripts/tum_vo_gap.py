@@ -1,4 +1,4 @@
-"""Issue 14: where a VO model's error on TUM fr3/teddy comes from: the network, or the real flow.
+"""Where a VO model's error on TUM fr3/teddy comes from: the network, or the real flow.
 
 For every 2nd consecutive pair of the slice, the motion the classical ``pnp`` plug-in finds (SIFT +
 PnP-RANSAC with the sensor depth; no ground-truth pose is used) is the reference. Each model reads

@@ -173,7 +173,7 @@ def test_turn_table_measures_both_sets_and_refuses_a_bad_model_spec(shared_data,
 
 def test_speed_table_sweeps_each_candidate_on_both_sets_and_refuses_a_bad_model_spec(shared_data, tmp_path, capsys):
     """results_speed with few frames: a shipped model and a --model candidate (the same file, named) each swept on
-    the held-out street and 06, with the flatness the rule of the nineteenth session reads; a malformed --model is
+    the held-out street and 06, with the flatness the decision rule reads; a malformed --model is
     one line, exit 2."""
     from bench import results_speed
 

@@ -1,7 +1,7 @@
 """Seed ensembles of flow -> 6DoF networks (a deep ensemble: Lakshminarayanan et al., 2017).
 
 Networks trained by the same recipe with different seeds agree on what the data pins down and
-disagree where it does not; their average is steadier than any one of them (issue 12: two seeds of
+disagree where it does not; their average is steadier than any one of them (two seeds of
 one recipe read KITTI 07's heading differently enough to double the end-point drift). The ensemble
 predicts the moments of the members' equal mixture, each member being Gaussian ``N(mean_i, std_i^2)``
 per DoF:

@@ -1,5 +1,5 @@
 """How much road motion does a flow field show? The camera height it implies for the road, given the
-true motion (a diagnostic for sim-to-real: issue 12).
+true motion (a diagnostic for sim-to-real).
 
 A road plane ``n . X = h`` (``n`` the unit normal pointing down from the camera, ``h`` the camera's
 height above the road, both in camera 0) moves under ``cam1_from_cam0 = [R | t]`` by the homography
