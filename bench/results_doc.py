@@ -19,6 +19,9 @@ REPO = Path(__file__).resolve().parents[1]
 
 SECTIONS = (
     # (folder under out/results, heading, command that remakes it, what it shows)
+    ("agreement", "Does the simulator predict reality? Sim against real, variant by variant", "python -m bench.results_agreement",
+     "Path-length ratio and drift of the odometry variants on unseen simulated streets and on real KITTI at frame "
+     "strides 1-3, and the rank agreement of the two."),
     ("slam", "VO alone against SLAM", "python -m bench.results_slam",
      "ATE of the odometry alone and of the SLAM pose graph on simulated streets and rooms."),
     ("vo", "Training on single frames against supervised training", "python -m bench.results_vo",

@@ -288,3 +288,19 @@ def test_a_results_folder_is_reused_only_with_the_same_settings(tmp_path):
     (old / "models").mkdir(parents=True)
     with pytest.raises(InputError, match="recorded no settings"):
         reuse_only_with_same_settings(old, {"config": cfg, "motion_sha256": "a"})
+
+
+@pytest.mark.slow
+def test_agreement_table_runs_each_variant_on_sim_and_real(shared_data, tmp_path):
+    """The quick agreement run: every (variant, data, stride) row holds a path ratio and a drift, the
+    summary a mean deviation per side, and the table names what each real slice is."""
+    from bench import results_agreement
+
+    cfg = dataclasses.replace(results_agreement.QUICK, sim_frames=10, strides=(1,),
+                              variants=results_agreement.ResultsAgreementConfig.variants[:3])
+    rep = results_agreement.run(cfg, tmp_path / "agreement", shared_data)
+    assert len(rep["rows"]) == 3 * 2  # 3 variants x (1 simulated street + KITTI 07) x stride 1
+    assert all(np.isfinite(r["path_ratio"]) and np.isfinite(r["drift_pct"]) for r in rep["rows"])
+    assert rep["spearman_rho"] is None or -1.0 <= rep["spearman_rho"] <= 1.0
+    md = (tmp_path / "agreement" / "results.md").read_text()
+    assert "KITTI 07: never trained on" in md and (tmp_path / "agreement" / "stamp.json").is_file()
