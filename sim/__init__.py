@@ -65,7 +65,7 @@ from deepslam.sim.trajectories import CarMotion, DroneMotion, KeyframeMotion, ma
 
 def render_sequence(config: SimConfig, out_dir, fmt: str = "ours", resume: bool = False, progress: bool = True,
                     sequence: str = "00"):
-    """Render ``config`` into ``out_dir`` in format ``fmt`` ("ours", "kitti", "euroc"); see
+    """Render ``config`` into ``out_dir`` in format ``fmt`` ("ours", "kitti", "euroc", "tum"); see
     :func:`sim.writers.render_sequence`. Returns the output path of the sequence."""
     from deepslam.sim.writers import render_sequence as _render
 

@@ -11,7 +11,10 @@ from deepslam.scenes import SceneConfig
 
 TRAJECTORY_KINDS = ("auto", "car", "drone")
 BACKENDS = ("mujoco", "pyrender")
-FORMATS = ("ours", "kitti", "euroc")
+FORMATS = ("ours", "kitti", "euroc", "tum")
+FLOW_FORMATS = ("npy", "flo", "png")
+"""Flow file formats of a render: ``npy`` (float32 HxWx2, always written), ``flo`` (Middlebury) and
+``png`` (KITTI 2015 flow PNG); see :mod:`deepslam.core.flowio`."""
 MAX_SIDE_PX = 4096
 
 
@@ -92,6 +95,18 @@ class RenderConfig:
     """Lens distortion (k1, k2, p1, p2), OpenCV's radial-tangential model, applied to the images only
     (EuRoC layout: written to sensor.yaml, and the readers undistort back to the render's pinhole
     camera, in which depth, flow and masks stay exact); None: a pinhole image."""
+    flow_formats: tuple[str, ...] = ("npy",)
+    """Files written per flow field (``flow/``, ``flow_backward/``), from :data:`FLOW_FORMATS`:
+    ``NNNNNN.npy`` (float32, the one the readers read) is always written; ``"flo"`` adds a Middlebury
+    ``NNNNNN.flo`` (float32, unknown = 1e10) and ``"png"`` a KITTI 2015 flow ``NNNNNN.png`` (16-bit,
+    1/64 px, invalid where unknown) beside it (:mod:`deepslam.core.flowio`)."""
+
+    def __post_init__(self):
+        # a list (from JSON) or a comma-separated string becomes a tuple, so configs compare and hash
+        fmts = () if self.flow_formats is None else self.flow_formats
+        if isinstance(fmts, str):
+            fmts = [f.strip() for f in fmts.split(",")]
+        object.__setattr__(self, "flow_formats", tuple(fmts))
 
     @property
     def distorted(self) -> bool:
@@ -136,6 +151,12 @@ class RenderConfig:
             raise InputError(None, "rolling shutter and motion blur (exposure) cannot be combined yet: choose one")
         if not isinstance(self.blur_samples, int) or not 2 <= self.blur_samples <= 64:
             raise InputError(None, f"blur samples must be an integer in [2, 64], got {self.blur_samples}")
+        unknown = [f for f in self.flow_formats if f not in FLOW_FORMATS]
+        if unknown or not self.flow_formats:
+            raise InputError(None, f"unknown flow format {(unknown or [''])[0]!r} (choose from {', '.join(FLOW_FORMATS)}, "
+                                   f"comma-separated)")
+        if not self.flow and any(f != "npy" for f in self.flow_formats):
+            raise InputError(None, "flow formats other than npy need the flow: drop --no-flow or the --flow-format")
         return self
 
 

@@ -84,7 +84,7 @@ class DatasetConfig:
     """Fraction of the street sequences with grainy asphalt (``scenes.textures.asphalt_grainy``: the
     road's texture contrast drawn per road stretch) instead of the near-uniform surface."""
     format: str = "ours"
-    """Layout of each sequence: ``ours``, ``kitti`` or ``euroc``."""
+    """Layout of each sequence: ``ours``, ``kitti``, ``euroc`` or ``tum``."""
     render_backend: str = "mujoco"
     """Renderer: ``mujoco`` or ``pyrender``."""
     flow: bool = True

@@ -14,7 +14,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--trajectory", default="auto", help="car, drone or auto (street: car, room: drone); default auto")
     p.add_argument("--frames", type=int, default=300, help="number of frames (default 300)")
     p.add_argument("--out", required=True, help="output folder (must not exist or be empty, unless --resume)")
-    p.add_argument("--format", default="ours", help="ours, kitti or euroc (default ours)")
+    p.add_argument("--format", default="ours",
+                   help="ours, kitti, euroc or tum (TUM RGB-D: rgb.txt, depth.txt, 16-bit depth PNGs at 5000 per "
+                        "metre, groundtruth.txt, intrinsics.txt); default ours")
+    p.add_argument("--flow-format", default="npy", metavar="FMT[,FMT]",
+                   help="flow files written beside each flow/ and flow_backward/ .npy, comma-separated: npy (always), "
+                        "flo (Middlebury, float32), png (KITTI 2015 flow PNG, 1/64 px); default npy")
     p.add_argument("--backend", default="mujoco", help="mujoco or pyrender (default mujoco)")
     p.add_argument("--width", type=int, default=None, help="image width in pixels (default: the scene camera's)")
     p.add_argument("--height", type=int, default=None, help="image height in pixels (default: from the width and the scene camera's aspect)")
@@ -108,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
                      exposure_ms=args.exposure_ms, blur_samples=args.blur_samples, sensor_noise=args.sensor_noise,
                      exposure_jitter=args.exposure_jitter, white_balance_jitter=args.white_balance_jitter,
                      distortion=_distortion(args.distortion), rolling_shutter_ms=args.rolling_shutter_ms,
-                     rolling_shutter_bands=args.rolling_shutter_bands),
+                     rolling_shutter_bands=args.rolling_shutter_bands, flow_formats=args.flow_format),
     ).validate()
     path = render_sequence(cfg, args.out, fmt=args.format, resume=args.resume, progress=not args.quiet,
                            sequence=args.sequence)

@@ -164,7 +164,7 @@ def test_resume_after_sigkill_gives_the_same_bytes(tmp_path, fmt):
     (["--width", "0"], "width"),
     (["--height", "0"], "height"),
     (["--scene", "room", "--trajectory", "car"], "needs roads"),
-    (["--format", "tum"], "unknown format"),
+    (["--format", "bmp"], "unknown format"),
     (["--backend", "vulkan"], "unknown backend"),
     (["--moving-objects", "-1"], "moving objects"),
     (["--deform", "5"], "deform"),
