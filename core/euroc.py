@@ -24,24 +24,21 @@ import numpy as np
 from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
-from deepslam.core.textio import read_text
-from deepslam.core.sequence import Sequence, ground_truth_files
+from deepslam.core.textio import loads_yaml, read_text, short
+from deepslam.core.sequence import Sequence, dataset_file, ground_truth_files
 from deepslam.core.trajectory import Trajectory
 from deepslam.core.trajio import ns_to_s
 
 
 def read_sensor_yaml(path: Path) -> dict:
     """Parse a EuRoC camera sensor.yaml into {"body_from_cam", "k", "dist", "width", "height", "rate_hz"}."""
-    import yaml
-
     text = read_text(path, "sensor.yaml")
-    if text.startswith("%YAML"):
+    offset = 0
+    if text.startswith("%YAML"):  # OpenCV's "%YAML:1.0" first line is not YAML 1.1
         text = text.split("\n", 1)[1] if "\n" in text else ""
-    try:
-        y = yaml.safe_load(text) or {}
-    except yaml.YAMLError as e:
-        line = getattr(getattr(e, "problem_mark", None), "line", None)
-        raise InputError(path, f"not valid YAML ({getattr(e, 'problem', e)})", line=None if line is None else line + 2) from None
+        offset = 1
+    # bounded: aliases limited, no duplicate keys, at most 1 MB (core.textio)
+    y = loads_yaml(text, path, "sensor.yaml", line_offset=offset) or {}
     if not isinstance(y, dict):
         raise InputError(path, "not a YAML mapping")
     intr = y.get("intrinsics")
@@ -49,7 +46,7 @@ def read_sensor_yaml(path: Path) -> dict:
         raise InputError(path, "intrinsics [fu, fv, cu, cv] are missing")
     model = y.get("distortion_model", "radial-tangential")
     if model not in ("radial-tangential", "radtan", "none"):
-        raise InputError(path, f"unsupported distortion_model {model!r} (radial-tangential only)")
+        raise InputError(path, f"unsupported distortion_model {short(model)} (radial-tangential only)")
     dist = y.get("distortion_coefficients", [0, 0, 0, 0])
     res = y.get("resolution")
     if not isinstance(res, list) or len(res) != 2:
@@ -77,14 +74,20 @@ def read_sensor_yaml(path: Path) -> dict:
             raise InputError(path, "undistorted_intrinsics must be [fu, fv, cu, cv]") from None
         if not np.isfinite(k_und).all():
             raise InputError(path, "non-finite number in undistorted_intrinsics")
-    return {"body_from_cam": body_from_cam, "k": k, "dist": dist, "width": int(res[0]), "height": int(res[1]),
-            "rate_hz": float(y.get("rate_hz", 20.0)), "k_undistorted": k_und}
+    try:
+        width, height, rate_hz = int(res[0]), int(res[1]), float(y.get("rate_hz", 20.0))
+    except (TypeError, ValueError):
+        raise InputError(path, f"resolution must be two integers and rate_hz a number, got {short(res)} and "
+                               f"{short(y.get('rate_hz'))}") from None
+    return {"body_from_cam": body_from_cam, "k": k, "dist": dist, "width": width, "height": height,
+            "rate_hz": rate_hz, "k_undistorted": k_und}
 
 
 def _read_data_csv(path: Path, cam_dir: Path) -> tuple[np.ndarray, list[Path]]:
     if not path.exists():
         raise InputError(path, "data.csv is missing")
     stamps, files = [], []
+    lines_of: dict[Path, int] = {}
     for lineno, line in enumerate(read_text(path, "data.csv").splitlines(), start=1):
         if not line.strip() or line.startswith("#"):
             continue
@@ -93,13 +96,19 @@ def _read_data_csv(path: Path, cam_dir: Path) -> tuple[np.ndarray, list[Path]]:
             raise InputError(path, f"expected 2 columns (timestamp [ns], filename), got {len(parts)}", line=lineno)
         if not parts[0].isdigit():
             raise InputError(path, f"timestamp is not an integer number of ns: {parts[0][:30]!r}", line=lineno)
+        f = dataset_file(cam_dir / "data", parts[1], path, lineno)
+        if f in lines_of:
+            raise InputError(path, f"{parts[1][:80]} is listed twice (first on line {lines_of[f]}); one file per frame",
+                             line=lineno)
+        lines_of[f] = lineno
+        if stamps and int(parts[0]) <= stamps[-1]:
+            raise InputError(path, f"timestamps are not strictly increasing ({parts[0]} ns after {stamps[-1]} ns)",
+                             line=lineno)
         stamps.append(int(parts[0]))
-        files.append(cam_dir / "data" / parts[1])
+        files.append(f)
     if not stamps:
         raise InputError(path, "no frames")
     ns = np.array(stamps, dtype=np.int64)
-    if np.any(np.diff(ns) <= 0):
-        raise InputError(path, "timestamps are not strictly increasing")
     return ns, files
 
 

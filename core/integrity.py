@@ -28,7 +28,7 @@ def record_files_match(record_path: str | Path, root: str | Path) -> bool:
     by an older version) counts as matching. A missing or unreadable record or file: False."""
     try:
         rec = json.loads(Path(record_path).read_text())
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return False
     if not isinstance(rec, dict):
         return False

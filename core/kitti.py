@@ -8,6 +8,7 @@ poses are shifted from cam0's by the offset in P2.
 """
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -25,12 +26,16 @@ def read_calib(path: Path) -> dict[str, np.ndarray]:
     if not path.exists():
         raise InputError(path, "calib.txt is missing")
     out: dict[str, np.ndarray] = {}
+    seen: dict[str, int] = {}
     for lineno, line in enumerate(read_text(path, path.name).splitlines(), start=1):
         if not line.strip():
             continue
         key, sep, rest = line.partition(":")
         if not sep:
             raise InputError(path, "expected 'KEY: 12 numbers'", line=lineno)
+        if key.strip() in seen:  # which one would be meant? refuse rather than silently keep the last
+            raise InputError(path, f"{key.strip()[:20]} is given twice (first on line {seen[key.strip()]})", line=lineno)
+        seen[key.strip()] = lineno
         try:
             vals = np.array([float(x) for x in rest.split()])
         except ValueError:
@@ -59,11 +64,22 @@ def _read_times(path: Path) -> np.ndarray:
     return np.array(times, dtype=np.float64)
 
 
+_FRAME_NAME = re.compile(r"^([0-9]+)\.(?:png|jpe?g)$", re.IGNORECASE)
+
+
 def _frame_files(folder: Path) -> dict[int, Path]:
-    files = {}
-    for p in folder.iterdir():
-        if p.suffix.lower() in {".png", ".jpg", ".jpeg"} and p.stem.isdigit():
-            files[int(p.stem)] = p
+    """{frame number: image} of a KITTI image folder (``NNNNNN.png``; any zero padding, png or jpg).
+    Exactly one file per frame: two files of one number (``3.png`` beside ``000003.png``, or
+    ``000003.jpg`` beside it) are an InputError naming both."""
+    files: dict[int, Path] = {}
+    for p in sorted(folder.iterdir()):
+        m = _FRAME_NAME.match(p.name)
+        if m is None:
+            continue
+        i = int(m.group(1))
+        if i in files:
+            raise InputError(p, f"a second image of frame {i} (beside {files[i].name}); keep exactly one file per frame")
+        files[i] = p
     return files
 
 

@@ -81,16 +81,18 @@ class OursWriter:
                     mask: np.ndarray | None = None, rgb_right: np.ndarray | None = None,
                     extra: dict | None = None, flow_backward: np.ndarray | None = None,
                     occlusion: np.ndarray | None = None, depth_exact: np.ndarray | None = None,
-                    row_poses: np.ndarray | None = None) -> None:
+                    row_poses: np.ndarray | None = None, more_files: list[Path] | None = None) -> None:
         """Write frame i's files, then its record (which marks it complete).
 
         Args: rgb uint8 (H,W,3); depth float32 (H,W) depth_z m; flow float32 (H,W,2) px to frame i+1;
         mask uint16 (H,W); world_from_cam (4,4) float64 OpenCV axes; extra: JSON-able per-frame data;
         flow_backward float32 (H,W,2) px to frame i-1; occlusion bool (H,W), True = not visible in i+1;
-        row_poses float64 (H,4,4) world_from_cam of each image row (rolling shutter).
+        row_poses float64 (H,4,4) world_from_cam of each image row (rolling shutter); more_files: files
+        under ``root`` the caller already wrote for this frame (e.g. flow in other formats), listed in
+        the record with the rest.
         """
         n = _name(i)
-        written = []
+        written = list(more_files or [])
         for sub, ext, data in (("rgb", "png", None if rgb is None else np.asarray(rgb, np.uint8)),
                                ("rgb_right", "png", None if rgb_right is None else np.asarray(rgb_right, np.uint8)),
                                ("depth", "npy", None if depth is None else np.asarray(depth, np.float32)),
@@ -170,8 +172,9 @@ def read_instance_poses(root: str | Path, i: int) -> dict[int, np.ndarray]:
         return {int(k): np.asarray(v, np.float64).reshape(4, 4) for k, v in rec.get("instance_poses", {}).items()}
     except FileNotFoundError:
         raise InputError(path, "frame record is missing") from None
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError, TypeError, ValueError, AttributeError) as e:
-        raise InputError(path, f"cannot read frame record ({type(e).__name__}: {e})") from None
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError, TypeError, ValueError, AttributeError,
+            RecursionError) as e:
+        raise InputError(path, f"cannot read frame record ({type(e).__name__}: {str(e)[:80]})") from None
 
 
 def _read_kitti_poses(path: Path, n: int) -> np.ndarray:

@@ -56,6 +56,20 @@ def read_npy(path: str | Path, dtype: np.dtype, ndim: int) -> np.ndarray:
     return arr.astype(dtype, copy=False)
 
 
+def dataset_file(folder: Path, name: str, listing: Path, line: int | None = None) -> Path:
+    """``folder / name`` for a file name a dataset's listing gives (EuRoC data.csv, TUM rgb.txt), kept
+    inside ``folder``: an absolute name, a ``..`` component or an empty name is an InputError naming the
+    listing and its line (judged on the name as written; symbolic links inside the dataset are followed
+    as usual)."""
+    from pathlib import PurePosixPath, PureWindowsPath
+
+    parts = PurePosixPath(name.replace("\\", "/")).parts
+    if (not name.strip() or name.startswith(("/", "\\", "~")) or PureWindowsPath(name).drive or ".." in parts):
+        raise InputError(listing, f"file name {name[:80]!r} leaves the dataset folder (absolute or with '..'); "
+                                  "names must be relative to it", line=line)
+    return folder / name
+
+
 def ground_truth_files(beside: Callable[[str, str], list[Path] | None]) -> dict:
     """The Sequence fields of the ground-truth folders that sit beside a layout's images
     (``depth/``, ``depth_exact/``, ``flow/``, ``flow_backward/``, ``occlusion/``, ``mask/``, ``row_poses/``, one file per frame in the
@@ -162,15 +176,28 @@ class Sequence:
     def frame(self, i: int) -> Frame:
         return Frame(self, i, float(self.timestamps_s[i]))
 
+    def _sized(self, path: Path, arr: np.ndarray, what: str, tail: tuple[int, ...] = ()) -> np.ndarray:
+        """``arr`` when its first two axes are the camera's (H, W) (and the rest ``tail`` when given),
+        else InputError naming the file: every frame of a sequence is read at the camera's size, never
+        silently resized or remapped."""
+        h, w = self.camera.height, self.camera.width
+        if arr.shape[:2] != (h, w) or (tail and arr.shape[2:] != tail):
+            if tail:
+                raise InputError(path, f"{what} is {arr.shape}, expected {(h, w, *tail)} (the camera is {w}x{h})")
+            got = f"{arr.shape[1]}x{arr.shape[0]}" if arr.ndim >= 2 else str(arr.shape)
+            raise InputError(path, f"{what} is {got}, expected {w}x{h} (the camera's size)")
+        return arr
+
     def image(self, i: int) -> np.ndarray:
-        """Left image i: uint8 (H, W) grey or (H, W, 3) RGB, rectified."""
-        img = read_image(self.image_paths[i])
+        """Left image i: uint8 (H, W) grey or (H, W, 3) RGB, rectified. InputError naming the file when
+        the image on disk is not the camera's size."""
+        img = self._sized(self.image_paths[i], read_image(self.image_paths[i]), "image")
         return self.postprocess(img, "left") if self.postprocess else img
 
     def image_right(self, i: int) -> np.ndarray:
         if self.right_paths is None:
             raise InputError(self.root, "sequence has no right images")
-        img = read_image(self.right_paths[i])
+        img = self._sized(self.right_paths[i], read_image(self.right_paths[i]), "image")
         return self.postprocess(img, "right") if self.postprocess else img
 
     def depth(self, i: int) -> np.ndarray | None:
@@ -178,15 +205,15 @@ class Sequence:
         if self.depth_paths is None:
             return None
         if self.depth_reader is not None:
-            return self.depth_reader(self.depth_paths[i])
-        return read_npy(self.depth_paths[i], np.float32, 2)
+            return self._sized(self.depth_paths[i], self.depth_reader(self.depth_paths[i]), "depth")
+        return self._sized(self.depth_paths[i], read_npy(self.depth_paths[i], np.float32, 2), "depth")
 
     def depth_exact(self, i: int) -> np.ndarray | None:
         """(H, W) float32 depth_z in metres of the scene's true surfaces (0 = nothing), for a render whose
         :meth:`depth` is a simulated sensor's; otherwise :meth:`depth` (the best geometry there is)."""
         if self.depth_exact_paths is None:
             return self.depth(i)
-        return read_npy(self.depth_exact_paths[i], np.float32, 2)
+        return self._sized(self.depth_exact_paths[i], read_npy(self.depth_exact_paths[i], np.float32, 2), "depth")
 
     def gt_pose(self, i: int) -> np.ndarray | None:
         """(4, 4) float64 world_from_cam of frame i, or None where there is no ground truth."""
@@ -201,20 +228,21 @@ class Sequence:
         """(H, W, 2) float32 flow (du, dv) px from frame i to i+1; None where absent (last frame)."""
         if self.flow_paths is None or self.flow_paths[i] is None:
             return None
-        return read_npy(self.flow_paths[i], np.float32, 3)
+        return self._sized(self.flow_paths[i], read_npy(self.flow_paths[i], np.float32, 3), "flow", (2,))
 
     def flow_backward(self, i: int) -> np.ndarray | None:
         """(H, W, 2) float32 flow (du, dv) px from frame i to i-1; None where absent (frame 0)."""
         if self.flow_backward_paths is None or self.flow_backward_paths[i] is None:
             return None
-        return read_npy(self.flow_backward_paths[i], np.float32, 3)
+        return self._sized(self.flow_backward_paths[i], read_npy(self.flow_backward_paths[i], np.float32, 3), "flow",
+                           (2,))
 
     def occlusion(self, i: int) -> np.ndarray | None:
         """(H, W) bool, True where the surface seen at a pixel of frame i is not visible in frame i+1
         (hidden, or outside the image); None where absent (the last frame)."""
         if self.occlusion_paths is None or self.occlusion_paths[i] is None:
             return None
-        return read_image(self.occlusion_paths[i]) > 0
+        return self._sized(self.occlusion_paths[i], read_image(self.occlusion_paths[i]), "occlusion mask") > 0
 
     def row_poses(self, i: int) -> np.ndarray | None:
         """(H, 4, 4) float64 world_from_cam at each image row's capture time (a rolling-shutter render);
@@ -230,7 +258,7 @@ class Sequence:
         """(H, W) uint16 instance ids, 0 = static scene; None when absent."""
         if self.mask_paths is None:
             return None
-        return read_image(self.mask_paths[i]).astype(np.uint16, copy=False)
+        return self._sized(self.mask_paths[i], read_image(self.mask_paths[i]), "mask").astype(np.uint16, copy=False)
 
     def check(self, i: int) -> None:
         """Decode everything of frame i a later command would read and check it against the camera:

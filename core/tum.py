@@ -28,7 +28,7 @@ import numpy as np
 
 from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
-from deepslam.core.sequence import Sequence
+from deepslam.core.sequence import Sequence, dataset_file
 from deepslam.core.textio import read_text
 from deepslam.core.trajectory import Trajectory
 
@@ -50,7 +50,9 @@ def is_tum(root: Path) -> bool:
 
 
 def read_file_list(path: Path) -> list[tuple[float, str, int]]:
-    """(timestamp s, file name, line number) of each entry of an rgb.txt / depth.txt."""
+    """(timestamp s, file name, line number) of each entry of an rgb.txt / depth.txt, in strictly
+    increasing time (an entry out of order or at the time of the one before is an InputError naming the
+    line; TUM's files are in time order)."""
     out = []
     for lineno, line in enumerate(read_text(path, path.name).splitlines(), start=1):
         s = line.strip()
@@ -65,6 +67,9 @@ def read_file_list(path: Path) -> list[tuple[float, str, int]]:
             raise InputError(path, f"timestamp is not a number: {parts[0][:30]!r}", line=lineno) from None
         if not np.isfinite(t):
             raise InputError(path, "timestamp is not finite", line=lineno)
+        if out and t <= out[-1][0]:  # the frames are the listing's order: it must be time order
+            raise InputError(path, f"out of time order: {parts[0][:30]} s is not after {out[-1][0]!r} s on line "
+                                   f"{out[-1][2]}", line=lineno)
         out.append((t, parts[1], lineno))
     if not out:
         raise InputError(path, "lists no frames")
@@ -137,8 +142,8 @@ def read_tum(root: str | Path, max_diff_s: float = MAX_DIFF_S) -> Sequence:
     depth = read_file_list(root / "depth.txt")
     for listing, entries in (("rgb.txt", rgb), ("depth.txt", depth)):
         for _, name, lineno in entries:
-            if not (root / name).is_file():
-                raise InputError(root / listing, f"lists {name}, which is missing", line=lineno)
+            if not dataset_file(root, name, root / listing, lineno).is_file():
+                raise InputError(root / listing, f"lists {name[:80]}, which is missing", line=lineno)
     pairs = associate_times(np.array([e[0] for e in rgb]), np.array([e[0] for e in depth]), max_diff_s)
     if not pairs:
         raise InputError(root / "depth.txt", f"no depth map within {max_diff_s} s of any colour image (rgb.txt)")

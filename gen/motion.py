@@ -46,6 +46,7 @@ import numpy as np
 
 from deepslam.core import atomic, se3
 from deepslam.core.errors import InputError
+from deepslam.core.textio import JSON_MAX_DEPTH, json_depth
 from deepslam.core.trajectory import Trajectory
 
 FORMAT = "deepslam-motion"
@@ -334,9 +335,13 @@ class MotionModel:
         if not path.is_file():
             raise InputError(path, "motion model file is missing")
         try:
-            d = json.loads(path.read_text())
+            text = path.read_text()
         except (OSError, UnicodeDecodeError) as e:
             raise InputError(path, f"cannot read motion model ({e})") from None
+        if json_depth(text) > JSON_MAX_DEPTH:  # bounded (core.textio): json.loads recurses once per level
+            raise InputError(path, f"malformed motion model: nested more than {JSON_MAX_DEPTH} levels deep")
+        try:
+            d = json.loads(text)
         except json.JSONDecodeError as e:
             raise InputError(path, f"malformed motion model: not JSON ({e.msg})", line=e.lineno) from None
         return cls.from_dict(d, path)

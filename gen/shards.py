@@ -51,6 +51,8 @@ from deepslam.core import atomic
 from deepslam.core.errors import InputError
 from deepslam.core.integrity import sha256_file
 from deepslam.core.lock import output_lock
+from deepslam.core.sequence import dataset_file
+from deepslam.core.textio import loads_json
 
 FORMAT = "deepslam-flow-shards"
 VERSION = 1
@@ -442,7 +444,7 @@ def _read_ledger(path: Path) -> dict[int, str]:
         try:
             rec = json.loads(line)
             out[int(rec["shard"])] = str(rec["sha256"])
-        except (ValueError, KeyError, TypeError):
+        except (ValueError, KeyError, TypeError, RecursionError):
             continue
     return out
 
@@ -468,7 +470,7 @@ def read_shard(path: str | Path) -> Iterator[dict[str, np.ndarray | dict]]:
             key = k
             data = tar.extractfile(member).read()
             if ext == "json":
-                sample["meta"] = json.loads(data)
+                sample["meta"] = loads_json(data, path, f"sample {key}'s meta")
             else:
                 sample[ext.removesuffix(".npy")] = np.load(io.BytesIO(data), allow_pickle=False)
         if sample:
@@ -480,11 +482,16 @@ def verify(out_dir: str | Path) -> dict:
     out_dir = Path(out_dir)
     path = out_dir / "manifest.json"
     try:
-        manifest = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as e:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as e:
         raise InputError(path, f"cannot read manifest ({e})") from None
-    for entry in manifest["shards"]:
-        shard = out_dir / entry["name"]
+    manifest = loads_json(text, path, "manifest")  # bounded: size and nesting (core.textio)
+    shards = manifest.get("shards") if isinstance(manifest, dict) else None
+    if not isinstance(shards, list) or not all(isinstance(e, dict) and isinstance(e.get("name"), str)
+                                                    and isinstance(e.get("sha256"), str) for e in shards):
+        raise InputError(path, "not a shard manifest (no list of shards with names)")
+    for entry in shards:
+        shard = dataset_file(out_dir, entry["name"], path)  # never outside the shard folder
         if not shard.is_file():
             raise InputError(shard, "shard listed in the manifest is missing")
         if sha256_file(shard) != entry["sha256"]:

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from deepslam.core.errors import InputError
+from deepslam.core.textio import loads_yaml, read_text, short
 
 SHADE_LEVELS = 8
 """Shades of each mesh's colour (flat shading by the face normal)."""
@@ -86,37 +87,29 @@ def _numbers(v, n: int | None, what: str, path: Path) -> tuple[float, ...]:
     try:
         out = tuple(float(x) for x in v)
     except (TypeError, ValueError):
-        raise InputError(path, f"{what} must be a list of numbers, got {v!r}") from None
+        raise InputError(path, f"{what} must be a list of numbers, got {short(v)}") from None
     if (n is not None and len(out) != n) or not np.isfinite(out).all():
-        raise InputError(path, f"{what} must be {n or 'some'} finite numbers, got {v!r}")
+        raise InputError(path, f"{what} must be {n or 'some'} finite numbers, got {short(v)}")
     return out
 
 
 def load_scene_file(path: str | Path) -> SceneFile:
     """Parse and check a scene file; InputError naming the file (and the mesh entry) when it is wrong."""
-    import yaml
-
-    from deepslam.core.textio import read_text
-
     path = Path(path).resolve()
     text = read_text(path, "scene file")
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        line = getattr(getattr(e, "problem_mark", None), "line", None)
-        raise InputError(path, f"not YAML/JSON ({getattr(e, 'problem', None) or e})",
-                         line=None if line is None else line + 1) from None
+    # bounded YAML (JSON is read as YAML too): aliases limited, no duplicate keys, at most 1 MB (core.textio)
+    doc = loads_yaml(text, path, "scene file (YAML/JSON)")
     if not isinstance(doc, dict):
         raise InputError(path, "a scene file holds a mapping (scene, seed, meshes)")
-    unknown = sorted(set(doc) - {"scene", "seed", "meshes"})
+    unknown = sorted(short(str(k), 40) for k in doc if k not in ("scene", "seed", "meshes"))
     if unknown:
-        raise InputError(path, f"unknown key(s) {', '.join(unknown)} (scene, seed, meshes)")
+        raise InputError(path, f"unknown key(s) {short(', '.join(unknown[:8]), 200)} (scene, seed, meshes)")
     base = doc.get("scene", "street")
-    if base not in BASE_SCENES:
-        raise InputError(path, f"scene must be one of {', '.join(BASE_SCENES)}, got {base!r}")
+    if not isinstance(base, str) or base not in BASE_SCENES:
+        raise InputError(path, f"scene must be one of {', '.join(BASE_SCENES)}, got {short(base)}")
     seed = doc.get("seed")
     if seed is not None and (not isinstance(seed, int) or seed < 0):
-        raise InputError(path, f"seed must be a non-negative integer, got {seed!r}")
+        raise InputError(path, f"seed must be a non-negative integer, got {short(seed)}")
     entries = doc.get("meshes") or []
     if not isinstance(entries, list):
         raise InputError(path, "meshes must be a list")
@@ -125,9 +118,9 @@ def load_scene_file(path: str | Path) -> SceneFile:
         where = f"meshes[{k}]"
         if not isinstance(e, dict) or "file" not in e:
             raise InputError(path, f"{where} must be a mapping with a file")
-        bad = sorted(set(e) - {"file", "scale", "rgb", "xyz", "yaw_deg", "path"})
+        bad = sorted(short(str(x), 40) for x in e if x not in ("file", "scale", "rgb", "xyz", "yaw_deg", "path"))
         if bad:
-            raise InputError(path, f"{where}: unknown key(s) {', '.join(bad)}")
+            raise InputError(path, f"{where}: unknown key(s) {short(', '.join(bad[:8]), 200)}")
         f = (path.parent / str(e["file"])).resolve()
         if not f.is_file():
             raise InputError(path, f"{where}: mesh file {f} does not exist")

@@ -1,4 +1,4 @@
-"""Write rendered sequences to disk: our format, KITTI odometry and EuRoC ASL layouts.
+"""Write rendered sequences to disk: our format, KITTI odometry, EuRoC ASL and TUM RGB-D layouts.
 
 Every file is written atomically (temporary name + rename). A frame counts as done only once its
 record is written, which happens after all its files; so a killed render leaves no frame that
@@ -21,6 +21,13 @@ Layouts (``N`` frames, ``NNNNNN`` = zero-padded frame index):
   body (IMU) frame is not the camera's: ``T_BS`` of cam0 is a fixed realistic rotation and offset
   (EuRoC's own cam0 extrinsics, orthonormalised), cam1 sits at +B along cam0's x axis.
 
+- tum: ``<out>/{rgb/NNNNNN.png (colour), depth/NNNNNN.png (uint16, 5000 per metre, 0 = no depth or beyond
+  13.107 m), rgb.txt, depth.txt, groundtruth.txt (TUM: t tx ty tz qx qy qz qw, world_from_cam, OpenCV
+  axes), intrinsics.txt (fx fy cx cy), flow/, flow_backward/, occlusion/, mask/, deepslam.json}``, as
+  TUM RGB-D publishes its sequences (left camera only; times 0-based, 6 decimals).
+
+Flow files are ``NNNNNN.npy`` (float32 HxWx2); ``config.render.flow_formats`` adds Middlebury
+``NNNNNN.flo`` and KITTI 2015 ``NNNNNN.png`` beside them (:mod:`core.flowio`), in every layout.
 The last frame has no flow file (there is no next frame in the sequence).
 """
 from __future__ import annotations
@@ -32,10 +39,13 @@ from pathlib import Path
 
 import numpy as np
 
-from deepslam.core import atomic, se3
+from deepslam.core import atomic, flowio, se3
 from deepslam.core.errors import InputError
 from deepslam.core.integrity import file_digests, record_files_match
 from deepslam.core.lock import output_lock
+from deepslam.core.trajectory import Trajectory
+from deepslam.core.trajio import write_trajectory
+from deepslam.core.tum import DEPTH_SCALE as TUM_DEPTH_SCALE
 from deepslam.sim.config import FORMATS, SimConfig
 
 EUROC_T0_NS = 1_600_000_000_000_000_000
@@ -68,14 +78,27 @@ def _write_dynamic_fraction(path: Path, values) -> None:
     atomic.write_text(path, "".join(f"{float(v):.6f}\n" for v in values))
 
 
-def check_output_folder(out: Path, resume: bool) -> None:
+def render_record(out: Path, fmt: str, sequence: str = "00") -> Path:
+    """The file that marks ``out`` as a render in layout ``fmt`` (each sink writes it before any frame)."""
+    if fmt == "ours":
+        return out / "sequence.json"
+    if fmt == "kitti":
+        return out / "sequences" / sequence / "deepslam.json"
+    return out / "deepslam.json"
+
+
+def check_output_folder(out: Path, resume: bool, record: Path | None = None) -> None:
     """InputError (before anything is written) when ``out`` cannot be used: a file, a non-empty
-    folder without ``resume``, or a place where nothing can be created."""
+    folder without ``resume``, a non-empty folder without the render ``record`` with ``resume`` (it
+    never was a render: nothing in it is deleted or written), or a place where nothing can be created."""
     if out.exists() and not out.is_dir():
         raise InputError(out, "output exists and is not a folder")
     if out.is_dir():
         if any(out.iterdir()) and not resume:
             raise InputError(out, "output folder exists and is not empty (use --resume to finish an interrupted render)")
+        if resume and record is not None and any(out.iterdir()) and not record.is_file():
+            raise InputError(out, f"cannot resume: not an interrupted render ({record.relative_to(out)} is missing); "
+                                  "nothing in it was changed")
         if not os.access(out, os.W_OK | os.X_OK):
             raise InputError(out, "output folder is not writable")
         return
@@ -84,6 +107,27 @@ def check_output_folder(out: Path, resume: bool) -> None:
         parent = parent.parent
     if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
         raise InputError(out, f"cannot create the output folder ({parent} is not writable)")
+
+
+def put_flow(put, folder: Path, name: str, flow: np.ndarray, formats) -> None:
+    """Write one flow field (H, W, 2) float32 (du, dv) px into ``folder`` in each of ``formats``
+    (:data:`sim.config.FLOW_FORMATS`): ``<name>.npy``, ``<name>.flo`` (Middlebury), ``<name>.png`` (KITTI
+    2015); ``put(write, path, data)`` writes and lists a file."""
+    flow = flow.astype(np.float32)
+    if "npy" in formats:
+        put(atomic.write_npy, folder / f"{name}.npy", flow)
+    if "flo" in formats:
+        put(flowio.write_flo, folder / f"{name}.flo", flow)
+    if "png" in formats:
+        put(flowio.write_kitti_flow_png, folder / f"{name}.png", flow)
+
+
+def tum_depth_png(depth_z: np.ndarray) -> np.ndarray:
+    """(H, W) uint16 TUM depth image of ``depth_z`` (H, W) float32 metres: round(depth * 5000), 0 where
+    the depth is 0 (no surface) or beyond what 16 bits hold (65535 / 5000 = 13.107 m)."""
+    q = np.round(depth_z.astype(np.float64) * TUM_DEPTH_SCALE)
+    q[~np.isfinite(q) | (q < 0) | (q > 65535)] = 0
+    return q.astype(np.uint16)
 
 
 class _Sink:
@@ -103,22 +147,29 @@ class _Sink:
         replaced file makes the frame be rendered again on --resume)."""
         return record_files_match(self._records() / f"{_name(i)}.json", self.root)
 
-    def _put_ground_truth(self, put, folder: Path, i: int, frame) -> None:
+    def _put_ground_truth(self, put, folder: Path, i: int, frame, depth_png: bool = False) -> None:
         """Frame i's ground truth beside the images, numbered like them: ``depth/`` (the sensor's when
-        simulated, the exact one then in ``depth_exact/``), ``flow/`` and ``occlusion/`` (none for the
-        last frame), ``flow_backward/``, ``mask/``; ``put(write, path, data)`` writes and lists a file."""
+        simulated, the exact one then in ``depth_exact/``; ``depth_png``: a TUM 16-bit PNG instead of
+        the .npy), ``flow/`` and ``occlusion/`` (none for the last frame), ``flow_backward/`` (the flow
+        in every format of ``config.render.flow_formats``), ``mask/``; ``put(write, path, data)``
+        writes and lists a file."""
         n = _name(i)
         last = i >= self.n - 1
         sensor = frame.depth_sensor is not None
-        put(atomic.write_npy, folder / "depth" / f"{n}.npy", (frame.depth_sensor if sensor else frame.depth_z).astype(np.float32))
+        depth = (frame.depth_sensor if sensor else frame.depth_z).astype(np.float32)
+        if depth_png:
+            put(atomic.write_png, folder / "depth" / f"{n}.png", tum_depth_png(depth))
+        else:
+            put(atomic.write_npy, folder / "depth" / f"{n}.npy", depth)
         if sensor:
             put(atomic.write_npy, folder / "depth_exact" / f"{n}.npy", frame.depth_z.astype(np.float32))
+        formats = ("npy", *self.config.render.flow_formats)
         if frame.flow is not None and not last:
-            put(atomic.write_npy, folder / "flow" / f"{n}.npy", frame.flow.astype(np.float32))
+            put_flow(put, folder / "flow", n, frame.flow, formats)
         if frame.occlusion is not None and not last:
             put(atomic.write_png, folder / "occlusion" / f"{n}.png", frame.occlusion.astype(np.uint8) * 255)
         if frame.flow_backward is not None:
-            put(atomic.write_npy, folder / "flow_backward" / f"{n}.npy", frame.flow_backward.astype(np.float32))
+            put_flow(put, folder / "flow_backward", n, frame.flow_backward, formats)
         put(atomic.write_png, folder / "mask" / f"{n}.png", frame.mask.astype(np.uint16))
         if frame.row_poses is not None:
             put(atomic.write_npy, folder / "row_poses" / f"{n}.npy", frame.row_poses.astype(np.float64))
@@ -170,6 +221,7 @@ class OursSink:
         from deepslam.core.ours import OursWriter
 
         self.sim = sim
+        self.config = config
         self.n = sim.num_frames
         header = {"num_frames": self.n, "rate_hz": sim.rate_hz, "camera": sim.camera.to_dict(),
                   "stereo_baseline_m": sim.baseline_m, "scene": sim.scene.name,
@@ -201,12 +253,26 @@ class OursSink:
     def write(self, i: int, frame) -> None:
         flow = frame.flow if i < self.n - 1 else None
         sensor = frame.depth_sensor is not None
+        # flow in the other formats first (the .npy files are the writer's); the record lists them too
+        more: list[Path] = []
+        formats = tuple(f for f in self.config.render.flow_formats if f != "npy")
+
+        def put(write, path: Path, data) -> None:
+            write(path, data)
+            more.append(path)
+
+        if formats:
+            if flow is not None:
+                put_flow(put, self.path / "flow", _name(i), flow, formats)
+            if frame.flow_backward is not None:
+                put_flow(put, self.path / "flow_backward", _name(i), frame.flow_backward, formats)
         self.writer.write_frame(i, frame.timestamp_s, frame.world_from_cam, frame.rgb,
                                 frame.depth_sensor if sensor else frame.depth_z, flow, frame.mask,
                                 frame.rgb_right, extra={"instance_poses": {str(k): v.tolist() for k, v in frame.instance_poses.items()},
                                                         "dynamic_fraction": dynamic_fraction(frame.mask)},
                                 flow_backward=frame.flow_backward, occlusion=frame.occlusion if i < self.n - 1 else None,
-                                depth_exact=frame.depth_z if sensor else None, row_poses=frame.row_poses)
+                                depth_exact=frame.depth_z if sensor else None, row_poses=frame.row_poses,
+                                more_files=more)
 
     def finish(self) -> None:
         if not self.complete:
@@ -380,6 +446,56 @@ class EurocSink(_Sink):
         shutil.rmtree(self._records(), ignore_errors=True)
 
 
+class TumSink(_Sink):
+    """TUM RGB-D layout (read back by :func:`core.tum.read_tum`): colour and depth PNGs, the file lists,
+    ``groundtruth.txt`` and ``intrinsics.txt``; the left camera only."""
+
+    def __init__(self, sim, root: Path, config: SimConfig, resume: bool):
+        super().__init__(sim, root, config, resume)
+        self.meta_path = root / "deepslam.json"
+        self.meta = self._meta("tum", False, {"depth_scale": TUM_DEPTH_SCALE})
+        self.complete = self._check_resume(self.meta_path, self.meta) if resume else False
+        self.path = root
+        if not self.complete:
+            atomic.write_json(self.meta_path, self.meta)
+            cam = sim.camera
+            atomic.write_text(root / "intrinsics.txt", f"{cam.fx!r} {cam.fy!r} {cam.cx!r} {cam.cy!r}\n")
+
+    def _records(self) -> Path:
+        return self.root / ".deepslam_frames"
+
+    def done(self, i: int) -> bool:
+        return self.complete or super().done(i)
+
+    def write(self, i: int, frame) -> None:
+        written = []
+
+        def put(write, path: Path, data) -> None:
+            write(path, data)
+            written.append(path)
+
+        put(atomic.write_png, self.root / "rgb" / f"{_name(i)}.png", frame.rgb)
+        self._put_ground_truth(put, self.root, i, frame, depth_png=True)
+        self._mark(i, frame, written)
+
+    def finish(self) -> None:
+        if self.complete:
+            return
+        recs = [json.loads((self._records() / f"{_name(i)}.json").read_text()) for i in range(self.n)]
+        # the times as the lists print them (TUM's 6 decimals), so ground truth sits exactly at the frames
+        stamps = [f"{r['timestamp_s']:.6f}" for r in recs]
+        for name, what, ext in (("rgb", "color images", "png"), ("depth", "depth maps", "png")):
+            lines = [f"# {what}", "# file: 'deepslam render'", "# timestamp filename"]
+            lines += [f"{t} {name}/{_name(i)}.{ext}" for i, t in enumerate(stamps)]
+            atomic.write_text(self.root / f"{name}.txt", "\n".join(lines) + "\n")
+        traj = Trajectory(np.array([r["world_from_cam"] for r in recs], np.float64), np.array([float(t) for t in stamps]))
+        write_trajectory(self.root / "groundtruth.txt", traj, "tum")
+        _write_dynamic_fraction(self.root / DYNAMIC_FRACTION_FILE, [r["dynamic_fraction"] for r in recs])
+        self.meta["complete"] = True
+        atomic.write_json(self.meta_path, self.meta)
+        shutil.rmtree(self._records(), ignore_errors=True)
+
+
 def _remove_stale_temporaries(root: Path) -> None:
     """Delete the temporary files (core.atomic: ``.<stem>.<random>.tmp<suffix>``) that a killed
     writer left behind; they are never complete files."""
@@ -421,7 +537,7 @@ def _render_locked(config: SimConfig, out: Path, created: bool, fmt: str, resume
 
     from deepslam.sim.simulator import Simulator
 
-    check_output_folder(out, resume)
+    check_output_folder(out, resume, render_record(out, fmt, sequence))
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as e:
@@ -433,14 +549,18 @@ def _render_locked(config: SimConfig, out: Path, created: bool, fmt: str, resume
             shutil.rmtree(out, ignore_errors=True)
         raise
     try:
-        if resume:
-            _remove_stale_temporaries(out)
+        # the sinks refuse a resume whose settings differ before they write anything: only then are a
+        # killed run's temporary files removed
         if fmt == "ours":
             sink = OursSink(sim, out, config, resume)
         elif fmt == "kitti":
             sink = KittiSink(sim, out, config, resume, sequence)
+        elif fmt == "tum":
+            sink = TumSink(sim, out, config, resume)
         else:
             sink = EurocSink(sim, out, config, resume)
+        if resume:
+            _remove_stale_temporaries(out)
         todo = [i for i in range(sim.num_frames) if not sink.done(i)]
         for i in tqdm(todo, desc=f"render {sim.scene.name}", unit="frame", disable=not progress, dynamic_ncols=True):
             sink.write(i, sim.frame(i, flow=config.render.flow and i < sim.num_frames - 1))

@@ -21,7 +21,6 @@ reruns the cheap parts.
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -32,6 +31,7 @@ from deepslam.core import atomic
 from deepslam.core.errors import InputError
 from deepslam.core.kinds import kind_for_sequence
 from deepslam.core.progress import progress
+from deepslam.core.textio import loads_json
 from deepslam.core.trajectory import Trajectory
 from deepslam.slam.odometry import Odometry, check_prediction
 from deepslam.slam.posegraph import Edges, PoseGraphConfig, chain, optimize
@@ -63,11 +63,12 @@ class SlamParams:
         """Read a params JSON; InputError names the file and the bad field."""
         path = Path(path)
         try:
-            obj = json.loads(path.read_text())
+            text = path.read_text()
         except FileNotFoundError:
             raise InputError(path, "parameter file is missing") from None
-        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as e:
+        except (OSError, UnicodeDecodeError) as e:
             raise InputError(path, f"cannot read parameter JSON ({e})") from None
+        obj = loads_json(text, path, "parameter JSON")  # bounded: size and nesting (core.textio)
         if not isinstance(obj, dict) or obj.get("format") != PARAMS_FORMAT:
             raise InputError(path, f"not a SLAM parameter file (expected \"format\": \"{PARAMS_FORMAT}\")")
         try:

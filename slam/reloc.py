@@ -29,6 +29,7 @@ import numpy as np
 
 from deepslam.core import atomic
 from deepslam.core.errors import InputError
+from deepslam.core.textio import short
 
 VOCAB_FORMAT = "deepslam-bow-vocabulary-v1"
 
@@ -203,8 +204,9 @@ class Vocabulary:
                 centers, idf, n = z["centers"], z["idf"], int(z["n_train_images"])
         except Exception as e:  # zipfile/KeyError/ValueError/JSON errors of a foreign or truncated file
             raise InputError(path, f"not a readable vocabulary .npz ({type(e).__name__}: {e})") from None
-        if meta.get("format") != VOCAB_FORMAT:
-            raise InputError(path, f"unknown vocabulary format {meta.get('format')!r}, expected {VOCAB_FORMAT!r}")
+        if not isinstance(meta, dict) or meta.get("format") != VOCAB_FORMAT:
+            got = meta.get("format") if isinstance(meta, dict) else meta
+            raise InputError(path, f"unknown vocabulary format {short(got)}, expected {VOCAB_FORMAT!r}")
         try:
             vocab = Vocabulary(centers, idf, n)
         except ValueError as e:

@@ -26,6 +26,7 @@ from pathlib import Path
 from deepslam.core import atomic
 from deepslam.core.errors import InputError
 from deepslam.core.kinds import kind_for_sequence
+from deepslam.core.outputs import check_output_not_input
 from deepslam.core.readers import open_sequence
 from deepslam.models import models_dir
 from deepslam.vo import modeltree
@@ -45,6 +46,9 @@ class Recipe:
     """Motion model specs, relative to the shipped models' folder (``motion/X.json[:loops]``)."""
     synthetic_flow: str = "exact"
     """``exact`` or the flow estimator the start model records (its options come from that record)."""
+    flow_options: tuple[tuple[str, object], ...] = ()
+    """Options set on top of the start model's recorded ones (recorded in the adapted model: vo and slam set
+    the flow up the same)."""
     appearance_noise: float = 0.0
     """Grey levels of noise on the rendered second view."""
     camera_tilt_deg: str | None = None
@@ -59,7 +63,9 @@ class Recipe:
 
 RECIPES: dict[str, dict[str, Recipe]] = {
     "tum": {
-        "cons": Recipe("tum_cons.safetensors", ("motion/euroc_s1_30hz.json",), "dis", appearance_noise=6.0, bf16=False),
+        # DIS's forward-backward check leaves occluded and mismatched pixels out (as the shipped teddy model)
+        "cons": Recipe("tum_cons.safetensors", ("motion/euroc_s1_30hz.json",), "dis", (("fb_max_px", 0.5),),
+                       appearance_noise=6.0, bf16=False),
         "loops": Recipe("tum_loops.safetensors", ("motion/euroc_s1_30hz.json:loops",)),
     },
     "kitti": {
@@ -155,7 +161,9 @@ def _stage(which: str, recipe: Recipe, start: Path, frames: str, cfg: AdaptConfi
     motion = tuple(str(models_dir() / m) for m in recipe.motion)
     if cfg.motion:
         motion = (cfg.motion + (":loops" if which == "loops" else ""),)
-    options = tuple((meta.get("flow") or {}).get("options", {}).items()) if recipe.synthetic_flow != "exact" else ()
+    options = ()
+    if recipe.synthetic_flow != "exact":
+        options = tuple({**(meta.get("flow") or {}).get("options", {}), **dict(recipe.flow_options)}.items())
     samples = cfg.cons_samples if which == "cons" else cfg.loops_samples
     epochs = cfg.cons_epochs if which == "cons" else cfg.loops_epochs
     spec = SyntheticData(frames=(frames,), motion=motion, frame_step=cfg.frame_step, samples_per_epoch=samples,
@@ -184,6 +192,7 @@ def adapt(seq_dir: str | Path, out: str | Path, cfg: AdaptConfig = AdaptConfig()
         InputError: the sequence cannot be read, has no depth for its frames, or ``out`` holds another run.
     """
     seq_dir, out = Path(seq_dir), Path(out)
+    check_output_not_input(out, [("--sequence", seq_dir), ("--model", cfg.model), ("--motion", cfg.motion)])
     t0 = time.perf_counter()
     record_path = out / "adapt.json"
     if out.exists() and any(out.iterdir()) and not resume:

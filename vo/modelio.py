@@ -65,11 +65,17 @@ def load_model(path: str | Path) -> tuple[torch.nn.Module, dict]:
     return _model_from_tree(path, d), d.get("meta", {})
 
 
+MAX_ENSEMBLE = 32
+"""Most networks an ensemble file may hold."""
+
+
 def _load_ensemble(path: Path, d: dict):
     """(:class:`vo.ensemble.EnsemblePoseNet` in eval mode, meta) from an ensemble file's tree."""
     parts = d["ensemble"]
     if not isinstance(parts, list) or len(parts) < 2 or not all(isinstance(t, dict) for t in parts):
         raise InputError(path, "malformed VO ensemble (its 'ensemble' is not a list of two or more networks)")
+    if len(parts) > MAX_ENSEMBLE:
+        raise InputError(path, f"malformed VO ensemble ({len(parts)} networks; at most {MAX_ENSEMBLE})")
     members = [_model_from_tree(path, {"format": MODEL_FORMAT, **t}) for t in parts]
     try:
         model = EnsemblePoseNet(members)
@@ -93,6 +99,17 @@ def _model_from_tree(path: Path, d: dict) -> PoseNet:
         raise InputError(path, f"malformed VO model ({type(e).__name__}: {e})") from None
     if not isinstance(sd, dict) or not all(torch.is_tensor(v) for v in sd.values()):
         raise InputError(path, "malformed VO model (its weights are not a dict of tensors)")
+    # the network the config describes, built without memory first: a small file whose config asks for a huge
+    # network is refused before any allocation
+    try:
+        with torch.device("meta"):
+            shapes = {k: tuple(v.shape) for k, v in make_net(net_cfg).state_dict().items()}
+    except (ValueError, RuntimeError) as e:
+        raise InputError(path, f"malformed VO model (its network config cannot be built: {str(e)[:80]})") from None
+    stored = {k: tuple(v.shape) for k, v in sd.items()}
+    if shapes != stored:
+        bad = sorted(set(shapes) ^ set(stored)) or sorted(k for k in shapes if shapes[k] != stored[k])
+        raise InputError(path, f"weights do not fit the stored network config (first difference: {bad[0][:60]})")
     model = make_net(net_cfg)
     try:
         model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in sd.items()})

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from deepslam.core.errors import InputError
 from deepslam.core.kinds import KINDS, kind_for_sequence  # noqa: F401 - part of this module's API
+from deepslam.core.textio import short
 
 WHICH = ("cons", "loops")
 """NN_cons (consecutive frames) and NN_loops (loop pairs)."""
@@ -117,7 +118,7 @@ def recorded_flow_options(path: str | Path, flow: str) -> dict:
     options = record.get("options")
     allowed = RECORDED_OPTIONS.get(flow, ())
     if not isinstance(options, dict) or set(options) - set(allowed):
-        raise InputError(path, f"malformed VO model: its meta.flow options {options!r} are not options of flow "
+        raise InputError(path, f"malformed VO model: its meta.flow options {short(options)} are not options of flow "
                                f"estimator {flow} (it takes {', '.join(allowed) or 'none'})")
     return dict(options)
 
@@ -139,7 +140,7 @@ def recorded_pose(path: str | Path) -> str:
     except Exception:  # noqa: BLE001 - an unreadable file: the loader says what is wrong
         return "net"
     if pose not in POSES:
-        raise InputError(path, f"malformed VO model: its meta.pose {pose!r} is not one of {', '.join(POSES)}")
+        raise InputError(path, f"malformed VO model: its meta.pose {short(pose)} is not one of {', '.join(POSES)}")
     return pose
 
 

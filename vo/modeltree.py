@@ -20,6 +20,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from deepslam.core.textio import json_depth
+
 
 def net_config(tree: dict) -> dict:
     """The network's shape (a :class:`vo.net.NetConfig` dict) of a model, ensemble (its first member:
@@ -46,7 +48,11 @@ def read_header_tree(path: str | Path) -> dict:
     from safetensors import safe_open
 
     with safe_open(str(path), framework="numpy") as f:
-        tree = json.loads((f.metadata() or {})["tree"])
+        text = (f.metadata() or {})["tree"]
+    # bounded (models.modelfile.MAX_TREE_DEPTH): a deep tree would end json.loads in a RecursionError
+    if len(text) > 16 * 1024 * 1024 or json_depth(text) > 64:
+        raise ValueError(f"{path}: the model file's tree is too large or nested too deeply")
+    tree = json.loads(text)
     if not isinstance(tree, dict):
         raise ValueError(f"{path}: the model file's tree is not an object")
     return tree

@@ -19,6 +19,9 @@ def run(args: argparse.Namespace) -> int:
 
     src = Path(args.model)
     dst = Path(args.out) if args.out else src.with_suffix(".safetensors")
+    from deepslam.core.outputs import check_output_not_input
+
+    check_output_not_input(dst, [("MODEL", src)], "--out" if args.out else "the default --out (MODEL.safetensors)")
     kind = convert_legacy(src, dst)
     print(f"wrote {dst} ({kind})")
     return 0

@@ -17,7 +17,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--width", type=int, default=None, help="image width in pixels (default: the scene camera's)")
     p.add_argument("--height", type=int, default=None, help="image height in pixels (default: from the width)")
     p.add_argument("--seed", type=int, default=None, help="seed of the whole dataset (default 0)")
-    p.add_argument("--format", default=None, help="layout of each sequence: ours, kitti or euroc (default ours)")
+    p.add_argument("--format", default=None, help="layout of each sequence: ours, kitti, euroc or tum (default ours)")
     p.add_argument("--out", required=True, help="output folder (new or empty, or an interrupted run with --resume)")
     p.add_argument("--backend", default="ray", choices=("local", "ray"),
                    help="ray (default: a local Ray instance with --workers CPUs, or --address) or local (this process)")
@@ -34,6 +34,9 @@ def run(args: argparse.Namespace) -> int:
     from deepslam.core.textio import read_json_object
     from deepslam.sim.dataset import DatasetConfig, build
 
+    from deepslam.core.outputs import check_output_not_input
+
+    check_output_not_input(args.out, [("--config", args.config)])
     fields = read_json_object(args.config) if args.config else {}
     cfg = DatasetConfig.from_dict(fields, source=args.config)
     overrides = {k: getattr(args, k) for k in ("sequences", "frames", "width", "height", "seed", "format")

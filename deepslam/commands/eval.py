@@ -51,6 +51,9 @@ def run(args: argparse.Namespace) -> int:
     if args.rpe_delta < 1:
         raise InputError(None, f"--rpe-delta must be at least 1 frame, got {args.rpe_delta}")
     gt_path, est_path = Path(args.gt), Path(args.est)
+    from deepslam.core.outputs import check_output_not_input
+
+    check_output_not_input(args.plot, [("--gt", gt_path), ("--est", est_path)], "--plot")  # never onto an input
     gt, gt_fmt = read_trajectory_and_format(gt_path, args.gt_format or args.format)
     est, est_fmt = read_trajectory_and_format(est_path, args.est_format or args.format)
     res = metrics.evaluate(gt, est, align=args.align, rpe_delta=args.rpe_delta, max_diff_s=args.max_diff,

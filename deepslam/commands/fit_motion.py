@@ -39,6 +39,12 @@ def run(args: argparse.Namespace) -> int:
 
     if args.stride < 1:
         raise InputError(None, f"--stride must be >= 1, got {args.stride}")
+    from deepslam.core.outputs import check_distinct_outputs, check_output_not_input
+
+    inputs = [("--poses", p) for p in args.poses]
+    check_output_not_input(args.out, inputs, "--out")  # outputs never overwrite an input (core.outputs)
+    check_output_not_input(args.plot, inputs, "--plot")
+    check_distinct_outputs([("--out", args.out), ("--plot", args.plot)])
     trajectories = [read_trajectory(p) for p in args.poses]
     loop_cfg = motion.LoopConfig(min_gap_frames=args.loop_gap, max_distance_m=args.loop_radius,
                                  max_angle_deg=args.loop_max_angle)

@@ -61,6 +61,9 @@ def run(args: argparse.Namespace) -> int:
     if not 0.0 <= args.loop_fraction <= 1.0:
         raise InputError(None, f"--loop-fraction must be in [0, 1], got {args.loop_fraction}")
     resolution_hw = parse_resolution(args.resolution)
+    from deepslam.core.outputs import check_output_not_input
+
+    check_output_not_input(args.out, [("--source", args.source), ("--motion", args.motion)])
     motion = MotionModel.load(args.motion)
     if args.loop_fraction > 0 and motion.loop is None:
         raise InputError(args.motion, "--loop-fraction > 0 but the motion model has no loop distribution (fit-motion --loops)")

@@ -5,6 +5,15 @@ and a JSON record (``<stem>.json``: parameters, configuration, loops, timings an
 the metrics of both). Models: ``--model-cons`` / ``--model-loops`` take a model file or a shipped name
 (``kitti``, ``euroc``, ``kitti:loops``); without them the shipped models for the sequence's camera
 kind are used.
+
+Outputs never clobber anything (:mod:`core.outputs`), checked before any work: ``--out``, ``--plot``,
+``--save-vocabulary`` and the side files (``<stem>_vo<suffix>``, ``<stem>.json``) must not be an input
+(the sequence folder or a file in it, a model file, ``--params``, ``--vocabulary``) nor each other
+(``--out run.json`` would be its own record); the side files are overwritten only when ``<stem>.json``,
+the ownership record, lists them as written by an earlier ``deepslam slam`` with the same bytes
+(``written_by`` and ``files`` with each one's sha256); anything else there is refused, named. The output
+folder is locked for the run (:func:`core.lock.output_lock`): a second ``slam`` or ``vo`` into it exits
+2 naming the first.
 """
 from __future__ import annotations
 
@@ -69,11 +78,55 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
 
 
+COMMAND = "deepslam slam"
+"""The ``written_by`` of the ownership record (``<stem>.json``)."""
+
+
+def side_files(out) -> dict:
+    """The files ``slam`` writes beside ``out``: {"vo": the odometry-only trajectory, "record": the JSON record}."""
+    out = Path(out)
+    stem = out.with_suffix("")
+    return {"vo": out.with_name(f"{stem.name}_vo{out.suffix}"), "record": out.with_name(f"{stem.name}.json")}
+
+
+def check_outputs(args: argparse.Namespace) -> None:
+    """InputError before any work when an output would clobber an input, another output or a file an
+    earlier ``slam`` did not write (module docstring)."""
+    from deepslam.core.errors import InputError
+    from deepslam.core.outputs import check_distinct_outputs, check_output_not_input, check_side_files, same_path
+
+    out = Path(args.out)
+    if out.is_dir():
+        raise InputError(out, "--out is a folder, expected a file name")
+    side = side_files(out)
+    inputs = [("--sequence", args.sequence), ("--params", args.params), ("--vocabulary", args.vocabulary)]
+    inputs += [(flag, m) for flag, m in (("--model-cons", args.model_cons), ("--model-loops", args.model_loops))
+               if m is not None and Path(m).exists()]
+    outputs = [("--out", out), (f"--out's odometry trajectory {side['vo'].name}", side["vo"]),
+               (f"--out's record {side['record'].name}", side["record"]), ("--plot", args.plot),
+               ("--save-vocabulary", args.save_vocabulary)]
+    for flag, p in outputs:
+        check_output_not_input(p, inputs, flag)
+    check_distinct_outputs(outputs)
+    check_side_files(side["record"], [side["vo"]], COMMAND,
+                     legacy_owner=lambda rec: "trajectory_vo" in rec and same_path(rec.get("trajectory"), out))
+
+
 def run(args: argparse.Namespace) -> int:
+    from deepslam.core.lock import output_lock
+
+    check_outputs(args)
+    with output_lock(Path(args.out).parent, "--out"):  # one writer per output folder
+        check_outputs(args)
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from deepslam.core import atomic, metrics, plots
+    from deepslam.core import metrics, plots
     from deepslam.core.errors import InputError
+    from deepslam.core.outputs import write_side_files
     from deepslam.core.readers import open_sequence
     from deepslam.core.trajio import write_trajectory
     from deepslam.slam import plugins
@@ -98,11 +151,8 @@ def run(args: argparse.Namespace) -> int:
                             loops=not args.no_loops, seed=args.seed)
     res = run_slam(seq, odo_cons, odo_loops, params, config, vocabulary=vocab, show_progress=not args.json)
 
-    stem = out.with_suffix("")
-    vo_path = out.with_name(f"{stem.name}_vo{out.suffix}")
-    record_path = out.with_name(f"{stem.name}.json")
+    vo_path, record_path = side_files(out)["vo"], side_files(out)["record"]
     write_trajectory(out, res.slam, args.format)
-    write_trajectory(vo_path, res.vo, args.format)
     record = {
         "sequence": str(args.sequence), "frames": len(seq), "trajectory": str(out), "trajectory_vo": str(vo_path),
         "format": args.format, "odometry_cons": odo_cons.name, "odometry_loops": getattr(odo_loops, "name", None),
@@ -145,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
     if args.save_vocabulary:
         _save_vocab(args, res, seq, vocab)
         record["vocabulary"] = str(args.save_vocabulary)
-    atomic.write_json(record_path, _clean(record))
+    write_side_files(record_path, _clean(record), COMMAND, [(vo_path, lambda p: write_trajectory(p, res.vo, args.format))])
     if args.json:
         sys.stdout.write(json.dumps(_clean(record), sort_keys=True) + "\n")
     else:

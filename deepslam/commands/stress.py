@@ -113,6 +113,10 @@ def run(args: argparse.Namespace) -> int:
 
     from deepslam.studies.stress import run_stress
 
+    from deepslam.core.outputs import check_output_not_input
+
+    check_output_not_input(args.out, [("--params", args.params), ("--model-cons", args.model_cons),
+                                      ("--model-loops", args.model_loops)])
     config = config_from_args(args)
     t0 = time.perf_counter()
     report = run_stress(config, args.out, resume=args.resume, progress=False if args.json else None)

@@ -262,6 +262,10 @@ def run(args: argparse.Namespace) -> int:
     from deepslam.vo.train import TrainConfig, TrainingDiverged, train
 
     _check_ranges(args)
+    from deepslam.core.outputs import check_output_not_input
+
+    check_output_not_input(args.out, [("--frames", d) for d in args.frames] + [("--sequence", d) for d in args.sequence]
+                           + [("--shards", args.shards)])  # never write into the training data
     from deepslam.gen.device import resolve_device
 
     from deepslam.vo.distributed import finish, init_from_env, world

@@ -75,6 +75,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(None, "--lr must be in (0, 1) and --max-minutes >= 0")
     if args.real and not (1 <= args.real_batch <= 1024 and 0 < args.real_weight < 1e3 and 0 <= args.smooth_weight < 1e3):
         raise InputError(None, "--real-batch must be in [1, 1024], --real-weight in (0, 1000), --smooth-weight in [0, 1000)")
+    from deepslam.core.outputs import check_output_not_input
+
+    check_output_not_input(args.out, [("--sequences", s) for s in args.sequences] + [("--real", s) for s in args.real]
+                           + [("--init", args.init or None)])
     device = resolve_device(args.device)
     cfg = FlowTrainConfig(crop=(ch, cw), batch_size=args.batch, lr=args.lr, max_steps=args.max_steps,
                           max_minutes=args.max_minutes, stop_after_steps=args.stop_after, seed=args.seed,

@@ -89,6 +89,10 @@ def run(args: argparse.Namespace) -> int:
 
     if args.keyframe_stride < 1:
         raise InputError(None, f"--keyframe-stride must be at least 1, got {args.keyframe_stride}")
+    from deepslam.core.outputs import check_output_not_input
+
+    check_output_not_input(args.out, [("--sequence", s) for s in args.sequence] + [
+        ("--model-cons", args.model_cons), ("--model-loops", args.model_loops), ("--vocabulary", args.vocabulary)])
     args.no_loops = False
     space = SearchSpace(c_s=args.c_s or _floats(DEFAULT_C_S), c_r=args.c_r or _floats(DEFAULT_C_R),
                         t_loop=args.t_loop or _ints(DEFAULT_T_LOOP))

@@ -3,6 +3,14 @@
 Writes, beside ``--out``: ``<stem>.motions.csv`` (the relative motions with their predicted std),
 ``<stem>.config.json`` (the resolved settings) and, when the sequence has ground truth,
 ``<stem>.metrics.json`` and ``<stem>.png`` (top-down plot against the ground truth).
+
+Outputs never clobber anything (:mod:`core.outputs`), checked before any work: ``--out`` and its side
+files must not be an input (the sequence folder or a file inside it, the model file) nor each other
+(``--out traj.png`` is its own plot); an existing side file is overwritten only when ``<stem>.config.json``
+records it as written by an earlier ``deepslam vo`` with the same bytes (the config is the ownership
+record: ``written_by`` and ``files`` with each side file's sha256); anything else there is refused,
+named. One run writes a folder at a time: ``--out``'s folder is locked (:func:`core.lock.output_lock`)
+for the run, and a second ``vo`` or ``slam`` into it exits 2 naming the first.
 """
 from __future__ import annotations
 
@@ -57,13 +65,61 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
+COMMAND = "deepslam vo"
+"""The ``written_by`` of the ownership record (``<stem>.config.json``)."""
+
+
+def side_files(out) -> dict:
+    """The files ``vo`` writes beside ``out``: {"motions", "config", "metrics", "plot"} -> path."""
+    from pathlib import Path
+
+    stem = Path(out).with_suffix("")
+    return {"motions": Path(f"{stem}.motions.csv"), "config": Path(f"{stem}.config.json"),
+            "metrics": Path(f"{stem}.metrics.json"), "plot": Path(f"{stem}.png")}
+
+
+def check_outputs(args: argparse.Namespace) -> None:
+    """InputError before any work when ``--out`` or a side file would clobber an input, another output
+    or a file an earlier ``vo`` did not write (module docstring)."""
+    from pathlib import Path
+
+    from deepslam.core.errors import InputError
+    from deepslam.core.outputs import check_distinct_outputs, check_output_not_input, check_side_files, same_path
+
+    out = Path(args.out)
+    if out.is_dir():
+        raise InputError(out, "--out is a folder, expected a trajectory file name")
+    side = side_files(out)
+    inputs = [("--sequence", args.sequence)]
+    if args.model is not None and Path(args.model).exists():
+        inputs.append(("--model", args.model))
+    for flag, p in [("--out", out)] + [(f"--out's {k} file", p) for k, p in side.items()]:
+        check_output_not_input(p, inputs, flag)
+    check_distinct_outputs([("--out", out)] + [(f"--out's {k} file {p.name}", p) for k, p in side.items()])
+    check_side_files(side["config"], [side["motions"], side["metrics"], side["plot"]], COMMAND,
+                     legacy_owner=lambda rec: "sequence_kind" in rec and same_path(rec.get("out"), out))
+
+
 def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from deepslam.core.lock import output_lock
+
+    check_outputs(args)
+    # one writer per output folder: a second vo/slam into it is refused, naming this one
+    with output_lock(Path(args.out).parent, "--out"):
+        check_outputs(args)  # again under the lock: another run may have written meanwhile
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     import numpy as np
 
     from deepslam.core import atomic, trajio
     from deepslam.core.errors import InputError
+    from deepslam.core.outputs import write_side_files
     from deepslam.core.readers import open_sequence
     from deepslam.core.trajectory import Trajectory
     from deepslam.slam import plugins
@@ -129,6 +185,7 @@ def run(args: argparse.Namespace) -> int:
     est = Trajectory(world_from_cam, seq.timestamps_s[frames])
 
     out = Path(args.out)
+    side = side_files(out)
     trajio.write_trajectory(out, est, fmt)
     stem = out.with_suffix("")
     header = "i,j,t_i_s,t_j_s,ex_rad,ey_rad,ez_rad,tx_m,ty_m,tz_m,std_ex_rad,std_ey_rad,std_ez_rad,std_tx_m,std_ty_m,std_tz_m"
@@ -136,7 +193,8 @@ def run(args: argparse.Namespace) -> int:
     for (i, j), m, s in zip(pairs, mean6, std6):
         lines.append(",".join([str(int(i)), str(int(j)), repr(float(seq.timestamps_s[i])), repr(float(seq.timestamps_s[j])),
                                *(repr(float(x)) for x in m), *(repr(float(x)) for x in s)]))
-    atomic.write_text(Path(f"{stem}.motions.csv"), "\n".join(lines) + "\n")
+    motions_text = "\n".join(lines) + "\n"
+    writers = [(side["motions"], lambda p: atomic.write_text(p, motions_text))]
     config = {"sequence": str(seq.root), "sequence_kind": seq.kind, "frames": [int(frames[0]), int(frames[-1])],
               "stride": args.stride, "format": fmt, "out": str(out)}
     if predictor is None:
@@ -147,11 +205,12 @@ def run(args: argparse.Namespace) -> int:
                       bf16=predictor.bf16, batch=args.batch, device=str(predictor.device), pose=pose)
         if epi is not None:
             config.update(epipolar=dataclasses.asdict(epi), epipolar_pairs_used=sum(u for _, u in fits))
-    atomic.write_json(Path(f"{stem}.config.json"), config)
     say = (lambda *a, **k: None) if args.json else print
-    say(f"wrote {out} ({len(frames)} poses, {fmt}) and {stem}.motions.csv")
 
-    if seq.gt is not None:
+    if seq.gt is None:
+        write_side_files(side["config"], config, COMMAND, writers)
+        say(f"wrote {out} ({len(frames)} poses, {fmt}) and {stem}.motions.csv")
+    else:
         from deepslam.core import metrics, plots
 
         gt, est_scored = metrics.on_covered_frames(seq, world_from_cam, frames)
@@ -160,11 +219,14 @@ def run(args: argparse.Namespace) -> int:
         report = {k: v for k, v in res.items() if not k.startswith("_")}
         report["ate_unaligned_m"] = res_none["ate_m"]
         report["frames_scored"], report["frames"] = len(gt), int(len(frames))
-        atomic.write_json(Path(f"{stem}.metrics.json"), report)
         how = [config["flow"]] if "flow" in config else []
         how += ["pose epipolar"] if config.get("pose") == "epipolar" else []
-        plots.plot_trajectories_topdown(Path(f"{stem}.png"), {"ground truth": gt.positions, name: est_scored.positions},
-                                        title=f"{seq.name}: {name}" + (f" ({', '.join(how)})" if how else ""))
+        writers += [(side["metrics"], lambda p: atomic.write_json(p, report)),
+                    (side["plot"], lambda p: plots.plot_trajectories_topdown(
+                        p, {"ground truth": gt.positions, name: est_scored.positions},
+                        title=f"{seq.name}: {name}" + (f" ({', '.join(how)})" if how else "")))]
+        write_side_files(side["config"], config, COMMAND, writers)
+        say(f"wrote {out} ({len(frames)} poses, {fmt}) and {stem}.motions.csv")
         line = (f"ATE {res['ate_m']:.3f} m (se3-aligned; {res_none['ate_m']:.3f} m unaligned), "
                 f"RPE {res['rpe_t_m']:.3f} m / {res['rpe_r_deg']:.3f} deg per {args.stride} frame(s)")
         if "kitti_t_err_pct" in res:

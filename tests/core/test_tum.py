@@ -90,7 +90,7 @@ def test_bad_tum_input_is_one_line_exit_2(shared_data, tmp_path, capsys, fault, 
     root = _copy(shared_data, tmp_path)
     rgb = (root / "rgb.txt").read_text().splitlines()
     if fault == "missing-listed-file":
-        rgb.insert(5, "1341841873.999999 rgb/nope.png")
+        rgb.insert(5, "1341841873.320000 rgb/nope.png")  # in time order: only the file is missing
         (root / "rgb.txt").write_text("\n".join(rgb) + "\n")
     elif fault == "bad-line":
         rgb.insert(4, "soon rgb/x.png")

@@ -80,10 +80,15 @@ def test_frames_view_leaves_the_pose_files_out(tmp_path):
     assert sorted(p.name for p in view.iterdir()) == ["depth.txt", "intrinsics.txt", "rgb", "rgb.txt"]
 
 
-def test_adapt_refuses_a_folder_holding_something_else(tmp_path, capsys):
+def test_adapt_refuses_a_folder_holding_something_else_or_inside_the_sequence(tmp_path, capsys):
+    seq = tmp_path / "seq"
+    seq.mkdir()
     out = tmp_path / "out"
     out.mkdir()
     (out / "mine.txt").write_text("keep")
-    rc = main(["adapt", "--sequence", str(tmp_path), "--out", str(out)])
+    rc = main(["adapt", "--sequence", str(seq), "--out", str(out)])
     assert rc == 2 and "not empty" in capsys.readouterr().err
     assert (out / "mine.txt").read_text() == "keep"
+    rc = main(["adapt", "--sequence", str(seq), "--out", str(seq / "models")])
+    assert rc == 2 and "lies inside the input --sequence" in capsys.readouterr().err
+    assert not (seq / "models").exists()

@@ -399,8 +399,10 @@ def test_train_refuses_a_bad_speed_range_fraction_before_writing(tmp_path):
     from deepslam.core.paths import base_dir
 
     motion = base_dir() / "models" / "motion" / "kitti_no0607_s1.json"
-    r = subprocess.run([sys.executable, "-m", "deepslam", "train", "--mode", "synthetic", "--frames", str(tmp_path),
-                        "--motion", str(motion), "--speed-range", "0:30@2", "--out", str(tmp_path / "o")],
+    (tmp_path / "frames").mkdir()
+    r = subprocess.run([sys.executable, "-m", "deepslam", "train", "--mode", "synthetic", "--frames",
+                        str(tmp_path / "frames"), "--motion", str(motion), "--speed-range", "0:30@2",
+                        "--out", str(tmp_path / "o")],
                        capture_output=True, text=True)
     assert r.returncode == 2 and "fraction" in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
@@ -580,8 +582,9 @@ def test_train_and_vo_with_a_validity_channel(plane_sequence, motion_json, tmp_p
     rows = [ln.split() for ln in traj.read_text().splitlines() if not ln.startswith("#")]
     assert len(rows) == 12 and np.isfinite(np.array(rows, dtype=float)).all()
     capsys.readouterr()
-    assert main(["train", "--mode", "synthetic", "--shards", str(tmp_path), "--net", "tiny", "--valid-channel",
-                 "--quiet", "--out", str(tmp_path / "shards")]) == 2
+    (tmp_path / "some_shards").mkdir()
+    assert main(["train", "--mode", "synthetic", "--shards", str(tmp_path / "some_shards"), "--net", "tiny",
+                 "--valid-channel", "--quiet", "--out", str(tmp_path / "shards")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--valid-channel" in err and not (tmp_path / "shards").exists()
 
