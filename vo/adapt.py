@@ -63,9 +63,7 @@ class Recipe:
 
 RECIPES: dict[str, dict[str, Recipe]] = {
     "tum": {
-        # DIS's forward-backward check leaves occluded and mismatched pixels out (as the shipped teddy model)
-        "cons": Recipe("tum_cons.safetensors", ("motion/euroc_s1_30hz.json",), "dis", (("fb_max_px", 0.5),),
-                       appearance_noise=6.0, bf16=False),
+        "cons": Recipe("tum_cons.safetensors", ("motion/euroc_s1_30hz.json",), "dis", appearance_noise=6.0, bf16=False),
         "loops": Recipe("tum_loops.safetensors", ("motion/euroc_s1_30hz.json:loops",)),
     },
     "kitti": {
