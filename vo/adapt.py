@@ -181,23 +181,8 @@ def _stage(which: str, recipe: Recipe, start: Path, frames: str, cfg: AdaptConfi
             "holdout_nll": res.holdout_nll, "epochs": sum(1 for h in res.history if h["stage"] == 1)}
 
 
-def adapt(seq_dir: str | Path, out: str | Path, cfg: AdaptConfig = AdaptConfig(), resume: bool = False,
-          progress: bool = True) -> dict:
-    """Adapt NN_cons (and NN_loops) to the sequence ``seq_dir``; returns the record written to
-    ``out/adapt.json``.
-
-    Raises:
-        InputError: the sequence cannot be read, has no depth for its frames, or ``out`` holds another run.
-    """
-    seq_dir, out = Path(seq_dir), Path(out)
-    check_output_not_input(out, [("--sequence", seq_dir), ("--model", cfg.model), ("--motion", cfg.motion)])
-    t0 = time.perf_counter()
-    record_path = out / "adapt.json"
-    if out.exists() and any(out.iterdir()) and not resume:
-        raise InputError(out, "output folder is not empty; pass --resume to continue an adapt run or choose another --out")
-    if resume and out.exists() and any(out.iterdir()) and not (out / "settings.json").is_file():
-        raise InputError(out, "holds no adapt run to resume (no settings.json)")
-    out.mkdir(parents=True, exist_ok=True)
+def _run(seq_dir: Path, out: Path, cfg: AdaptConfig, resume: bool, progress: bool) -> tuple[dict, str, int]:
+    """The stages of :func:`adapt` into ``out``: (results per stage, camera kind, frames)."""
     view = frames_view(seq_dir, out / "frames_view")
     seq = open_sequence(view)
     kind = kind_for_sequence(seq)
@@ -226,7 +211,37 @@ def adapt(seq_dir: str | Path, out: str | Path, cfg: AdaptConfig = AdaptConfig()
         target = out / ("model.safetensors" if which == "cons" else "loops.safetensors")
         shutil.copyfile(stage_dir / "model.safetensors", target)
         results[which].update(file=target.name, sha256=_sha256(target), start=start.name)
-    record = {"sequence": str(seq_dir.resolve()), "kind": kind, "frames": len(seq), "poses_opened": False,
+    return results, kind, len(seq)
+
+
+def adapt(seq_dir: str | Path, out: str | Path, cfg: AdaptConfig = AdaptConfig(), resume: bool = False,
+          progress: bool = True) -> dict:
+    """Adapt NN_cons (and NN_loops) to the sequence ``seq_dir``; returns the record written to
+    ``out/adapt.json``.
+
+    Raises:
+        InputError: the sequence cannot be read, has no depth for its frames, or ``out`` holds another run.
+    """
+    seq_dir, out = Path(seq_dir), Path(out)
+    check_output_not_input(out, [("--sequence", seq_dir), ("--model", cfg.model), ("--motion", cfg.motion)])
+    t0 = time.perf_counter()
+    record_path = out / "adapt.json"
+    if out.exists() and any(out.iterdir()) and not resume:
+        raise InputError(out, "output folder is not empty; pass --resume to continue an adapt run or choose another --out")
+    if resume and out.exists() and any(out.iterdir()) and not (out / "settings.json").is_file():
+        raise InputError(out, "holds no adapt run to resume (no settings.json)")
+    created = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        results, kind, n_frames = _run(seq_dir, out, cfg, resume, progress)
+    except InputError:
+        # bad input found before any training: the folder this run created goes (an interrupted run keeps its
+        # checkpoints for --resume)
+        if created and not any((out / w / f).is_file() for w in ("cons", "loops")
+                               for f in ("checkpoint.safetensors", "model.safetensors")):
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+    record = {"sequence": str(seq_dir.resolve()), "kind": kind, "frames": n_frames, "poses_opened": False,
               "config": dataclasses.asdict(cfg), "stages": results, "seconds": round(time.perf_counter() - t0, 1)}
     atomic.write_json(record_path, record)
     return record

@@ -92,3 +92,13 @@ def test_adapt_refuses_a_folder_holding_something_else_or_inside_the_sequence(tm
     rc = main(["adapt", "--sequence", str(seq), "--out", str(seq / "models")])
     assert rc == 2 and "lies inside the input --sequence" in capsys.readouterr().err
     assert not (seq / "models").exists()
+
+
+def test_a_sequence_without_depth_is_one_line_and_leaves_nothing(shared_data, tmp_path, capsys):
+    """KITTI 07's slice is monocular (no depth, no stereo pair): one line, exit 2, no output folder."""
+    out = tmp_path / "out"
+    rc = main(["adapt", "--sequence", str(shared_data / "kitti" / "sequences" / "07"), "--out", str(out),
+               "--samples", "128", "--epochs", "1", "--no-loops", "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "neither depth maps nor a rectified stereo pair" in err[0]
+    assert not out.exists()
