@@ -45,6 +45,7 @@ results: $(STAMP)
 	$(PY) -m bench.results_tum
 	$(PY) -m bench.results_flow
 	$(PY) -m bench.results_agreement
+	$(PY) -m bench.results_adapt
 	$(PY) -m bench.results_doc
 
 # Every command of the README's examples block, in order, in a temporary folder: exit status and wall

@@ -33,6 +33,9 @@ SECTIONS = (
     ("real", "Real data slices", "python -m bench.results_real",
      "The shipped models on the real KITTI, EuRoC and TUM slices in ../shared/data."),
     ("turn", "Turns", "python -m bench.results_turn", "Rotation read in turns on KITTI 07."),
+    ("adapt", "RGB-D: the sim-only default, the untrained dense fit, pnp and deepslam adapt", "python -m bench.results_adapt",
+     "VO ATE on teddy and two rendered Kinect-like rooms; on teddy also the model deepslam adapt made from teddy's "
+     "own frames (it has seen them)."),
     ("tum", "RGB-D odometry (TUM fr3/teddy)", "python -m bench.results_tum",
      "The RGB-D default, the untrained dense fit and the classical pnp plug-in on teddy."),
     ("flow", "Learned optical flow against DIS (shipped model)", "python -m bench.results_flow",

@@ -304,3 +304,14 @@ def test_agreement_table_runs_each_variant_on_sim_and_real(shared_data, tmp_path
     assert rep["spearman_rho"] is None or -1.0 <= rep["spearman_rho"] <= 1.0
     md = (tmp_path / "agreement" / "results.md").read_text()
     assert "KITTI 07: never trained on" in md and (tmp_path / "agreement" / "stamp.json").is_file()
+
+
+def test_adapt_table_leaves_the_adapted_cells_empty_where_nothing_was_adapted():
+    from bench import results_adapt
+
+    rep = {"rows": [{"data": "teddy", "default_ate_m": 0.2, "dense_fit_ate_m": 0.05, "pnp_ate_m": 0.02,
+                     "adapted_vo_ate_m": 0.04, "adapted_slam_ate_m": 0.039, "adapt_minutes_first_run": 14.8},
+                    {"data": "room", "default_ate_m": 0.1, "dense_fit_ate_m": 0.2, "pnp_ate_m": 0.02}]}
+    md = results_adapt.markdown(rep).splitlines()
+    assert md[-2] == "| teddy | 0.200 | 0.050 | 0.020 | 0.040 | 0.039 | 14.8 |"
+    assert md[-1] == "| room | 0.100 | 0.200 | 0.020 |  |  |  |"
