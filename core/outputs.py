@@ -94,6 +94,19 @@ def check_distinct_outputs(outputs: Named) -> None:
         seen[r] = flag
 
 
+def check_run_outputs(outputs: Named, inputs: Named, record: str | Path, side: Iterable[str | Path], command: str,
+                      legacy_owner: Callable[[dict], bool] | None = None) -> None:
+    """All three rules for one run, before it computes anything: no output in ``outputs`` (flag, path) is or
+    lies inside one of ``inputs``, no two outputs coincide, and the ``side`` files beside the ownership
+    ``record`` are ``command``'s own (:func:`check_side_files`)."""
+    outputs = list(outputs)
+    inputs = list(inputs)
+    for flag, p in outputs:
+        check_output_not_input(p, inputs, flag)
+    check_distinct_outputs(outputs)
+    check_side_files(record, side, command, legacy_owner)
+
+
 def _read_record(record: Path) -> dict | None:
     """The record's JSON object, or None when it is not a readable JSON object (bounded parse)."""
     try:

@@ -17,7 +17,6 @@ slower machine (the models are then written from the best epoch reached). A kill
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import shutil
 import time
@@ -25,6 +24,7 @@ from pathlib import Path
 
 from deepslam.core import atomic
 from deepslam.core.errors import InputError
+from deepslam.core.integrity import sha256_file
 from deepslam.core.kinds import kind_for_sequence
 from deepslam.core.outputs import check_output_not_input
 from deepslam.core.readers import open_sequence
@@ -146,10 +146,6 @@ def frames_view(seq_dir: Path, parent: Path) -> Path:
     return view
 
 
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
 def _stage(which: str, recipe: Recipe, start: Path, frames: str, cfg: AdaptConfig, out: Path, minutes: float,
            resume: bool, progress: bool) -> dict:
     """Fine-tune ``start`` on ``frames`` by ``recipe``; the model lands in ``out/model.safetensors``."""
@@ -173,7 +169,7 @@ def _stage(which: str, recipe: Recipe, start: Path, frames: str, cfg: AdaptConfi
                             max_minutes=minutes, nll_epochs=cfg.nll_epochs, seed=cfg.seed, bf16=recipe.bf16,
                             threads=cfg.threads, init=str(start))
     train_src, hold_src, data_meta = synthetic_sources(spec, net, cfg.seed, progress)
-    run_meta = {"mode": "adapt", **data_meta, "adapted_from": {"file": start.name, "sha256": _sha256(start)}}
+    run_meta = {"mode": "adapt", **data_meta, "adapted_from": {"file": start.name, "sha256": sha256_file(start)}}
     if meta.get("pose"):
         run_meta["pose"] = meta["pose"]  # the start model's pose mode (deepslam set-pose) carries over
     res = train(train_cfg, train_src, hold_src, out, resume=resume, progress=progress, meta=run_meta)
@@ -210,7 +206,7 @@ def _run(seq_dir: Path, out: Path, cfg: AdaptConfig, resume: bool, progress: boo
             results[which] = {"model": str(stage_dir / "model.safetensors"), "stop_reason": "finished earlier"}
         target = out / ("model.safetensors" if which == "cons" else "loops.safetensors")
         shutil.copyfile(stage_dir / "model.safetensors", target)
-        results[which].update(file=target.name, sha256=_sha256(target), start=start.name)
+        results[which].update(file=target.name, sha256=sha256_file(target), start=start.name)
     return results, kind, len(seq)
 
 

@@ -8,10 +8,10 @@ the motion model's samples are all it uses.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 from pathlib import Path
 
 from deepslam.core.errors import InputError
+from deepslam.core.integrity import sha256_file
 from deepslam.core.readers import open_sequence
 from deepslam.flow import registry as flow_registry
 from deepslam.gen.motion import MotionModel
@@ -36,7 +36,7 @@ def load_motion(spec: str):
         raise InputError(path, e.what) from None
     return sampler, weight, {"file": str(path), "distribution": "loops" if loops else "consecutive",
                              "stride": model.stride, "weight": weight,
-                             "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
+                             "sha256": sha256_file(path)}
 
 
 @dataclasses.dataclass(frozen=True)

@@ -93,7 +93,7 @@ def check_outputs(args: argparse.Namespace) -> None:
     """InputError before any work when an output would clobber an input, another output or a file an
     earlier ``slam`` did not write (module docstring)."""
     from deepslam.core.errors import InputError
-    from deepslam.core.outputs import check_distinct_outputs, check_output_not_input, check_side_files, same_path
+    from deepslam.core.outputs import check_run_outputs, same_path
 
     out = Path(args.out)
     if out.is_dir():
@@ -105,11 +105,8 @@ def check_outputs(args: argparse.Namespace) -> None:
     outputs = [("--out", out), (f"--out's odometry trajectory {side['vo'].name}", side["vo"]),
                (f"--out's record {side['record'].name}", side["record"]), ("--plot", args.plot),
                ("--save-vocabulary", args.save_vocabulary)]
-    for flag, p in outputs:
-        check_output_not_input(p, inputs, flag)
-    check_distinct_outputs(outputs)
-    check_side_files(side["record"], [side["vo"]], COMMAND,
-                     legacy_owner=lambda rec: "trajectory_vo" in rec and same_path(rec.get("trajectory"), out))
+    check_run_outputs(outputs, inputs, side["record"], [side["vo"]], COMMAND,
+                      legacy_owner=lambda rec: "trajectory_vo" in rec and same_path(rec.get("trajectory"), out))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -151,7 +148,8 @@ def _run(args: argparse.Namespace) -> int:
                             loops=not args.no_loops, seed=args.seed)
     res = run_slam(seq, odo_cons, odo_loops, params, config, vocabulary=vocab, show_progress=not args.json)
 
-    vo_path, record_path = side_files(out)["vo"], side_files(out)["record"]
+    side = side_files(out)
+    vo_path, record_path = side["vo"], side["record"]
     write_trajectory(out, res.slam, args.format)
     record = {
         "sequence": str(args.sequence), "frames": len(seq), "trajectory": str(out), "trajectory_vo": str(vo_path),

@@ -84,7 +84,7 @@ def check_outputs(args: argparse.Namespace) -> None:
     from pathlib import Path
 
     from deepslam.core.errors import InputError
-    from deepslam.core.outputs import check_distinct_outputs, check_output_not_input, check_side_files, same_path
+    from deepslam.core.outputs import check_run_outputs, same_path
 
     out = Path(args.out)
     if out.is_dir():
@@ -93,11 +93,9 @@ def check_outputs(args: argparse.Namespace) -> None:
     inputs = [("--sequence", args.sequence)]
     if args.model is not None and Path(args.model).exists():
         inputs.append(("--model", args.model))
-    for flag, p in [("--out", out)] + [(f"--out's {k} file", p) for k, p in side.items()]:
-        check_output_not_input(p, inputs, flag)
-    check_distinct_outputs([("--out", out)] + [(f"--out's {k} file {p.name}", p) for k, p in side.items()])
-    check_side_files(side["config"], [side["motions"], side["metrics"], side["plot"]], COMMAND,
-                     legacy_owner=lambda rec: "sequence_kind" in rec and same_path(rec.get("out"), out))
+    check_run_outputs([("--out", out)] + [(f"--out's {k} file {p.name}", p) for k, p in side.items()], inputs,
+                      side["config"], [side["motions"], side["metrics"], side["plot"]], COMMAND,
+                      legacy_owner=lambda rec: "sequence_kind" in rec and same_path(rec.get("out"), out))
 
 
 def run(args: argparse.Namespace) -> int:
