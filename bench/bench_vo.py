@@ -83,19 +83,21 @@ def inference_fps(cfg: NetConfig, batched: bool, frames: int) -> float:
 
 
 def synthetic_data_throughput(samples: int) -> float:
-    """Samples/s of vo.data.SyntheticSource at 96 x 320 (synthesis at 192 x 640, pooled), batch 128."""
+    """Samples/s of vo.synthetic.SyntheticSource at 96 x 320 (synthesis at 192 x 640, pooled), batch 128."""
     from deepslam.core.camera import PinholeCamera
-    from deepslam.vo import data
+    from deepslam.vo.frames import Frames
+    from deepslam.vo.synthetic import SyntheticSource
+    from deepslam.vo.toy import plane_depth, toy_motion_sampler
 
     cam = PinholeCamera(1241, 376, 718.856, 718.856, 607.1928, 185.2157).scaled(640, 192)
-    depth = data.plane_depth(cam, np.array([0.0, 1.0, 0.0]), 1.65)
+    depth = plane_depth(cam, np.array([0.0, 1.0, 0.0]), 1.65)
     depth[depth > 80] = 0
-    frames = data.Frames(np.stack([depth] * 8), np.zeros(8, dtype=np.int64), [cam], ["ground"] * 8)
-    return _source_throughput(data.SyntheticSource(frames, data.toy_motion_sampler(), samples, seed=0, synth_factor=2))
+    frames = Frames(np.stack([depth] * 8), np.zeros(8, dtype=np.int64), [cam], ["ground"] * 8)
+    return _source_throughput(SyntheticSource(frames, toy_motion_sampler(), samples, seed=0, synth_factor=2))
 
 
 def _source_throughput(src) -> float:
-    """Samples/s of one epoch of a vo.data source in batches of 128, after one warm-up batch."""
+    """Samples/s of one epoch of a vo.synthetic source in batches of 128, after one warm-up batch."""
     next(src.batches(99, 128))
     t0 = time.perf_counter()
     n = sum(len(b["target"]) for b in src.batches(0, 128))
@@ -103,24 +105,26 @@ def _source_throughput(src) -> float:
 
 
 def estimated_flow_throughput(samples: int) -> tuple[float, float]:
-    """Samples/s of vo.data.EstimatedFlowSource (a second view rendered from a 640 x 192 frame, DIS
+    """Samples/s of vo.synthetic.EstimatedFlowSource (a second view rendered from a 640 x 192 frame, DIS
     medium on the pair, resized to 48 x 160; 2 threads) and of SyntheticSource on the same frames
     (exact flow synthesized at 96 x 320, pooled), batch 128."""
     import cv2
 
     from deepslam.core.camera import PinholeCamera
-    from deepslam.vo import data
+    from deepslam.vo.frames import Frames, ImageFrames, resize_depth
+    from deepslam.vo.synthetic import EstimatedFlowSource, SyntheticSource
+    from deepslam.vo.toy import plane_depth, toy_motion_sampler
 
     cam = PinholeCamera(1241, 376, 718.856, 718.856, 607.1928, 185.2157).scaled(640, 192)
-    depth = data.plane_depth(cam, np.array([0.0, 1.0, 0.0]), 1.65)
+    depth = plane_depth(cam, np.array([0.0, 1.0, 0.0]), 1.65)
     depth[depth > 80] = 0
     rng = np.random.default_rng(0)
     greys = [cv2.GaussianBlur(rng.integers(0, 256, (192, 640), dtype=np.uint8), (0, 0), 1.5) for _ in range(8)]
-    frames = data.ImageFrames(greys, [depth] * 8, np.zeros(8, dtype=np.int64), [cam], ["ground"] * 8)
-    est = data.EstimatedFlowSource(frames, data.toy_motion_sampler(), "dis", 160, 48, samples, seed=0, threads=2)
-    small = data.Frames(np.stack([data.resize_depth(depth, 320, 96)] * 8), np.zeros(8, dtype=np.int64),
-                        [cam.scaled(320, 96)], ["ground"] * 8)
-    exact = data.SyntheticSource(small, data.toy_motion_sampler(), samples, seed=0, synth_factor=2)
+    frames = ImageFrames(greys, [depth] * 8, np.zeros(8, dtype=np.int64), [cam], ["ground"] * 8)
+    est = EstimatedFlowSource(frames, toy_motion_sampler(), "dis", 160, 48, samples, seed=0, threads=2)
+    small = Frames(np.stack([resize_depth(depth, 320, 96)] * 8), np.zeros(8, dtype=np.int64),
+                   [cam.scaled(320, 96)], ["ground"] * 8)
+    exact = SyntheticSource(small, toy_motion_sampler(), samples, seed=0, synth_factor=2)
     return _source_throughput(est), _source_throughput(exact)
 
 

@@ -51,7 +51,9 @@ def _sweep(name: str, model: str, flow: str, seq, kind: str, cfg: ResultsSpeedCo
     """One model's sweep on one sequence's frames (``kind``: ``rendered`` or ``stereo`` depth). ``loaded``
     keeps that sequence's frames for the next candidate (stereo depth of 06 is seconds a load): the images at
     their size for every estimator, the depth at twice a model's input size for the exact flow."""
-    from deepslam.vo import data, models, scale_sweep
+    from deepslam.vo import models, scale_sweep
+    from deepslam.vo.frames import load_frames, load_image_frames
+    from deepslam.vo.synthetic import EstimatedFlowSource, SyntheticSource
 
     path, shipped = models.locate(model, None, flow=None if flow == "exact" else flow)
     pred = models.load(path, shipped)
@@ -64,18 +66,18 @@ def _sweep(name: str, model: str, flow: str, seq, kind: str, cfg: ResultsSpeedCo
         return loaded[key]
 
     if flow == "exact":
-        frames = frames_of((2 * w, 2 * h), lambda: data.load_frames([seq], 2 * w, 2 * h, depth=kind, progress=False))
+        frames = frames_of((2 * w, 2 * h), lambda: load_frames([seq], 2 * w, 2 * h, depth=kind, progress=False))
 
         def make(sample, frames=frames, unknown=unknown):
-            return data.SyntheticSource(frames, sample, cfg.samples, synth_factor=2, unknown=unknown)
+            return SyntheticSource(frames, sample, cfg.samples, synth_factor=2, unknown=unknown)
     else:
-        frames = frames_of("images", lambda: data.load_image_frames([seq], depth=kind, progress=False))
+        frames = frames_of("images", lambda: load_image_frames([seq], depth=kind, progress=False))
         # DIS set up as the model's file records it (medium on every pixel for today's file)
         options = {"preset": "medium", **models.recorded_flow_options(path, "dis")} if flow == "dis" else {}
 
         def make(sample, frames=frames, h=h, w=w, unknown=unknown, options=options):
-            return data.EstimatedFlowSource(frames, sample, flow, w, h, cfg.samples, estimator_options=options,
-                                            unknown=unknown)
+            return EstimatedFlowSource(frames, sample, flow, w, h, cfg.samples, estimator_options=options,
+                                       unknown=unknown)
     reads = scale_sweep.speed_sweep(pred, make, cfg.samples, cfg.rate_hz, seed=cfg.seed)
     return {"name": name, "model": pred.name, "flow": flow, "reads": [dataclasses.asdict(r) for r in reads],
             "flatness": scale_sweep.flatness(reads, min_speed_mps=2.5)}

@@ -28,7 +28,9 @@ STRAIGHT_M = 1.0
 
 
 def _reads(name: str, model: str, flow: str, frames) -> dict:
-    from deepslam.vo import data, models, scale_sweep
+    from deepslam.vo import models, scale_sweep
+    from deepslam.vo.frames import with_mirrored
+    from deepslam.vo.synthetic import EstimatedFlowSource
 
     path, shipped = models.locate(model, None, flow=flow)
     pred = models.load(path, shipped)
@@ -37,13 +39,13 @@ def _reads(name: str, model: str, flow: str, frames) -> dict:
 
     def maker(fr):
         def make(sample):
-            return data.EstimatedFlowSource(fr, sample, flow, w, h, SAMPLES, estimator_options=options,
-                                            unknown=pred.model.cfg.unknown_flow)
+            return EstimatedFlowSource(fr, sample, flow, w, h, SAMPLES, estimator_options=options,
+                                       unknown=pred.model.cfg.unknown_flow)
         return make
 
     reads = scale_sweep.turn_reads(pred, maker(frames), SAMPLES)
     straight = {"as is": scale_sweep.straight_yaw_read(pred, maker(frames), SAMPLES, STRAIGHT_M),
-                "mirrored": scale_sweep.straight_yaw_read(pred, maker(data.with_mirrored(frames, False)), SAMPLES,
+                "mirrored": scale_sweep.straight_yaw_read(pred, maker(with_mirrored(frames, False)), SAMPLES,
                                                           STRAIGHT_M)}
     return {"model": name, "model_file": pred.name, "flow": flow, "reads": [dataclasses.asdict(r) for r in reads],
             **scale_sweep.slide_effect(reads), "straight_yaw": straight}
@@ -54,7 +56,8 @@ def run(candidates: list[tuple[str, str, str]], out: Path, data_dir: Path) -> di
     from deepslam.core.errors import InputError
     from deepslam.core.readers import open_sequence
     from deepslam.studies.demo import render_once
-    from deepslam.vo import data, scale_sweep
+    from deepslam.vo import scale_sweep
+    from deepslam.vo.frames import load_image_frames
 
     out.mkdir(parents=True, exist_ok=True)
     scene, traj, n, width, seed = HELDOUT
@@ -66,7 +69,7 @@ def run(candidates: list[tuple[str, str, str]], out: Path, data_dir: Path) -> di
             "KITTI 06 (single frames seen in training, no poses)": (open_sequence(k06), "stereo")}
     rows = []
     for set_name, (seq, kind) in sets.items():
-        frames = data.load_image_frames([seq], depth=kind, progress=False)
+        frames = load_image_frames([seq], depth=kind, progress=False)
         for name, model, flow in candidates:
             r = _reads(name, model, flow, frames)
             rows.append({"frames": set_name, **r})

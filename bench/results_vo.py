@@ -100,14 +100,14 @@ def _train(run_command, log, out: Path, mode: str, which: str, seed: int, cfg: R
 def _supervised_pairs(train_dirs: list[str], which: str) -> int:
     """How many pairs ``deepslam train --mode supervised`` makes of the training renders (its defaults)."""
     from deepslam.core.readers import open_sequence
-    from deepslam.vo.data import PairSpec, frame_pairs
+    from deepslam.vo.supervised import PairSpec, frame_pairs
 
     spec = PairSpec(kind="consecutive" if which == "cons" else "loops")
     return sum(len(frame_pairs(open_sequence(d).gt.world_from_cam, spec)) for d in train_dirs)
 
 
 def _loop_pairs(seq, cfg: ResultsVOConfig) -> np.ndarray:
-    from deepslam.vo.data import PairSpec, frame_pairs
+    from deepslam.vo.supervised import PairSpec, frame_pairs
 
     return frame_pairs(seq.gt.world_from_cam, PairSpec(kind="loops", loop_min_gap_frames=cfg.loop_min_gap_frames,
                                                        loop_max_distance_m=cfg.loop_max_distance_m,

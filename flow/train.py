@@ -6,13 +6,14 @@ and photometric augmentation (brightness, contrast, gamma shared by the pair, so
 change between the two, Gaussian noise per image), a
 multi-scale end-point-error loss against the exact flow (robust: Charbonnier). Checkpoints every
 ``checkpoint_steps`` (safetensors, :mod:`models.modelfile`), ``--resume``, step and time caps.
+
+The output folder, caps, clock, checkpoint and history files, resume checks, divergence check, progress
+and loggers (``tensorboard``) are the shared training runner's (:mod:`deepslam.gen.training`, also behind
+:mod:`deepslam.vo.train`); this module keeps the network's data, augmentation, losses and loop.
 """
 from __future__ import annotations
 
 import dataclasses
-import json
-import math
-import time
 from pathlib import Path
 
 import numpy as np
@@ -23,13 +24,15 @@ from tqdm import tqdm
 
 from deepslam.core import atomic
 from deepslam.core.errors import InputError
-from deepslam.core.lock import output_lock
 from deepslam.flow.augment import crop_pair, photometric_pair
 from deepslam.flow.estimators import to_grey
 from deepslam.flow.net import CHECKPOINT_FORMAT, MODEL_FORMAT, FlowNet, FlowNetConfig, load_flow_model
 from deepslam.flow.unsup import unsupervised_loss
+from deepslam.gen.training import Caps, check_finite, open_run
 from deepslam.models import modelfile
 
+CHECKPOINT = "checkpoint.safetensors"
+MODEL = "flow.safetensors"
 
 # ---------------------------------------------------------------------------------------------------
 # training
@@ -203,14 +206,36 @@ def multiscale_loss(outs: list[torch.Tensor], flow_gt: torch.Tensor, weights) ->
     return total
 
 
+MAY_CHANGE = ("max_minutes", "threads", "stop_after_steps", "device", "loader_workers")
+"""The settings a resumed run may change: its caps and where (and with how many loader processes) it runs."""
+
+
+def caps(cfg: FlowTrainConfig) -> Caps:
+    """Where the training stops: ``stop_after_steps`` (when below ``max_steps``) or ``max_steps``, and
+    ``max_minutes``."""
+    last = cfg.stop_after_steps if 0 < cfg.stop_after_steps < cfg.max_steps else cfg.max_steps
+    return Caps(max_steps=last, max_minutes=cfg.max_minutes if cfg.max_minutes > 0 else None)
+
+
 def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resume: bool = False,
-               progress: bool = True, meta: dict | None = None, real_pairs=None) -> Path:
+               progress: bool = True, meta: dict | None = None, real_pairs=None,
+               tensorboard: str | Path | None = None) -> Path:
     """Train, checkpointing to ``out_dir/checkpoint.safetensors``; writes ``flow.safetensors`` at the end
     (or when a cap stops it) and ``history.json``. Returns the model file's path.
 
     With ``real_pairs`` (a :class:`flow.unsup.RealPairs`) and ``cfg.real_batch_size`` > 0, each step
     adds ``cfg.real_weight`` times the unsupervised census + smoothness loss of that many real pairs
-    (drawn from their own random stream, so the supervised batches are those of a run without them)."""
+    (drawn from their own random stream, so the supervised batches are those of a run without them).
+
+    ``tensorboard``: a folder for TensorBoard scalars (:class:`gen.training.TensorBoardLogger`): per step
+    ``flow/step/loss`` and ``flow/step/lr`` (and ``flow/step/real_census`` with real pairs), per history row
+    (every ``checkpoint_steps``) ``flow/loss`` (and ``flow/real_census``); x: the step. None: none.
+
+    Raises:
+        gen.training.TrainingDiverged: a non-finite loss (the last checkpoint is kept).
+        core.errors.InputError: a crop larger than the frames, a folder holding another run, ``resume``
+            with other settings.
+    """
     out = Path(out_dir)
     use_real = real_pairs is not None and cfg.real_batch_size > 0
     for what, src in (("frame", pairs), ("real frame at the network's width", real_pairs if use_real else None)):
@@ -218,14 +243,9 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
         if min_size is not None and (min_size()[0] < cfg.crop[0] or min_size()[1] < cfg.crop[1]):
             raise InputError(None, f"the training crop {cfg.crop[0]}x{cfg.crop[1]} is larger than the smallest {what} "
                                    f"({min_size()[0]}x{min_size()[1]}); choose a smaller --crop")
-    before = torch.get_num_threads()
-    torch.set_num_threads(max(1, cfg.threads))
-    with output_lock(out):
-        ck = out / "checkpoint.safetensors"
-        if ck.exists() and not resume:
-            raise InputError(ck, "a flow training run is already here; pass --resume or choose another --out")
-        if not resume and any(out.iterdir()):
-            raise InputError(out, "output folder is not empty; choose another --out")
+    with open_run(out, caps(cfg), resume=resume, checkpoint_name=CHECKPOINT, what="a flow training run",
+                  threads=max(1, cfg.threads), progress=progress, tensorboard=tensorboard) as run:
+        ck = run.checkpoint_path
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(cfg.seed)
             model = FlowNet(cfg.net)
@@ -236,12 +256,10 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
         opt = torch.optim.Adam(model.parameters(), lr=cfg.lr)
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.max_steps, eta_min=cfg.lr / 20)
         state = {"step": 0, "seconds": 0.0, "history": []}
-        if resume and ck.is_file():
-            _, d = modelfile.load(ck, (CHECKPOINT_FORMAT,))
-            if d["config"] != json.loads(json.dumps(cfg.to_dict())):
-                diff = sorted(k for k in d["config"] if d["config"][k] != cfg.to_dict().get(k))
-                if any(k not in ("max_minutes", "threads", "stop_after_steps", "device", "loader_workers") for k in diff):
-                    raise InputError(ck, f"cannot resume: settings differ ({', '.join(diff)})")
+        # (a checkpoint written before a setting existed resumes: only the settings it records are compared)
+        d = run.resume(lambda p: modelfile.load(p, (CHECKPOINT_FORMAT,))[1], cfg.to_dict(), MAY_CHANGE,
+                       recorded_only=True) if resume else None
+        if d is not None:
             started = (d.get("meta") or {}).get("init_sha256")
             if cfg.init and started and started != (meta or {}).get("init_sha256", started):
                 raise InputError(cfg.init, "differs from the flow model this run started from (sha256); cannot resume")
@@ -251,29 +269,29 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
             state = d["state"]
         atomic.write_json(out / "config.json", {"train": cfg.to_dict(), "meta": meta or {}, "pairs": len(pairs)})
 
-        def save(kind: str, path: Path) -> None:
-            tree = {"net": cfg.net.to_dict(), "state_dict": model.state_dict(), "meta": {**(meta or {}), "train": cfg.to_dict(),
-                    "steps": state["step"], "train_seconds": state["seconds"]}}
+        def tree(kind: str) -> dict:
+            t = {"net": cfg.net.to_dict(), "state_dict": model.state_dict(), "meta": {**(meta or {}), "train": cfg.to_dict(),
+                 "steps": state["step"], "train_seconds": state["seconds"]}}
             if kind == CHECKPOINT_FORMAT:
-                tree.update(config=cfg.to_dict(), optimizer=opt.state_dict(), scheduler=sched.state_dict(), state=state)
-            modelfile.save(path, kind, tree)
-            atomic.write_json(out / "history.json", state["history"])
+                t.update(config=cfg.to_dict(), optimizer=opt.state_dict(), scheduler=sched.state_dict(), state=state)
+            return t
 
-        limit = cfg.max_minutes * 60 if cfg.max_minutes > 0 else math.inf
-        bar = tqdm(total=cfg.max_steps, initial=state["step"], desc="flow training", unit="step", disable=not progress,
-                   dynamic_ncols=True)
-        t_start = time.perf_counter() - state["seconds"]
+        def checkpoint() -> None:
+            run.checkpoint(lambda path: modelfile.save(path, CHECKPOINT_FORMAT, tree(CHECKPOINT_FORMAT)))
+
+        bar = run.bar(cfg.max_steps, "flow training", "step", initial=state["step"])
+        run.start(state["seconds"], state["history"])
         run_loss, run_n, run_census = 0.0, 0, 0.0
         model.train()
-        last = cfg.stop_after_steps if 0 < cfg.stop_after_steps < cfg.max_steps else cfg.max_steps
-        batches = step_batches(pairs, cfg, state["step"], last, pin=dev.type == "cuda")
-        while state["step"] < last and time.perf_counter() - t_start < limit:
+        batches = step_batches(pairs, cfg, state["step"], run.caps.max_steps, pin=dev.type == "cuda")
+        while not run.reached(steps=state["step"]):
             b = next(batches)
             if dev.type != "cpu":
                 b = {k: v.pin_memory().to(dev, non_blocking=True) for k, v in b.items()}
             with torch.autocast(dev.type, dtype=torch.bfloat16):
                 outs = model(b["img0"], b["img1"])
             loss = multiscale_loss([o.float() for o in outs], b["flow"], cfg.level_weights)
+            scalars = {}
             if use_real:
                 rb = real_pairs.batch(np.random.default_rng([cfg.seed, state["step"], 1]), cfg.real_batch_size, cfg.crop)
                 if dev.type != "cpu":
@@ -281,33 +299,35 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
                 uloss, parts = unsupervised_loss(model, rb["img0"], rb["img1"], rb["aug0"], rb["aug1"],
                                                  cfg.smooth_weight, dev.type, cfg.smooth_order)
                 run_census += parts["census"]
+                scalars["flow/step/real_census"] = parts["census"]
                 loss = loss + cfg.real_weight * uloss
-            if not torch.isfinite(loss):
-                raise RuntimeError(f"non-finite flow loss at step {state['step']}")
+            check_finite(loss, "flow loss", f"at step {state['step'] + 1}",
+                         "lower --lr or check the training data for NaN/inf", sched.get_last_lr()[0])
             opt.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(model.parameters(), 10.0)
             opt.step()
             sched.step()
             state["step"] += 1
-            state["seconds"] = time.perf_counter() - t_start
-            run_loss += float(loss.detach())
+            state["seconds"] = run.elapsed()
+            step_loss = float(loss.detach())
+            run_loss += step_loss
             run_n += 1
             bar.update(1)
             if state["step"] % 50 == 0:
                 bar.set_postfix(loss=f"{run_loss / run_n:.3g}")
+            run.log({"flow/step/loss": step_loss, "flow/step/lr": sched.get_last_lr()[0], **scalars}, state["step"])
             if state["step"] % cfg.checkpoint_steps == 0:
                 entry = {"step": state["step"], "loss": run_loss / max(run_n, 1), "seconds": state["seconds"]}
                 if use_real:
                     entry["real_census"] = run_census / max(run_n, 1)
-                state["history"].append(entry)
+                run.record(entry, state["step"], "flow", skip=("step", "seconds"))
                 run_loss, run_n, run_census = 0.0, 0, 0.0
-                save(CHECKPOINT_FORMAT, ck)
+                checkpoint()
         bar.close()
         batches.close()
-        save(CHECKPOINT_FORMAT, ck)
-        model_path = out / "flow.safetensors"
+        checkpoint()
+        model_path = out / MODEL
         model.eval()
-        save(MODEL_FORMAT, model_path)
-    torch.set_num_threads(before)
+        modelfile.save(model_path, MODEL_FORMAT, tree(MODEL_FORMAT))
     return model_path

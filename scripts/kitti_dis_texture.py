@@ -21,7 +21,7 @@ def main(argv: list[str]) -> int:
     from deepslam.gen.flow import synthesize
     from deepslam.gen.novel_view import render_novel_view
     from deepslam.flow import estimators as fe, registry
-    from deepslam.vo.data import _depth_source, _frame_depth
+    from deepslam.vo.frames import _depth_source, _frame_depth
 
     seq = open_sequence(argv[0] if argv else "../shared/data/kitti/sequences/06")
     how = _depth_source(seq, "auto")

@@ -36,7 +36,7 @@ def main(argv: list[str]) -> int:
     from deepslam.slam.classical import make_pnp
     from deepslam.flow import estimators as fe
     from deepslam.vo import models
-    from deepslam.vo.data import frame_inverse_depth
+    from deepslam.vo.frames import frame_inverse_depth
     from deepslam.vo.infer import VOPredictor
 
     seq = open_sequence(args.sequence)

@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from deepslam.core import atomic, flowio, se3
+from deepslam.core.dynamic import dynamic_fraction
 from deepslam.core.errors import InputError
 from deepslam.core.integrity import file_digests, record_files_match
 from deepslam.core.lock import output_lock
@@ -67,11 +68,6 @@ def _name(i: int) -> str:
 DYNAMIC_FRACTION_FILE = "dynamic_fraction.txt"
 """Per-frame share of the image (0-1) covered by dynamic surfaces (mask > 0: movers, waving flags),
 one line per frame, written beside the images' times in every layout."""
-
-
-def dynamic_fraction(mask: np.ndarray) -> float:
-    """Share (0-1) of the pixels of an instance mask (H, W) that show a dynamic surface (id > 0)."""
-    return float(np.count_nonzero(mask)) / float(mask.size)
 
 
 def _write_dynamic_fraction(path: Path, values) -> None:

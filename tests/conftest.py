@@ -75,7 +75,7 @@ def drive(n: int, speed_m: float = 0.8, yaw_rate_rad: float = 0.02) -> np.ndarra
 
 
 def write_plane_sequence(root: Path, n: int = 12, width: int = 256, height: int = 80, seed: int = 0) -> Path:
-    from deepslam.vo.data import flow_from_depth_np
+    from deepslam.vo.toy import flow_from_depth_np
 
     camera = PinholeCamera(width, height, 0.58 * width, 0.58 * width, (width - 1) / 2, (height - 1) / 2 - 0.15 * height)
     tex = ground_texture(np.random.default_rng(seed))
@@ -127,15 +127,16 @@ def motion_json(tmp_path_factory) -> Path:
 def street_model(plane_sequence, tmp_path_factory) -> Path:
     """A tiny model trained on ground-plane flows seen by the test sequence's camera."""
     from deepslam.core.readers import open_sequence
-    from deepslam.vo import data
     from deepslam.vo.net import NetConfig
+    from deepslam.vo.samples import TensorSamples
+    from deepslam.vo.toy import toy_motion_sampler, toy_plane_samples
     from deepslam.vo.train import TrainConfig, train
 
     seq = open_sequence(plane_sequence)
     cam = seq.camera.scaled(80, 24)
-    sampler = data.toy_motion_sampler(rot_std_rad=0.02, trans_std_m=0.05, forward_m=(0.3, 1.2))
-    s = data.toy_plane_samples(800, cam, np.random.default_rng(0), sampler)
-    tr, ho = data.TensorSamples(s["flow"], s["intrinsics"], s["target"], seed=0).split(0.1, 0)
+    sampler = toy_motion_sampler(rot_std_rad=0.02, trans_std_m=0.05, forward_m=(0.3, 1.2))
+    s = toy_plane_samples(800, cam, np.random.default_rng(0), sampler)
+    tr, ho = TensorSamples(s["flow"], s["intrinsics"], s["target"], seed=0).split(0.1, 0)
     cfg = TrainConfig(net=NetConfig(24, 80, filters=16, hidden_units=64, flow_scale=10.0), batch_size=16, lr_max=3e-3,
                       max_epochs=8, nll_epochs=3, bf16=False, channels_last=False, threads=1)
     return train(cfg, tr, ho, tmp_path_factory.mktemp("model"), progress=False).model_path

@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import json
+import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -11,7 +13,10 @@ from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
 from deepslam.cli import main
-from deepslam.studies.stress import RigidFitOdometry, Setting, StressConfig, run_stress, setting_scene
+from deepslam.core.dynamic import dynamic_fraction
+from deepslam.slam.compare import plugin_key
+from deepslam.slam.rigid_fit import RigidFitOdometry
+from deepslam.studies.stress import Setting, StressConfig, run_stress, setting_scene
 
 # room seed 1: the table's flags fill ~6 % of the first frames and 16 flying boxes ~3 %
 TINY = StressConfig(scene="room", seed=1, frames=6, width=96, objects=(0, 16), object_sizes=(1.0,), size_objects=16,
@@ -79,6 +84,19 @@ def test_outputs_exist_and_parse(study):
     assert not (out / "sequences").exists()  # rendered sequences are removed unless kept
 
 
+def test_html_report_shows_the_table_the_conclusion_and_the_plots(study):
+    out, report = study
+    page = (out / "report.html").read_text()
+    assert page.startswith("<!DOCTYPE html>") and page.rstrip().endswith("</html>")
+    assert page.count("<table>") == 1 and page.count("<tr><td>") == 4  # one row per setting, no side-by-side
+    for r in report["rows"]:
+        assert f"<tr><td>{r['setting']}</td><td>{r['axis']}</td><td>{r['dynamic_pct']:.2f}</td>" in page
+    assert "<strong>Conclusion.</strong>" in page and f"{report['conclusion']['worst_epe_dynamic_px']:.3g} px" in page
+    for name in ("stress_flow_epe.png", "stress_vo_ate.png", "stress_vo_rpe.png", "stress_slam_ate.png"):
+        assert f'<a href="{name}"><img src="{name}"' in page and (out / name).is_file()
+    assert "<script" not in page and "http" not in page  # plain, self-contained beside its plots
+
+
 def test_resume_reuses_setting_results(study, tmp_path):
     out, report = study
     again = run_stress(TINY, out, resume=True, progress=False)
@@ -92,7 +110,11 @@ def test_bad_input_one_line_exit_2(tmp_path, capsys):
              (["--objects", "1,2.5"], "not an integer"), (["--frames", "2"], "frames"),
              (["--odometry", "oracle"], "unknown plugin 'oracle'"), (["--deform", "0.5"], "at most"),
              (["--model-cons", str(tmp_path / "missing.pt")], "missing.pt"),
-             (["--odometry", "rigid-fit", "--model-cons", "kitti"], "rigid-fit uses no model")]
+             (["--odometry", "rigid-fit", "--model-cons", "kitti"], "rigid-fit uses no model"),
+             (["--odometry-command", "prog {sequence}"], "needs an {out} placeholder"),
+             (["--odometry-command", "prog 'unbalanced {out}"], "cannot be split"),
+             (["--odometry-command", "a {out}", "--odometry-command", "a {out}"], "listed twice"),
+             (["--odometry-command", "a {out}", "--command-timeout", "0"], "timeout")]
     for extra, what in cases:
         rc = main(["stress", "--out", str(out), *extra])
         err = capsys.readouterr().err.strip().splitlines()
@@ -155,3 +177,42 @@ def test_falls_back_to_rigid_fit_with_a_note_when_no_model_is_shipped(tmp_path, 
     odo = make_odometries(StressConfig())
     assert odo.kind == "rigid-fit" and "unavailable" in odo.note and "kitti_cons.safetensors" in odo.note
     assert set(odo.cons) == {"gt", "dis"} and isinstance(odo.loops, RigidFitOdometry)
+
+
+def test_dynamic_fraction_pools_the_pixels_of_all_masks():
+    a, b = np.zeros((2, 4), np.uint8), np.zeros((4, 4), np.uint16)
+    a[0, :3], b[1:, 1] = 1, 7
+    assert dynamic_fraction(a) == 3 / 8 and dynamic_fraction(a, b) == 6 / 24
+    assert dynamic_fraction() == 0.0 and dynamic_fraction(a, None) == 0.0  # no mask: nothing known to move
+
+
+def test_external_odometry_command_is_compared_side_by_side(tmp_path, capsys):
+    """An external program (here: one answering with the ground truth, KITTI layout) is one more odometry
+    of the study: it runs without a shell on every rendered sequence, in the table, the JSON and the page."""
+    script = tmp_path / "gt odometry.py"  # a space in the path: still one argument
+    script.write_text("import shutil, sys\nshutil.copy(sys.argv[1] + '/poses.txt', sys.argv[2])\n")
+    out = tmp_path / "stress"
+    rc = main(["stress", "--out", str(out), "--scene", "room", "--seed", "1", "--frames", "6", "--width", "96",
+               "--objects", "0,16", "--object-size", "1", "--size-objects", "0", "--deform", "0", "--no-combined",
+               "--odometry", "rigid-fit", "--odometry-command", f"{sys.executable} '{script}' {{sequence}} {{out}}",
+               "--json", "--quiet"])
+    cap = capsys.readouterr()
+    assert rc == 0, cap.err
+    printed = json.loads(cap.out)
+    entries = {(e["name"], e["odometry_key"]): e for e in printed["settings"]}
+    exe = Path(sys.executable).name
+    key = plugin_key(exe)
+    assert {k for _, k in entries} == {"gt", "dis", key}
+    for name in ("k0_s1_a0", "k16_s1_a0"):
+        mine = entries[(name, key)]
+        assert mine["odometry"] == f"{exe} (plug-in)"
+        assert mine["vo_ate_m"] < 1e-6 and mine["slam_ate_m"] < 1e-6  # the ground truth, chained back
+    # the movers pull the rigid fit, not the program that reads the true poses
+    assert entries[("k16_s1_a0", "gt")]["vo_ate_m"] > 100 * entries[("k16_s1_a0", key)]["vo_ate_m"]
+    report = json.loads((out / "stress.json").read_text())
+    assert report["config"]["commands"] == [f"{sys.executable} '{script}' {{sequence}} {{out}}"]
+    assert report["plugins"] == {key: exe}
+    md = (out / "stress.md").read_text()
+    assert "**Side by side**" in md and f"{exe} (plug-in)" in md
+    page = (out / "report.html").read_text()
+    assert page.count("<table>") == 2 and f"<th>{exe} (plug-in)</th>" in page

@@ -7,8 +7,10 @@ Modules:
   network's input with its values rescaled.
 - :mod:`vo.net`: the paper's network (six convolutions, two fully connected branches, per-DoF
   log-std heads), configurable in width, depth and resolution.
-- :mod:`vo.data`: training batches: synthetic (single frames + depth + motion model, via gen) and
-  supervised (flow between real frames + ground-truth poses); a toy plane-flow source for tests.
+- training data: :mod:`vo.samples` (tensor samples, shards, hold-out split, per-epoch seeds),
+  :mod:`vo.frames` (single frames with depth from sequences), :mod:`vo.motion` (motion samplers),
+  :mod:`vo.synthetic` (synthetic flow from frames + motion, via gen), :mod:`vo.supervised` (flow
+  between real frames + ground-truth poses), :mod:`vo.toy` (plane-flow samples for tests).
 - :mod:`vo.train`: the paper's two-stage training recipe with checkpoints and resume.
 - :mod:`vo.infer`: :class:`~vo.infer.VOPredictor`, batched inference and trajectory chaining.
 - :mod:`vo.models`: the models shipped in ``models/``.

@@ -113,7 +113,7 @@ class VOPredictor:
                       chunk: int = 64, inputs=None, epipolar=None,
                       fits_out: list | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Flow for every pair (i, j) of ``seq`` by ``flow_estimator`` (and, for a depth-channel
-        network, frame i's depth: :func:`vo.data.frame_inverse_depth`), then 6DoF of cam_j_from_cam_i.
+        network, frame i's depth: :func:`vo.frames.frame_inverse_depth`), then 6DoF of cam_j_from_cam_i.
 
         The flows are computed in a background thread (:class:`vo.prefetch.PairInputs`) while the
         network runs on the previous chunk. ``inputs``: a :class:`vo.prefetch.PairInputs` the caller
@@ -130,7 +130,7 @@ class VOPredictor:
         """
         from tqdm import tqdm
 
-        from deepslam.vo.data import frame_inverse_depth
+        from deepslam.vo.frames import frame_inverse_depth
         from deepslam.vo.prefetch import PairInputs
 
         pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)

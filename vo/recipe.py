@@ -15,8 +15,10 @@ from deepslam.core.integrity import sha256_file
 from deepslam.core.readers import open_sequence
 from deepslam.flow import registry as flow_registry
 from deepslam.gen.motion import MotionModel
-from deepslam.vo import data
+from deepslam.vo.frames import load_frames, load_image_frames, with_mirrored
+from deepslam.vo.motion import CameraTilt, FlatSpeed, MotionMixture, SceneScale, motion_sampler
 from deepslam.vo.net import NetConfig
+from deepslam.vo.synthetic import EstimatedFlowSource, SyntheticSource
 
 
 def load_motion(spec: str):
@@ -31,7 +33,7 @@ def load_motion(spec: str):
     path = Path(rest[: -len(":loops")] if loops else rest.removesuffix(":cons"))
     model = MotionModel.load(path)
     try:
-        sampler = data.motion_sampler(model, loops)
+        sampler = motion_sampler(model, loops)
     except InputError as e:
         raise InputError(path, e.what) from None
     return sampler, weight, {"file": str(path), "distribution": "loops" if loops else "consecutive",
@@ -101,13 +103,13 @@ def synthetic_sources(spec: SyntheticData, net: NetConfig, seed: int, progress: 
     if not spec.motion:
         raise InputError(None, "synthetic mode needs --motion FILE (a gen.motion JSON; repeat for a mixture)")
     h, w = net.input_height, net.input_width
-    tilt = data.CameraTilt.parse(spec.camera_tilt_deg) if spec.camera_tilt_deg else None
-    scene_scale = data.SceneScale.parse(spec.scene_scale) if spec.scene_scale else None
+    tilt = CameraTilt.parse(spec.camera_tilt_deg) if spec.camera_tilt_deg else None
+    scene_scale = SceneScale.parse(spec.scene_scale) if spec.scene_scale else None
     motions = [load_motion(m) for m in spec.motion]
-    sampler = data.MotionMixture([m[0] for m in motions], [m[1] for m in motions])
+    sampler = MotionMixture([m[0] for m in motions], [m[1] for m in motions])
     speed_range, flat_speed = None, None
     if spec.speed_range:
-        sampler = flat_speed = data.FlatSpeed.parse(sampler, spec.speed_range, spec.rate_hz)
+        sampler = flat_speed = FlatSpeed.parse(sampler, spec.speed_range, spec.rate_hz)
         speed_range = [flat_speed.min_mps, flat_speed.max_mps, flat_speed.rate_hz]
     f = max(1, spec.synth_factor)
     seqs = [open_sequence(d) for d in spec.frames]
@@ -115,23 +117,23 @@ def synthetic_sources(spec: SyntheticData, net: NetConfig, seed: int, progress: 
     n_hold = spec.holdout_samples or max(spec.batch_size, int(round(spec.holdout * spec.samples_per_epoch)))
     opts = dict(spec.flow_options)
     if spec.synthetic_flow == "exact":
-        frames = data.load_frames(seqs, w * f, h * f, spec.frame_step, spec.depth, spec.max_frames, progress)
+        frames = load_frames(seqs, w * f, h * f, spec.frame_step, spec.depth, spec.max_frames, progress)
         train_frames, hold_frames = frames.split(spec.holdout, seed)
 
         def source(fr, n, s):
-            return data.SyntheticSource(fr, sampler, n, s, f, missing_depth, tilt=tilt, inv_depth=net.depth_channel,
-                                        scene_scale=scene_scale, unknown=net.unknown_flow)
+            return SyntheticSource(fr, sampler, n, s, f, missing_depth, tilt=tilt, inv_depth=net.depth_channel,
+                                   scene_scale=scene_scale, unknown=net.unknown_flow)
     else:
-        frames = data.load_image_frames(seqs, spec.frame_step, spec.depth, spec.max_frames, progress,
-                                        scales=spec.frame_scales)
+        frames = load_image_frames(seqs, spec.frame_step, spec.depth, spec.max_frames, progress,
+                                   scales=spec.frame_scales)
         train_frames, hold_frames = frames.split(spec.holdout, seed)
 
         def source(fr, n, s):
-            return data.EstimatedFlowSource(fr, sampler, spec.synthetic_flow, w, h, n, s, spec.data_threads, opts,
-                                            spec.appearance_noise, tilt=tilt, inv_depth=net.depth_channel,
-                                            scene_scale=scene_scale, unknown=net.unknown_flow)
+            return EstimatedFlowSource(fr, sampler, spec.synthetic_flow, w, h, n, s, spec.data_threads, opts,
+                                       spec.appearance_noise, tilt=tilt, inv_depth=net.depth_channel,
+                                       scene_scale=scene_scale, unknown=net.unknown_flow)
     if spec.mirror_frames:  # after the split: a frame and its mirror stay on the same side
-        train_frames, hold_frames = data.with_mirrored(train_frames), data.with_mirrored(hold_frames)
+        train_frames, hold_frames = with_mirrored(train_frames), with_mirrored(hold_frames)
     hold_src = source(hold_frames, n_hold, seed + 1).materialize(n_hold, seed + 1, progress)
     train_src = source(train_frames, spec.samples_per_epoch, seed)
     estimator_name = getattr(train_src, "estimator_name", None)  # None: exact synthetic flow

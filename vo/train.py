@@ -19,13 +19,16 @@ heads: the stage costs one forward pass over the held-out set, not ``nll_epochs`
 
 Every epoch ends with an atomic checkpoint (``checkpoint.safetensors``: model, optimizer, scheduler, best
 weights, epoch, stage, history, RNG states, config). Data batches are a function of (seed, epoch)
-(:mod:`vo.data`), so a run killed at any moment and resumed from its checkpoint ends with exactly
+(:mod:`vo.samples`), so a run killed at any moment and resumed from its checkpoint ends with exactly
 the weights of an uninterrupted run (same threads, same machine). A non-finite loss raises
 :class:`TrainingDiverged` and leaves the last good checkpoint in place.
+
+The output folder, caps, clock, checkpoint and history files, resume checks, divergence check, progress
+and loggers (``tensorboard``) are the shared training runner's (:mod:`deepslam.gen.training`, also
+behind :mod:`deepslam.flow.train`); this module keeps the network, losses, data and stages.
 """
 from __future__ import annotations
 
-import contextlib
 import copy
 import dataclasses
 import math
@@ -34,13 +37,13 @@ from pathlib import Path
 from typing import Iterator, Protocol
 
 import torch
-from tqdm import tqdm
 
 from deepslam.core import atomic
 from deepslam.core.errors import InputError
-from deepslam.core.lock import output_lock
 from deepslam.core.plots import new_figure, save_figure
-from deepslam.vo.data import epoch_seed
+from deepslam.gen.training import CAPS, Caps, Runner, check_finite, open_run
+from deepslam.gen.training import TrainingDiverged  # noqa: F401 - part of this module's API
+from deepslam.vo.samples import epoch_seed
 from deepslam.vo.distributed import agree, world
 from deepslam.vo.modelio import load_checkpoint, load_model, make_net, save_checkpoint, save_model
 from deepslam.vo.net import PoseNet, gaussian_nll, pose_loss
@@ -55,12 +58,8 @@ CONFIG = "config.json"
 HISTORY = "history.json"
 
 
-class TrainingDiverged(RuntimeError):
-    """The loss became NaN or infinite; the message says where and what to try."""
-
-
 class Source(Protocol):
-    """A deterministic supplier of batches (see :mod:`vo.data`)."""
+    """A deterministic supplier of batches (see :mod:`vo.samples`, :mod:`vo.synthetic`)."""
 
     def __len__(self) -> int: ...
 
@@ -232,75 +231,65 @@ def init_log_std(model: PoseNet, hi: HeadInputs) -> list[float]:
     return rmse.tolist()
 
 
-CAPS = ("max_epochs", "max_minutes", "max_samples")
-"""The stage-1 caps, in the order they are reported when several are reached at once."""
+MAY_CHANGE = ("max_epochs", "max_minutes", "max_samples", "threads", "device")
+"""The settings a resumed run may change: its caps and where it runs."""
+
+DIVERGED_HINT = "lower --lr-max or check the training data for NaN/inf"
 
 
-def _caps_reached(cfg: TrainConfig, state: dict, elapsed_s: float) -> list[str]:
-    """The stage-1 caps of ``cfg`` that a run at ``state`` (epochs, samples) and ``elapsed_s`` seconds
-    of training has reached, in :data:`CAPS` order."""
-    hit = {"max_epochs": state["epoch"] >= cfg.max_epochs,
-           "max_minutes": cfg.max_minutes > 0 and elapsed_s >= 60.0 * cfg.max_minutes,
-           "max_samples": cfg.max_samples > 0 and state["samples"] >= cfg.max_samples}
-    return [c for c in CAPS if hit[c]]
+def caps(cfg: TrainConfig) -> Caps:
+    """Stage 1's caps (the time cap spans both stages)."""
+    return Caps(max_epochs=cfg.max_epochs, max_minutes=cfg.max_minutes if cfg.max_minutes > 0 else None,
+                max_samples=cfg.max_samples if cfg.max_samples > 0 else None)
 
 
 def _check_finite(loss: torch.Tensor, stage: str, epoch: int, step: int, lr: float) -> None:
-    if not torch.isfinite(loss):
-        raise TrainingDiverged(f"{stage} loss is {float(loss.detach())} at epoch {epoch + 1}, step {step + 1} "
-                               f"(learning rate {lr:.3g}); lower --lr-max or check the training data for "
-                               "NaN/inf; the last good checkpoint is kept")
+    check_finite(loss, f"{stage} loss", f"at epoch {epoch + 1}, step {step + 1}", DIVERGED_HINT, lr)
 
 
 def train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_dir: str | Path,
           resume: bool = False, progress: bool = True, meta: dict | None = None,
-          half_weights: bool = False) -> TrainResult:
+          half_weights: bool = False, tensorboard: str | Path | None = None) -> TrainResult:
     """Run both stages, writing ``checkpoint.safetensors`` every epoch and ``model.safetensors`` at the end.
 
     Args:
         cfg: the training configuration.
-        train_source, holdout_source: deterministic batch sources (:mod:`vo.data`); the holdout set is
-            stage 1's validation set and stage 2's training set.
+        train_source, holdout_source: deterministic batch sources (:mod:`vo.samples`, :mod:`vo.synthetic`);
+            the holdout set is stage 1's validation set and stage 2's training set.
         out_dir: output folder (``config.json``, ``checkpoint.safetensors``, ``history.json``, ``model.safetensors``,
             ``loss.png``).
         resume: continue from ``out_dir/checkpoint.safetensors`` (whose config must equal ``cfg``).
         meta: JSON-able description of the data, stored in config.json and the model file.
         half_weights: store the model file's weights as float16.
+        tensorboard: a folder for TensorBoard scalars (:class:`gen.training.TensorBoardLogger`): per
+            stage-1 step ``stage1/step/loss`` and ``stage1/step/lr`` (x: training samples), per epoch every
+            number of the history row as ``stage1/<field>`` and ``stage2/<field>`` (x: epoch). None: none.
 
     Raises:
         TrainingDiverged: a non-finite loss.
         core.errors.InputError: ``resume`` with a checkpoint of another configuration.
     """
-    threads_before = torch.get_num_threads()
-    if cfg.threads > 0:
-        torch.set_num_threads(cfg.threads)
     rank, _ = world()
-    try:
-        # one writer: a second run into this folder is refused while this one runs (data-parallel:
-        # rank 0 is the writer, the other ranks only train)
-        with output_lock(out_dir) if rank == 0 else contextlib.nullcontext():
-            return _train(cfg, train_source, holdout_source, Path(out_dir), resume, progress and rank == 0, meta,
-                          half_weights)
-    finally:
-        torch.set_num_threads(threads_before)
+    out = Path(out_dir)
+
+    def refuse(folder: Path) -> None:
+        if (folder / LEGACY_CHECKPOINT).is_file() and not (folder / CHECKPOINT).exists():
+            raise InputError(folder / LEGACY_CHECKPOINT, "a pickle-based checkpoint of an older version; convert it "
+                             f"once with `deepslam convert-model {folder / LEGACY_CHECKPOINT}` (or choose another --out)")
+
+    # one writer: a second run into this folder is refused while this one runs (data-parallel: rank 0 is
+    # the writer and checks the folder; the other ranks only train)
+    with open_run(out, caps(cfg), resume=resume, checkpoint_name=CHECKPOINT, threads=cfg.threads, writer=rank == 0,
+                  progress=progress, tensorboard=tensorboard, refuse=refuse) as run:
+        return _train(cfg, train_source, holdout_source, run, resume, meta, half_weights)
 
 
-def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_dir: Path, resume: bool,
-           progress: bool, meta: dict | None, half_weights: bool) -> TrainResult:
+def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, run: Runner, resume: bool,
+           meta: dict | None, half_weights: bool) -> TrainResult:
     rank, n_ranks = world()
-    writer = rank == 0
-    if writer:
-        out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = run.out_dir
     meta = dict(meta or {})
-    ckpt_path = out_dir / CHECKPOINT
-    if writer:  # rank 0 checks the folder; the others follow it (or are stopped with it by torchrun)
-        if (out_dir / LEGACY_CHECKPOINT).is_file() and not ckpt_path.exists():
-            raise InputError(out_dir / LEGACY_CHECKPOINT, "a pickle-based checkpoint of an older version; convert it "
-                             f"once with `deepslam convert-model {out_dir / LEGACY_CHECKPOINT}` (or choose another --out)")
-        if not resume and ckpt_path.exists():
-            raise InputError(ckpt_path, "a training run is already here; pass --resume to continue it or choose another --out")
-        if not resume and any(out_dir.iterdir()):
-            raise InputError(out_dir, "output folder is not empty and holds no training run; choose another --out")
+    ckpt_path = run.checkpoint_path
     model = new_model(cfg)
     if cfg.init and not (resume and ckpt_path.is_file()):
         model.load_state_dict(initial_weights(cfg).state_dict())
@@ -328,18 +317,13 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
              "since_best": 0, "history": [], "elapsed_s": 0.0, "stop_reason": None, "halvings": 0, "samples": 0,
              "eval_s": None}
     stage1_saved: dict | None = None  # stage 1's last model/optimizer/scheduler, kept through stage 2
-    ck = None
-    if resume and ckpt_path.is_file():
-        ck = load_checkpoint(ckpt_path)
-        old, new = ck.get("config") or {}, cfg.to_dict()
-        diff = sorted(k for k in set(old) | set(new)
-                      if old.get(k) != new.get(k) and k not in ("max_epochs", "max_minutes", "max_samples", "threads", "device"))
-        if diff:
-            raise InputError(ckpt_path, f"cannot resume: settings differ from the checkpoint's ({', '.join(diff)})")
+    ck = run.resume(load_checkpoint, cfg.to_dict(), MAY_CHANGE) if resume else None
+    if ck is not None:
         state = ck["train_state"]
         stage1_saved = ck.get("stage1")
         stopped = str(state["stop_reason"]).partition(";")[0]
-        cap_raised = stopped in CAPS and stopped not in _caps_reached(cfg, state, state["elapsed_s"])
+        cap_raised = stopped in CAPS and stopped not in run.reached(state["epoch"], samples=state["samples"],
+                                                                    elapsed_s=state["elapsed_s"])
         if cap_raised and stage1_saved is not None:
             # stage 1 stopped at a cap that is now higher: go back to its end and carry on
             state["stage"], state["nll_epoch"], state["stop_reason"] = 1, 0, None
@@ -352,37 +336,28 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
             if state["stage"] == 1:
                 opt.load_state_dict(ck["optimizer"])
                 sched.load_state_dict(ck["scheduler"])
-        torch.set_rng_state(ck["torch_rng"])
-        if progress:
-            print(f"resuming {ckpt_path}: stage {state['stage']}, epoch {state['epoch']}, "
-                  f"{state['nll_epoch']} NLL epochs", flush=True)
+        run.say(f"resuming {ckpt_path}: stage {state['stage']}, epoch {state['epoch']}, "
+                f"{state['nll_epoch']} NLL epochs")
     config_doc = {"train": cfg.to_dict(), "data": meta, "torch": torch.__version__,
                   "threads": torch.get_num_threads(), "data_parallel_ranks": n_ranks}
-    if writer:
+    if run.writer:
         atomic.write_json(out_dir / CONFIG, config_doc)
 
     def checkpoint(opt_, sched_):
         nonlocal stage1_saved
         if state["stage"] == 1:
             stage1_saved = {"model": model.state_dict(), "optimizer": opt_.state_dict(), "scheduler": sched_.state_dict()}
-        if not writer:
-            return
-        save_checkpoint(ckpt_path, {"config": cfg.to_dict(), "model": model.state_dict(), "train_state": state,
-                                    "optimizer": opt_.state_dict(), "scheduler": sched_.state_dict() if sched_ else None,
-                                    "stage1": stage1_saved, "torch_rng": torch.get_rng_state(), "meta": meta})
-        atomic.write_json(out_dir / HISTORY, state["history"])  # (rank 0 only: see above)
+        run.checkpoint(lambda path: save_checkpoint(path, {
+            "config": cfg.to_dict(), "model": model.state_dict(), "train_state": state, "optimizer": opt_.state_dict(),
+            "scheduler": sched_.state_dict() if sched_ else None, "stage1": stage1_saved, **run.rng_states(),
+            "meta": meta}))
 
-    clock0 = time.perf_counter() - state["elapsed_s"]  # training time so far, over resumes
-
-    def elapsed() -> float:
-        return time.perf_counter() - clock0
-
-    limit_s = 60.0 * cfg.max_minutes if cfg.max_minutes > 0 else math.inf
+    run.start(state["elapsed_s"], state["history"])  # training time so far, over resumes
     n_hold = len(holdout_source)
 
     # ---------------- stage 1: motion
     while state["stage"] == 1:
-        reached = _caps_reached(cfg, state, elapsed())
+        reached = run.reached(state["epoch"], samples=state["samples"])
         reason = reached[0] if reached else ("lr_below_stop" if sched.base_lrs[0] < cfg.lr_stop else None)
         if reason is not None:
             state["stop_reason"] = reason
@@ -392,8 +367,7 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
         t0 = time.perf_counter()
         n_seen, n_local, loss_sum = 0, 0, 0.0
         planned = n_train if cfg.max_samples <= 0 else min(n_train, cfg.max_samples - state["samples"])
-        bar = tqdm(total=planned, desc=f"epoch {epoch + 1}", unit="sample", disable=not progress, leave=False,
-                   dynamic_ncols=True)
+        bar = run.bar(planned, f"epoch {epoch + 1}", "sample", leave=False)
         # (a source of one's own needs the rank arguments only for data-parallel training)
         epoch_batches = (train_source.batches(epoch, cfg.batch_size) if n_ranks == 1
                          else train_source.batches(epoch, cfg.batch_size, rank, n_ranks))
@@ -409,12 +383,13 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
             sched.step()
             k_local = len(b["target"])
             n_local += k_local
-            loss_sum += float(loss.detach()) * k_local  # this rank's samples (the bar shows rank 0's loss)
+            step_loss = float(loss.detach())
+            loss_sum += step_loss * k_local  # this rank's samples (the bar shows rank 0's loss)
             sps = (n_seen + k_local * n_ranks) / (time.perf_counter() - t0)
             # time left for training once the last held-out evaluation and stage 2 are paid for:
             # each is about one forward pass over the held-out set (forward ~3x a training step)
             eval_s = state.get("eval_s") or n_hold / (3.0 * sps)
-            left_s = limit_s - elapsed() - 2.2 * eval_s - 3.0
+            left_s = run.time_left() - 2.2 * eval_s - 3.0
             samples_after = state["samples"] + k_local * n_ranks  # exact once the ranks agree below
             stop = (cfg.max_samples > 0 and samples_after >= cfg.max_samples) or left_s <= 0
             k, stop = agree(k_local, stop, torch.device(cfg.device))  # every rank stops at the same step
@@ -426,6 +401,7 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
                 bar.total = max(n_seen, min(planned, n_seen + int(sps * max(left_s, 0.0))))
             bar.update(k)
             bar.set_postfix(loss=f"{loss_sum / max(n_local, 1):.4g}", sps=f"{sps:.0f}", lr=f"{sched.get_last_lr()[0]:.2g}")
+            run.log({"stage1/step/loss": step_loss, "stage1/step/lr": sched.get_last_lr()[0]}, state["samples"])
             if reason is not None:
                 break
         bar.close()
@@ -433,9 +409,7 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
         te = time.perf_counter()
         val = evaluate(model, holdout_source, cfg)
         state["eval_s"] = time.perf_counter() - te
-        if not math.isfinite(val["loss"]):
-            raise TrainingDiverged(f"held-out loss is {val['loss']} after epoch {epoch + 1}; lower --lr-max "
-                                   "or check the data; the last good checkpoint is kept")
+        check_finite(val["loss"], "held-out loss", f"after epoch {epoch + 1}", "lower --lr-max or check the data")
         improved = val["loss"] < state["best_val"]
         if improved:
             state["best_val"] = val["loss"]
@@ -449,16 +423,14 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
                 state["since_best"] = 0
                 state["halvings"] += 1
         state["epoch"] = epoch + 1
-        state["elapsed_s"] = elapsed()
+        state["elapsed_s"] = run.elapsed()
         row = {"stage": 1, "epoch": epoch + 1, "train_loss": loss_sum / max(n_local, 1), "val_loss": val["loss"],
                "val_rmse6": val["rmse6"], "lr_min": sched.base_lrs[0], "lr_max": sched.max_lrs[0],
                "samples_per_s": n_seen / dt, "seconds": dt, "samples": n_seen, "partial": n_seen < n_train}
-        state["history"].append(row)
-        if progress:
-            print(f"epoch {epoch + 1}: train {row['train_loss']:.4g}  held-out {val['loss']:.4g}"
-                  f"{' *' if improved else ''}  lr [{row['lr_min']:.2g}, {row['lr_max']:.2g}]  "
-                  f"{row['samples_per_s']:.0f} samples/s" + (f"  ({n_seen} of {n_train} samples)" if row["partial"] else ""),
-                  flush=True)
+        run.record(row, epoch + 1, "stage1", skip=("stage", "epoch"))
+        run.say(f"epoch {epoch + 1}: train {row['train_loss']:.4g}  held-out {val['loss']:.4g}"
+                f"{' *' if improved else ''}  lr [{row['lr_min']:.2g}, {row['lr_max']:.2g}]  "
+                f"{row['samples_per_s']:.0f} samples/s" + (f"  ({n_seen} of {n_train} samples)" if row["partial"] else ""))
         if reason is not None:
             state["stop_reason"] = reason
         checkpoint(opt, sched)
@@ -473,14 +445,14 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
         hi = head_inputs(model, holdout_source, cfg)
         init_log_std(model, hi)
         opt2 = _stage2_optim(model, cfg)
-        state["elapsed_s"] = elapsed()
+        state["elapsed_s"] = run.elapsed()
         checkpoint(opt2, None)
     else:
         opt2 = _stage2_optim(model, cfg)
         if state["stage"] == 2 and ck is not None:
             opt2.load_state_dict(ck["optimizer"])
         hi = head_inputs(model, holdout_source, cfg)
-    deadline = clock0 + limit_s if math.isfinite(limit_s) else None
+    deadline = run.deadline()
     while state["stage"] == 2 and state["nll_epoch"] < cfg.nll_epochs:
         if deadline is not None and time.perf_counter() >= deadline:
             state["stop_reason"] = f"{state['stop_reason']}; stage 2 cut by the time cap after {state['nll_epoch']} of " \
@@ -489,8 +461,9 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
         ep = state["nll_epoch"]
         nll, cut = uncertainty_epoch(model, hi, cfg, opt2, ep, deadline)
         state["nll_epoch"] = ep + 1
-        state["elapsed_s"] = elapsed()
-        state["history"].append({"stage": 2, "epoch": ep + 1, "holdout_nll": nll, "partial": cut})
+        state["elapsed_s"] = run.elapsed()
+        run.record({"stage": 2, "epoch": ep + 1, "holdout_nll": nll, "partial": cut}, ep + 1, "stage2",
+                   skip=("stage", "epoch"))
         checkpoint(opt2, None)
     if state["stage"] == 2:
         state["stage"] = 3
@@ -499,17 +472,15 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_d
     final = evaluate_heads(model, hi, cfg)
     summary = {"stop_reason": state["stop_reason"], "epochs": state["epoch"], "nll_epochs": state["nll_epoch"],
                "best_val_loss": state["best_val"], "holdout": final, "lr_halvings": state["halvings"],
-               "train_seconds": elapsed(), "train_samples": state["samples"]}
+               "train_seconds": run.elapsed(), "train_samples": state["samples"]}
     meta_out = {**meta, "train": cfg.to_dict(), "summary": summary}
     model_path = out_dir / MODEL
-    if writer:
+    if run.writer:
         save_model(model_path, model, meta_out, half=half_weights)
         atomic.write_json(out_dir / "summary.json", summary)
         _plot_history(out_dir / "loss.png", state["history"])
-    if progress:
-        print(f"stopped: {_why(state['stop_reason'])} after {state['epoch']} epochs ({state.get('samples', 0)} samples, "
-              f"{elapsed() / 60:.1f} min); held-out loss {final['loss']:.4g}, NLL {final['nll']:.4g}; wrote {model_path}",
-              flush=True)
+    run.say(f"stopped: {_why(state['stop_reason'])} after {state['epoch']} epochs ({state.get('samples', 0)} samples, "
+            f"{run.elapsed() / 60:.1f} min); held-out loss {final['loss']:.4g}, NLL {final['nll']:.4g}; wrote {model_path}")
     return TrainResult(out_dir, model_path, state["history"], state["stop_reason"], state["best_val"], final["nll"])
 
 

@@ -2,9 +2,11 @@
 
 Sweeps the number and size of moving objects and the flags' deformation amplitude in simulation; for
 every setting renders a short sequence and measures the synthesized-vs-true flow error on dynamic and
-static pixels, the VO error (learned odometry on ground-truth and on DIS flow) and the SLAM error.
-Writes ``stress.md`` (table + conclusion), ``stress.json``, ``config.json`` and four PNG plots of the
-errors against the fraction of dynamic pixels into ``--out``. See :mod:`deepslam.studies.stress`.
+static pixels, the VO error (learned odometry on ground-truth and on DIS flow) and the SLAM error, and
+those of any plug-in odometry (``--odometry``) or external program (``--odometry-command``) beside them.
+Writes ``stress.md`` (table + conclusion), ``report.html`` (the same page with the plots), ``stress.json``,
+``config.json`` and four PNG plots of the errors against the fraction of dynamic pixels into ``--out``.
+See :mod:`deepslam.studies.stress`.
 """
 from __future__ import annotations
 
@@ -40,8 +42,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "or rigid-fit (least-squares rigid motion from flow + depth over all pixels); repeat to add "
                         "plug-ins measured side by side (MODULE:FACTORY or an entry-point name, e.g. pnp: SIFT + "
                         "PnP with depth), in one table and one plot")
-    p.add_argument("--json", action="store_true", help="print one JSON object: {\"settings\": [one entry per "
-                   "setting and odometry], \"conclusion\", \"out\"}")
+    p.add_argument("--odometry-command", action="append", default=None, metavar="'CMD {sequence} {out}'",
+                   help="an external program measured side by side like a plug-in (repeat for several): it reads "
+                        "each rendered sequence folder and writes a KITTI or TUM trajectory to {out}; it runs without "
+                        "a shell (the template is split into arguments once, {sequence}/{out} replaced inside them, "
+                        "{{ and }} for literal braces)")
+    p.add_argument("--command-timeout", type=float, default=3600.0, metavar="S",
+                   help="seconds an --odometry-command may run on one rendered sequence (3600)")
+    p.add_argument("--json", action="store_true", help="no progress; print one JSON object: {\"settings\": [one "
+                   "entry per setting and odometry], \"conclusion\", \"odometry\", \"out\"}")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--model-cons", default=None, metavar="M", help="NN_cons model file or shipped name (default: shipped)")
     p.add_argument("--model-loops", default=None, metavar="M", help="NN_loops model file or shipped name (default: shipped)")
     p.add_argument("--dis-preset", default="medium", help="DIS optical flow preset: ultrafast, fast, medium (default)")
@@ -85,7 +95,8 @@ def config_from_args(args: argparse.Namespace):
     plugins = tuple(given)
     kw = {
         "scene": args.scene, "width": args.width, "seed": args.seed, "backend": args.backend,
-        "odometry": main_odometry, "plugins": plugins, "model_cons": args.model_cons, "model_loops": args.model_loops,
+        "odometry": main_odometry, "plugins": plugins, "commands": tuple(args.odometry_command or ()),
+        "command_timeout_s": args.command_timeout, "model_cons": args.model_cons, "model_loops": args.model_loops,
         "dis_preset": args.dis_preset, "slam_params": args.params, "loops": not args.no_loops,
         "keep_sequences": args.keep_sequences, "combined": args.combined and quick.get("combined", True), "threads": args.threads, "device": args.device,
         "size_objects": args.size_objects,
@@ -119,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
                                       ("--model-loops", args.model_loops)])
     config = config_from_args(args)
     t0 = time.perf_counter()
-    report = run_stress(config, args.out, resume=args.resume, progress=False if args.json else None)
+    report = run_stress(config, args.out, resume=args.resume, progress=False if args.json or args.quiet else None)
     out = Path(args.out)
     rows = report["rows"]
     if args.json:
@@ -140,5 +151,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"{r['setting']:<16}{r['dynamic_pct']:>7.2f}{num(r['epe_dynamic_px']):>12}{num(r.get('vo_ate_gt_m')):>11}"
               f"{num(r.get('vo_ate_dis_m')):>11}{num(r.get('slam_ate_gt_m')):>12}{num(r.get('slam_ate_dis_m')):>13}")
     print(report["conclusion"]["text"])
-    print(f"wrote {out / 'stress.md'}, {out / 'stress.json'}, {out / 'config.json'} and the plots {out}/stress_*.png")
+    print(f"wrote {out / 'stress.md'}, {out / 'report.html'}, {out / 'stress.json'}, {out / 'config.json'} and "
+          f"the plots {out}/stress_*.png")
     return 0

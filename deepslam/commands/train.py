@@ -7,7 +7,7 @@ frame pairs (DIS or ground-truth flow) + ground-truth relative poses.
 
 Writes into ``--out``: config.json (resolved settings and data), checkpoint.safetensors (every epoch,
 atomically), history.json, model.safetensors (the result), summary.json, loss.png. ``--resume`` continues an
-interrupted run from checkpoint.safetensors.
+interrupted run from checkpoint.safetensors; ``--tensorboard DIR`` adds TensorBoard scalars.
 """
 from __future__ import annotations
 
@@ -48,6 +48,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--json", action="store_true", help="no progress; print one JSON object at the end: model, "
                    "stop_reason, epochs, best_val_loss, holdout_nll, out")
+    p.add_argument("--tensorboard", default=None, metavar="DIR",
+                   help="also write TensorBoard scalars into DIR: per step the batch loss and learning rate, per epoch "
+                        "the history row (losses, held-out loss and RMSE, learning-rate bounds); needs the tensorboard "
+                        "package; the trained bytes are the same with or without it")
     g = p.add_argument_group("data (synthetic)")
     g.add_argument("--frames", nargs="+", default=[], metavar="DIR",
                    help="sequences whose single frames (with depth) are the training images")
@@ -66,11 +70,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--rate-hz", type=float, default=10.0, help="frame rate of the motion model, for --speed-range")
     g.add_argument("--camera-tilt-deg", default=None, metavar="PMIN:PMAX[:ROLL]",
                    help="rotate each sample's camera by a pitch drawn uniformly in [PMIN, PMAX] degrees (positive: "
-                        "looking down) and a roll in [-ROLL, ROLL], exactly from the single frame (vo.data.CameraTilt); "
+                        "looking down) and a roll in [-ROLL, ROLL], exactly from the single frame (vo.motion.CameraTilt); "
                         "the road then sits at other rows, as under another camera mounting (KITTI's looks ~1 deg down)")
     g.add_argument("--scene-scale", default=None, metavar="MIN:MAX",
                    help="scale each sample's depth (the whole scene) by a factor drawn log-uniformly in [MIN, MAX] "
-                        "(vo.data.SceneScale): the same frames then stand for nearer or farther worlds, so the "
+                        "(vo.motion.SceneScale): the same frames then stand for nearer or farther worlds, so the "
                         "same motion makes more or less parallax")
     g.add_argument("--missing-depth", choices=("infinity", "invalid"), default=None,
                    help="pixels without depth: points at infinity (rotation-only flow; a render's sky) or left out "
@@ -256,7 +260,7 @@ def run(args: argparse.Namespace) -> int:
     from deepslam.core.errors import InputError
     from deepslam.core.readers import open_sequence
     from deepslam.flow import registry as flow_registry
-    from deepslam.vo import data
+    from deepslam.vo import motion, samples, supervised, toy
     from deepslam.vo.infer import cpu_has_native_bf16
     from deepslam.vo.recipe import SyntheticData, flow_options_for, synthetic_sources
     from deepslam.vo.train import TrainConfig, TrainingDiverged, train
@@ -288,8 +292,8 @@ def run(args: argparse.Namespace) -> int:
     progress = not (args.quiet or args.json) and rank == 0
     h, w = net.input_height, net.input_width
     meta: dict = {"mode": args.mode}
-    tilt = data.CameraTilt.parse(args.camera_tilt_deg) if args.camera_tilt_deg else None
-    scene_scale = data.SceneScale.parse(args.scene_scale) if args.scene_scale else None
+    tilt = motion.CameraTilt.parse(args.camera_tilt_deg) if args.camera_tilt_deg else None
+    scene_scale = motion.SceneScale.parse(args.scene_scale) if args.scene_scale else None
     if args.mode != "synthetic" or args.shards or args.toy:  # no single frames to act on
         for flag, what, given in (("--scene-scale", "scales single frames", scene_scale is not None),
                                   ("--camera-tilt-deg", "rotates single frames", tilt is not None),
@@ -303,14 +307,14 @@ def run(args: argparse.Namespace) -> int:
             if net.valid_channel:  # shards hold flow resized with unknown = 0: nothing left to mark
                 raise InputError(None, "--valid-channel needs flows made for it: --frames or supervised pairs, "
                                        "not --shards")
-            train_src, hold_src = data.shard_samples(args.shards, args.holdout, args.seed, h, w)
+            train_src, hold_src = samples.shard_samples(args.shards, args.holdout, args.seed, h, w)
             meta["data"] = {"shards": str(args.shards), "n_train": len(train_src), "n_holdout": len(hold_src)}
         elif args.toy:
             from deepslam.core.camera import PinholeCamera
 
             cam = PinholeCamera(1241, 376, 718.856, 718.856, 607.1928, 185.2157).scaled(w, h)
-            s = data.toy_plane_samples(args.toy, cam, np.random.default_rng(args.seed))
-            train_src, hold_src = data.TensorSamples(s["flow"], s["intrinsics"], s["target"], seed=args.seed).split(args.holdout, args.seed)
+            s = toy.toy_plane_samples(args.toy, cam, np.random.default_rng(args.seed))
+            train_src, hold_src = samples.TensorSamples(s["flow"], s["intrinsics"], s["target"], seed=args.seed).split(args.holdout, args.seed)
             meta["data"] = {"toy_samples": args.toy, "camera": cam.to_dict()}
         else:
             spec = SyntheticData(
@@ -331,20 +335,20 @@ def run(args: argparse.Namespace) -> int:
         opts = flow_registry.given_estimator_options(args.flow, args)
         est = flow_registry.make(args.flow, **opts)
         meta["flow"] = {"estimator": args.flow, "options": opts}
-        spec = data.PairSpec(strides=tuple(args.strides), kind=args.pairs, max_pairs=args.max_pairs)
+        spec = supervised.PairSpec(strides=tuple(args.strides), kind=args.pairs, max_pairs=args.max_pairs)
         parts, counts = [], {}
         for d in args.sequence:
             seq = open_sequence(d)
             if seq.gt is None:
                 raise InputError(seq.root, "supervised training needs ground-truth poses; this sequence has none")
-            pairs = data.frame_pairs(seq.gt.world_from_cam, spec)
+            pairs = supervised.frame_pairs(seq.gt.world_from_cam, spec)
             counts[str(seq.root)] = int(len(pairs))
             if len(pairs):
-                parts.append(data.supervised_samples(seq, pairs, est, w, h, progress, unknown=net.unknown_flow))
+                parts.append(supervised.supervised_samples(seq, pairs, est, w, h, progress, unknown=net.unknown_flow))
         if not parts:
             raise InputError(None, "no frame pairs to train on (sequences too short for the strides, or no loops)")
-        s = data.concat_samples(parts)
-        train_src, hold_src = data.TensorSamples(s["flow"], s["intrinsics"], s["target"], seed=args.seed).split(args.holdout, args.seed)
+        s = samples.concat_samples(parts)
+        train_src, hold_src = samples.TensorSamples(s["flow"], s["intrinsics"], s["target"], seed=args.seed).split(args.holdout, args.seed)
         meta["data"] = {"sequences": counts, "pairs": spec.kind, "strides": list(spec.strides), "flow": est.name,
                         "n_pairs": int(sum(counts.values()))}
     meta["argv"] = sys.argv[1:]
@@ -352,7 +356,7 @@ def run(args: argparse.Namespace) -> int:
         print(speed_summary(cfg, args.net, meta["data"], len(train_src), len(hold_src)), flush=True)
     try:
         res = train(cfg, train_src, hold_src, args.out, resume=args.resume, progress=progress, meta=meta,
-                    half_weights=args.half_weights)
+                    half_weights=args.half_weights, tensorboard=args.tensorboard)
     except TrainingDiverged as e:
         print(f"deepslam train: error: {e}", file=sys.stderr)
         return 2

@@ -18,22 +18,23 @@ mono) and measures
 
 Odometry: the shipped NN_cons / NN_loops (:func:`vo.models.load_shipped`) or the given model files.
 When no learned model is available (or with ``odometry="rigid-fit"``) the study falls back, with a
-note in every table, to :class:`RigidFitOdometry`: a least-squares rigid-motion fit (reprojection
-error, :func:`cv2.solvePnP`) of the flow + frame-i depth over ALL pixels with depth. That estimator
-is exact on a rigid scene with exact flow, so whatever error it makes on ground-truth flow is the
-rigid assumption failing, directly.
+note in every table, to :class:`slam.rigid_fit.RigidFitOdometry`: a least-squares rigid-motion fit
+(reprojection error, :func:`cv2.solvePnP`) of the flow + frame-i depth over ALL pixels with depth. That
+estimator is exact on a rigid scene with exact flow, so whatever error it makes on ground-truth flow is the
+rigid assumption failing, directly. Plug-in odometries (``plugins``) and external programs (``commands``,
+:class:`slam.plugins.CommandOdometry`) are measured side by side with it (:func:`slam.compare.load_plugins`).
 
-Size of the moving objects: :class:`scenes.SceneConfig` has no size knob, so a scale factor is
-applied here to the meshes of the rigid movers (cars in ``street``, flying boxes in ``room``) about
-their body origins (:func:`scaled_movers`), after the movers were placed as for the unscaled scene
-(:func:`setting_scene`); the flags are not scaled. The simulator computes exact flow for any mesh,
-so the scaled scene is as exact as the built one.
+Size of the moving objects: :class:`scenes.SceneConfig` has no size knob, so the meshes of the rigid
+movers are scaled after the movers were placed as for the unscaled scene (:mod:`sim.scaled_movers`).
 
+This module runs the sweep; :mod:`deepslam.studies.stress_report` makes its table, conclusion and files.
 Outputs (all written atomically) in ``out``: ``stress.json`` (rows, config, conclusion, timings),
-``stress.md`` (the table and the conclusion line), ``config.json`` (the resolved configuration),
+``stress.md`` (the table and the conclusion line), ``report.html`` (the same with the plots on one page),
+``config.json`` (the resolved configuration),
 ``stress_flow_epe.png``, ``stress_vo_ate.png``, ``stress_vo_rpe.png``, ``stress_slam_ate.png``
 (error against the fraction of dynamic pixels), ``settings/<name>.json`` (one result per setting,
-reused by ``resume``) and, with ``keep_sequences``, the rendered sequences under ``sequences/``.
+reused by ``resume``), ``vocabulary.npz`` (the BoW vocabulary shared by the settings) and, with
+``keep_sequences``, the rendered sequences under ``sequences/``.
 """
 from __future__ import annotations
 
@@ -42,14 +43,36 @@ import dataclasses
 import json
 import math
 import shutil
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from deepslam.core import atomic, se3
+from deepslam.core import atomic, metrics
+from deepslam.core.atomic import json_safe
+from deepslam.core.dynamic import dynamic_fraction
 from deepslam.core.errors import InputError
 from deepslam.core.kinds import kind_for_scene
+from deepslam.core.lock import output_lock
+from deepslam.core.progress import progress as progress_bar
+from deepslam.core.readers import open_sequence
+from deepslam.core.trajectory import Trajectory
+from deepslam.flow.estimators import DISFlow, GroundTruthFlow
+from deepslam.gen.device import resolve_device
+from deepslam.gen.validate import validate_sequence
+from deepslam.sim import RenderConfig, SceneConfig, SimConfig, Simulator, TrajectoryConfig
+from deepslam.sim.scaled_movers import scaled_movers, scene_with_scaled_movers
+from deepslam.sim.writers import render_sequence
+from deepslam.slam.compare import load_plugins
+from deepslam.slam.odometry import check_prediction
+from deepslam.slam.pipeline import PipelineConfig, SlamParams, consecutive_pairs, prepare, solve
+from deepslam.slam.plugins import DEFAULT_COMMAND_TIMEOUT_S, command_argv
+from deepslam.slam.posegraph import Edges, PoseGraphConfig, chain
+from deepslam.slam.reloc import RelocConfig
+from deepslam.slam.rigid_fit import RigidFitOdometry
+from deepslam.slam.vocab_cache import cached_vocabulary
+from deepslam.studies.stress_report import RESULT_FORMAT, build_report, conclusion, markdown, write_outputs
 
 SCENES = ("street", "room")
 ODOMETRIES = ("model", "rigid-fit")
@@ -59,7 +82,6 @@ MAX_DEFORM_M = 0.3
 """Largest deformation amplitude the scenes accept, metres."""
 MAX_OBJECT_SCALE = 3.0
 """Largest mover scale factor accepted (3: a car becomes 12.6 m long and 5.4 m wide, as wide as its lane)."""
-RESULT_FORMAT = "deepslam-stress-v1"
 
 
 # --------------------------------------------------------------------------------------------------
@@ -113,11 +135,17 @@ class StressConfig:
     """Renderer: "mujoco" or "pyrender"."""
     odometry: str = "model"
     """"model": learned NN_cons / NN_loops (falls back to "rigid-fit", noted, when none is available);
-    "rigid-fit": :class:`RigidFitOdometry` (least-squares rigid motion from flow + depth, all pixels)."""
+    "rigid-fit": :class:`slam.rigid_fit.RigidFitOdometry` (least-squares rigid motion from flow + depth, all pixels)."""
     plugins: tuple[str, ...] = ()
     """Further odometries measured side by side with the first, each on the images alone: plug-in specs
     (``MODULE:FACTORY`` or an entry-point name of group ``deepslam.odometry``, e.g. ``pnp``, the shipped
     classical baseline; see :mod:`deepslam.slam.plugins`). Their rows are keyed by the plug-in's name."""
+    commands: tuple[str, ...] = ()
+    """External odometry programs measured side by side like the plug-ins, after them: command templates
+    ``'CMD {sequence} {out}'`` (:class:`slam.plugins.CommandOdometry`: run without a shell on each rendered
+    sequence, writing a KITTI or TUM trajectory to ``{out}``). Their rows are keyed by the program's name."""
+    command_timeout_s: float = DEFAULT_COMMAND_TIMEOUT_S
+    """Seconds an external odometry program may run on one rendered sequence."""
     model_cons: str | None = None
     """NN_cons model file or shipped name (None: the shipped model for the scene's camera kind)."""
     model_loops: str | None = None
@@ -177,6 +205,14 @@ class StressConfig:
             raise InputError(None, f"unknown odometry {self.odometry!r} (choose from {', '.join(ODOMETRIES)})")
         if len(set(self.plugins)) != len(self.plugins):
             raise InputError(None, f"an odometry is listed twice: {list(self.plugins)}")
+        if len(set(self.commands)) != len(self.commands):
+            raise InputError(None, f"an odometry command is listed twice: {list(self.commands)}")
+        for template in self.commands:
+            command_argv(template, sequence="", out="")  # refused before anything runs
+        if not (isinstance(self.command_timeout_s, (int, float)) and math.isfinite(self.command_timeout_s)
+                and self.command_timeout_s > 0):
+            raise InputError(None, f"the odometry command's timeout must be a positive number of seconds, "
+                                   f"got {self.command_timeout_s}")
         if self.odometry == "rigid-fit" and (self.model_cons or self.model_loops):
             raise InputError(None, "model files are for --odometry model; rigid-fit uses no model")
         if self.dis_preset not in ("ultrafast", "fast", "medium"):
@@ -222,36 +258,16 @@ class StressConfig:
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d["plugins"] = list(self.plugins)
+        d["commands"] = list(self.commands)
         return d
 
 
 # --------------------------------------------------------------------------------------------------
-# scene with scaled movers
+# the scene of a setting
 
 
-def scaled_movers(scene, scale: float):
-    """A copy of ``scene`` (a :class:`scenes.spec.Scene`, left unchanged) whose rigid movers' meshes
-    are scaled by ``scale`` about their body origins (street cars: the origin is on the road under the
-    car's centre, so a scaled car still stands on the road; room boxes: the box centre). Flags and the
-    static scene are unchanged; texture coordinates are kept (the texture stretches with the mesh)."""
-    from deepslam.scenes.geometry import MeshData
-    from deepslam.scenes.spec import RIGID
-
-    if scale == 1.0:
-        return scene
-    bodies = []
-    for b in scene.bodies:
-        if b.kind == RIGID:
-            m = b.mesh
-            b = dataclasses.replace(b, mesh=MeshData(m.vertices * float(scale), m.faces, m.normals, m.texcoords))
-        bodies.append(b)
-    return dataclasses.replace(scene, bodies=bodies)
-
-
-def sim_config(config: StressConfig, setting: Setting):
+def sim_config(config: StressConfig, setting: Setting) -> SimConfig:
     """The simulator's :class:`sim.SimConfig` of one setting (mono, scene default trajectory)."""
-    from deepslam.sim import RenderConfig, SceneConfig, SimConfig, TrajectoryConfig
-
     return SimConfig(SceneConfig(name=config.scene, seed=config.seed, moving_objects=setting.moving_objects,
                                  deform_amplitude_m=setting.deform_amplitude_m),
                      TrajectoryConfig(kind="auto", frames=config.frames),
@@ -259,135 +275,18 @@ def sim_config(config: StressConfig, setting: Setting):
 
 
 def setting_scene(config: StressConfig, setting: Setting):
-    """(SimConfig, Scene) of one setting.
-
-    With a scale other than 1 the movers are first placed exactly as the simulator places them for
-    the unscaled scene (:func:`sim.world.separate_movers` with the simulator's own generator
-    ``[trajectory seed, 2]``), then scaled; the placed scene says ``movers_placed`` so that the
-    simulator keeps that placement: a size setting differs from its unscaled twin in the size of the
-    movers only, not in where they drive (bigger cars would otherwise be pushed away from the camera
-    by the clearance rule and the sweep would measure fewer dynamic pixels for bigger objects).
-    """
-    from deepslam.scenes import build_scene
-    from deepslam.sim.trajectories import make_motion
-    from deepslam.sim.world import separate_movers
-
+    """(SimConfig, Scene) of one setting: the movers placed as for the unscaled scene, then scaled by
+    ``setting.object_scale`` (:func:`sim.scaled_movers.scene_with_scaled_movers`), so that a size setting
+    differs from its unscaled twin in the size of the movers only."""
     cfg = sim_config(config, setting).validate()
-    base = build_scene(cfg.scene)
-    if setting.object_scale == 1.0:
-        return cfg, base
-    tcfg = cfg.trajectory
-    tseed = tcfg.seed if tcfg.seed is not None else cfg.scene.seed
-    motion = make_motion(base, tcfg.resolved_kind(base.name), np.random.default_rng([tseed, 1]), tcfg.rate_hz)
-    placed = separate_movers(base, motion, (tcfg.frames + 1) / float(motion.rate_hz), np.random.default_rng([tseed, 2]))
-    scaled = scaled_movers(placed, setting.object_scale)
-    return cfg, scaled
+    return cfg, scene_with_scaled_movers(cfg, setting.object_scale)
 
 
 def render_setting(config: StressConfig, setting: Setting, out_dir: Path, progress: bool = False) -> Path:
     """Render one setting into ``out_dir`` (our format; resumes an interrupted render). Returns the folder."""
-    from deepslam.sim import Simulator
-    from deepslam.sim.writers import render_sequence
-
     cfg, scene = setting_scene(config, setting)
     with Simulator(cfg, scene=scene) as simulator:
         return render_sequence(cfg, out_dir, fmt="ours", resume=True, progress=progress, simulator=simulator)
-
-
-# --------------------------------------------------------------------------------------------------
-# the rigid-fit odometry (fallback, and the direct view of the rigid assumption)
-
-
-class RigidFitOdometry:
-    """Relative motion by a least-squares rigid fit of flow + depth over all pixels (slam Odometry protocol).
-
-    For a pair (i, j): every pixel of frame i with a positive finite depth and a finite flow (at most
-    ``max_points`` of them, evenly spread in raster order) is unprojected with its depth to ``p_cam_i``
-    and its flow target ``uv_j = uv_i + flow[v, u]`` is taken as its observation in frame j; then
-    ``cam_j_from_cam_i`` minimises the sum of squared reprojection errors (OpenCV ``solvePnP``,
-    Levenberg-Marquardt from the identity and, for pairs more than one frame apart, also from the
-    DLT solution; the lower cost wins). No robust loss, no outlier rejection: every moving and deforming
-    pixel pulls on the fit as a static one would, which is the rigid-scene assumption of a flow->motion
-    network in its plainest form.
-
-    The reported std is the Gauss-Newton one, ``sigma^2 (J^T J)^-1`` with ``sigma`` the residual RMS,
-    rotation-vector std taken as the Euler-angle std (equal to first order), floored at ``min_std``.
-
-    Args:
-        flow_estimator: anything with ``name`` and ``pair_flow(seq, i, j) -> (H, W, 2)`` (flow.estimators).
-        max_points: most pixels used per pair.
-        min_std: floor of the std (rad for rotations, m for translations).
-    """
-
-    def __init__(self, flow_estimator, max_points: int = 2000, min_std: tuple[float, float] = (1e-4, 1e-3)):
-        self.flow_estimator = flow_estimator
-        self.max_points = int(max_points)
-        self.min_std = min_std
-        self.name = f"rigid-fit+{getattr(flow_estimator, 'name', 'flow')}"
-
-    def fit(self, depth_z: np.ndarray, flow: np.ndarray, camera, dlt_start: bool = True) -> tuple[np.ndarray, np.ndarray]:
-        """(mean6, std6) of cam_j_from_cam_i from depth (H, W) float32 m and flow (H, W, 2) float32 px;
-        ``dlt_start``: also start from the DLT solution (for wide motions), not only from the identity."""
-        import cv2
-
-        depth = np.asarray(depth_z, np.float64)
-        flow = np.asarray(flow, np.float64)
-        ok = np.isfinite(depth) & (depth > 0) & np.isfinite(flow).all(axis=-1)
-        vv, uu = np.nonzero(ok)
-        big = np.array([1.0, 1.0, 1.0, 100.0, 100.0, 100.0])
-        if len(vv) < 12:
-            return np.zeros(6), big
-        step = max(1, int(math.ceil(len(vv) / self.max_points)))
-        vv, uu = vv[::step], uu[::step]
-        uv = np.stack([uu, vv], axis=1).astype(np.float64)
-        p_cam_i = camera.unproject(uv, depth[vv, uu])
-        uv_j = uv + flow[vv, uu]
-        k = camera.k.astype(np.float64)
-        obj = np.ascontiguousarray(p_cam_i.reshape(-1, 1, 3))
-        img = np.ascontiguousarray(uv_j.reshape(-1, 1, 2))
-        best = None
-        for guess in ((True, False) if dlt_start else (True,)):
-            r0, t0 = np.zeros((3, 1)), np.zeros((3, 1))
-            try:
-                ok_, rvec, tvec = cv2.solvePnP(obj, img, k, None, r0, t0, useExtrinsicGuess=guess,
-                                               flags=cv2.SOLVEPNP_ITERATIVE)
-            except cv2.error:
-                continue
-            if not ok_ or not (np.isfinite(rvec).all() and np.isfinite(tvec).all()):
-                continue
-            proj, jac = cv2.projectPoints(obj, rvec, tvec, k, None)
-            res = (proj.reshape(-1, 2) - uv_j).ravel()
-            cost = float(res @ res)
-            if best is None or cost < best[0]:
-                best = (cost, rvec, tvec, res, jac[:, :6])
-        if best is None:
-            return np.zeros(6), big
-        cost, rvec, tvec, res, jac = best
-        rot, _ = cv2.Rodrigues(rvec)
-        mean6 = se3.to_euler6(se3.from_rt(rot, tvec.ravel()))
-        dof = max(1, len(res) - 6)
-        sigma2 = cost / dof
-        try:
-            cov = sigma2 * np.linalg.inv(jac.T @ jac)
-            std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-        except np.linalg.LinAlgError:
-            std = big.copy()
-        floor = np.array([self.min_std[0]] * 3 + [self.min_std[1]] * 3)
-        return mean6, np.maximum(std, floor)
-
-    def predict(self, seq, pairs) -> tuple[np.ndarray, np.ndarray]:
-        means, stds = [], []
-        for i, j in pairs:
-            depth = seq.depth(int(i))
-            if depth is None:
-                raise InputError(getattr(seq, "root", None), "the rigid-fit odometry needs a sequence with depth")
-            m, s = self.fit(depth, self.flow_estimator.pair_flow(seq, int(i), int(j)), seq.camera,
-                            dlt_start=abs(int(j) - int(i)) > 1)
-            means.append(m)
-            stds.append(s)
-        if not means:
-            return np.zeros((0, 6)), np.zeros((0, 6))
-        return np.array(means), np.array(stds)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -420,51 +319,27 @@ class OdometrySet:
     note: str | None = None
     """Why the study fell back to the rigid fit, or None."""
     plugins: dict = dataclasses.field(default_factory=dict)
-    """{key: plug-in odometry} measured side by side (consecutive and loop pairs on the images alone)."""
+    """{key: plug-in or command odometry} measured side by side (consecutive and loop pairs on the images alone)."""
 
 
 def make_odometries(config: StressConfig) -> OdometrySet:
     """Learned odometry when available (shipped or given models), else the rigid fit, noted; plus the
-    plug-ins of ``config.plugins``."""
+    plug-ins of ``config.plugins`` and the external programs of ``config.commands``."""
     odo = _main_odometries(config)
-    odo.plugins = load_plugins(config.plugins)
+    odo.plugins = load_plugins(config.plugins, config.commands, config.command_timeout_s)
     return odo
 
 
-def plugin_key(name: str) -> str:
-    """A plug-in's name as a column key: lower case letters, digits and ``-``."""
-    import re
-
-    return re.sub(r"[^a-z0-9-]+", "-", str(name).lower()).strip("-") or "plugin"
-
-
-def load_plugins(specs) -> dict:
-    """{key: checked plug-in odometry} of the specs, keys unique and distinct from gt/dis."""
-    from deepslam.slam.plugins import load_odometry
-
-    out: dict = {}
-    for spec in specs:
-        odo = load_odometry(spec)
-        key = plugin_key(odo.name)
-        while key in out or key in ("gt", "dis"):
-            key += "-2"
-        out[key] = odo
-    return out
-
-
 def _main_odometries(config: StressConfig) -> OdometrySet:
-    from deepslam.flow.estimators import DISFlow, GroundTruthFlow
-
     flows = {"gt": GroundTruthFlow(), "dis": DISFlow(config.dis_preset)}
     note = None
     if config.odometry == "model":
         kind = camera_kind(config.scene)
         try:
+            # vo is imported here so that a missing or broken learned stack falls back to the rigid fit
             from deepslam.vo import models
 
             # shipped models follow the flow they are given (a DIS-trained variant where one is shipped)
-            from deepslam.gen.device import resolve_device
-
             dev = resolve_device(config.device)
             cons, cons_flows = {}, dict(flows)
             for f, est in flows.items():
@@ -499,21 +374,8 @@ def _main_odometries(config: StressConfig) -> OdometrySet:
 # measuring one setting
 
 
-def dynamic_fraction(seq, frames) -> float:
-    """Fraction of all pixels of ``frames`` whose instance mask is > 0 (moving or deforming surface)."""
-    dyn = total = 0
-    for t in frames:
-        m = seq.mask(t)
-        if m is None:
-            return 0.0
-        dyn += int((m > 0).sum())
-        total += m.size
-    return dyn / total if total else 0.0
-
-
 def _metrics(gt, est) -> dict:
-    from deepslam.core import metrics
-
+    """The figures the study records of one trajectory (:func:`core.metrics.evaluate`, SE3-aligned)."""
     ev = metrics.evaluate(gt, est, align="se3")
     out = {"ate_m": ev["ate_m"], "rpe_t_m": ev["rpe_t_m"], "rpe_r_deg": ev["rpe_r_deg"], "gt_length_m": ev["gt_length_m"]}
     out["kitti_t_err_pct"] = ev.get("kitti_t_err_pct")
@@ -537,18 +399,11 @@ def measure_sequence(seq, odometries: OdometrySet, config: StressConfig, vocabul
     only) runs once and is shared by the flow sources; each flow source brings its own consecutive
     and loop odometry. VO is that dead reckoning (the trajectory ``deepslam vo`` would chain).
     """
-    from deepslam.gen.validate import validate_sequence
-    from deepslam.slam.odometry import check_prediction
-    from deepslam.slam.pipeline import PipelineConfig, SlamParams, consecutive_pairs, prepare, solve
-    from deepslam.slam.posegraph import Edges, PoseGraphConfig, chain
-    from deepslam.slam.reloc import RelocConfig
-    from deepslam.core.trajectory import Trajectory
-
     timings = {}
     t0 = time.perf_counter()
     n = len(seq)
     rep = validate_sequence(seq, validation_frames(n, config.validation_frames), progress=False)
-    flow = {"dynamic_fraction": dynamic_fraction(seq, range(n - 1)),
+    flow = {"dynamic_fraction": dynamic_fraction(*(seq.mask(t) for t in range(n - 1))),
             "static_visible": rep["static_visible"], "static_occluded": rep["static_occluded"],
             "moving": rep["moving"], "frames_compared": rep["frames_compared"]}
     timings["flow_validation_s"] = time.perf_counter() - t0
@@ -595,6 +450,7 @@ def measure_sequence(seq, odometries: OdometrySet, config: StressConfig, vocabul
 @contextlib.contextmanager
 def cpu_threads(n: int):
     """Set torch's and OpenCV's thread counts to ``n`` inside the block, restore them after."""
+    # torch and OpenCV are imported for the run only: importing the study for its configuration stays light
     import cv2
     import torch
 
@@ -617,18 +473,12 @@ def run_stress(config: StressConfig, out: str | Path, resume: bool = False, prog
         resume: reuse ``out/settings/<name>.json`` results computed with the same configuration.
         progress: progress bar over the settings (None: the project's default policy).
     """
-    from deepslam.core.lock import output_lock
-
     config = config.validate()
     with cpu_threads(config.threads), output_lock(out):  # one writer per output folder
         return _run(config, Path(out), resume, progress)
 
 
 def _run(config: StressConfig, out: Path, resume: bool, progress: bool | None) -> dict:
-    from deepslam.core.progress import progress as progress_bar
-    from deepslam.core.readers import open_sequence
-    from deepslam.slam.pipeline import SlamParams
-
     if out.exists() and not out.is_dir():
         raise InputError(out, "output exists and is not a folder")
     if not resume and out.is_dir() and any(out.iterdir()):
@@ -679,7 +529,7 @@ def _run(config: StressConfig, out: Path, resume: bool, progress: bool | None) -
                     config = dataclasses.replace(config, loops=False)
             result = measure_sequence(seq, odometries, config, vocabulary)
             result["timings"]["render_s"] = t_render
-            row = _clean({"key": cfg_key, "setting": dataclasses.asdict(s), **result})
+            row = json_safe({"key": cfg_key, "setting": dataclasses.asdict(s), **result})
             atomic.write_json(row_path, row)
             rows.append(row)
             if not config.keep_sequences:
@@ -704,8 +554,6 @@ def _scratch_folder(out: Path) -> Path:
     """Where sequences that are deleted after measuring are rendered: a fresh folder in /dev/shm
     (memory: the per-file fsync of the atomic writers costs nothing there) when it exists with at least
     2 GB free, else ``out/sequences``."""
-    import tempfile
-
     shm = Path("/dev/shm")
     try:
         if shm.is_dir() and shutil.disk_usage(shm).free > 2 << 30:
@@ -724,294 +572,26 @@ def _config_key(config: StressConfig, odometries: OdometrySet) -> dict:
     d["odometry_used"] = odometries.kind
     d["odometry_description"] = odometries.description
     d["plugin_names"] = {k: o.name for k, o in odometries.plugins.items()}
-    return _clean(d)
+    if not d.get("commands"):  # keys of runs without commands stay those of runs before the option existed
+        d.pop("commands", None)
+    d.pop("command_timeout_s", None)  # a time limit does not change a result
+    return json_safe(d)
 
 
 def _shared_vocabulary(out: Path, config: StressConfig, seq):
-    """One BoW vocabulary for the whole study, trained on the first rendered setting's frames and saved
-    as ``out/vocabulary.npz`` (so every setting's SLAM sees the same words); None without keypoints."""
-    from deepslam.slam.reloc import FeatureExtractor, RelocConfig, Vocabulary, train_vocabulary
-
-    path = out / "vocabulary.npz"
+    """One BoW vocabulary for the whole study, trained on the first rendered setting's keyframes and saved
+    as ``out/vocabulary.npz`` (so every setting's SLAM sees the same words;
+    :func:`slam.vocab_cache.cached_vocabulary`); None without keypoints."""
     reloc = dataclasses.replace(RelocConfig.for_kind(camera_kind(config.scene)), image_scale=config.sift_image_scale,
                                 vocabulary_size=config.vocabulary_size)
-    if path.is_file():
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                key = json.loads(str(z["meta"])).get("stress_key")
-            if key == _vocab_key(config):
-                return Vocabulary.load(path)
-        except (InputError, OSError, ValueError, KeyError):
-            pass
-    extract = FeatureExtractor(reloc)
-    descs = [d for d in (extract(seq.image(i)).descriptors for i in range(0, len(seq), config.keyframe_stride)) if len(d)]
-    if not descs:
-        return None
-    v = train_vocabulary(descs, reloc.vocabulary_size, np.random.default_rng(config.seed))
-    v.save(path, meta={"stress_key": _vocab_key(config)})
-    return v
+    images = (seq.image(i) for i in range(0, len(seq), config.keyframe_stride))
+    return cached_vocabulary(out / "vocabulary.npz", {"stress_key": _vocab_key(config)}, images, reloc,
+                             np.random.default_rng(config.seed))
 
 
 def _vocab_key(config: StressConfig) -> str:
     return f"{config.scene}/{config.seed}/{config.width}/{config.frames}/{config.sift_image_scale}/{config.vocabulary_size}"
 
 
-# --------------------------------------------------------------------------------------------------
-# report
-
-
-def _clean(v):
-    """JSON-safe copy (see core.atomic.json_safe)."""
-    from deepslam.core.atomic import json_safe
-
-    return json_safe(v)
-
-
-def table_rows(rows: list[dict]) -> list[dict]:
-    """Flat rows for the table: one per setting, sorted by the fraction of dynamic pixels."""
-    flat = []
-    for r in rows:
-        s, f = r["setting"], r["flow"]
-        row = {"setting": s["name"], "axis": s["axis"], "objects": s["moving_objects"], "size": s["object_scale"],
-               "deform_m": s["deform_amplitude_m"], "dynamic_pct": 100.0 * f["dynamic_fraction"],
-               "epe_static_px": f["static_visible"]["epe_mean_px"], "epe_dynamic_px": f["moving"]["epe_mean_px"],
-               "epe_dynamic_p95_px": f["moving"]["epe_p95_px"], "dynamic_pixels_compared": f["moving"]["pixels"]}
-        for flow in r["vo"]:
-            vo, sl = r["vo"].get(flow), r["slam"].get(flow)
-            if vo is None:
-                continue
-            row[f"vo_ate_{flow}_m"] = vo["ate_m"]
-            row[f"vo_rpe_t_{flow}_m"] = vo["rpe_t_m"]
-            row[f"vo_rpe_r_{flow}_deg"] = vo["rpe_r_deg"]
-            row[f"vo_t_err_{flow}_pct"] = vo.get("kitti_t_err_pct")
-            row[f"vo_r_err_{flow}_deg_per_100m"] = vo.get("kitti_r_err_deg_per_100m")
-            row[f"slam_ate_{flow}_m"] = sl["ate_m"]
-            row[f"slam_loops_{flow}"] = r["loops"][flow]["loop_edges_kept"]
-        flat.append(row)
-    flat.sort(key=lambda x: (x["dynamic_pct"], x["setting"]))
-    return flat
-
-
-def conclusion(flat: list[dict]) -> dict:
-    """Numbers of the conclusion: the static baseline against the setting with the most dynamic pixels."""
-    if not flat:
-        return {"text": "no settings were measured"}
-    static = [r for r in flat if r["objects"] == 0 and r["deform_m"] == 0]
-    base = static[0] if static else flat[0]
-    worst = max(flat, key=lambda r: r["dynamic_pct"])
-    c = {"baseline": base["setting"], "worst": worst["setting"], "baseline_dynamic_pct": base["dynamic_pct"],
-         "worst_dynamic_pct": worst["dynamic_pct"]}
-    for k in ("epe_static_px", "epe_dynamic_px", "vo_ate_gt_m", "vo_ate_dis_m", "vo_rpe_t_gt_m", "vo_rpe_t_dis_m",
-              "slam_ate_gt_m", "slam_ate_dis_m"):
-        c[f"baseline_{k}"] = base.get(k)
-        c[f"worst_{k}"] = worst.get(k)
-    # least-squares slope of each error against the dynamic percentage (over all settings)
-    x = np.array([r["dynamic_pct"] for r in flat])
-    for k in ("vo_ate_gt_m", "vo_ate_dis_m", "slam_ate_gt_m", "slam_ate_dis_m", "epe_dynamic_px"):
-        y = np.array([np.nan if r.get(k) is None else r[k] for r in flat], dtype=np.float64)
-        ok = np.isfinite(y)
-        if ok.sum() >= 2 and np.ptp(x[ok]) > 0:
-            c[f"slope_{k}_per_pct"] = float(np.polyfit(x[ok], y[ok], 1)[0])
-    # where it breaks: the fewest dynamic pixels at which the VO error on exact flow doubles
-    for k in ("vo_ate_gt_m", "vo_ate_dis_m"):
-        b = base.get(k)
-        if b is None:
-            continue
-        over = [r for r in flat if r.get(k) is not None and r[k] > 2.0 * b and r is not base]
-        if over:
-            first = min(over, key=lambda r: r["dynamic_pct"])
-            c[f"break_{k}"] = {"setting": first["setting"], "dynamic_pct": first["dynamic_pct"], "value": first[k]}
-    c["text"] = _conclusion_text(c)
-    return c
-
-
-def _fmt(v, f=".3g", unit="") -> str:
-    return "n/a" if v is None else f"{format(v, f)}{unit}"
-
-
-def _ratio(a, b) -> str:
-    if a is None or b is None or b <= 0 or a / b > 1e4:
-        return ""
-    return f" (x{a / b:.3g})"
-
-
-def _conclusion_text(c: dict) -> str:
-    parts = [f"Rigid-scene assumption: from the static scene ({c['baseline']}, {c['baseline_dynamic_pct']:.2f} % "
-             f"dynamic pixels) to {c['worst']} ({c['worst_dynamic_pct']:.2f} % dynamic pixels), the flow synthesized "
-             f"from depth + true camera motion is off by {_fmt(c['worst_epe_dynamic_px'])} px (mean EPE) on dynamic "
-             f"pixels while static pixels stay at {_fmt(c['worst_epe_static_px'])} px"]
-    for label, k in (("VO ATE on ground-truth flow", "vo_ate_gt_m"), ("VO ATE on DIS flow", "vo_ate_dis_m"),
-                     ("SLAM ATE on ground-truth flow", "slam_ate_gt_m"), ("SLAM ATE on DIS flow", "slam_ate_dis_m")):
-        a, b = c.get(f"baseline_{k}"), c.get(f"worst_{k}")
-        if a is None and b is None:
-            continue
-        slope = c.get(f"slope_{k}_per_pct")
-        extra = "" if slope is None else f", {slope:+.3g} m per % of dynamic pixels over the sweep"
-        parts.append(f"{label} goes from {_fmt(a)} m to {_fmt(b)} m{_ratio(b, a)}{extra}")
-    text = "; ".join(parts) + "."
-    brk = c.get("break_vo_ate_gt_m")
-    if brk is not None:
-        text += (f" The VO error on exact flow already doubles at {brk['dynamic_pct']:.2f} % dynamic pixels "
-                 f"({brk['setting']}: ATE {brk['value']:.3g} m vs {c['baseline_vo_ate_gt_m']:.3g} m).")
-    elif c.get("baseline_vo_ate_gt_m") is not None:
-        text += " The VO error on exact flow never doubled over the sweep."
-    return text
-
-
-def odometry_columns(odometries: OdometrySet) -> dict:
-    """{column key: label} of every odometry the study measured: the main one on each flow source and
-    each plug-in."""
-    main = "learned" if odometries.kind == "model" else odometries.kind
-    cols = {f: f"{main} on {'ground-truth' if f == 'gt' else 'DIS'} flow" for f in odometries.cons}
-    cols.update({k: f"{o.name} (plug-in)" for k, o in odometries.plugins.items()})
-    return cols
-
-
-def side_by_side(flat: list[dict], odometries: OdometrySet) -> list[dict]:
-    """One entry per setting and odometry (the ``--json`` settings list): ``name``, ``odometry``,
-    ``dynamic_fraction``, ``flow_epe_dynamic_px``, ``vo_ate_m``, ``vo_rpe_t_m``, ``vo_rpe_r_deg``,
-    ``slam_ate_m``, ``loop_edges_kept``."""
-    out = []
-    for r in flat:
-        for key, label in odometry_columns(odometries).items():
-            if r.get(f"vo_ate_{key}_m") is None:
-                continue
-            out.append({"name": r["setting"], "odometry": label, "odometry_key": key,
-                        "dynamic_fraction": r["dynamic_pct"] / 100.0, "flow_epe_dynamic_px": r["epe_dynamic_px"],
-                        "vo_ate_m": r[f"vo_ate_{key}_m"], "vo_rpe_t_m": r.get(f"vo_rpe_t_{key}_m"),
-                        "vo_rpe_r_deg": r.get(f"vo_rpe_r_{key}_deg"), "slam_ate_m": r.get(f"slam_ate_{key}_m"),
-                        "loop_edges_kept": r.get(f"slam_loops_{key}")})
-    return out
-
-
-def build_report(config: StressConfig, settings, rows: list[dict], odometries: OdometrySet, elapsed_s: float,
-                 notes: list[str] | None = None) -> dict:
-    flat = table_rows(rows)
-    return _clean({"format": RESULT_FORMAT, "config": config.to_dict(), "odometry": odometries.kind,
-                   "odometry_description": odometries.description, "odometry_note": odometries.note,
-                   "plugins": {k: o.name for k, o in odometries.plugins.items()},
-                   "side_by_side": side_by_side(flat, odometries),
-                   "notes": list(notes or []),
-                   "settings": [dataclasses.asdict(s) for s in settings], "rows": flat, "results": rows,
-                   "conclusion": conclusion(flat), "elapsed_s": elapsed_s})
-
-
-def markdown(report: dict) -> str:
-    cfg = report["config"]
-    lines = [f"# Stress study: moving and deforming objects ({cfg['scene']})", "",
-             f"{cfg['frames']} frames per setting at {cfg['width']} px wide, seed {cfg['seed']}, "
-             f"{len(report['rows'])} settings, {report['elapsed_s']:.0f} s in all.", "",
-             f"Odometry: {report['odometry_description']}."]
-    if report.get("odometry_note"):
-        lines += ["", f"**Note: {report['odometry_note']}.**"]
-    for note in report.get("notes", []):
-        lines += ["", f"Note: {note}."]
-    lines += ["", "**Conclusion.** " + report["conclusion"]["text"], "",
-              "Flow EPE: flow synthesized from frame t's depth and the true camera motion (the rigid-scene "
-              "assumption) against the simulator's exact flow; static = static visible pixels (control), dyn = "
-              "moving/deforming pixels. VO and SLAM: SE3-aligned ATE (m) and RPE per frame (m, deg) on the "
-              "ground-truth flow (gt) and on DIS flow (dis); t_err (%) where the path is longer than 100 m; "
-              "loops = loop edges kept by the pose graph.", ""]
-    has_terr = any(r.get("vo_t_err_gt_pct") is not None or r.get("vo_t_err_dis_pct") is not None for r in report["rows"])
-    head = ["setting", "axis", "dyn %", "EPE static px", "EPE dyn px", "VO ATE gt m", "VO ATE dis m",
-            "RPE gt m / deg", "RPE dis m / deg"]
-    if has_terr:
-        head += ["t_err gt %", "t_err dis %"]
-    head += ["SLAM ATE gt m", "SLAM ATE dis m", "loops gt/dis"]
-    lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for r in report["rows"]:
-        cells = [r["setting"], r["axis"], f"{r['dynamic_pct']:.2f}", _fmt(r["epe_static_px"], ".2g"),
-                 _fmt(r["epe_dynamic_px"]), _fmt(r.get("vo_ate_gt_m")), _fmt(r.get("vo_ate_dis_m")),
-                 f"{_fmt(r.get('vo_rpe_t_gt_m'))} / {_fmt(r.get('vo_rpe_r_gt_deg'))}",
-                 f"{_fmt(r.get('vo_rpe_t_dis_m'))} / {_fmt(r.get('vo_rpe_r_dis_deg'))}"]
-        if has_terr:
-            cells += [_fmt(r.get("vo_t_err_gt_pct")), _fmt(r.get("vo_t_err_dis_pct"))]
-        cells += [_fmt(r.get("slam_ate_gt_m")), _fmt(r.get("slam_ate_dis_m")),
-                  f"{r.get('slam_loops_gt', 'n/a')}/{r.get('slam_loops_dis', 'n/a')}"]
-        lines.append("| " + " | ".join(cells) + " |")
-    if report.get("plugins"):
-        keys = sorted({e["odometry_key"] for e in report["side_by_side"]}, key=lambda k: (k not in ("gt", "dis"), k))
-        labels = {e["odometry_key"]: e["odometry"] for e in report["side_by_side"]}
-        lines += ["", "**Side by side** (VO ATE / SLAM ATE, m, SE3-aligned; plug-ins read the images themselves):", "",
-                  "| setting | dyn % | " + " | ".join(labels[k] for k in keys) + " |", "|---|---|" + "---|" * len(keys)]
-        by = {(e["name"], e["odometry_key"]): e for e in report["side_by_side"]}
-        for r in report["rows"]:
-            cells = [f"{_fmt(by[(r['setting'], k)]['vo_ate_m'])} / {_fmt(by[(r['setting'], k)]['slam_ate_m'])}"
-                     if (r["setting"], k) in by else "n/a" for k in keys]
-            lines.append(f"| {r['setting']} | {r['dynamic_pct']:.2f} | " + " | ".join(cells) + " |")
-    lines += ["", "Settings: `kK_sS_aA` = K moving objects scaled by S, flags waving with amplitude A m.", "",
-              "![flow EPE](stress_flow_epe.png)", "![VO ATE](stress_vo_ate.png)", "![VO RPE](stress_vo_rpe.png)",
-              "![SLAM ATE](stress_slam_ate.png)", ""]
-    return "\n".join(lines)
-
-
-PLOTS = {
-    "stress_flow_epe.png": ("synthesized-vs-true flow EPE (mean, px)",
-                            [("epe_dynamic_px", "dynamic pixels"), ("epe_static_px", "static pixels (control)")], True),
-    "stress_vo_ate.png": ("VO ATE (m, SE3-aligned)",
-                          [("vo_ate_gt_m", "ground-truth flow"), ("vo_ate_dis_m", "DIS flow")], False),
-    "stress_vo_rpe.png": ("VO RPE per frame (m)",
-                          [("vo_rpe_t_gt_m", "ground-truth flow"), ("vo_rpe_t_dis_m", "DIS flow")], False),
-    "stress_slam_ate.png": ("SLAM ATE (m, SE3-aligned)",
-                            [("slam_ate_gt_m", "ground-truth flow"), ("slam_ate_dis_m", "DIS flow")], False),
-}
-AXIS_MARKERS = {"objects": "o", "size": "s", "deform": "^", "combined": "*"}
-
-
-def plot_error(path: Path, rows: list[dict], ylabel: str, series: list[tuple[str, str]], log_y: bool, title: str) -> None:
-    """One PNG: each error series against the percentage of dynamic pixels; marker = sweep axis."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-    from matplotlib.lines import Line2D
-
-    fig = Figure(figsize=(7.0, 4.6), dpi=110)
-    FigureCanvasAgg(fig)
-    ax = fig.add_subplot(1, 1, 1)
-    colours = ["tab:red", "tab:blue", "tab:green", "tab:orange", "tab:purple", "tab:brown", "tab:pink", "tab:olive"]
-    handles = []
-    x_all = np.array([r["dynamic_pct"] for r in rows])
-    order = np.argsort(x_all, kind="stable")
-    for (key, label), colour in zip(series, colours):
-        x = np.array([rows[i]["dynamic_pct"] for i in order])
-        y = np.array([np.nan if rows[i].get(key) is None else rows[i][key] for i in order], dtype=np.float64)
-        if log_y:
-            y = np.where(y > 0, y, np.nan)
-        if not np.isfinite(y).any():
-            continue
-        ax.plot(x[np.isfinite(y)], y[np.isfinite(y)], "-", color=colour, alpha=0.35, lw=1)
-        for i, xi, yi in zip(order, x, y):
-            if np.isfinite(yi):
-                ax.plot([xi], [yi], AXIS_MARKERS.get(rows[i]["axis"], "o"), color=colour, ms=7)
-        handles.append(Line2D([], [], color=colour, marker="o", ls="-", label=label))
-    for axis, m in AXIS_MARKERS.items():
-        if any(r["axis"] == axis for r in rows):
-            handles.append(Line2D([], [], color="grey", marker=m, ls="", label=f"sweep: {axis}"))
-    if log_y:
-        ax.set_yscale("log")
-    ax.set_xlabel("dynamic pixels (% of all pixels)")
-    ax.set_ylabel(ylabel)
-    ax.set_title(title, fontsize=10)
-    ax.grid(True, alpha=0.3)
-    if handles:
-        ax.legend(handles=handles, fontsize=8, loc="best")
-    fig.tight_layout()
-    with atomic.atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
-
-
-def write_outputs(out: Path, report: dict) -> None:
-    """stress.json, stress.md and the four plots, each atomically."""
-    cfg = report["config"]
-    title = f"stress study ({cfg['scene']}, {report['odometry']})"
-    plugins = report.get("plugins", {})
-    for name, (ylabel, series, log_y) in PLOTS.items():
-        key = series[0][0]
-        if key.startswith(("vo_", "slam_")) and plugins:
-            series = series + [(key.replace("_gt_", f"_{k}_"), f"{n} (plug-in)") for k, n in plugins.items()]
-        plot_error(out / name, report["rows"], ylabel, series, log_y, title)
-    atomic.write_json(out / "stress.json", report)
-    atomic.write_text(out / "stress.md", markdown(report))
-
-
-__all__ = ["StressConfig", "Setting", "RigidFitOdometry", "run_stress", "scaled_movers", "render_setting",
-           "measure_sequence", "make_odometries", "conclusion", "markdown"]
+__all__ = ["StressConfig", "Setting", "OdometrySet", "RigidFitOdometry", "run_stress", "scaled_movers",
+           "setting_scene", "render_setting", "measure_sequence", "make_odometries", "conclusion", "markdown"]

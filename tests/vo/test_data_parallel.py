@@ -9,7 +9,10 @@ import numpy as np
 import pytest
 
 from deepslam.core.camera import PinholeCamera
-from deepslam.vo.data import Frames, SyntheticSource, TensorSamples, plane_depth
+from deepslam.vo.frames import Frames
+from deepslam.vo.samples import TensorSamples
+from deepslam.vo.synthetic import SyntheticSource
+from deepslam.vo.toy import plane_depth
 
 
 def _samples(n=70):

@@ -11,7 +11,7 @@ import pytest
 from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
 from deepslam.vo import epipolar
-from deepslam.vo.data import flow_from_depth_np
+from deepslam.vo.toy import flow_from_depth_np
 
 KITTI_LIKE = PinholeCamera(1242, 375, 718.9, 718.9, 607.2, 185.2)
 SLIDE_PER_YAW_PER_M = 0.88  # a turning car's sideways slide, as fitted on KITTI (vo.scale_sweep)
@@ -215,7 +215,7 @@ def test_slam_pose_epipolar_chains_the_same_motions_as_vo(street_sequence, stree
     assert main(["slam", "--sequence", str(root), "--model-cons", str(street_model), "--flow", "gt", "--pose",
                  "epipolar", "--no-loops", "--out", str(tmp_path / "slam.txt"), "--json"]) == 0
     vo = trajio.read_trajectory(tmp_path / "vo.txt", "tum")
-    slam_vo = trajio.read_trajectory(tmp_path / "slam_vo.txt", "kitti")
+    slam_vo = trajio.read_trajectory(tmp_path / "slam_vo.txt", "tum")  # our format: TUM rows by default
     np.testing.assert_allclose(slam_vo.positions, vo.positions, atol=1e-6)
     assert json.loads((tmp_path / "slam.json").read_text())["odometry_cons"].endswith("+epipolar")
 

@@ -13,13 +13,19 @@ from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
 from deepslam.core.readers import open_sequence
 from deepslam.gen import flow as gen_flow
-from deepslam.vo import data
+from deepslam.vo.frames import (Frames, fill_depth_holes, frame_inverse_depth, load_frames, load_image_frames,
+                                with_mirrored)
+from deepslam.vo.motion import MotionMixture, SceneScale
+from deepslam.vo.samples import epoch_seed
+from deepslam.vo.supervised import PairSpec, frame_pairs, supervised_samples
+from deepslam.vo.synthetic import EstimatedFlowSource, SyntheticSource
+from deepslam.vo.toy import flow_from_depth_np, plane_depth, toy_motion_sampler
 
 CAM = PinholeCamera(160, 48, 120.0, 120.0, 79.5, 20.0)
 
 
 def _ground_depth(cam: PinholeCamera, height_m: float = 1.6) -> np.ndarray:
-    d = data.plane_depth(cam, np.array([0.0, 1.0, 0.0]), height_m)
+    d = plane_depth(cam, np.array([0.0, 1.0, 0.0]), height_m)
     d[d > 100] = 0.0
     return d
 
@@ -44,7 +50,7 @@ def test_synthesize_flow_matches_gen_and_the_numpy_reference():
     left = ours_valid.numpy() & ~gvalid
     assert left.sum() > 100
     for b in range(4):
-        ref, ref_valid = data.flow_from_depth_np(CAM, depth[b], motions[b])
+        ref, ref_valid = flow_from_depth_np(CAM, depth[b], motions[b])
         g = CAM.pixel_grid()
         p1 = (CAM.unproject(g, depth[b]) @ motions[b][:3, :3].T) + motions[b][:3, 3]
         uv1, _ = CAM.project(p1)
@@ -66,14 +72,14 @@ def test_missing_depth_is_a_point_at_infinity():
     assert not valid.any()
 
 
-def _frames(f: int = 2) -> data.Frames:
+def _frames(f: int = 2) -> Frames:
     cam = CAM.scaled(80 * f, 24 * f)
     depth = np.stack([_ground_depth(cam, h) for h in (1.5, 1.6, 1.7, 1.8, 1.9)])
-    return data.Frames(depth, np.zeros(5, dtype=np.int64), [cam], [f"f{i}" for i in range(5)])
+    return Frames(depth, np.zeros(5, dtype=np.int64), [cam], [f"f{i}" for i in range(5)])
 
 
 def test_synthetic_source_is_deterministic_per_epoch_and_pools_correctly():
-    src = data.SyntheticSource(_frames(2), data.toy_motion_sampler(), samples_per_epoch=20, seed=4, synth_factor=2)
+    src = SyntheticSource(_frames(2), toy_motion_sampler(), samples_per_epoch=20, seed=4, synth_factor=2)
     a = list(src.batches(3, 8))
     b = list(src.batches(3, 8))
     assert [len(x["target"]) for x in a] == [8, 8, 4]
@@ -99,14 +105,14 @@ def test_flow_synthesized_at_twice_the_size_and_pooled_matches_the_direct_one():
 
 
 def test_materialized_holdout_is_fixed():
-    src = data.SyntheticSource(_frames(1), data.toy_motion_sampler(), 10, seed=1)
+    src = SyntheticSource(_frames(1), toy_motion_sampler(), 10, seed=1)
     a, b = src.materialize(12, 7), src.materialize(12, 7)
     assert len(a) == 12 and torch.equal(a.flow, b.flow) and torch.equal(a.target, b.target)
 
 
 def test_motion_mixture_draws_from_each_model_by_weight():
     const = [lambda n, rng, v=v: np.full((n, 6), v) for v in (1.0, 2.0)]
-    mix = data.MotionMixture(const, [3, 1])
+    mix = MotionMixture(const, [3, 1])
     out = mix(4000, np.random.default_rng(0))
     assert set(np.unique(out)) == {1.0, 2.0}
     assert abs((out[:, 0] == 1.0).mean() - 0.75) < 0.03
@@ -115,9 +121,9 @@ def test_motion_mixture_draws_from_each_model_by_weight():
 def test_frame_pairs_consecutive_strides_and_loops():
     poses = np.tile(np.eye(4), (60, 1, 1))
     poses[:, 0, 3] = np.r_[np.arange(30), np.arange(30)[::-1]] * 1.0  # out and back along x
-    pairs = data.frame_pairs(poses, data.PairSpec(strides=(1, 3)))
+    pairs = frame_pairs(poses, PairSpec(strides=(1, 3)))
     assert len(pairs) == 59 + 57 and {tuple(p) for p in pairs[:2]} == {(0, 1), (1, 2)}
-    loops = data.frame_pairs(poses, data.PairSpec(kind="loops", loop_min_gap_frames=20, loop_max_distance_m=1.0))
+    loops = frame_pairs(poses, PairSpec(kind="loops", loop_min_gap_frames=20, loop_max_distance_m=1.0))
     assert len(loops) > 0
     assert (np.abs(poses[loops[:, 0], 0, 3] - poses[loops[:, 1], 0, 3]) <= 1.0).all()
     assert (loops[:, 1] - loops[:, 0] >= 20).all()
@@ -127,8 +133,8 @@ def test_supervised_samples_targets_are_ground_truth(plane_sequence):
     from deepslam.flow import registry as flow_registry
 
     seq = open_sequence(plane_sequence)
-    pairs = data.frame_pairs(seq.gt.world_from_cam, data.PairSpec(strides=(1, 2)))[:5]
-    s = data.supervised_samples(seq, pairs, flow_registry.make("gt"), 80, 24, progress=False)
+    pairs = frame_pairs(seq.gt.world_from_cam, PairSpec(strides=(1, 2)))[:5]
+    s = supervised_samples(seq, pairs, flow_registry.make("gt"), 80, 24, progress=False)
     assert s["flow"].shape == (5, 2, 24, 80)
     for k, (i, j) in enumerate(pairs):
         expect = se3.to_euler6(se3.inverse(seq.gt.world_from_cam[j]) @ seq.gt.world_from_cam[i])
@@ -173,25 +179,25 @@ def test_estimated_flow_source_gives_dis_flow_of_a_rendered_second_view(plane_se
     from deepslam.flow.estimators import to_network_input
 
     seq = open_sequence(plane_sequence)
-    frames = data.load_image_frames([seq], frame_step=3, progress=False)
+    frames = load_image_frames([seq], frame_step=3, progress=False)
     assert len(frames) == 4 and frames.grey[0].shape == (80, 256) and frames.grey[0].dtype == np.uint8
     fixed = np.array([0.0, 0.01, 0.0, 0.05, 0.0, -0.5])          # half a metre forward, a slight turn
 
     def motion(n, rng):
         return np.tile(fixed, (n, 1)) + rng.normal(0, [0.001, 0.002, 0.001, 0.02, 0.01, 0.1], (n, 6))
 
-    src = data.EstimatedFlowSource(frames, motion, "dis", 80, 24, 6, seed=3, threads=2)
+    src = EstimatedFlowSource(frames, motion, "dis", 80, 24, 6, seed=3, threads=2)
     b1, b2 = list(src.batches(0, 6)), list(src.batches(0, 6))
     assert b1[0]["flow"].shape == (6, 2, 24, 80) and b1[0]["flow"].dtype == torch.float32
     assert torch.equal(b1[0]["flow"], b2[0]["flow"])
     assert not torch.equal(b1[0]["flow"], next(iter(src.batches(1, 6)))["flow"])
     # against the exact flow of the same frames and motions (same rng draws)
-    rng = np.random.default_rng(data.epoch_seed(3, 0, 0))
+    rng = np.random.default_rng(epoch_seed(3, 0, 0))
     idx = rng.integers(0, len(frames), 6)
     vec6 = motion(6, rng)
     np.testing.assert_allclose(b1[0]["target"].numpy(), vec6.astype(np.float32))
     for k in range(6):
-        exact, _ = data.flow_from_depth_np(seq.camera, frames.depth_z[idx[k]], se3.from_euler6(vec6[k]))
+        exact, _ = flow_from_depth_np(seq.camera, frames.depth_z[idx[k]], se3.from_euler6(vec6[k]))
         want, intr = to_network_input(exact, seq.camera, 80, 24)
         np.testing.assert_allclose(b1[0]["intrinsics"][k].numpy(), intr)
         got = b1[0]["flow"][k].numpy()
@@ -310,7 +316,7 @@ def test_synthetic_flow_equals_the_simulators_true_flow_everywhere():
 
 def test_image_frames_at_several_scales_split_by_source_frame(plane_sequence):
     seq = open_sequence(plane_sequence)
-    frames = data.load_image_frames([seq], frame_step=2, scales=(1.0, 0.5), progress=False)
+    frames = load_image_frames([seq], frame_step=2, scales=(1.0, 0.5), progress=False)
     assert len(frames) == 12 and len(frames.cameras) == 2
     small = [k for k, n in enumerate(frames.names) if "@" in n]
     assert frames.grey[small[0]].shape == (40, 128) and frames.depth_z[small[0]].shape == (40, 128)
@@ -319,30 +325,30 @@ def test_image_frames_at_several_scales_split_by_source_frame(plane_sequence):
     assert len(hold) == 4 and len(train) == 8                 # 2 of 6 source frames, each at both scales
     assert not {n.split("@")[0] for n in train.names} & {n.split("@")[0] for n in hold.names}
     with pytest.raises(Exception, match="scales"):
-        data.load_image_frames([seq], scales=(1.5,), progress=False)
+        load_image_frames([seq], scales=(1.5,), progress=False)
 
 
 def test_appearance_noise_on_the_rendered_view_is_seeded_and_changes_only_the_flow(plane_sequence):
     from deepslam.core.errors import InputError
 
-    frames = data.load_image_frames([open_sequence(plane_sequence)], frame_step=4, progress=False)
+    frames = load_image_frames([open_sequence(plane_sequence)], frame_step=4, progress=False)
 
     def motion(n, rng):
         return np.tile([0.0, 0.01, 0.0, 0.05, 0.0, -0.5], (n, 1)) + rng.normal(0, 0.01, (n, 6))
 
-    clean = data.EstimatedFlowSource(frames, motion, "dis", 80, 24, 4, seed=5, threads=1)
-    noisy = data.EstimatedFlowSource(frames, motion, "dis", 80, 24, 4, seed=5, threads=2, appearance_noise=6.0)
+    clean = EstimatedFlowSource(frames, motion, "dis", 80, 24, 4, seed=5, threads=1)
+    noisy = EstimatedFlowSource(frames, motion, "dis", 80, 24, 4, seed=5, threads=2, appearance_noise=6.0)
     a, b, b2 = (next(iter(s.batches(0, 4))) for s in (clean, noisy, noisy))
     assert torch.equal(a["target"], b["target"])                # the same frames and motions ...
     assert torch.equal(b["flow"], b2["flow"])                   # ... the noise is seeded ...
     diff = (a["flow"] - b["flow"]).abs()
     assert 0 < diff.mean() < 0.5 * a["flow"].abs().mean()       # ... and perturbs the flow, not replaces it
     with pytest.raises(InputError, match="appearance noise"):
-        data.EstimatedFlowSource(frames, motion, "dis", 80, 24, 4, appearance_noise=-1.0)
+        EstimatedFlowSource(frames, motion, "dis", 80, 24, 4, appearance_noise=-1.0)
 
 
 def test_flat_speed_replaces_only_the_forward_motion_and_covers_the_range():
-    from deepslam.vo.data import FlatSpeed
+    from deepslam.vo.motion import FlatSpeed
 
     base = lambda n, rng: np.tile(np.array([0.01, 0.02, 0.03, 0.1, 0.2, -0.9]), (n, 1))  # noqa: E731
     s = FlatSpeed(base, 0.0, 30.0, 10.0)
@@ -360,7 +366,7 @@ def test_flat_speed_replaces_only_the_forward_motion_and_covers_the_range():
 
 @pytest.mark.parametrize("fraction", [0.2, 0.5])
 def test_flat_speed_fraction_gives_a_flat_tail_beside_the_prior(fraction):
-    from deepslam.vo.data import FlatSpeed
+    from deepslam.vo.motion import FlatSpeed
 
     base = lambda n, rng: np.tile(np.array([0.01, 0.02, 0.03, 0.1, 0.2, -0.9]), (n, 1))  # noqa: E731
     out = FlatSpeed(base, 0.0, 30.0, 10.0, fraction)(40000, np.random.default_rng(1))
@@ -377,7 +383,7 @@ def test_flat_speed_fraction_gives_a_flat_tail_beside_the_prior(fraction):
 @pytest.mark.parametrize("text, expect", [("0:30", (0.0, 30.0, 1.0)), ("0:30@0.2", (0.0, 30.0, 0.2)),
                                           ("5:25@1", (5.0, 25.0, 1.0))])
 def test_flat_speed_parses_the_flag(text, expect):
-    from deepslam.vo.data import FlatSpeed
+    from deepslam.vo.motion import FlatSpeed
 
     s = FlatSpeed.parse(lambda n, rng: np.zeros((n, 6)), text, 10.0)
     assert (s.min_mps, s.max_mps, s.fraction) == expect
@@ -385,7 +391,7 @@ def test_flat_speed_parses_the_flag(text, expect):
 
 @pytest.mark.parametrize("text", ["0:30@0", "0:30@1.5", "0:30@x", "30", "0:30:5", "0:30@nan", "10:5@0.2"])
 def test_flat_speed_rejects_a_bad_flag_with_one_line(text):
-    from deepslam.vo.data import FlatSpeed
+    from deepslam.vo.motion import FlatSpeed
 
     with pytest.raises(InputError):
         FlatSpeed.parse(lambda n, rng: np.zeros((n, 6)), text, 10.0)
@@ -415,7 +421,7 @@ def test_speed_sweep_of_a_perfect_reader_is_flat(plane_sequence):
     from deepslam.vo import scale_sweep
 
     seq = open_sequence(plane_sequence)
-    frames = data.load_frames([seq], 80, 24, progress=False)
+    frames = load_frames([seq], 80, 24, progress=False)
     seen = {}
 
     class Oracle:
@@ -423,7 +429,7 @@ def test_speed_sweep_of_a_perfect_reader_is_flat(plane_sequence):
             return np.tile(seen["target"], (len(flow), 1)), np.ones((len(flow), 6))
 
     def make(sample):
-        src = data.SyntheticSource(frames, sample, 4)
+        src = SyntheticSource(frames, sample, 4)
         seen["target"] = sample(1, np.random.default_rng(0))[0]
         return src
 
@@ -447,9 +453,9 @@ def test_fill_depth_holes_fills_inner_holes_and_leaves_the_sky_at_infinity(keep_
     d[:2, :] = 0.0            # sky: the top rows
     d[5, 4:6] = 0.0           # an inner hole
     d[4, 0] = np.nan          # a bad value inside the scene (not connected to the sky)
-    out = data.fill_depth_holes(d, keep_sky=keep_sky)
+    out = fill_depth_holes(d, keep_sky=keep_sky)
     assert (out[5, 4:6] == 5.0).all() and out[4, 0] == 5.0
-    assert np.array_equal(data.fill_depth_holes(d), data.fill_depth_holes(d, keep_sky=False))  # the default
+    assert np.array_equal(fill_depth_holes(d), fill_depth_holes(d, keep_sky=False))  # the default
     if keep_sky:
         assert (out[:2] == 0).all()
     else:
@@ -462,25 +468,25 @@ def test_sources_give_the_inverse_depth_of_each_samples_frame(plane_sequence):
     frame's inverse depth at the network resolution: the same frame's depth as the flow's."""
     from deepslam.vo.net import inverse_depth_input
 
-    src = data.SyntheticSource(_frames(2), data.toy_motion_sampler(), samples_per_epoch=8, seed=4, synth_factor=2,
-                               inv_depth=True)
+    src = SyntheticSource(_frames(2), toy_motion_sampler(), samples_per_epoch=8, seed=4, synth_factor=2,
+                          inv_depth=True)
     b = next(src.batches(0, 8))
-    rng = np.random.default_rng(data.epoch_seed(4, 0, 0))
+    rng = np.random.default_rng(epoch_seed(4, 0, 0))
     idx = rng.integers(0, 5, 8)
     assert b["inv_depth"].shape == (8, 1, 24, 80)
     for k in range(8):
         np.testing.assert_allclose(b["inv_depth"][k].numpy(), inverse_depth_input(src.frames.depth_z[idx[k]], 80, 24))
     pool = src.materialize(8, 1)
     assert pool.inv_depth.shape == (8, 1, 24, 80) and "inv_depth" in next(pool.batches(0, 4))
-    assert "inv_depth" not in next(data.SyntheticSource(_frames(2), data.toy_motion_sampler(), 8, synth_factor=2).batches(0, 8))
+    assert "inv_depth" not in next(SyntheticSource(_frames(2), toy_motion_sampler(), 8, synth_factor=2).batches(0, 8))
     seq = open_sequence(plane_sequence)
-    frames = data.load_image_frames([seq], frame_step=3, progress=False)
-    est = data.EstimatedFlowSource(frames, data.toy_motion_sampler(), "dis", 80, 24, 4, seed=3, threads=1, inv_depth=True)
+    frames = load_image_frames([seq], frame_step=3, progress=False)
+    est = EstimatedFlowSource(frames, toy_motion_sampler(), "dis", 80, 24, 4, seed=3, threads=1, inv_depth=True)
     b = next(est.batches(0, 4))
-    idx = np.random.default_rng(data.epoch_seed(3, 0, 0)).integers(0, len(frames), 4)
+    idx = np.random.default_rng(epoch_seed(3, 0, 0)).integers(0, len(frames), 4)
     for k in range(4):
         np.testing.assert_allclose(b["inv_depth"][k].numpy(), inverse_depth_input(frames.depth_z[idx[k]], 80, 24))
-    np.testing.assert_allclose(data.frame_inverse_depth(seq, 3, 80, 24), inverse_depth_input(seq.depth(3), 80, 24))
+    np.testing.assert_allclose(frame_inverse_depth(seq, 3, 80, 24), inverse_depth_input(seq.depth(3), 80, 24))
 
 
 def test_train_and_vo_with_a_depth_channel(plane_sequence, motion_json, tmp_path):
@@ -510,26 +516,26 @@ def test_scene_scale_scales_each_samples_depth_and_keeps_the_motion_metric():
     """A sample's flow with --scene-scale is the flow of its frame's depth times the drawn factor (the
     same motion: nearer geometry, more parallax); the factors are log-uniform in the range."""
     frames = _frames(1)
-    scale = data.SceneScale(0.3, 1.0)
-    src = data.SyntheticSource(frames, data.toy_motion_sampler(), 6, seed=2, scene_scale=scale, inv_depth=True)
+    scale = SceneScale(0.3, 1.0)
+    src = SyntheticSource(frames, toy_motion_sampler(), 6, seed=2, scene_scale=scale, inv_depth=True)
     b = next(src.batches(0, 6))
-    rng = np.random.default_rng(data.epoch_seed(2, 0, 0))
+    rng = np.random.default_rng(epoch_seed(2, 0, 0))
     idx = rng.integers(0, 5, 6)
-    vec6 = data.toy_motion_sampler()(6, rng)
+    vec6 = toy_motion_sampler()(6, rng)
     factors = scale.sample(6, rng)
     assert ((factors >= 0.3) & (factors <= 1.0)).all() and factors.std() > 0
     np.testing.assert_allclose(b["target"].numpy(), vec6.astype(np.float32))
     depth = torch.from_numpy(frames.depth_z[idx] * factors[:, None, None].astype(np.float32))
     want, _ = gen_flow.synthesize_flow(depth, _k(frames.cameras[0], 6), se3.from_euler6(vec6))
     torch.testing.assert_close(b["flow"], want)
-    plain = next(data.SyntheticSource(frames, data.toy_motion_sampler(), 6, seed=2).batches(0, 6))
+    plain = next(SyntheticSource(frames, toy_motion_sampler(), 6, seed=2).batches(0, 6))
     assert float((b["flow"] - plain["flow"]).abs().max()) > 0.1     # the scale changed the parallax
     big = np.random.default_rng(0)
-    f = data.SceneScale(0.5, 2.0).sample(20000, big)
+    f = SceneScale(0.5, 2.0).sample(20000, big)
     assert abs(np.median(np.log(f))) < 0.02                            # log-uniform: median at the geometric mean
     for bad in ("1", "a:b", "0.01:1", "2:1"):
         with pytest.raises(InputError):
-            data.SceneScale.parse(bad)
+            SceneScale.parse(bad)
 
 
 def test_sources_leave_unknown_flow_nan_for_a_validity_channel(plane_sequence):
@@ -539,28 +545,28 @@ def test_sources_leave_unknown_flow_nan_for_a_validity_channel(plane_sequence):
     frames = _frames(2)
     depth = frames.depth_z.copy()
     depth[:, 30:, :40] = 0.0                                     # a hole: no depth (missing_depth="invalid")
-    holed = data.Frames(depth, frames.camera_index, frames.cameras, frames.names)
-    zero = next(data.SyntheticSource(holed, data.toy_motion_sampler(), 6, seed=2, synth_factor=2,
-                                     missing_depth="invalid").batches(0, 6))["flow"]
-    nan = next(data.SyntheticSource(holed, data.toy_motion_sampler(), 6, seed=2, synth_factor=2,
-                                    missing_depth="invalid", unknown="nan").batches(0, 6))["flow"]
+    holed = Frames(depth, frames.camera_index, frames.cameras, frames.names)
+    zero = next(SyntheticSource(holed, toy_motion_sampler(), 6, seed=2, synth_factor=2,
+                                missing_depth="invalid").batches(0, 6))["flow"]
+    nan = next(SyntheticSource(holed, toy_motion_sampler(), 6, seed=2, synth_factor=2,
+                               missing_depth="invalid", unknown="nan").batches(0, 6))["flow"]
     unknown = torch.isnan(nan)
     assert unknown[:, :, 15:, :20].all() and unknown[:, 0].eq(unknown[:, 1]).all()
     assert torch.equal(zero[unknown], torch.zeros(int(unknown.sum()))) and torch.equal(zero[~unknown], nan[~unknown])
     with pytest.raises(ValueError, match="unknown must be"):
-        data.SyntheticSource(holed, data.toy_motion_sampler(), 6, unknown="keep")
+        SyntheticSource(holed, toy_motion_sampler(), 6, unknown="keep")
 
     seq = open_sequence(plane_sequence)
-    image_frames = data.load_image_frames([seq], frame_step=3, progress=False)
+    image_frames = load_image_frames([seq], frame_step=3, progress=False)
     opts = {"preset": "fast", "min_texture": 1e9}                  # nothing is textured enough: all unknown
-    zero = next(data.EstimatedFlowSource(image_frames, data.toy_motion_sampler(), "dis", 80, 24, 4, seed=3, threads=1,
-                                         estimator_options=opts).batches(0, 4))["flow"]
-    nan = next(data.EstimatedFlowSource(image_frames, data.toy_motion_sampler(), "dis", 80, 24, 4, seed=3, threads=1,
-                                        estimator_options=opts, unknown="nan").batches(0, 4))["flow"]
+    zero = next(EstimatedFlowSource(image_frames, toy_motion_sampler(), "dis", 80, 24, 4, seed=3, threads=1,
+                                    estimator_options=opts).batches(0, 4))["flow"]
+    nan = next(EstimatedFlowSource(image_frames, toy_motion_sampler(), "dis", 80, 24, 4, seed=3, threads=1,
+                                   estimator_options=opts, unknown="nan").batches(0, 4))["flow"]
     assert torch.isnan(nan).all() and torch.equal(zero, torch.zeros_like(zero))
     opts["min_texture"] = 0.0                                      # every pixel known: the two readings agree
-    a, b = (next(data.EstimatedFlowSource(image_frames, data.toy_motion_sampler(), "dis", 80, 24, 4, seed=3, threads=1,
-                                          estimator_options=opts, unknown=u).batches(0, 4))["flow"] for u in ("zero", "nan"))
+    a, b = (next(EstimatedFlowSource(image_frames, toy_motion_sampler(), "dis", 80, 24, 4, seed=3, threads=1,
+                                     estimator_options=opts, unknown=u).batches(0, 4))["flow"] for u in ("zero", "nan"))
     assert torch.equal(a, b) and torch.isfinite(a).all()
 
 
@@ -597,7 +603,7 @@ def test_turn_reads_tell_a_slide_reader_from_a_yaw_reader(plane_sequence, reads_
     from deepslam.vo import scale_sweep
 
     seq = open_sequence(plane_sequence)
-    frames = data.load_frames([seq], 80, 24, progress=False)
+    frames = load_frames([seq], 80, 24, progress=False)
     seen = {}
 
     class Model:
@@ -610,7 +616,7 @@ def test_turn_reads_tell_a_slide_reader_from_a_yaw_reader(plane_sequence, reads_
 
     def make(sample):
         seen["target"] = sample(1, np.random.default_rng(0))[0]
-        return data.SyntheticSource(frames, sample, 4)
+        return SyntheticSource(frames, sample, 4)
 
     reads = scale_sweep.turn_reads(Model(), make, 4, yaws_rad=(-0.04, 0.04), forwards_m=(1.0,))
     np.testing.assert_allclose([(r.yaw_rad, r.slide_m) for r in reads],
@@ -636,8 +642,8 @@ def test_mirrored_frame_flow_is_the_mirror_of_the_mirrored_motion():
     rng = np.random.default_rng(0)
     cam = PinholeCamera(64, 24, 50.0, 52.0, 30.3, 11.7)  # principal point off-centre on purpose
     depth = rng.uniform(2.0, 30.0, (24, 64)).astype(np.float32)
-    frames = data.Frames(depth[None], np.zeros(1, np.int64), [cam], ["f:0"])
-    both = data.with_mirrored(frames)
+    frames = Frames(depth[None], np.zeros(1, np.int64), [cam], ["f:0"])
+    both = with_mirrored(frames)
     assert both.names == ["f:0", "f:0:mirror"] and len(both.cameras) == 2
     mcam = both.cameras[both.camera_index[1]]
     assert mcam.cx == pytest.approx(64 - 1 - 30.3) and mcam.mirrored().cx == pytest.approx(cam.cx)
@@ -659,13 +665,13 @@ def test_mirrored_frame_flow_is_the_mirror_of_the_mirrored_motion():
 
 def test_mirrored_image_frames_keep_the_sensor_depth_and_refuse_nothing(plane_sequence):
     seq = open_sequence(plane_sequence)
-    fr = data.load_image_frames([seq], progress=False)
-    both = data.with_mirrored(fr)
+    fr = load_image_frames([seq], progress=False)
+    both = with_mirrored(fr)
     n = len(fr)
     assert len(both) == 2 * n and both.names[n:] == [f"{x}:mirror" for x in fr.names]
     np.testing.assert_array_equal(both.grey[n], fr.grey[0][:, ::-1])
     np.testing.assert_array_equal(both.depth_z[n + 1], fr.depth_z[1][:, ::-1])
     assert all(both.cameras[both.camera_index[n + i]] == fr.cameras[fr.camera_index[i]].mirrored() for i in range(n))
-    only = data.with_mirrored(fr, keep_original=False)
+    only = with_mirrored(fr, keep_original=False)
     assert len(only) == n and only.names == both.names[n:] and only.cameras == [fr.cameras[0].mirrored()]
     np.testing.assert_array_equal(only.grey[2], both.grey[n + 2])

@@ -15,10 +15,11 @@ import pytest
 import torch
 
 from deepslam.core.camera import PinholeCamera
-from deepslam.vo import data
 from deepslam.vo.infer import VOPredictor
 from deepslam.vo.net import NetConfig
 from deepslam.vo.modelio import load_checkpoint, load_model
+from deepslam.vo.samples import TensorSamples
+from deepslam.vo.toy import toy_plane_samples
 from deepslam.vo.train import CHECKPOINT, TrainConfig, fit_uncertainty, train
 
 REPO = Path(__file__).resolve().parents[2]
@@ -35,8 +36,8 @@ def _cfg(**kw) -> TrainConfig:
 
 @pytest.fixture(scope="module")
 def toy():
-    s = data.toy_plane_samples(700, CAM, np.random.default_rng(0))
-    return data.TensorSamples(s["flow"], s["intrinsics"], s["target"], seed=0).split(0.1, 0)
+    s = toy_plane_samples(700, CAM, np.random.default_rng(0))
+    return TensorSamples(s["flow"], s["intrinsics"], s["target"], seed=0).split(0.1, 0)
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +58,7 @@ def test_tiny_net_learns_motion_from_plane_flow(trained, toy):
     assert trained.best_val_loss < 0.4 * baseline
     assert trained.best_val_loss < first_val
     pred = VOPredictor.from_file(trained.model_path, bf16=False)
-    test = data.toy_plane_samples(150, CAM, np.random.default_rng(5))
+    test = toy_plane_samples(150, CAM, np.random.default_rng(5))
     mean, std = pred.predict(test["flow"], test["intrinsics"])
     assert mean.dtype == np.float64 and mean.shape == std.shape == (150, 6)
     corr = [np.corrcoef(mean[:, k], test["target"][:, k])[0, 1] for k in range(6)]
@@ -86,10 +87,10 @@ def test_outputs_written(trained):
 def test_nll_stage_changes_only_log_std_heads_and_std_follows_noise(trained):
     model, _ = load_model(trained.model_path)
     rng = np.random.default_rng(1)
-    h = data.toy_plane_samples(600, CAM, rng)
+    h = toy_plane_samples(600, CAM, rng)
     sigma = np.where(np.arange(600) % 2 == 0, 0.0, 3.0).astype(np.float32)
     noisy = h["flow"] + sigma[:, None, None, None] * rng.normal(size=h["flow"].shape).astype(np.float32)
-    src = data.TensorSamples(noisy, h["intrinsics"], h["target"], seed=0)
+    src = TensorSamples(noisy, h["intrinsics"], h["target"], seed=0)
     before = {k: v.clone() for k, v in model.state_dict().items()}
     nll = fit_uncertainty(model, src, _cfg(nll_lr=1e-2), 25)
     assert nll[-1] < nll[0]
@@ -97,7 +98,7 @@ def test_nll_stage_changes_only_log_std_heads_and_std_follows_noise(trained):
     changed = {k for k in before if not torch.equal(before[k], after[k])}
     assert changed == {"rot_log_std.weight", "rot_log_std.bias", "trans_log_std.weight", "trans_log_std.bias"}
     pred = VOPredictor(model, bf16=False)
-    test = data.toy_plane_samples(200, CAM, np.random.default_rng(2))
+    test = toy_plane_samples(200, CAM, np.random.default_rng(2))
     noise = np.random.default_rng(3).normal(size=test["flow"].shape).astype(np.float32)
     stds = [pred.predict(test["flow"] + s * noise, test["intrinsics"])[1].mean(0) for s in (0.0, 1.5, 3.0)]
     # the translations' std grows monotonically with the noise, forward translation's clearly
@@ -172,7 +173,7 @@ def test_nan_loss_stops_with_one_line_and_status_2(tmp_path):
 class _SlowSource:
     """A huge epoch of toy batches, each taking at least ``delay_s``: only a time cap can end it early."""
 
-    def __init__(self, base: data.TensorSamples, delay_s: float, epoch_samples: int = 10 ** 6):
+    def __init__(self, base: TensorSamples, delay_s: float, epoch_samples: int = 10 ** 6):
         self.base, self.delay_s, self.n = base, delay_s, epoch_samples
 
     def __len__(self) -> int:
