@@ -14,11 +14,15 @@ export OMP_WAIT_POLICY ?= PASSIVE
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml scripts/apt-deps.sh
+# torch first, from its CPU wheel (on this machine's kind `pip install torch==2.13.0` finds it on disk; elsewhere
+# `make setup TORCH_INDEX=--index-url=https://download.pytorch.org/whl/cpu`), so that nothing pulls CUDA builds;
+# then the package with every extra at the exact versions it is tested with (constraints.txt, docs/install.md).
+TORCH_INDEX ?=
+$(STAMP): pyproject.toml constraints.txt scripts/apt-deps.sh
 	bash scripts/apt-deps.sh
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q torch==2.13.0
-	$(PY) -m pip install -q -e '.[test]'
+	$(PY) -m pip install -q $(TORCH_INDEX) -c constraints.txt torch
+	$(PY) -m pip install -q -c constraints.txt -e '.[all]'
 	touch $(STAMP)
 
 demo: $(STAMP)

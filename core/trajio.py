@@ -57,6 +57,18 @@ _DESCRIBE = {
 }
 
 
+def default_format(sequence_kind: str, has_timestamps: bool = True) -> str:
+    """The trajectory format ``vo`` and ``slam`` write for a sequence by default: the one its own dataset's
+    tools read. ``kitti`` (3x4 rows matched by index) for a KITTI sequence or one without times, else
+    ``tum`` (timestamped rows): EuRoC, TUM RGB-D and our format.
+
+    Args:
+        sequence_kind: ``Sequence.kind`` (``kitti``, ``euroc``, ``tum``, ``ours``).
+        has_timestamps: whether the sequence has frame times.
+    """
+    return "kitti" if sequence_kind == "kitti" or not has_timestamps else "tum"
+
+
 def ns_to_s(ns) -> np.ndarray:
     """Integer nanoseconds -> float64 seconds, the one conversion used by every reader (so that
     times from a data.csv and from a ground-truth csv compare exactly)."""

@@ -163,3 +163,33 @@ def test_reference_report(shared_data, tmp_path, capsys):
     assert "| KITTI 00 ORB-SLAM2 | se3 | 4541 |" in report
     for png in ("kitti00_topdown.png", "kitti00_per_length.png", "euroc_v102_topdown.png"):
         assert (tmp_path / "demo" / png).read_bytes()[:4] == b"\x89PNG"
+
+
+def test_eval_several_estimates_one_row_each_and_a_json_list(pair, tmp_path, capsys):
+    gt, est = pair
+    assert main(["eval", "--gt", str(gt), "--est", str(est), "--json"]) == 0
+    single = json.loads(capsys.readouterr().out)
+    exact = tmp_path / "exact.txt"
+    exact.write_bytes(gt.read_bytes())
+    png = tmp_path / "both.png"
+    assert main(["eval", "--gt", str(gt), "--est", str(est), "--est", str(exact), "--json", "--plot", str(png)]) == 0
+    both = json.loads(capsys.readouterr().out)
+    assert isinstance(both, list) and [r["est"] for r in both] == [str(est), str(exact)]
+    assert both[0]["kitti_t_err_pct"] == pytest.approx(single["kitti_t_err_pct"], rel=1e-12)
+    assert both[1]["ate_m"] == pytest.approx(0.0, abs=1e-9)
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    assert main(["eval", "--gt", str(gt), "--est", str(est), "--est", str(exact)]) == 0
+    out = capsys.readouterr().out
+    rows = {line.split()[0]: line.split() for line in out.splitlines() if line.startswith(("est.txt", "exact.txt"))}
+    assert set(rows) == {"est.txt", "exact.txt"}
+    assert float(rows["est.txt"][-2]) == pytest.approx(single["kitti_t_err_pct"], abs=1e-4)
+    assert float(rows["exact.txt"][4]) == pytest.approx(0.0, abs=1e-4)  # ATE column
+
+
+def test_eval_several_estimates_one_bad_exits_2(pair, tmp_path, capsys):
+    gt, est = pair
+    bad = tmp_path / "bad.txt"
+    bad.write_text("1 2 3\n")
+    assert main(["eval", "--gt", str(gt), "--est", str(est), "--est", str(bad)]) == 2
+    cap = capsys.readouterr()
+    assert cap.out == "" and f"{bad}:1:" in cap.err and len(cap.err.strip().splitlines()) == 1

@@ -19,12 +19,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=None, help="seed of the whole dataset (default 0)")
     p.add_argument("--format", default=None, help="layout of each sequence: ours, kitti, euroc or tum (default ours)")
     p.add_argument("--out", required=True, help="output folder (new or empty, or an interrupted run with --resume)")
-    p.add_argument("--backend", default="ray", choices=("local", "ray"),
-                   help="ray (default: a local Ray instance with --workers CPUs, or --address) or local (this process)")
+    p.add_argument("--executor", "--backend", dest="backend", default="ray", choices=("local", "ray"),
+                   help="where the sequences render: ray (default: a local Ray instance with --workers CPUs, or "
+                        "--address) or local (this process). --backend is the older name")
     p.add_argument("--workers", type=int, default=2, help="Ray workers (default 2)")
     p.add_argument("--address", default=None, help="address of an existing Ray cluster (default: start one here)")
     p.add_argument("--resume", action="store_true", help="finish an interrupted run in --out (same config)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON object (out, sequences, frames, sha256) instead of a line")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -45,7 +48,12 @@ def run(args: argparse.Namespace) -> int:
         overrides["scenes"] = tuple(s.strip() for s in args.scenes.split(",") if s.strip())
     cfg = dataclasses.replace(cfg, **overrides).validate()
     manifest = build(cfg, args.out, backend=args.backend, workers=args.workers, address=args.address,
-                     resume=args.resume, progress=not args.quiet)
-    print(json.dumps({"out": str(args.out), "sequences": len(manifest["sequences"]), "frames": manifest["frames"],
-                      "sha256": manifest["sha256"]}))
+                     resume=args.resume, progress=not (args.quiet or args.json))
+    summary = {"out": str(args.out), "sequences": len(manifest["sequences"]), "frames": manifest["frames"],
+               "sha256": manifest["sha256"]}
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(f"wrote {summary['sequences']} sequences ({summary['frames']} frames) to {summary['out']}; "
+              f"sha256 {summary['sha256']}")
     return 0

@@ -5,6 +5,9 @@ a least-squares rigid (se3) or similarity (sim3, for monocular scale) alignment 
 the ground truth, or none. The KITTI figures follow the devkit, which aligns nothing: they compare
 relative motions over 100..800 m segments, which a rigid alignment does not change, so with ``none``
 or ``se3`` they equal the official numbers; with ``sim3`` they are computed after the scale fix.
+
+Several ``--est`` are scored against the same ground truth, each on its own (its own association and
+alignment): one table row each, or with ``--json`` a list of the objects one ``--est`` prints.
 """
 from __future__ import annotations
 
@@ -12,6 +15,7 @@ import argparse
 import json
 import math
 import sys
+from pathlib import Path
 
 NAME = "eval"
 HELP = "score an estimated trajectory against ground truth: ATE, RPE, KITTI t_err/r_err"
@@ -26,7 +30,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                      "t_err/r_err (shown when the ground truth is longer than 100 m) use relative segments as "
                      "the devkit does, so se3 alignment leaves them equal to the official figures.")
     p.add_argument("--gt", required=True, metavar="FILE", help="ground-truth trajectory (.xz/.gz accepted)")
-    p.add_argument("--est", required=True, metavar="FILE", help="estimated trajectory")
+    p.add_argument("--est", required=True, action="append", metavar="FILE",
+                   help="estimated trajectory; repeat it to score several (one table row each; --json: a list)")
     p.add_argument("--format", choices=_FORMATS, default=None, help="format of both files (default: detect)")
     p.add_argument("--gt-format", choices=_FORMATS, default=None, help="format of --gt (overrides --format)")
     p.add_argument("--est-format", choices=_FORMATS, default=None, help="format of --est (overrides --format)")
@@ -35,48 +40,67 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rpe-delta", type=int, default=1, metavar="N", help="RPE frame delta (default: 1)")
     p.add_argument("--max-diff", type=float, default=0.01, metavar="S",
                    help="largest timestamp difference for association, seconds (default: 0.01)")
-    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
-    p.add_argument("--plot", default=None, metavar="PNG", help="write a top-down plot of both trajectories")
+    p.add_argument("--json", action="store_true",
+                   help="print the figures as JSON instead of a table: one object, or a list of them for several --est")
+    p.add_argument("--plot", default=None, metavar="PNG", help="write a top-down plot of the ground truth and the estimates")
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
     from deepslam.core import metrics, plots
     from deepslam.core.errors import InputError
+    from deepslam.core.outputs import check_output_not_input
     from deepslam.core.trajio import read_trajectory_and_format
 
     if not (args.max_diff > 0 and math.isfinite(args.max_diff)):
         raise InputError(None, f"--max-diff must be a positive number of seconds, got {args.max_diff}")
     if args.rpe_delta < 1:
         raise InputError(None, f"--rpe-delta must be at least 1 frame, got {args.rpe_delta}")
-    gt_path, est_path = Path(args.gt), Path(args.est)
-    from deepslam.core.outputs import check_output_not_input
-
-    check_output_not_input(args.plot, [("--gt", gt_path), ("--est", est_path)], "--plot")  # never onto an input
+    gt_path = Path(args.gt)
+    est_paths = [Path(e) for e in args.est]
+    inputs = [("--gt", gt_path)] + [("--est", e) for e in est_paths]
+    check_output_not_input(args.plot, inputs, "--plot")  # never onto an input
     gt, gt_fmt = read_trajectory_and_format(gt_path, args.gt_format or args.format)
-    est, est_fmt = read_trajectory_and_format(est_path, args.est_format or args.format)
-    res = metrics.evaluate(gt, est, align=args.align, rpe_delta=args.rpe_delta, max_diff_s=args.max_diff,
-                           gt_path=gt_path, est_path=est_path)
-    res.update({"gt": str(gt_path), "est": str(est_path), "gt_format": gt_fmt, "est_format": est_fmt})
+    results = []
+    for est_path in est_paths:
+        est, est_fmt = read_trajectory_and_format(est_path, args.est_format or args.format)
+        res = metrics.evaluate(gt, est, align=args.align, rpe_delta=args.rpe_delta, max_diff_s=args.max_diff,
+                               gt_path=gt_path, est_path=est_path)
+        res.update({"gt": str(gt_path), "est": str(est_path), "gt_format": gt_fmt, "est_format": est_fmt})
+        results.append(res)
 
     if args.plot:
-        g = res["_gt_poses"][:, :3, 3]
-        e = res["_est_aligned_poses"][:, :3, 3]
+        if len(results) == 1:
+            curves = {f"ground truth ({gt_path.name})": results[0]["_gt_poses"][:, :3, 3],
+                      f"estimate ({est_paths[0].name}, {args.align})": results[0]["_est_aligned_poses"][:, :3, 3]}
+            title = f"ATE {results[0]['ate_m']:.3f} m"
+        else:
+            # every aligned estimate lies in the ground truth's world: draw them over the whole ground truth
+            curves = {f"ground truth ({gt_path.name})": gt.world_from_cam[:, :3, 3]}
+            names = _labels(est_paths)
+            for name, res in zip(names, results):
+                curves[f"{name} ({args.align}, ATE {res['ate_m']:.3f} m)"] = res["_est_aligned_poses"][:, :3, 3]
+            title = f"{len(results)} estimates, {args.align} alignment"
         try:
-            plots.plot_trajectories_topdown(args.plot, {f"ground truth ({gt_path.name})": g,
-                                                        f"estimate ({est_path.name}, {args.align})": e},
-                                            title=f"ATE {res['ate_m']:.3f} m")
+            plots.plot_trajectories_topdown(args.plot, curves, title=title)
         except OSError as err:
             raise InputError(args.plot, f"cannot write the plot ({err.strerror or err})") from None
-        res["plot"] = str(args.plot)
+        for res in results:
+            res["plot"] = str(args.plot)
 
-    public = {k: _clean(v) for k, v in res.items() if not k.startswith("_")}
+    public = [{k: _clean(v) for k, v in res.items() if not k.startswith("_")} for res in results]
     if args.json:
-        sys.stdout.write(json.dumps(public, sort_keys=True) + "\n")
+        sys.stdout.write(json.dumps(public[0] if len(public) == 1 else public, sort_keys=True) + "\n")
+    elif len(public) == 1:
+        sys.stdout.write(format_table(public[0]))
     else:
-        sys.stdout.write(format_table(public))
+        sys.stdout.write(format_rows(public))
     return 0
+
+
+def _labels(paths: list) -> list[str]:
+    """Short names for the estimates: file names, or whole paths where two file names are equal."""
+    names = [p.name for p in paths]
+    return [n if names.count(n) == 1 else str(p) for n, p in zip(names, paths)]
 
 
 def _clean(v):
@@ -124,4 +148,31 @@ def format_table(r: dict) -> str:
         lines.append(f"(KITTI t_err/r_err: ground truth is {r['gt_length_m']:.1f} m, not longer than 100 m)")
     if r.get("plot"):
         lines += ["", f"plot          {r['plot']}"]
+    return "\n".join(lines) + "\n"
+
+
+def format_rows(results: list[dict]) -> str:
+    """One table row per estimate (several ``--est``) of the dicts :func:`run` prints with --json."""
+    def num(x, fmt):
+        return "n/a" if x is None else format(x, fmt)
+
+    r0 = results[0]
+    names = _labels([Path(r["est"]) for r in results])
+    width = max(12, *(len(n) for n in names)) + 2
+    delta = r0["rpe_delta"]
+    lines = [
+        f"ground truth  {r0['gt']}  ({r0['gt_format']}, {r0['n_gt']} poses; length {r0['gt_length_m']:.1f} m)",
+        f"alignment     {r0['align']}; RPE over {delta} frame{'s' if delta > 1 else ''}",
+        "",
+        f"{'estimate':<{width}}{'format':>7}{'matched':>9}{'scale':>8}{'ATE [m]':>10}{'RPE t [m]':>11}"
+        f"{'RPE r [deg]':>13}{'t_err [%]':>11}{'r_err [deg/100m]':>18}",
+    ]
+    for name, r in zip(names, results):
+        lines.append(f"{name:<{width}}{r['est_format']:>7}{r['n_matched']:>9d}{num(r['scale'], '.4f'):>8}"
+                     f"{num(r['ate_m'], '.4f'):>10}{num(r['rpe_t_m'], '.4f'):>11}{num(r['rpe_r_deg'], '.4f'):>13}"
+                     f"{num(r.get('kitti_t_err_pct'), '.4f'):>11}{num(r.get('kitti_r_err_deg_per_100m'), '.4f'):>18}")
+    if not any("kitti_t_err_pct" in r for r in results):
+        lines.append("(KITTI t_err/r_err: n/a, ground truth not longer than 100 m)")
+    if r0.get("plot"):
+        lines += ["", f"plot          {r0['plot']}"]
     return "\n".join(lines) + "\n"

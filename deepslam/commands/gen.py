@@ -19,8 +19,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--resolution", default=None, metavar="HxW", help="output size, e.g. 96x320 (default: the source's)")
     p.add_argument("--seed", type=int, default=0, help="base seed: sample i depends on (seed, i) only (0)")
     p.add_argument("--workers", type=int, default=1, help="parallel shard builders (1)")
-    p.add_argument("--backend", choices=("local", "ray"), default="local",
-                   help="local process pool, or Ray tasks (joins RAY_ADDRESS, else a local instance)")
+    p.add_argument("--executor", "--backend", dest="backend", choices=("local", "ray"), default="local",
+                   help="where the shards are built: local (a process pool, default) or ray (Ray tasks; joins "
+                        "RAY_ADDRESS, else a local instance). --backend is the older name")
     p.add_argument("--resume", action="store_true", help="finish an interrupted run in --out")
     p.add_argument("--shard-size", type=int, default=256, help="samples per shard (256)")
     p.add_argument("--depth-from-stereo", choices=("sgbm", "dis"), default=None,
@@ -28,6 +29,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--loop-fraction", type=float, default=0.0,
                    help="share of motions drawn from the loop distribution (needs fit-motion --loops)")
     p.add_argument("--zbuffer", action="store_true", help="mark flow hidden by nearer points as invalid")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON object (out, samples, shards, bytes, resolution_hw) instead of a line")
 
 
 MAX_SIDE = 4096
@@ -71,8 +75,15 @@ def run(args: argparse.Namespace) -> int:
                        resolution_hw=resolution_hw, samples_per_shard=args.shard_size,
                        depth_from_stereo=args.depth_from_stereo, loop_fraction=args.loop_fraction,
                        zbuffer=args.zbuffer)
-    manifest = generate(config, args.out, workers=args.workers, backend=args.backend, resume=args.resume)
-    total = sum(s["bytes"] for s in manifest["shards"])
-    print(json.dumps({"out": args.out, "samples": manifest["num_samples"], "shards": manifest["num_shards"],
-                      "bytes": total, "resolution_hw": [manifest["camera"]["height"], manifest["camera"]["width"]]}))
+    manifest = generate(config, args.out, workers=args.workers, backend=args.backend, resume=args.resume,
+                        progress=False if (args.quiet or args.json) else None)
+    summary = {"out": args.out, "samples": manifest["num_samples"], "shards": manifest["num_shards"],
+               "bytes": sum(s["bytes"] for s in manifest["shards"]),
+               "resolution_hw": [manifest["camera"]["height"], manifest["camera"]["width"]]}
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        h, w = summary["resolution_hw"]
+        print(f"wrote {summary['samples']} samples at {h}x{w} in {summary['shards']} shards "
+              f"({summary['bytes'] / 1e6:.1f} MB) to {summary['out']}")
     return 0

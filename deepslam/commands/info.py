@@ -12,7 +12,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("sequence", help="sequence folder: KITTI sequences/NN, EuRoC (holding mav0/), or ours")
     p.add_argument("--check", action="store_true", help="decode every file of every frame and check it: image sizes against the camera, "
                    "depth/flow shapes and finite values, mask sizes, increasing timestamps")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--json", action="store_true", help="print one JSON object (no progress bar)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar (--check)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -22,7 +23,7 @@ def run(args: argparse.Namespace) -> int:
     seq = open_sequence(args.sequence)
     if args.check:
         seq.check_timestamps()
-        for i in progress(range(len(seq)), desc="checking", unit="frame", disable=True if args.json else None):
+        for i in progress(range(len(seq)), desc="checking", unit="frame", disable=True if (args.json or args.quiet) else None):
             seq.check(i)
     info = {
         "name": seq.name, "kind": seq.kind, "frames": len(seq), "camera": seq.camera.to_dict(),

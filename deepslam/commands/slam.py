@@ -36,8 +36,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="NN_loops model file or shipped name (default: the shipped loops model)")
     p.add_argument("--params", default=None, metavar="JSON", help="C_s, C_r, T_loop from `deepslam tune-slam`")
     p.add_argument("--out", required=True, metavar="FILE", help="trajectory to write")
-    p.add_argument("--format", choices=("kitti", "tum", "euroc"), default="kitti",
-                   help="trajectory format (default: kitti)")
+    p.add_argument("--format", choices=("kitti", "tum", "euroc"), default=None,
+                   help="trajectory format of --out and <stem>_vo (default: the sequence's own: kitti for KITTI "
+                        "sequences, tum (timestamped) otherwise, as deepslam vo)")
     p.add_argument("--plot", default=None, metavar="PNG", help="top-down plot of VO, SLAM and ground truth")
     p.add_argument("--flow", default="dis", help="optical flow estimator for the models: dis (default), learned, learned-dis, gt or a "
                    "plug-in MODULE:FACTORY (as deepslam vo)")
@@ -56,7 +57,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="robust kernel on loop edges (default: cauchy)")
     p.add_argument("--align", choices=("none", "se3", "sim3"), default="se3",
                    help="alignment before ATE/RPE (default: se3)")
-    p.add_argument("--json", action="store_true", help="print the record as one JSON object")
+    p.add_argument("--json", action="store_true", help="print the record as one JSON object (no progress bar)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     # hidden: ground-truth odometry with noise, for tests and benchmarks
     p.add_argument("--odometry", default="model", metavar="MODULE:FACTORY|NAME",
                    help="consecutive-frame odometry: model (the network, default) or a plug-in: a factory returning "
@@ -125,7 +127,7 @@ def _run(args: argparse.Namespace) -> int:
     from deepslam.core.errors import InputError
     from deepslam.core.outputs import write_side_files
     from deepslam.core.readers import open_sequence
-    from deepslam.core.trajio import write_trajectory
+    from deepslam.core.trajio import default_format, write_trajectory
     from deepslam.slam import plugins
     from deepslam.slam.pipeline import PipelineConfig, SlamParams, run_slam
     from deepslam.slam.posegraph import PoseGraphConfig
@@ -137,8 +139,9 @@ def _run(args: argparse.Namespace) -> int:
     if out.is_dir():
         raise InputError(out, "--out is a folder, expected a file name")
     seq = open_sequence(args.sequence)
-    if args.format != "kitti" and seq.timestamps_s is None:
-        raise InputError(args.sequence, f"the {args.format} format needs timestamps and the sequence has none")
+    fmt = args.format or default_format(seq.kind, seq.timestamps_s is not None)
+    if fmt != "kitti" and seq.timestamps_s is None:
+        raise InputError(args.sequence, f"the {fmt} format needs timestamps and the sequence has none")
     params = SlamParams.load(args.params) if args.params else SlamParams()
     vocab = Vocabulary.load(args.vocabulary) if args.vocabulary else None
     odo_cons, odo_loops = plugins.odometry_from_args(args, seq)
@@ -146,14 +149,14 @@ def _run(args: argparse.Namespace) -> int:
         odo_loops = None
     config = PipelineConfig(graph=PoseGraphConfig(robust=args.robust), keyframe_stride=args.keyframe_stride,
                             loops=not args.no_loops, seed=args.seed)
-    res = run_slam(seq, odo_cons, odo_loops, params, config, vocabulary=vocab, show_progress=not args.json)
+    res = run_slam(seq, odo_cons, odo_loops, params, config, vocabulary=vocab, show_progress=not (args.json or args.quiet))
 
     side = side_files(out)
     vo_path, record_path = side["vo"], side["record"]
-    write_trajectory(out, res.slam, args.format)
+    write_trajectory(out, res.slam, fmt)
     record = {
         "sequence": str(args.sequence), "frames": len(seq), "trajectory": str(out), "trajectory_vo": str(vo_path),
-        "format": args.format, "odometry_cons": odo_cons.name, "odometry_loops": getattr(odo_loops, "name", None),
+        "format": fmt, "odometry_cons": odo_cons.name, "odometry_loops": getattr(odo_loops, "name", None),
         "params": res.params.to_dict(),
         "config": {**config.to_dict(), "reloc": dataclasses.asdict(res.reloc) if res.reloc else None},
         "loops": res.loops.pairs.tolist(), "n_loops": len(res.loops),
@@ -193,7 +196,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.save_vocabulary:
         _save_vocab(args, res, seq, vocab)
         record["vocabulary"] = str(args.save_vocabulary)
-    write_side_files(record_path, _clean(record), COMMAND, [(vo_path, lambda p: write_trajectory(p, res.vo, args.format))])
+    write_side_files(record_path, _clean(record), COMMAND, [(vo_path, lambda p: write_trajectory(p, res.vo, fmt))])
     if args.json:
         sys.stdout.write(json.dumps(_clean(record), sort_keys=True) + "\n")
     else:

@@ -61,7 +61,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--robust", choices=("none", "huber", "cauchy"), default="cauchy", help="robust kernel on loops")
     p.add_argument("--vocabulary", default=None, metavar="NPZ", help="BoW vocabulary (default: train per sequence)")
     p.add_argument("--json", action="store_true", help="print one JSON object: c_s, c_r, t_loop, score, best_score, "
-                   "evaluations, method, vo_ate_m (per sequence), out")
+                   "evaluations, method, vo_ate_m (per sequence), out (no progress bar)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--odometry", default="model", metavar="MODULE:FACTORY|NAME",
                    help="consecutive-frame odometry: model (default) or a plug-in (see deepslam slam --help)")
     p.add_argument("--device", default="auto", help="where the network runs: auto (CUDA when torch sees one, else "
@@ -107,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         odo_cons, odo_loops = odometry_from_args(args, seq)
         prep = prepare(seq, odo_cons, odo_loops, config, vocab)
         problems.append(problem_from_prepared(prep, graph, name=str(path)))
-    res = tune(problems, space, args.method, args.score, show_progress=not args.json)
+    res = tune(problems, space, args.method, args.score, show_progress=not (args.json or args.quiet))
     extra = {"tuned_on": [str(s) for s in args.sequence], "vo_ate_m": {p.name: p.vo_ate_m for p in problems},
              "robust": args.robust, "keyframe_stride": args.keyframe_stride, **res.to_dict()}
     res.best.save(args.out, extra)

@@ -11,23 +11,39 @@ HELP = ("compare flow synthesized from depth + ground-truth motion with a render
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sequence", required=True, metavar="DIR", help="rendered sequence (ours format with depth/, flow/, mask/)")
-    p.add_argument("--frames", default=None, metavar="A:B", help="compare frames A..B-1 (flow t -> t+1); default all")
-    p.add_argument("--json", action="store_true", help="print the full report as one JSON object")
+    p.add_argument("--start", type=int, default=None, metavar="A",
+                   help="first frame compared (flow t -> t+1; default 0)")
+    p.add_argument("--end", type=int, default=None, metavar="B",
+                   help="compare frames before B (default: all that have flow, i.e. up to the last frame)")
+    # the older spelling of --start A --end B (a frame range; --frames is a count in render, dataset, stress)
+    p.add_argument("--frames", default=None, metavar="A:B", help=argparse.SUPPRESS)
+    p.add_argument("--json", action="store_true", help="print the full report as one JSON object (no progress bar)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
-def _frames(text: str | None, n: int):
+def _frames(args: argparse.Namespace, n: int) -> range | None:
+    """The frames t compared (flow t -> t+1) of an n-frame sequence: [--start, --end), or the older --frames A:B;
+    None for all."""
     from deepslam.core.errors import InputError
 
-    if text is None:
+    if args.frames is not None:
+        if args.start is not None or args.end is not None:
+            raise InputError(None, "give --start/--end or --frames A:B (the older spelling), not both")
+        try:
+            a, _, b = args.frames.partition(":")
+            start = int(a) if a else 0
+            stop = int(b) if b else n - 1
+        except ValueError:
+            raise InputError(None, f"--frames must be A:B, got {args.frames!r}") from None
+        what = f"--frames {args.frames}"
+    elif args.start is None and args.end is None:
         return None
-    try:
-        a, _, b = text.partition(":")
-        start = int(a) if a else 0
-        stop = int(b) if b else n - 1
-    except ValueError:
-        raise InputError(None, f"--frames must be A:B, got {text!r}") from None
+    else:
+        start = 0 if args.start is None else args.start
+        stop = n - 1 if args.end is None else args.end
+        what = f"--start {start} --end {stop}"
     if not 0 <= start < stop <= n - 1:
-        raise InputError(None, f"--frames {text} outside 0:{n - 1} (the last frame has no flow)")
+        raise InputError(None, f"{what} outside 0..{n - 1} (the last frame has no flow)")
     return range(start, stop)
 
 
@@ -36,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     from deepslam.gen.validate import validate_sequence
 
     seq = open_sequence(args.sequence)
-    report = validate_sequence(seq, _frames(args.frames, len(seq)))
+    report = validate_sequence(seq, _frames(args, len(seq)), progress=False if (args.quiet or args.json) else None)
     if args.json:
         print(json.dumps(report))
     else:

@@ -31,7 +31,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "where such a model is shipped)")
     p.add_argument("--out", required=True, help="trajectory file to write")
     p.add_argument("--format", choices=("kitti", "tum"), default=None,
-                   help="trajectory format (default: kitti for KITTI sequences, tum otherwise)")
+                   help="trajectory format of --out (default: the sequence's own: kitti for KITTI sequences, tum "
+                        "(timestamped) otherwise)")
     p.add_argument("--flow", default="dis", help="flow estimator: dis (OpenCV DIS, default), learned (the network "
                    "`deepslam train-flow` trains on renders), learned-dis (that network's flow refined by DIS: the most "
                    "consistent on real KITTI, 2.5x DIS's time), gt (the sequence's ground-truth flow, our format), or a "
@@ -134,7 +135,7 @@ def _run(args: argparse.Namespace) -> int:
     frames = np.arange(args.start, end, args.stride)
     if len(frames) < 2:
         raise InputError(args.sequence, f"needs at least two frames at stride {args.stride} in [{args.start}, {end})")
-    fmt = args.format or ("kitti" if seq.kind == "kitti" else "tum")
+    fmt = args.format or trajio.default_format(seq.kind, seq.timestamps_s is not None)
     pairs = np.stack([frames[:-1], frames[1:]], axis=1)
     plugin = plugins.from_options(args.odometry, args.odometry_command, args.command_timeout)
     if plugin is not None:

@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from deepslam.core.trajio import read_trajectory
+from deepslam.core.trajio import read_trajectory, read_trajectory_and_format
 from deepslam.cli import main
 from deepslam.slam.synthetic import write_loop_sequence
 
@@ -28,8 +28,10 @@ def test_slam_cli_writes_trajectories_record_and_plot(seq_dir, tmp_path, capsys)
     assert rc == 0
     text = capsys.readouterr().out
     assert "ATE rmse" in text and "loops" in text
-    slam = read_trajectory(out, "kitti")
-    vo = read_trajectory(tmp_path / "run" / "traj_vo.txt", "kitti")
+    # our format has frame times: TUM rows by default (KITTI rows only for KITTI sequences)
+    slam, slam_fmt = read_trajectory_and_format(out)
+    vo, vo_fmt = read_trajectory_and_format(tmp_path / "run" / "traj_vo.txt")
+    assert slam_fmt == vo_fmt == "tum" and slam.timestamps_s is not None
     assert len(slam) == len(vo) == 60
     rec = json.loads((tmp_path / "run" / "traj.json").read_text())
     assert rec["n_loops"] > 10
@@ -45,6 +47,10 @@ def test_slam_cli_writes_trajectories_record_and_plot(seq_dir, tmp_path, capsys)
     rec2 = json.loads(capsys.readouterr().out)
     assert rec2["params"]["t_loop"] == 10 and rec2["params"]["c_r"] == 5.0
     assert read_trajectory(tmp_path / "t.tum").timestamps_s is not None
+    rc = main(["slam", "--sequence", str(seq_dir), "--odometry", "gt-noisy", "--out", str(tmp_path / "t.kitti"),
+               "--format", "kitti", "--vocabulary", str(tmp_path / "voc.npz"), "--quiet"])
+    assert rc == 0 and "ATE rmse" in capsys.readouterr().out
+    assert len(read_trajectory(tmp_path / "t.kitti", "kitti")) == 60
 
 
 def test_slam_cli_bad_input_is_one_line_exit_2(seq_dir, tmp_path, capsys):
