@@ -27,6 +27,10 @@ import numpy as np
 from deepslam.core.errors import InputError
 
 SCENE_NAMES = ("street", "room")
+STREET_STYLES = ("kitti", "town")
+"""Looks of the street: ``kitti`` (:mod:`scenes.street_kitti`: narrow residential streets and a long
+avenue, grainy asphalt, cars parked along both kerbs, stop-and-go driving up to 30 m/s, the camera
+pitched 1 degree down) and ``town`` (:mod:`scenes.street`: the two-block town of uniform roads)."""
 DEFAULT_PX_PER_M = {"street": 20.0, "room": 100.0}
 
 
@@ -44,6 +48,9 @@ class SceneConfig:
     """Amplitude of the waving flags in metres; 0 leaves the flags static (part of the static scene)."""
     texture_px_per_m: float | None = None
     """Texel density of the procedural textures, texels per metre (None: street 20, room 100)."""
+    street_style: str | None = None
+    """Street only: the street's look, one of :data:`STREET_STYLES`; None: ``town`` when one of the
+    town's options below (varied or narrow layout, grainy road) is set, else ``kitti``."""
     varied_layout: bool = False
     """Street only: a narrow, crowded variant of the town from the seed (narrower pavements, so
     facades closer; more parked cars, trees and poles near the kerb), like KITTI's residential
@@ -63,6 +70,11 @@ class SceneConfig:
     ambient share, brightness, colour temperature) instead of the scene's fixed one; the geometry and
     everything else stay as without it."""
 
+    def __post_init__(self):
+        if self.street_style is None:
+            town = self.varied_layout or self.narrow_layout or self.grainy_road
+            object.__setattr__(self, "street_style", "town" if town else "kitti")
+
     def validate(self) -> "SceneConfig":
         if self.name not in SCENE_NAMES:
             raise InputError(None, f"unknown scene {self.name!r} (choose from {', '.join(SCENE_NAMES)})")
@@ -76,6 +88,10 @@ class SceneConfig:
                                              ("grainy road", self.grainy_road)) if on]
         if street_only and self.name != "street":
             raise InputError(None, f"{street_only[0]} is a street option; scene {self.name!r} has no road")
+        if self.street_style not in STREET_STYLES:
+            raise InputError(None, f"unknown street style {self.street_style!r} (choose from {', '.join(STREET_STYLES)})")
+        if street_only and self.street_style != "town":
+            raise InputError(None, f"{street_only[0]} is an option of the town street: add --street-style town")
         if self.varied_layout and self.narrow_layout:
             raise InputError(None, "choose one street layout: varied or narrow, not both")
         if not isinstance(self.seed, int) or self.seed < 0:
@@ -97,7 +113,12 @@ def build_scene(config: SceneConfig):
         from deepslam.scenes.lighting import Lighting
 
         lighting = Lighting.random(config.seed)
-    if config.name == "street":
+    if config.name == "street" and config.street_style == "kitti":
+        from deepslam.scenes.street_kitti import build_kitti_street
+
+        scene = build_kitti_street(config.seed, config.px_per_m, config.moving_objects, float(config.deform_amplitude_m),
+                                   rng, lighting)
+    elif config.name == "street":
         from deepslam.scenes.street import StreetLayout, build_street
 
         layout = (StreetLayout.varied(config.seed) if config.varied_layout else

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 from scipy.interpolate import CubicSpline
+from scipy.ndimage import gaussian_filter1d
 
 from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
@@ -100,6 +101,105 @@ class PathProgress:
         t = np.atleast_1d(np.asarray(t, np.float64))
         ramp = smoothstep5(t / self.ramp_s) if self.ramp_s > 0 else np.ones_like(t)
         return ramp * self.speed(np.mod(self.c(t), self.path.length))
+
+
+class StopGoProgress:
+    """Stop-and-go progress ``c(t)`` along a :class:`PeriodicPath` (chord parameter, metres).
+
+    One lap of the path starts standing at ``stops_c[0]`` and ends standing there again; on the way the
+    vehicle stops for ``dwell_s[k]`` at each other ``stops_c[k]``. Between stops it drives as fast as
+    ``limit_mps(c)`` (m/s, per path position: speed limits of the stretches), the bends
+    (``sqrt(lat_accel / curvature)``) and its acceleration ``accel_mps2`` / braking ``decel_mps2``
+    allow. The speed over time is then Gaussian-smoothed over ``smooth_s`` seconds (circularly over
+    the lap, which keeps the lap's length), so acceleration is continuous (C2 motion), and ``c(t)``
+    is a cubic spline of its integral. Laps repeat: ``c(t + period_s) = c(t) + path.length``. Defined
+    for any t >= 0; deterministic (no randomness inside).
+    """
+
+    def __init__(self, path: PeriodicPath, limit_mps, stops_c, dwell_s, accel_mps2: float = 3.0,
+                 decel_mps2: float = 4.0, lat_accel_mps2: float = 3.0, smooth_s: float = 0.6, step_m: float = 0.25,
+                 dt_s: float = 0.02):
+        self.path = path
+        self.ramp_s = 0.0
+        L = path.length
+        c_start = float(np.mod(stops_c[0], L))
+        n = max(64, int(np.ceil(L / step_m)))
+        c = c_start + np.arange(n + 1) * (L / n)                      # one lap from the first stop
+        ds = np.linalg.norm(path.derivative(c), axis=-1) * (L / n)    # metres per step
+        kappa = np.abs(path.curvature(c))
+        v = np.minimum(np.asarray(limit_mps(np.mod(c, L)), np.float64), np.sqrt(lat_accel_mps2 / np.maximum(kappa, 1e-9)))
+        stop_idx = sorted({0, n} | {int(round(np.mod(s - c_start, L) / (L / n))) for s in stops_c[1:]})
+        v[stop_idx] = 0.0
+        for i in range(1, n + 1):                                     # accelerate ...
+            v[i] = min(v[i], np.sqrt(v[i - 1] ** 2 + 2 * accel_mps2 * ds[i - 1]))
+        for i in range(n - 1, -1, -1):                                # ... and brake in time
+            v[i] = min(v[i], np.sqrt(v[i + 1] ** 2 + 2 * decel_mps2 * ds[i]))
+        # time at each step (constant acceleration between samples), the dwell at each stop
+        dt = 2.0 * ds[:-1] / np.maximum(v[:-1] + v[1:], 1e-6)
+        dwell = dict(zip([int(round(np.mod(s - c_start, L) / (L / n))) for s in stops_c[1:]], dwell_s[1:]))
+        t_knots, c_knots, t = [0.0], [c[0]], 0.0
+        for i in range(n):
+            t += dt[i]
+            t_knots.append(t)
+            c_knots.append(c[i + 1])
+            if i + 1 in dwell:
+                t += float(dwell[i + 1])
+                t_knots.append(t)
+                c_knots.append(c[i + 1])
+        t += float(dwell_s[0])
+        t_knots.append(t)
+        c_knots.append(c[-1])
+        period = t
+        m = int(np.ceil(period / dt_s))
+        grid = np.arange(m + 1) * (period / m)
+        c_grid = np.interp(grid, t_knots, c_knots)
+        rate = np.diff(c_grid)                                        # chord metres per time step
+        rate = gaussian_filter1d(rate, smooth_s / (period / m), mode="wrap")
+        c_grid = c_start + np.concatenate([[0.0], np.cumsum(rate)])
+        c_grid[-1] = c_start + L
+        self.period_s = float(period)
+        self.limit_mps = limit_mps
+        # periodic part c(t) - L t / T as a periodic spline: c is C2 across laps
+        resid = c_grid - c_start - L * grid / period
+        resid[-1] = resid[0]
+        self._resid = CubicSpline(grid, resid, bc_type="periodic")
+        self._c_start = c_start
+
+    def c(self, t) -> np.ndarray:
+        """Path parameter (metres, growing without bound: take it modulo ``path.length``) at times t."""
+        t = np.atleast_1d(np.asarray(t, np.float64))
+        return self._c_start + self.path.length * t / self.period_s + self._resid(np.mod(t, self.period_s))
+
+    def speed_at(self, t) -> np.ndarray:
+        """True speed (m/s) at times t."""
+        t = np.atleast_1d(np.asarray(t, np.float64))
+        dc = self.path.length / self.period_s + self._resid(np.mod(t, self.period_s), 1)
+        return dc * np.linalg.norm(self.path.derivative(self.c(t)), axis=-1)
+
+
+class LeadProgress:
+    """A vehicle driving ahead of another in its lane: ``c(t) = leader.c(t + headway_s) + gap_m``
+    on the leader's path, so it keeps a time gap while moving, stands ``gap_m`` ahead (centre to
+    centre) when both stand, and stops and starts with the leader (whose stops it reaches first).
+
+    Until :meth:`following` binds it to the camera's progress (the simulator does, once the camera's
+    motion exists), ``fallback`` (a progress on the same path) leads it."""
+
+    def __init__(self, fallback, headway_s: float, gap_m: float, leader=None):
+        self.fallback = fallback
+        self.leader = leader
+        self.path = fallback.path
+        self.headway_s = float(headway_s)
+        self.gap_m = float(gap_m)
+        self.ramp_s = 0.0
+
+    def following(self, leader) -> "LeadProgress":
+        """The same car ahead of ``leader`` (a progress on the same path: ``.path``, ``.c(t)``)."""
+        return LeadProgress(self.fallback, self.headway_s, self.gap_m, leader)
+
+    def c(self, t) -> np.ndarray:
+        t = np.atleast_1d(np.asarray(t, np.float64))
+        return (self.leader or self.fallback).c(t + self.headway_s) + self.gap_m
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -317,8 +417,6 @@ def speed_profile(path: PeriodicPath, cruise_mps: float, lat_accel_mps2: float, 
     """A periodic speed profile v(c) (m/s) along ``path``: at most ``cruise_mps``, at most
     ``sqrt(lat_accel / curvature)`` in bends, changing by at most ``long_accel`` (m/s^2) between,
     then Gaussian-smoothed over ``smooth_m`` metres so that acceleration is continuous."""
-    from scipy.ndimage import gaussian_filter1d
-
     L = path.length
     n = max(64, int(np.ceil(L / 0.5)))
     c = np.linspace(0.0, L, n, endpoint=False)

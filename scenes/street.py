@@ -122,7 +122,7 @@ def build_street(seed: int, px_per_m: float, moving_objects: int, deform_amplitu
 
     # flags on poles over the sidewalk on the ego's right, facing the traffic
     for k, ((px, py), away) in enumerate(flag_sites):
-        asm.box((px, py, KERB_M + 2.0), (0.05, 0.05, 2.0), _all_sides(tx.metal((150, 150, 150)), top=True))
+        asm.box((px, py, KERB_M + 2.0), (0.05, 0.05, 2.0), all_sides(tx.metal((150, 150, 150)), top=True))
         x_b = np.array([away[0], away[1], 0.0])
         z_b = np.array([0.0, 0.0, 1.0])
         y_b = np.cross(z_b, x_b)
@@ -148,7 +148,7 @@ def build_street(seed: int, px_per_m: float, moving_objects: int, deform_amplitu
         c0 = float((k // 2) * path.length / max(1, (moving_objects + 1) // 2) + rng.uniform(0, 20))
         motion = PathFollower(PathProgress(path, prof, c0), z_m=0.0)
         b = asm.dynamic_builder(f"car{k}", RIGID, motion)
-        _car(asm, b, (0.0, 0.0), 0.0, rng.uniform(20, 235, 3), z0=0.0)
+        car(asm, b, (0.0, 0.0), 0.0, rng.uniform(20, 235, 3), z0=0.0)
 
     atlas, bodies = asm.finish()
     verts = bodies[0].mesh.vertices  # the static body (world frame)
@@ -165,7 +165,7 @@ def build_street(seed: int, px_per_m: float, moving_objects: int, deform_amplitu
 # ----------------------------------------------------------------------------------------------
 
 
-def _all_sides(painter, top: bool = False, bottom: bool = False) -> dict:
+def all_sides(painter, top: bool = False, bottom: bool = False) -> dict:
     faces = {"+x": painter, "-x": painter, "+y": painter, "-y": painter}
     if top:
         faces["+z"] = painter
@@ -247,7 +247,7 @@ def _roads(asm: Assembler, bx: float, by: float, r: float = ROAD_HALF_M, grainy:
         asm.box((x, by / 2, -0.1), (r, seg / 2, 0.1), {"+z": road_painter(seg, 2 * r, True, [], grainy)}, densities={"+z": 1.25})
 
 
-def _slab(asm: Assembler, x0, x1, y0, y1, painter, kerb_faces=(), density=1.0) -> None:
+def slab(asm: Assembler, x0, x1, y0, y1, painter, kerb_faces=(), density=1.0) -> None:
     """A raised area from z = 0 to the kerb height with a paved/ground top and kerb faces."""
     faces = {"+z": painter}
     kerb = tx.flat((150, 148, 140), 0.25)
@@ -263,25 +263,25 @@ def _sidewalks_and_ground(asm: Assembler, bx: float, by: float, layout: StreetLa
     ground = tx.grass
     for x0, x1 in ((r, bx - r), (bx + r, 2 * bx - r)):   # block interiors
         y0, y1 = r, by - r
-        _slab(asm, x0, x1, y0, y0 + s, pave, ("-y", "-x", "+x"), 1.25)
-        _slab(asm, x0, x1, y1 - s, y1, pave, ("+y", "-x", "+x"), 1.25)
-        _slab(asm, x0, x0 + s, y0 + s, y1 - s, pave, ("-x",), 1.25)
-        _slab(asm, x1 - s, x1, y0 + s, y1 - s, pave, ("+x",), 1.25)
-        _slab(asm, x0 + s, x1 - s, y0 + s, y1 - s, ground, (), 0.1)
+        slab(asm, x0, x1, y0, y0 + s, pave, ("-y", "-x", "+x"), 1.25)
+        slab(asm, x0, x1, y1 - s, y1, pave, ("+y", "-x", "+x"), 1.25)
+        slab(asm, x0, x0 + s, y0 + s, y1 - s, pave, ("-x",), 1.25)
+        slab(asm, x1 - s, x1, y0 + s, y1 - s, pave, ("+x",), 1.25)
+        slab(asm, x0 + s, x1 - s, y0 + s, y1 - s, ground, (), 0.1)
     # outside the ring road
     X0, X1, Y0, Y1 = -r, 2 * bx + r, -r, by + r
-    _slab(asm, X0 - s, X1 + s, Y0 - s, Y0, pave, ("+y",), 1.25)
-    _slab(asm, X0 - s, X1 + s, Y1, Y1 + s, pave, ("-y",), 1.25)
-    _slab(asm, X0 - s, X0, Y0, Y1, pave, ("+x",), 1.25)
-    _slab(asm, X1, X1 + s, Y0, Y1, pave, ("-x",), 1.25)
+    slab(asm, X0 - s, X1 + s, Y0 - s, Y0, pave, ("+y",), 1.25)
+    slab(asm, X0 - s, X1 + s, Y1, Y1 + s, pave, ("-y",), 1.25)
+    slab(asm, X0 - s, X0, Y0, Y1, pave, ("+x",), 1.25)
+    slab(asm, X1, X1 + s, Y0, Y1, pave, ("-x",), 1.25)
     m = 40.0
-    _slab(asm, X0 - m, X1 + m, Y0 - m, Y0 - s, ground, (), 0.05)
-    _slab(asm, X0 - m, X1 + m, Y1 + s, Y1 + m, ground, (), 0.05)
-    _slab(asm, X0 - m, X0 - s, Y0 - s, Y1 + s, ground, (), 0.05)
-    _slab(asm, X1 + s, X1 + m, Y0 - s, Y1 + s, ground, (), 0.05)
+    slab(asm, X0 - m, X1 + m, Y0 - m, Y0 - s, ground, (), 0.05)
+    slab(asm, X0 - m, X1 + m, Y1 + s, Y1 + m, ground, (), 0.05)
+    slab(asm, X0 - m, X0 - s, Y0 - s, Y1 + s, ground, (), 0.05)
+    slab(asm, X1 + s, X1 + m, Y0 - s, Y1 + s, ground, (), 0.05)
 
 
-def _building(asm: Assembler, x0, x1, y0, y1, front: str, rng) -> None:
+def building(asm: Assembler, x0, x1, y0, y1, front: str, rng) -> None:
     """An axis-aligned building on the footprint [x0,x1]x[y0,y1], its main facade on face ``front``."""
     h = float(rng.uniform(7.0, 24.0))
     style = tx.facade(rng.spawn(1)[0])
@@ -295,7 +295,7 @@ def _building(asm: Assembler, x0, x1, y0, y1, front: str, rng) -> None:
     asm.box(((x0 + x1) / 2, (y0 + y1) / 2, KERB_M + h / 2), ((x1 - x0) / 2, (y1 - y0) / 2, h / 2), faces, densities=dens)
 
 
-def _row(asm: Assembler, a0: float, a1: float, frontage: float, depth: float, along_x: bool, outward: float,
+def building_row(asm: Assembler, a0: float, a1: float, frontage: float, depth: float, along_x: bool, outward: float,
          front: str, rng) -> None:
     """Buildings along a frontage line from a0 to a1 (along x or y); they extend ``depth`` metres
     from the frontage in direction ``outward`` (+1/-1, away from the road)."""
@@ -306,9 +306,9 @@ def _row(asm: Assembler, a0: float, a1: float, frontage: float, depth: float, al
             w = a1 - a
         b0, b1 = sorted((frontage, frontage + outward * depth * rng.uniform(0.8, 1.0)))
         if along_x:
-            _building(asm, a, a + w, b0, b1, front, rng)
+            building(asm, a, a + w, b0, b1, front, rng)
         else:
-            _building(asm, b0, b1, a, a + w, front, rng)
+            building(asm, b0, b1, a, a + w, front, rng)
         a += w
         if rng.random() < 0.3 and a1 - a > 12.0:
             a += float(rng.uniform(2.0, 5.0))   # an alley
@@ -319,19 +319,19 @@ def _buildings(asm: Assembler, bx: float, by: float, rng, layout: StreetLayout) 
     for x0, x1 in ((f, bx - f), (bx + f, 2 * bx - f)):   # block interiors
         y0, y1 = f, by - f
         d_bot, d_top, d_side = (float(rng.uniform(8.0, 12.0)) for _ in range(3))
-        _row(asm, x0, x1, y0, d_bot, True, +1, "-y", rng)
-        _row(asm, x0, x1, y1, d_top, True, -1, "+y", rng)
-        _row(asm, y0 + d_bot, y1 - d_top, x0, d_side, False, +1, "-x", rng)
-        _row(asm, y0 + d_bot, y1 - d_top, x1, d_side, False, -1, "+x", rng)
+        building_row(asm, x0, x1, y0, d_bot, True, +1, "-y", rng)
+        building_row(asm, x0, x1, y1, d_top, True, -1, "+y", rng)
+        building_row(asm, y0 + d_bot, y1 - d_top, x0, d_side, False, +1, "-x", rng)
+        building_row(asm, y0 + d_bot, y1 - d_top, x1, d_side, False, -1, "+x", rng)
     X0, X1, Y0, Y1 = -f, 2 * bx + f, -f, by + f
     dl, dr = float(rng.uniform(10.0, 14.0)), float(rng.uniform(10.0, 14.0))
-    _row(asm, X0 - dl, X1 + dr, Y0, rng.uniform(10.0, 14.0), True, -1, "+y", rng)
-    _row(asm, X0 - dl, X1 + dr, Y1, rng.uniform(10.0, 14.0), True, +1, "-y", rng)
-    _row(asm, Y0, Y1, X0, dl, False, -1, "+x", rng)
-    _row(asm, Y0, Y1, X1, dr, False, +1, "-x", rng)
+    building_row(asm, X0 - dl, X1 + dr, Y0, rng.uniform(10.0, 14.0), True, -1, "+y", rng)
+    building_row(asm, X0 - dl, X1 + dr, Y1, rng.uniform(10.0, 14.0), True, +1, "-y", rng)
+    building_row(asm, Y0, Y1, X0, dl, False, -1, "+x", rng)
+    building_row(asm, Y0, Y1, X1, dr, False, +1, "-x", rng)
 
 
-def _car(asm: Assembler, builder: MeshBuilder | None, xy, yaw: float, colour, z0: float) -> None:
+def car(asm: Assembler, builder: MeshBuilder | None, xy, yaw: float, colour, z0: float) -> None:
     """A car made of boxes, centred at ``xy`` on the ground at height z0, heading ``yaw`` (x forward)."""
     cs, sn = np.cos(yaw), np.sin(yaw)
 
@@ -340,9 +340,9 @@ def _car(asm: Assembler, builder: MeshBuilder | None, xy, yaw: float, colour, z0
 
     body = tx.car_body(colour)
     paint_top = tx.flat(colour, 0.15)
-    asm.box(at(0.0, 0.0, 0.65), (2.1, 0.9, 0.4), {**_all_sides(body), "+z": paint_top}, yaw=yaw, builder=builder,
+    asm.box(at(0.0, 0.0, 0.65), (2.1, 0.9, 0.4), {**all_sides(body), "+z": paint_top}, yaw=yaw, builder=builder,
             densities={f: 2.0 for f in ("+x", "-x", "+y", "-y", "+z")})
-    asm.box(at(-0.2, 0.0, 1.33), (1.1, 0.78, 0.28), {**_all_sides(tx.car_glass), "+z": paint_top}, yaw=yaw, builder=builder,
+    asm.box(at(-0.2, 0.0, 1.33), (1.1, 0.78, 0.28), {**all_sides(tx.car_glass), "+z": paint_top}, yaw=yaw, builder=builder,
             densities={f: 2.0 for f in ("+x", "-x", "+y", "-y", "+z")})
     dark = tx.flat((35, 35, 38), 0.3)
     for dx in (-1.35, 1.35):
@@ -362,7 +362,15 @@ def _road_segments(bx: float, by: float, r: float = ROAD_HALF_M):
 
 
 def _parked_cars(asm: Assembler, bx: float, by: float, rng, layout: StreetLayout) -> None:
-    for (ax, ay), (bx_, by_) in _road_segments(bx, by, layout.road_half_m):
+    segments = [(a, b, layout.park_offset_m) for a, b in _road_segments(bx, by, layout.road_half_m)]
+    parked_cars(asm, segments, rng, layout.park_probability, layout.park_gap_m)
+
+
+def parked_cars(asm: Assembler, segments, rng, probability: float, gap_m: tuple[float, float]) -> None:
+    """Cars parked along both sides of each road stretch ``(start_xy, end_xy, offset_m)`` (centreline,
+    metres; ``offset_m``: distance of the cars' centres from it), each bay taken with ``probability``,
+    ``gap_m`` the range of the extra gap between cars (plus the 4.4 m car)."""
+    for (ax, ay), (bx_, by_), offset in segments:
         d = np.array([bx_ - ax, by_ - ay])
         length = float(np.linalg.norm(d))
         d /= length
@@ -370,23 +378,30 @@ def _parked_cars(asm: Assembler, bx: float, by: float, rng, layout: StreetLayout
         for side in (-1.0, 1.0):
             s = float(rng.uniform(4.0, 10.0))
             while s < length - 6.0:
-                if rng.random() < layout.park_probability:
-                    p = np.array([ax, ay]) + d * s + normal * side * layout.park_offset_m
+                if rng.random() < probability:
+                    p = np.array([ax, ay]) + d * s + normal * side * offset
                     yaw = float(np.arctan2(d[1], d[0]) + (0 if side < 0 else np.pi))
-                    _car(asm, None, p, yaw + float(rng.normal(0, 0.03)), rng.uniform(20, 235, 3), z0=0.0)
-                s += 4.4 + float(rng.uniform(*layout.park_gap_m))
+                    car(asm, None, p, yaw + float(rng.normal(0, 0.03)), rng.uniform(20, 235, 3), z0=0.0)
+                s += 4.4 + float(rng.uniform(*gap_m))
 
 
 def _street_furniture(asm: Assembler, bx: float, by: float, rng, avoid_xy: np.ndarray,
                       layout: StreetLayout = StreetLayout()) -> None:
-    """Lamp poles (some with signs), trees and bins along every sidewalk, none within 3.5 m of
-    ``avoid_xy`` (N, 2) (the flags)."""
-    r = layout.road_half_m
+    segments = [(a, b, layout.road_half_m) for a, b in _road_segments(bx, by, layout.road_half_m)]
+    street_furniture(asm, segments, rng, avoid_xy, layout.pole_gap_m, layout.tree_offset_m, layout.tree_probability)
+
+
+def street_furniture(asm: Assembler, segments, rng, avoid_xy: np.ndarray, pole_gap_m: tuple[float, float],
+                     tree_offset_m: float, tree_probability: float) -> None:
+    """Lamp poles (some with signs), trees and bins along both sidewalks of each road stretch
+    ``(start_xy, end_xy, road_half_m)`` (centreline, metres), none within 3.5 m of ``avoid_xy`` (N, 2)
+    (the flags); poles ``pole_gap_m`` apart, a tree (with ``tree_probability``, ``tree_offset_m`` behind
+    the kerb) or a bin half-way."""
 
     def free(p) -> bool:
         return bool(np.min(np.linalg.norm(avoid_xy - p, axis=1)) > 3.5)
 
-    for (ax, ay), (bx_, by_) in _road_segments(bx, by, r):
+    for (ax, ay), (bx_, by_), r in segments:
         d = np.array([bx_ - ax, by_ - ay])
         length = float(np.linalg.norm(d))
         d /= length
@@ -396,16 +411,16 @@ def _street_furniture(asm: Assembler, bx: float, by: float, rng, avoid_xy: np.nd
             while s < length - 3.0:
                 base = np.array([ax, ay]) + d * s
                 pole = base + normal * side * (r + 0.5)
-                gap = float(rng.uniform(*layout.pole_gap_m))
+                gap = float(rng.uniform(*pole_gap_m))
                 if not free(pole):
                     s += gap
                     continue
-                asm.box((pole[0], pole[1], KERB_M + 3.0), (0.08, 0.08, 3.0), _all_sides(tx.metal(), top=True))
+                asm.box((pole[0], pole[1], KERB_M + 3.0), (0.08, 0.08, 3.0), all_sides(tx.metal(), top=True))
                 arm = base + normal * side * (r - 0.4)
                 yaw_arm = float(np.arctan2(normal[1], normal[0]))
-                asm.box((arm[0], arm[1], KERB_M + 6.0), (0.9, 0.05, 0.05), _all_sides(tx.metal(), top=True, bottom=True), yaw=yaw_arm)
+                asm.box((arm[0], arm[1], KERB_M + 6.0), (0.9, 0.05, 0.05), all_sides(tx.metal(), top=True, bottom=True), yaw=yaw_arm)
                 lamp = base + normal * side * (r - 1.2)
-                asm.box((lamp[0], lamp[1], KERB_M + 5.9), (0.3, 0.15, 0.08), _all_sides(tx.flat((230, 230, 210)), top=True, bottom=True), yaw=yaw_arm)
+                asm.box((lamp[0], lamp[1], KERB_M + 5.9), (0.3, 0.15, 0.08), all_sides(tx.flat((230, 230, 210)), top=True, bottom=True), yaw=yaw_arm)
                 if rng.random() < 0.5:
                     yaw_sign = float(np.arctan2(d[1], d[0]))
                     plate = pole + d * 0.1
@@ -413,17 +428,17 @@ def _street_furniture(asm: Assembler, bx: float, by: float, rng, avoid_xy: np.nd
                             "+y": tx.metal(), "-y": tx.metal(), "+z": tx.metal()}, yaw=yaw_sign, densities={"+x": 3.0, "-x": 3.0})
                 # a tree half-way to the next pole, sometimes a bin
                 t = s + gap / 2
-                tree = np.array([ax, ay]) + d * t + normal * side * (r + layout.tree_offset_m)
+                tree = np.array([ax, ay]) + d * t + normal * side * (r + tree_offset_m)
                 if not free(tree):
                     pass
-                elif t < length - 3.0 and rng.random() < layout.tree_probability:
-                    asm.box((tree[0], tree[1], KERB_M + 1.4), (0.14, 0.14, 1.4), _all_sides(tx.bark), yaw=float(rng.uniform(0, np.pi)))
+                elif t < length - 3.0 and rng.random() < tree_probability:
+                    asm.box((tree[0], tree[1], KERB_M + 1.4), (0.14, 0.14, 1.4), all_sides(tx.bark), yaw=float(rng.uniform(0, np.pi)))
                     for _ in range(int(rng.integers(2, 4))):
                         hc = rng.uniform(0.7, 1.4, 3) * [1, 1, 0.8]
                         off = rng.normal(0, 0.4, 2)
                         asm.box((tree[0] + off[0], tree[1] + off[1], KERB_M + 2.6 + hc[2] + rng.uniform(0, 1.0)), hc,
-                                _all_sides(tx.foliage, top=True, bottom=True), yaw=float(rng.uniform(0, np.pi)))
+                                all_sides(tx.foliage, top=True, bottom=True), yaw=float(rng.uniform(0, np.pi)))
                 elif t < length - 3.0 and rng.random() < 0.6:
                     b = np.array([ax, ay]) + d * t + normal * side * (r + 0.7)
-                    asm.box((b[0], b[1], KERB_M + 0.45), (0.3, 0.3, 0.45), _all_sides(tx.metal(rng.uniform(30, 200, 3)), top=True))
+                    asm.box((b[0], b[1], KERB_M + 0.45), (0.3, 0.3, 0.45), all_sides(tx.metal(rng.uniform(30, 200, 3)), top=True))
                 s += gap

@@ -185,7 +185,9 @@ class SimConfig:
 
     @staticmethod
     def from_dict(d: dict) -> "SimConfig":
-        return SimConfig(SceneConfig(**d["scene"]), TrajectoryConfig(**d["trajectory"]), RenderConfig(**d["render"]))
+        # a record that names no street style describes the town street
+        scene = {"street_style": "town", **d["scene"]}
+        return SimConfig(SceneConfig(**scene), TrajectoryConfig(**d["trajectory"]), RenderConfig(**d["render"]))
 
 
 def camera_for(default: PinholeCamera, width: int | None, height: int | None,

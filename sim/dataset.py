@@ -83,6 +83,10 @@ class DatasetConfig:
     grainy_road_fraction: float = 0.0
     """Fraction of the street sequences with grainy asphalt (``scenes.textures.asphalt_grainy``: the
     road's texture contrast drawn per road stretch) instead of the near-uniform surface."""
+    kitti_street_fraction: float = 0.0
+    """Fraction of the street sequences in the KITTI look (``scene.street_style = "kitti"``: narrow
+    residential streets and a long avenue, stop-and-go driving up to 30 m/s); the layout and road
+    options above apply to the others (the town street)."""
     format: str = "ours"
     """Layout of each sequence: ``ours``, ``kitti``, ``euroc`` or ``tum``."""
     render_backend: str = "mujoco"
@@ -126,6 +130,8 @@ class DatasetConfig:
             raise InputError(None, f"exposure_ms must be [MIN, MAX] with 0 <= MIN <= MAX <= 1000, got {list(ex)}")
         if not (np.isfinite(self.narrow_layout_fraction) and 0 <= self.narrow_layout_fraction <= 1):
             raise InputError(None, f"narrow_layout_fraction must be in [0, 1], got {self.narrow_layout_fraction}")
+        if not (np.isfinite(self.kitti_street_fraction) and 0 <= self.kitti_street_fraction <= 1):
+            raise InputError(None, f"kitti_street_fraction must be in [0, 1], got {self.kitti_street_fraction}")
         if not (np.isfinite(self.grainy_road_fraction) and 0 <= self.grainy_road_fraction <= 1):
             raise InputError(None, f"grainy_road_fraction must be in [0, 1], got {self.grainy_road_fraction}")
         if not (np.isfinite(self.random_lighting_fraction) and 0 <= self.random_lighting_fraction <= 1):
@@ -189,9 +195,12 @@ def plan(cfg: DatasetConfig) -> list[PlannedSequence]:
         readout = readout if exposure == 0 else 0.0  # drawn either way: a fixed number of draws per sequence
         narrow = bool(extra.random() < cfg.narrow_layout_fraction) and scene == "street" and not varied
         grainy = bool(extra.random() < cfg.grainy_road_fraction) and scene == "street"
+        kitti = bool(extra.random() < cfg.kitti_street_fraction) and scene == "street"
+        if kitti:
+            varied = narrow = grainy = False
         sim = SimConfig(SceneConfig(name=scene, seed=scene_seed, moving_objects=movers, deform_amplitude_m=deform,
                                     varied_layout=varied, narrow_layout=narrow, random_lighting=lit,
-                                    grainy_road=grainy),
+                                    grainy_road=grainy, street_style="kitti" if kitti else "town"),
                         TrajectoryConfig(kind="auto", frames=cfg.frames),
                         RenderConfig(backend=cfg.render_backend, width=cfg.width, height=cfg.height, flow=cfg.flow,
                                      exposure_ms=exposure, sensor_noise=cfg.sensor_noise,
@@ -238,6 +247,7 @@ def render_planned(entry: dict, out_root: str, fmt: str) -> dict:
                          "narrow_layout": sc.get("narrow_layout", False),
                          "random_lighting": sc.get("random_lighting", False),
                          "grainy_road": sc.get("grainy_road", False),
+                         "street_style": sc.get("street_style", "town"),
                          "rolling_shutter_ms": entry["sim"]["render"].get("rolling_shutter_ms", 0.0)},
             "frames": entry["sim"]["trajectory"]["frames"], "files": files, "bytes": size, "sha256": sha,
             "seconds": round(time.perf_counter() - t0, 3),

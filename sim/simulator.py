@@ -13,7 +13,7 @@ from deepslam.scenes.spec import Scene
 from deepslam.sim.config import SimConfig, camera_for
 from deepslam.sim.flow import FlowComputer, occlusion_mask
 from deepslam.sim.trajectories import make_motion
-from deepslam.sim.world import WorldState, separate_movers, world_state
+from deepslam.sim.world import WorldState, follow_camera, separate_movers, world_state
 
 
 @dataclasses.dataclass(eq=False)
@@ -134,7 +134,7 @@ class Simulator:
         self.num_frames = int(tcfg.frames)
         self.timestamps_s = np.arange(self.num_frames, dtype=np.float64) / self.rate_hz
         duration = (self.num_frames + 1) / self.rate_hz
-        self.scene = separate_movers(base, motion, duration, np.random.default_rng([tseed, 2]))
+        self.scene = separate_movers(follow_camera(base, motion), motion, duration, np.random.default_rng([tseed, 2]))
         rcfg = config.render
         self.camera = camera_for(self.scene.camera, rcfg.width, rcfg.height, rcfg.focal_px)
         b = self.scene.stereo_baseline_m if rcfg.stereo_baseline_m is None else rcfg.stereo_baseline_m

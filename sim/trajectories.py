@@ -24,7 +24,7 @@ from scipy.spatial.transform import Rotation
 
 from deepslam.core import se3
 from deepslam.scenes.geometry import PeriodicPath
-from deepslam.scenes.spec import PathProgress, Scene, smoothstep5, speed_profile
+from deepslam.scenes.spec import PathProgress, Scene, StopGoProgress, smoothstep5, speed_profile
 
 CAR_MAX_SPEED_MPS = 15.0
 DRONE_MAX_SPEED_MPS = 1.6
@@ -48,23 +48,31 @@ BODY_FROM_CAM_ROT = np.array([[0, 0, 1.0], [-1.0, 0, 0], [0, -1.0, 0]])
 class CarMotion:
     """The street's ego car (see module docstring)."""
 
-    progress: PathProgress
+    progress: PathProgress | StopGoProgress
     height_m: float
     rate_hz: float
     cruise_mps: float
     name: str = "car"
+    pitch_rad: float = 0.0
+    """Downward pitch of the camera about its x axis, radians (0: looking along the road)."""
 
     @staticmethod
     def create(scene: Scene, rng: np.random.Generator, rate_hz: float = 10.0) -> "CarMotion":
         path: PeriodicPath = scene.layout["lane_path"]
         cruise = float(rng.uniform(12.5, 14.5))
+        pitch = float(scene.layout.get("camera_pitch_rad", 0.0))
+        stop_go = scene.layout.get("stop_and_go")
+        if stop_go is not None:
+            return CarMotion(_stop_and_go(path, stop_go, rng), float(scene.layout["camera_height_m"]), rate_hz,
+                             float(stop_go["fast_mps"]), pitch_rad=pitch)
         prof = speed_profile(path, min(cruise, CAR_MAX_SPEED_MPS), lat_accel_mps2=float(rng.uniform(3.0, 3.4)),
                              long_accel_mps2=2.5, smooth_m=5.0)
         # start from standstill in the bend before the route's start (lowest speed there), so the
         # start-up ramp stays gentle; the loop around block A then closes there after about 27 s
         c = np.linspace(path.length - 60.0, path.length, 601)
         c0 = float(c[np.argmin(prof(c))]) - path.length
-        return CarMotion(PathProgress(path, prof, c0=c0, ramp_s=3.0), float(scene.layout["camera_height_m"]), rate_hz, cruise)
+        return CarMotion(PathProgress(path, prof, c0=c0, ramp_s=3.0), float(scene.layout["camera_height_m"]), rate_hz,
+                         cruise, pitch_rad=pitch)
 
     def world_from_cam(self, t) -> np.ndarray:
         c = self.progress.c(t)
@@ -73,7 +81,32 @@ class CarMotion:
         d = path.derivative(c)
         fwd = np.concatenate([d, np.zeros((len(c), 1))], axis=-1)
         pos = np.concatenate([xy, np.full((len(c), 1), self.height_m)], axis=-1)
-        return se3.from_rt(cam_from_forward(fwd), pos)
+        rot = cam_from_forward(fwd)
+        if self.pitch_rad:
+            s, k = np.sin(self.pitch_rad), np.cos(self.pitch_rad)
+            rot = rot @ np.array([[1.0, 0.0, 0.0], [0.0, k, s], [0.0, -s, k]])   # nose down about camera x
+        return se3.from_rt(rot, pos)
+
+
+def _stop_and_go(path: PeriodicPath, spec: dict, rng: np.random.Generator) -> StopGoProgress:
+    """The ego car's stop-and-go drive on the street's route (``scene.layout['stop_and_go']``: stop
+    positions ``stops_c``, fast stretches ``fast_c`` with top speed ``fast_mps``, the range
+    ``cruise_mps`` of the speed elsewhere); the dwell at each stop and the cruise speed from ``rng``."""
+    cruise = float(rng.uniform(*spec["cruise_mps"]))
+    fast = [(float(a), float(b)) for a, b in spec["fast_c"]]
+    top = float(spec["fast_mps"])
+    length = path.length
+
+    def limit(c):
+        c = np.asarray(c, np.float64)
+        v = np.full(c.shape, cruise)
+        for a, b in fast:
+            v[np.mod(c - a, length) <= np.mod(b - a, length)] = top
+        return v
+
+    stops = [float(s) for s in spec["stops_c"]]
+    dwell = [float(rng.uniform(1.0, 3.0)) for _ in stops]
+    return StopGoProgress(path, limit, stops, dwell, accel_mps2=3.5)
 
 
 def _periodic_spline(u: np.ndarray, y: np.ndarray) -> CubicSpline:

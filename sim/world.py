@@ -5,7 +5,7 @@ import dataclasses
 
 import numpy as np
 
-from deepslam.scenes.spec import DEFORM, RIGID, Body, PathFollower, PathProgress, Scene
+from deepslam.scenes.spec import DEFORM, RIGID, Body, LeadProgress, PathFollower, PathProgress, Scene
 
 
 @dataclasses.dataclass(eq=False)
@@ -51,6 +51,22 @@ def view_fraction(body: Body, poses: np.ndarray, cam_from_world: np.ndarray, cam
     return np.where(front, du * dv / float(camera.width * camera.height), 0.0)
 
 
+def follow_camera(scene: Scene, motion) -> Scene:
+    """Bind the scene's cars that drive ahead of the camera (:class:`scenes.spec.LeadProgress`) to the
+    camera's own progress along the same path (``motion.progress``), so each keeps its headway in
+    front of the camera, stopping and starting with it. A motion without such a progress (a drone
+    in a room, keyframes) leaves them on their own path. Returns a new Scene (the input is kept)."""
+    leader = getattr(motion, "progress", None)
+    bodies = list(scene.bodies)
+    changed = False
+    for i, b in enumerate(bodies):
+        prog = getattr(b.motion, "progress", None)
+        if isinstance(prog, LeadProgress) and leader is not None and getattr(leader, "path", None) is prog.path:
+            bodies[i] = dataclasses.replace(b, motion=PathFollower(prog.following(leader), b.motion.z_m))
+            changed = True
+    return dataclasses.replace(scene, bodies=bodies) if changed else scene
+
+
 def separate_movers(scene: Scene, motion, duration_s: float, rng: np.random.Generator, candidates: int = 64) -> Scene:
     """Place the path-following movers (cars) where the camera sees them, clear of it and of each other.
 
@@ -86,8 +102,8 @@ def separate_movers(scene: Scene, motion, duration_s: float, rng: np.random.Gene
     bodies = list(scene.bodies)
     placed: list[np.ndarray] = []
     for i, b in enumerate(bodies):
-        if b.kind != RIGID or not isinstance(b.motion, PathFollower):
-            continue
+        if b.kind != RIGID or not isinstance(b.motion, PathFollower) or isinstance(b.motion.progress, LeadProgress):
+            continue  # flying boxes are apart by construction; cars ahead of the camera keep their headway
         prog = b.motion.progress
         c0 = float(prog.c(0.0)[0])
         length = prog.path.length
@@ -114,4 +130,4 @@ def _shifted(prog: PathProgress, c0: float) -> PathProgress:
     return PathProgress(prog.path, prog.speed, c0=c0, ramp_s=prog.ramp_s)
 
 
-__all__ = ["WorldState", "world_state", "separate_movers", "view_fraction", "Body"]
+__all__ = ["WorldState", "world_state", "follow_camera", "separate_movers", "view_fraction", "Body"]

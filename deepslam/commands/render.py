@@ -42,6 +42,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="kinect: write depth/ as a structured-light sensor reports it (range 0.5-4.5 m, noise "
                         "growing with depth^2, disparity quantisation, missing readings at edges and grazing "
                         "angles); the exact depth goes to depth_exact/ and the other ground truth stays exact")
+    p.add_argument("--street-style", choices=("kitti", "town"), default=None,
+                   help="street: kitti (narrow residential streets and a long avenue, grainy asphalt, cars parked "
+                        "along both kerbs, stop-and-go driving from 0 to about 30 m/s, the camera pitched 1 degree "
+                        "down, cars driving ahead in view) or town (the two-block town of uniform roads; the layout "
+                        "and road options below are its own); default kitti, or town with one of those options")
     p.add_argument("--varied-layout", action="store_true",
                    help="street: a narrow, crowded variant of the town from the seed (closer facades, more parked "
                         "cars and trees by the kerb), like KITTI's residential streets")
@@ -72,6 +77,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="lens distortion of the images (OpenCV radial-tangential), --format euroc only: written to "
                         "sensor.yaml; the reader undistorts back to the render's pinhole camera, where depth, flow and "
                         "masks are")
+    p.add_argument("--preview", default=None, metavar="PNG",
+                   help="also write a contact sheet: up to 6 frames as rows of RGB | depth | flow | mask "
+                        "(outside --out)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -90,6 +98,7 @@ def _distortion(text: str | None):
 
 
 def run(args: argparse.Namespace) -> int:
+    from deepslam.core.preview import check_sheet_path, write_contact_sheet
     from deepslam.scenes import SceneConfig
     from deepslam.sim.config import RenderConfig, SimConfig, TrajectoryConfig
     from deepslam.sim.writers import render_sequence
@@ -105,7 +114,8 @@ def run(args: argparse.Namespace) -> int:
         SceneConfig(name=scene_name, seed=0 if seed is None else seed, moving_objects=args.moving_objects, scene_file=scene_file,
                     deform_amplitude_m=args.deform, texture_px_per_m=args.texture_density,
                     varied_layout=args.varied_layout, narrow_layout=args.narrow_layout,
-                    random_lighting=args.random_lighting, grainy_road=args.grainy_road),
+                    random_lighting=args.random_lighting, grainy_road=args.grainy_road,
+                    street_style=args.street_style),
         TrajectoryConfig(kind=args.trajectory, frames=args.frames, rate_hz=args.rate),
         RenderConfig(backend=args.backend, width=args.width, height=args.height,
                      stereo_baseline_m=args.stereo_baseline, focal_px=args.focal_px, flow=not args.no_flow,
@@ -115,7 +125,11 @@ def run(args: argparse.Namespace) -> int:
                      distortion=_distortion(args.distortion), rolling_shutter_ms=args.rolling_shutter_ms,
                      rolling_shutter_bands=args.rolling_shutter_bands, flow_formats=args.flow_format),
     ).validate()
+    if args.preview:  # checked before rendering: never inside the sequence nor onto the scene file
+        check_sheet_path(args.preview, [("--out", args.out), ("--scene", scene_file)])
     path = render_sequence(cfg, args.out, fmt=args.format, resume=args.resume, progress=not args.quiet,
                            sequence=args.sequence)
     print(path)
+    if args.preview:
+        print(write_contact_sheet(path, args.preview))
     return 0

@@ -166,7 +166,7 @@ def test_varied_street_layout_is_deterministic_narrower_and_leaves_the_default_a
         not np.allclose(a.bodies[0].mesh.vertices, default.bodies[0].mesh.vertices)
     via_config = build_scene(SceneConfig(name="street", seed=5, texture_px_per_m=3.0, varied_layout=True))
     assert np.array_equal(via_config.bodies[0].mesh.vertices, a.bodies[0].mesh.vertices)
-    plain_again = build_scene(SceneConfig(name="street", seed=5, texture_px_per_m=3.0))
+    plain_again = build_scene(SceneConfig(name="street", seed=5, texture_px_per_m=3.0, street_style="town"))
     assert np.array_equal(plain_again.bodies[0].mesh.vertices, default.bodies[0].mesh.vertices)
 
 
@@ -189,7 +189,7 @@ def test_narrow_street_is_narrow_with_cars_parked_on_the_road_along_both_kerbs()
         return float(np.abs(v[m, 1]).min())
 
     narrow = build_scene(SceneConfig(name="street", seed=5, texture_px_per_m=3.0, narrow_layout=True, moving_objects=2))
-    town = build_scene(SceneConfig(name="street", seed=5, texture_px_per_m=3.0, moving_objects=2))
+    town = build_scene(SceneConfig(name="street", seed=5, texture_px_per_m=3.0, moving_objects=2, street_style="town"))
     # the pavement moved in by exactly the road's lost half-width
     assert nearest_kerb_top(town) - nearest_kerb_top(narrow) == pytest.approx(ROAD_HALF_M - lay.road_half_m, abs=1e-6)
     with pytest.raises(InputError, match="one street layout"):
@@ -210,7 +210,7 @@ def test_grainy_road_textures_the_asphalt_and_leaves_the_rest_of_the_street_alon
     assert max(smooth) < 0.025 < 0.04 < min(grainy)
     assert np.array_equal(tx.asphalt_grainy(50, 60, 25.0, np.random.default_rng(1)),
                           tx.asphalt_grainy(50, 60, 25.0, np.random.default_rng(1)))
-    plain = build_scene(SceneConfig(name="street", seed=5, texture_px_per_m=3.0))
+    plain = build_scene(SceneConfig(name="street", seed=5, texture_px_per_m=3.0, street_style="town"))
     rough = build_scene(SceneConfig(name="street", seed=5, texture_px_per_m=3.0, grainy_road=True))
     assert all(np.array_equal(a.mesh.vertices, b.mesh.vertices) and np.array_equal(a.mesh.texcoords, b.mesh.texcoords)
                for a, b in zip(plain.bodies, rough.bodies))

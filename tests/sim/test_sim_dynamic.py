@@ -10,8 +10,9 @@ from deepslam.sim.world import separate_movers, view_fraction
 from deepslam.sim.writers import DYNAMIC_FRACTION_FILE, render_sequence
 
 
-def _cfg(k: int, frames: int = 30, seed: int = 0) -> SimConfig:
-    return SimConfig(SceneConfig(name="street", seed=seed, moving_objects=k), TrajectoryConfig(frames=frames),
+def _cfg(k: int, frames: int = 30, seed: int = 0, street_style: str | None = None) -> SimConfig:
+    return SimConfig(SceneConfig(name="street", seed=seed, moving_objects=k, street_style=street_style),
+                     TrajectoryConfig(frames=frames),
                      RenderConfig(width=160, stereo_baseline_m=0.0))
 
 
@@ -40,7 +41,7 @@ def test_dynamic_fraction_file_is_the_masks_share(tmp_path, fmt):
 
 
 def test_placement_keeps_the_camera_clear_and_prefers_movers_in_view():
-    cfg = _cfg(4, frames=40).validate()
+    cfg = _cfg(4, frames=40, street_style="town").validate()
     base = build_scene(cfg.scene)
     motion = make_motion(base, "car", np.random.default_rng([0, 1]), None)
     duration = 4.1

@@ -11,8 +11,8 @@ from deepslam.sim.trajectories import make_motion
 DT = 0.01
 
 
-def _sample(name, kind, seed, seconds):
-    scene = build_scene(SceneConfig(name=name, seed=seed, texture_px_per_m=2))
+def _sample(name, kind, seed, seconds, street_style=None):
+    scene = build_scene(SceneConfig(name=name, seed=seed, texture_px_per_m=2, street_style=street_style))
     motion = make_motion(scene, kind, np.random.default_rng([seed, 1]))
     t = np.arange(0.0, seconds, DT)
     return motion, motion.world_from_cam(t)
@@ -27,8 +27,8 @@ def _kinematics(poses):
 
 
 @pytest.mark.parametrize("seed", [0, 1])
-def test_car_is_planar_smooth_realistic_and_closes_a_loop_in_300_frames(seed):
-    motion, poses = _sample("street", "car", seed, 40.0)
+def test_town_car_is_planar_smooth_realistic_and_closes_a_loop_in_300_frames(seed):
+    motion, poses = _sample("street", "car", seed, 40.0, street_style="town")
     assert motion.rate_hz == 10.0
     pos, vel, acc, rate = _kinematics(poses)
     np.testing.assert_allclose(pos[:, 2], 1.65, atol=1e-12)            # camera 1.65 m above the road
@@ -44,6 +44,24 @@ def test_car_is_planar_smooth_realistic_and_closes_a_loop_in_300_frames(seed):
     moving = speed > 0.5
     assert np.all(np.einsum("ij,ij->i", vel[moving], fwd[moving]) / speed[moving] > 0.999)
     # back at the start (same place, same heading) within 300 frames at 10 Hz
+    d = np.linalg.norm(pos - pos[0], axis=1)
+    far = np.argmax(d > 50)
+    back = far + np.argmin(d[far:int(29.9 / DT)])
+    assert d[back] < 1.0 and back * DT < 29.9
+    assert np.degrees(se3.rotation_angle(se3.relative(poses[0], poses[back]))) < 5
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_kitti_car_drives_stop_and_go_up_to_30_mps_smoothly_and_closes_a_loop_in_300_frames(seed):
+    motion, poses = _sample("street", "car", seed, 40.0)
+    pos, vel, acc, rate = _kinematics(poses)
+    np.testing.assert_allclose(pos[:, 2], 1.65, atol=1e-12)
+    np.testing.assert_allclose(np.degrees(np.arcsin(-poses[:, 2, 2])), 1.0, atol=1e-9)   # pitched 1 degree down
+    np.testing.assert_allclose(poses[:, 2, 0], 0.0, atol=1e-12)
+    speed = np.linalg.norm(vel, axis=1)
+    assert speed[0] < 1.0 and 27.0 < speed.max() <= 30.5
+    assert rate.max() < 0.8
+    assert np.abs(acc).max() < 5.0 and np.abs(np.diff(acc, axis=0)).max() < 0.3
     d = np.linalg.norm(pos - pos[0], axis=1)
     far = np.argmax(d > 50)
     back = far + np.argmin(d[far:int(29.9 / DT)])
