@@ -4,7 +4,9 @@ For each variant of the KITTI-camera odometry (the shipped default and the alter
 the network's own pose, another flow, another model), ``deepslam vo`` runs end to end (flow between the
 frames, the network, the chained trajectory) on
 
-- simulated streets no model was trained on (towns ``sim_seeds``, rendered at 10 Hz), and
+- simulated streets no model was trained on (the default KITTI-look street, seeds ``sim_seeds``, rendered
+  at 10 Hz for ``sim_frames`` frames: residential streets at up to 10 m/s, stops, then the avenue up to
+  about 30 m/s), and
 - the real KITTI 06 and 07 slices in ../shared/data (06's single frames were in the shipped models'
   training, without poses; 07's were not; both have informed decisions: validation data),
 
@@ -16,7 +18,7 @@ stand-in when its ranking of methods predicts the real ranking. Also the DIS flo
 the simulator's exact flow at each stride (how hard the flow is; real slices have no reference flow).
 
 Writes results.json and results.md into ``out/results/agreement``
-(``python -m bench.results_agreement [--quick]``, about 6 minutes on 2 cores).
+(``python -m bench.results_agreement [--quick]``, about 35 minutes on 2 cores).
 """
 from __future__ import annotations
 
@@ -38,8 +40,8 @@ class ResultsAgreementConfig:
 
     sim_seeds: tuple[int, ...] = (901, 902)
     """Towns of the simulated streets (no model was trained on them)."""
-    sim_frames: int = 120
-    """Frames per simulated street (10 Hz)."""
+    sim_frames: int = 360
+    """Frames per simulated street (10 Hz; 360: the residential block, a stop and the avenue at full speed)."""
     width: int = 620
     """Rendered width, pixels (the KITTI camera at half size)."""
     strides: tuple[int, ...] = (1, 2, 3)
@@ -50,6 +52,7 @@ class ResultsAgreementConfig:
         ("DIS patch stride 4", ("--dis-patch-stride", "4")),
         ("learned flow (--flow learned)", ("--flow", "learned")),
         ("exact-flow model (kitti_cons)", ("--model", "{models}/kitti_cons.safetensors")),
+        ("road scale (--scale road)", ("--scale", "road")),
     )
     """(name, extra ``deepslam vo`` arguments) of each variant; ``{models}`` is the shipped models' folder."""
     real: tuple[str, ...] = ("06", "07")
@@ -127,7 +130,7 @@ def run(cfg: ResultsAgreementConfig, out: Path, data_dir: Path) -> dict:
               "dis_epe_px": epe,
               "seen": {"KITTI 06": "single frames in the shipped KITTI models' training (no poses); validation data",
                        "KITTI 07": "never trained on; has informed decisions: validation data",
-                       "sim streets": "towns no model was trained on"}}
+                       "sim streets": "KITTI-look streets no model was trained on"}}
     write_report(out, report, markdown)
     return report
 

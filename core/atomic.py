@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import math
 import os
 import tempfile
 from pathlib import Path
@@ -64,7 +65,7 @@ def write_npy(path: str | Path, array: np.ndarray) -> None:
 
 def write_png(path: str | Path, image: np.ndarray) -> None:
     """Write a uint8 (HxW or HxWx3 RGB) or uint16 (HxW) image as PNG, atomically."""
-    import cv2
+    import cv2  # deferred: trajectory and JSON writers (eval, every run record) need no OpenCV
 
     if image.ndim == 3:
         image = image[..., ::-1]  # RGB -> BGR for OpenCV
@@ -77,8 +78,6 @@ def write_png(path: str | Path, image: np.ndarray) -> None:
 def json_safe(v: Any) -> Any:
     """A copy of nested dicts/lists with numpy scalars made Python and non-finite floats made None,
     so that ``json.dumps`` writes strict JSON (no NaN/Infinity)."""
-    import math
-
     if isinstance(v, dict):
         return {str(k): json_safe(x) for k, x in v.items()}
     if isinstance(v, (list, tuple)):

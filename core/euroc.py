@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from deepslam.core import se3
@@ -27,7 +28,7 @@ from deepslam.core.errors import InputError
 from deepslam.core.textio import loads_yaml, read_text, short
 from deepslam.core.sequence import Sequence, dataset_file, ground_truth_files
 from deepslam.core.trajectory import Trajectory
-from deepslam.core.trajio import ns_to_s
+from deepslam.core.trajio import ns_to_s, read_trajectory
 
 
 def read_sensor_yaml(path: Path) -> dict:
@@ -133,8 +134,6 @@ def read_euroc(root: str | Path, gt_path: str | Path | None = None, rectify: boo
         gt_path: ground truth (ASL csv or TUM, world_from_body, optionally .xz); searched when None.
         rectify: undistort and stereo-rectify (True) or serve raw images with cam0's K (False).
     """
-    import cv2
-
     root = Path(root)
     if root.name == "mav0":
         root = root.parent
@@ -206,8 +205,6 @@ def read_euroc(root: str | Path, gt_path: str | Path | None = None, rectify: boo
     gt = None
     gt_file = _find_gt(root, gt_path)
     if gt_file is not None:
-        from deepslam.core.trajio import read_trajectory
-
         world_from_body = read_trajectory(gt_file)
         try:
             at_frames = world_from_body.interpolate(times)

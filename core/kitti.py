@@ -19,6 +19,7 @@ from deepslam.core.errors import InputError
 from deepslam.core.textio import read_text
 from deepslam.core.sequence import Sequence, ground_truth_files, read_image
 from deepslam.core.trajectory import Trajectory
+from deepslam.core.trajio import read_trajectory
 
 
 def read_calib(path: Path) -> dict[str, np.ndarray]:
@@ -147,8 +148,6 @@ def read_kitti(seq_dir: str | Path, poses_path: str | Path | None = None) -> Seq
         candidate = seq_dir.parent.parent / "poses" / f"{seq_dir.name}.txt"
         poses_path = candidate if candidate.is_file() else None
     if poses_path is not None:
-        from deepslam.core.trajio import read_trajectory
-
         traj = read_trajectory(Path(poses_path), fmt="kitti")
         if indices[-1] >= len(traj):
             raise InputError(poses_path, f"has {len(traj)} poses but images go up to {indices[-1]:06d}")

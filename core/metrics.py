@@ -287,8 +287,6 @@ def drift(gt, est) -> dict:
     run), ``endpoint_drift_m`` (distance between the last estimated and true positions, metres) and
     ``endpoint_drift_pct`` (that, in percent of the true path length).
     """
-    from deepslam.core import se3
-
     g, e = _pair(gt, est)
     g = se3.inverse(g[0]) @ g
     e = se3.inverse(e[0]) @ e

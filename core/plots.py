@@ -25,6 +25,7 @@ def topdown_axes(positions: Sequence[np.ndarray]) -> tuple[int, int]:
 def new_figure(size: tuple[float, float] = (7.0, 6.0), dpi: int = 110):
     """A matplotlib Figure of ``size`` inches on its own Agg canvas: no pyplot, so no global figure state to close,
     no backend to switch, and safe beside other threads that draw."""
+    # deferred: matplotlib (~0.35 s) is imported only when a figure is drawn, not by every importer of plots
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 

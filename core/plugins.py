@@ -8,6 +8,7 @@ of them in its ``pyproject.toml`` (``[project.entry-points."deepslam.flow"]``).
 from __future__ import annotations
 
 import importlib
+from importlib.metadata import entry_points
 
 from deepslam.core.errors import InputError
 
@@ -16,8 +17,6 @@ ENTRY_POINT_GROUPS = {"odometry": "deepslam.odometry", "flow": "deepslam.flow"}
 
 
 def _entry_point(name: str, group: str):
-    from importlib.metadata import entry_points
-
     found = [ep for ep in entry_points(group=group) if ep.name == name]
     return found[0] if found else None
 

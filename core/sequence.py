@@ -6,9 +6,10 @@ Use :func:`open_sequence` to read any of the three layouts.
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
+from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import Callable, Iterator
 
+import cv2
 import numpy as np
 
 from deepslam.core.camera import PinholeCamera
@@ -22,8 +23,6 @@ def read_image(path: str | Path) -> np.ndarray:
     Raises InputError for a missing, empty or truncated file (a decoder that stops early is an error,
     not a partly grey image).
     """
-    import cv2
-
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "image file is missing")
@@ -61,8 +60,6 @@ def dataset_file(folder: Path, name: str, listing: Path, line: int | None = None
     inside ``folder``: an absolute name, a ``..`` component or an empty name is an InputError naming the
     listing and its line (judged on the name as written; symbolic links inside the dataset are followed
     as usual)."""
-    from pathlib import PurePosixPath, PureWindowsPath
-
     parts = PurePosixPath(name.replace("\\", "/")).parts
     if (not name.strip() or name.startswith(("/", "\\", "~")) or PureWindowsPath(name).drive or ".." in parts):
         raise InputError(listing, f"file name {name[:80]!r} leaves the dataset folder (absolute or with '..'); "

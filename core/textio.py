@@ -22,7 +22,10 @@ from __future__ import annotations
 
 import json
 import re
+import reprlib
 from pathlib import Path
+
+import yaml
 
 from deepslam.core.errors import InputError
 
@@ -45,8 +48,6 @@ def short(value, limit: int = SHORT_CHARS) -> str:
     """``repr(value)`` of at most ``limit`` characters (``...`` marks a cut). Nested containers are
     printed a few levels and items deep only (:mod:`reprlib`), so a huge or alias-shared value is never
     walked whole."""
-    import reprlib
-
     r = reprlib.Repr()
     r.maxlevel = 3
     r.maxdict = r.maxlist = r.maxtuple = r.maxset = r.maxfrozenset = r.maxdeque = r.maxarray = 8
@@ -142,8 +143,6 @@ def loads_yaml(text: str, path: str | Path | None, what: str = "YAML file", line
         InputError: naming ``path`` (and the line where known) for text over ``max_bytes``, more than
             ``max_aliases`` alias uses, a key given twice in one mapping, or text that is not YAML.
     """
-    import yaml
-
     if len(text) > max_bytes:
         raise InputError(path, f"{what} is too large ({len(text)} characters; at most {max_bytes})")
     loader = _bounded_loader(yaml)(text)

@@ -24,13 +24,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
-from deepslam.core.sequence import Sequence, dataset_file
+from deepslam.core.sequence import Sequence, dataset_file, read_image
 from deepslam.core.textio import read_text
 from deepslam.core.trajectory import Trajectory
+from deepslam.core.trajio import read_trajectory
 
 TUM_INTRINSICS = {
     "freiburg1": ((517.3, 516.5, 318.6, 255.3), (0.2624, -0.9531, -0.0054, 0.0026, 1.1633)),
@@ -133,10 +135,6 @@ def _depth_scale(root: Path) -> float:
 
 def read_tum(root: str | Path, max_diff_s: float = MAX_DIFF_S) -> Sequence:
     """Open a TUM RGB-D sequence folder (see the module docstring)."""
-    import cv2
-
-    from deepslam.core.sequence import read_image
-
     root = Path(root)
     rgb = read_file_list(root / "rgb.txt")
     depth = read_file_list(root / "depth.txt")
@@ -179,8 +177,6 @@ def read_tum(root: str | Path, max_diff_s: float = MAX_DIFF_S) -> Sequence:
     gt, gt_frames = None, None
     gt_path = root / "groundtruth.txt"
     if gt_path.exists():
-        from deepslam.core.trajio import read_trajectory
-
         full = read_trajectory(gt_path, "tum")
         t0, t1 = full.timestamps_s[0], full.timestamps_s[-1]
         inside = np.flatnonzero((times >= t0) & (times <= t1))

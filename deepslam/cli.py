@@ -9,6 +9,7 @@ import pkgutil
 import sys
 
 import deepslam.commands as _commands
+from deepslam.core.errors import InputError
 
 
 def _discover():
@@ -49,8 +50,6 @@ class _Parser(argparse.ArgumentParser):
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("MUJOCO_GL", "egl")
     os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
-    from deepslam.core.errors import InputError
-
     args = build_parser().parse_args(argv)
     try:
         rc = int(args._run(args) or 0)

@@ -30,6 +30,7 @@ import numpy as np
 import pytest
 
 from deepslam.core import metrics, se3
+from deepslam.core.readers import open_sequence
 from deepslam.core.trajectory import Trajectory, associate
 
 __all__ = ["sim_sequence", "assert_trajectory_close", "assert_relative_motion_close"]
@@ -39,6 +40,7 @@ def _render(out, scene: str, trajectory: str, frames: int, width, height, moving
             seed: int, backend: str, stereo_baseline, rate):
     os.environ.setdefault("MUJOCO_GL", "egl")
     os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
+    # deferred: the simulator (~0.3 s) loads only when a test renders; the plugin loads in every test session
     from deepslam.scenes import SceneConfig
     from deepslam.sim.config import RenderConfig, SimConfig, TrajectoryConfig
     from deepslam.sim.writers import render_sequence
@@ -54,8 +56,6 @@ def _render(out, scene: str, trajectory: str, frames: int, width, height, moving
 @pytest.fixture(scope="session")
 def sim_sequence(tmp_path_factory):
     """Factory of rendered sequences with ground truth, cached per pytest run per set of arguments."""
-    from deepslam.core.readers import open_sequence
-
     cache: dict = {}
 
     def make(scene: str = "street", trajectory: str = "auto", frames: int = 10, width: int | None = None,

@@ -66,7 +66,10 @@ import torch
 from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
+from deepslam.core.readers import open_sequence
+from deepslam.gen.flow import synthesize
 from deepslam.gen.motion import MotionModel
+from deepslam.gen.stereo import StereoConfig, opencv_threads, sequence_depth
 
 
 # ---------------------------------------------------------------------------------------- depth frames
@@ -142,8 +145,6 @@ class StereoDepthFrames(DepthFrames):
     """
 
     def __init__(self, seq, method: str = "sgbm", cache_frames: int = 64):
-        from deepslam.gen.stereo import StereoConfig
-
         if not seq.has_stereo:
             raise InputError(seq.root, "sequence has neither depth nor a stereo pair (right images + baseline)")
         self.seq = seq
@@ -157,8 +158,6 @@ class StereoDepthFrames(DepthFrames):
         return len(self.seq)
 
     def _compute(self, i: int) -> np.ndarray:
-        from deepslam.gen.stereo import opencv_threads, sequence_depth
-
         with opencv_threads(1):
             return sequence_depth(self.seq, i, self.config)
 
@@ -190,8 +189,6 @@ def open_depth_frames(path: str | Path, depth_from_stereo: str | None = None) ->
     Raises:
         InputError when the folder is not a sequence, or has no depth (and no stereo to compute it).
     """
-    from deepslam.core.readers import open_sequence
-
     seq = open_sequence(path)
     if seq.has_depth:
         return SequenceDepthFrames(seq)
@@ -346,6 +343,4 @@ class SyntheticFlowDataset(torch.utils.data.Dataset):
 
 def synthesize_for_dataset(depth: np.ndarray, camera: PinholeCamera, motions: np.ndarray, zbuffer: bool):
     """:func:`gen.flow.synthesize` as the dataset and the shard writer call it (one place)."""
-    from deepslam.gen.flow import synthesize
-
     return synthesize(torch.from_numpy(depth), camera, motions, zbuffer=zbuffer)

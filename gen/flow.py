@@ -183,7 +183,7 @@ def _numba_kernel():
     global _KERNEL, _PROJECT_ROW
     if _KERNEL is None:
         try:
-            import numba
+            import numba  # deferred: numba (~0.2 s) loads only when a kernel is first compiled
         except ImportError:  # pragma: no cover - numba is a dependency; the torch path still works
             _KERNEL = False
             return None
@@ -258,7 +258,7 @@ def _zbuffer_kernel():
         if _numba_kernel() is None:  # also sets the fork-safe threading layer
             _ZB_KERNEL = False
             return None
-        import numba
+        import numba  # deferred: numba (~0.2 s) loads only when a kernel is first compiled
 
         @numba.njit(inline="always")
         def msd(left, c, right):  # pragma: no cover - compiled
@@ -418,7 +418,7 @@ def _zbuffer_scratch(n_chunks: int, h: int, w: int) -> tuple[np.ndarray, ...]:
 def _numba_threads() -> int:
     """Set numba's thread count to torch's (at most numba's pool) and return it; call under
     :data:`_KERNEL_LOCK`."""
-    import numba
+    import numba  # deferred: numba (~0.2 s) loads only when a kernel is first compiled
 
     n = max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS))
     numba.set_num_threads(n)

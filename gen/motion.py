@@ -43,8 +43,9 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+from scipy.spatial import cKDTree
 
-from deepslam.core import atomic, se3
+from deepslam.core import atomic, plots, se3
 from deepslam.core.errors import InputError
 from deepslam.core.textio import JSON_MAX_DEPTH, json_depth
 from deepslam.core.trajectory import Trajectory
@@ -77,13 +78,13 @@ class StudentT:
     """Largest value sampled (the data's maximum)."""
 
     def _mass(self) -> float:
-        from scipy import stats
+        from scipy import stats  # deferred: scipy.stats (~0.7 s) only where a t distribution is evaluated
 
         return float(stats.t.cdf(self.hi, self.df, self.loc, self.scale) - stats.t.cdf(self.lo, self.df, self.loc, self.scale))
 
     def pdf(self, x: np.ndarray) -> np.ndarray:
         """Density of the t truncated to [lo, hi] (what :meth:`sample` draws from)."""
-        from scipy import stats
+        from scipy import stats  # deferred: scipy.stats (~0.7 s) only where a t distribution is evaluated
 
         x = np.asarray(x, dtype=np.float64)
         inside = (x >= self.lo) & (x <= self.hi)
@@ -91,7 +92,7 @@ class StudentT:
 
     def cdf(self, x: np.ndarray) -> np.ndarray:
         """Distribution function of the t truncated to [lo, hi]."""
-        from scipy import stats
+        from scipy import stats  # deferred: scipy.stats (~0.7 s) only where a t distribution is evaluated
 
         x = np.clip(np.asarray(x, dtype=np.float64), self.lo, self.hi)
         c0 = stats.t.cdf(self.lo, self.df, self.loc, self.scale)
@@ -440,8 +441,6 @@ def relative_vectors(trajectories: Sequence[Trajectory], stride: int = 1) -> np.
 
 def loop_motions(trajectory: Trajectory, config: LoopConfig = LoopConfig()) -> np.ndarray:
     """(M, 4, 4) ``cam_j_from_cam_i`` for loop pairs of one trajectory (both orders), see module doc."""
-    from scipy.spatial import cKDTree
-
     pos = trajectory.positions
     pairs = cKDTree(pos).query_pairs(config.max_distance_m, output_type="ndarray")
     if len(pairs) == 0:
@@ -481,7 +480,7 @@ def fit_student_t(x: np.ndarray, fit: str = "truncated") -> StudentT:
     ``models/motion/kitti_s1.json``'s loop part was fitted with, and the loop models trained on it
     are the better ones on the simulated street's loops (``models/README.md``).
     """
-    from scipy import optimize, stats
+    from scipy import optimize, stats  # deferred: scipy.optimize and .stats (~1 s), only when fitting
 
     if fit not in FITS:
         raise ValueError(f"fit must be one of {FITS}, got {fit!r}")
@@ -570,7 +569,7 @@ def fit_motion(trajectories: Sequence[Trajectory], stride: int = 1, loops: bool 
 def ks_statistics(model: "SixDof | KdeSix", data: np.ndarray, seed: int = 0) -> np.ndarray:
     """(6,) Kolmogorov-Smirnov statistic of each DoF of ``data`` (N, 6) against its fit: one-sample against
     the (truncated) Student-t, or two-sample against 20,000 draws of a KDE (``seed``)."""
-    from scipy import stats
+    from scipy import stats  # deferred: scipy.stats (~0.7 s) only where a t distribution is evaluated
 
     if isinstance(model, KdeSix):
         draws = model.sample(20_000, np.random.default_rng(seed))
@@ -591,14 +590,10 @@ def plot_motion_fit(path_png: str | Path, data: np.ndarray, model: "SixDof | Kde
         title: figure title.
         loop_data, loop_model: a second row of six panels for the loop distribution.
     """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
     rows = [(data, model, "consecutive")]
     if loop_data is not None and loop_model is not None:
         rows.append((loop_data, loop_model, "loop"))
-    fig = Figure(figsize=(13, 6.5 * len(rows)), dpi=100)
-    FigureCanvasAgg(fig)
+    fig = plots.new_figure((13, 6.5 * len(rows)), dpi=100)
     axes = fig.subplots(2 * len(rows), 3, squeeze=False)
     for r, (vec, six, label) in enumerate(rows):
         for k in range(6):

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import threading
 
+import cv2
 import numpy as np
 
 from deepslam.core.camera import PinholeCamera
@@ -43,7 +44,7 @@ def _kernels():
     global _KERNELS
     with _KERNELS_LOCK:
         if _KERNELS is None:
-            import numba
+            import numba  # deferred: numba (~0.2 s) loads only when a kernel is first compiled
 
             @numba.njit(nogil=True)
             def splat(depth_z, m, zbuf):  # pragma: no cover - compiled
@@ -143,8 +144,6 @@ def _fill_nearest(values: np.ndarray, known: np.ndarray, fill: np.ndarray) -> np
     """``values`` with the ``fill`` pixels set to the value of the nearest ``known`` pixel
     (cv2.distanceTransformWithLabels, L2 with a 5x5 mask: each unknown pixel gets the label of its
     nearest known one)."""
-    import cv2
-
     _, labels = cv2.distanceTransformWithLabels((~known).astype(np.uint8), cv2.DIST_L2, 5,
                                                 labelType=cv2.DIST_LABEL_PIXEL)
     lut = np.zeros(int(labels.max()) + 1, values.dtype)
@@ -169,8 +168,6 @@ def render_novel_view(image: np.ndarray, depth_z: np.ndarray, camera: PinholeCam
         the pixel shows a surface point of frame 0 (a splatted pixel) or sky that rotates back inside
         frame 0, false where its content was filled in.
     """
-    import cv2
-
     image = np.asarray(image)
     h, w = depth_z.shape
     if image.shape[:2] != (h, w) or (camera.width, camera.height) != (w, h):

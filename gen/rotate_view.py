@@ -19,7 +19,9 @@ image's border pixel.
 """
 from __future__ import annotations
 
+import cv2
 import numpy as np
+from scipy import ndimage
 
 from deepslam.core.camera import PinholeCamera
 
@@ -59,8 +61,6 @@ def rotate_depth(depth_z: np.ndarray, camera: PinholeCamera, cam_new_from_cam: n
     ``nearest`` (the value of the nearest new pixel that saw the old image, 0 included: the road or the
     sky goes on, as :mod:`gen.novel_view` assumes for what enters the view; for training data, where
     an estimator reports flow there too)."""
-    import cv2
-
     map_u, map_v, dz = _source_map(camera, cam_new_from_cam)
     mu, mv = np.nan_to_num(map_u, nan=-1e6), np.nan_to_num(map_v, nan=-1e6)
     src = np.asarray(depth_z, np.float32)
@@ -78,8 +78,6 @@ def rotate_depth(depth_z: np.ndarray, camera: PinholeCamera, cam_new_from_cam: n
     ok = inside & (inv_new > 0)
     out = np.where(ok, 1.0 / np.where(ok, inv_new, 1.0) / np.maximum(dz, 1e-9), 0.0).astype(np.float32)
     if outside == "nearest" and (~inside).any() and inside.any():
-        from scipy import ndimage
-
         iv, iu = ndimage.distance_transform_edt(~inside, return_distances=False, return_indices=True)
         out = out[iv, iu]
     elif outside not in ("zero", "nearest"):
@@ -90,8 +88,6 @@ def rotate_depth(depth_z: np.ndarray, camera: PinholeCamera, cam_new_from_cam: n
 def rotate_image(image: np.ndarray, camera: PinholeCamera, cam_new_from_cam: np.ndarray) -> np.ndarray:
     """The image (H, W[, C]) uint8 the rotated camera sees (bilinear; outside the old image: its border
     pixel replicated)."""
-    import cv2
-
     map_u, map_v, _ = _source_map(camera, cam_new_from_cam)
     return cv2.remap(np.ascontiguousarray(image), np.nan_to_num(map_u, nan=-1e6), np.nan_to_num(map_v, nan=-1e6),
                      cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)

@@ -45,14 +45,18 @@ import tarfile
 from pathlib import Path
 from typing import Callable, Iterator
 
+import multiprocessing as mp
 import numpy as np
 
 from deepslam.core import atomic
 from deepslam.core.errors import InputError
 from deepslam.core.integrity import sha256_file
 from deepslam.core.lock import output_lock
+from deepslam.core.progress import progress as progress_bar
 from deepslam.core.sequence import dataset_file
 from deepslam.core.textio import loads_json
+from deepslam.gen.motion import MotionModel
+from deepslam.gen.stereo import opencv_threads
 
 FORMAT = "deepslam-flow-shards"
 VERSION = 1
@@ -133,8 +137,8 @@ def make_dataset(config: GenConfig, source_path: str | None = None):
     ``source_path`` opens the source from another path than ``config.source`` (the absolute path, for
     workers whose working directory differs); it does not change what is generated.
     """
+    # deferred: gen.dataset pulls torch; planning, resuming and the coordinating process stay torch-free
     from deepslam.gen.dataset import DatasetConfig, SyntheticFlowDataset, open_depth_frames
-    from deepslam.gen.motion import MotionModel
 
     key = json.dumps([config.to_dict(), source_path], sort_keys=True)
     if key not in _DATASETS:
@@ -168,9 +172,7 @@ def _add(tar: tarfile.TarFile, name: str, data: bytes) -> None:
 @contextlib.contextmanager
 def single_threaded() -> Iterator[None]:
     """torch and OpenCV on one thread inside the block (bit-identical results in every process)."""
-    import torch
-
-    from deepslam.gen.stereo import opencv_threads
+    import torch  # deferred: torch (~1 s); importing gen.shards (the gen coordinator) stays torch-free
 
     old = torch.get_num_threads()
     torch.set_num_threads(1)
@@ -238,7 +240,7 @@ def _shard_ok(path: Path, config: GenConfig, shard: int) -> bool:
 # ------------------------------------------------------------------------------------------- running
 
 def _local_worker_init() -> None:
-    import torch
+    import torch  # deferred: torch (~1 s); importing gen.shards (the gen coordinator) stays torch-free
 
     torch.set_num_threads(1)
 
@@ -249,8 +251,6 @@ def _run_local(config: GenConfig, todo: list[int], out_dir: Path, workers: int, 
         for shard in todo:
             on_done(*write_shard(config, shard, str(out_dir), source_path))
         return
-    import multiprocessing as mp
-
     ctx = mp.get_context("spawn")  # no fork after torch/OpenMP threads exist
     with ctx.Pool(min(workers, len(todo)), initializer=_local_worker_init) as pool:
         results = [pool.apply_async(_guarded, (write_shard, config, shard, str(out_dir), source_path))
@@ -261,7 +261,7 @@ def _run_local(config: GenConfig, todo: list[int], out_dir: Path, workers: int, 
 
 def _run_ray(config: GenConfig, todo: list[int], out_dir: Path, workers: int, on_done: Callable,
              source_path: str) -> None:
-    import ray
+    import ray  # deferred: the [ray] extra, only for the ray backend
 
     if not ray.is_initialized():
         # RAY_ADDRESS set: join that cluster; otherwise start a local one with `workers` CPUs.
@@ -314,8 +314,6 @@ def generate(config: GenConfig, out_dir: str | Path, workers: int = 1, backend: 
 
 def _generate_locked(config: GenConfig, out_dir: Path, workers: int, backend: str, resume: bool,
                      progress: bool | None) -> dict:
-    from deepslam.core.progress import progress as progress_bar
-
     run_json = out_dir / "run.json"
     source_path = str(Path(config.source).resolve())
     want = {"format": FORMAT, "version": VERSION, "config": config.to_dict(),
@@ -542,6 +540,6 @@ class ShardDataset:
         return len(self.arrays["target"])
 
     def __getitem__(self, i: int) -> dict:
-        import torch
+        import torch  # deferred: torch (~1 s); importing gen.shards (the gen coordinator) stays torch-free
 
         return {k: torch.from_numpy(self.arrays[k][i]) for k in ("flow", "valid", "intrinsics", "target")}

@@ -22,7 +22,10 @@ import contextlib
 import dataclasses
 from typing import Iterator
 
+import cv2
 import numpy as np
+
+from deepslam.core.errors import InputError
 
 METHODS = ("sgbm", "dis")
 
@@ -62,8 +65,6 @@ class StereoConfig:
 
 
 def _grey(img: np.ndarray) -> np.ndarray:
-    import cv2
-
     img = np.asarray(img)
     if img.dtype != np.uint8:
         raise ValueError(f"stereo images must be uint8, got {img.dtype}")
@@ -75,8 +76,6 @@ def _grey(img: np.ndarray) -> np.ndarray:
 @contextlib.contextmanager
 def opencv_threads(n: int) -> Iterator[None]:
     """Run OpenCV with ``n`` threads inside the block (fixed thread counts give bit-identical output)."""
-    import cv2
-
     old = cv2.getNumThreads()
     cv2.setNumThreads(n)
     try:
@@ -86,8 +85,6 @@ def opencv_threads(n: int) -> Iterator[None]:
 
 
 def _sgbm(left: np.ndarray, right: np.ndarray, cfg: StereoConfig) -> np.ndarray:
-    import cv2
-
     cn = 1
     matcher = cv2.StereoSGBM_create(
         minDisparity=0, numDisparities=cfg.num_disparities, blockSize=cfg.block_size,
@@ -100,8 +97,6 @@ def _sgbm(left: np.ndarray, right: np.ndarray, cfg: StereoConfig) -> np.ndarray:
 
 
 def _dis(a: np.ndarray, b: np.ndarray, cfg: StereoConfig) -> np.ndarray:
-    import cv2
-
     preset = {"ultrafast": cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, "fast": cv2.DISOPTICAL_FLOW_PRESET_FAST,
               "medium": cv2.DISOPTICAL_FLOW_PRESET_MEDIUM}[cfg.dis_preset]
     dis = cv2.DISOpticalFlow_create(preset)
@@ -171,8 +166,6 @@ def depth_from_stereo(left: np.ndarray, right: np.ndarray, fx: float, baseline_m
 
 def sequence_depth(seq, i: int, config: StereoConfig = StereoConfig()) -> np.ndarray:
     """Depth of frame i of a stereo :class:`core.sequence.Sequence` (needs right images and a baseline)."""
-    from deepslam.core.errors import InputError
-
     if not seq.has_stereo:
         raise InputError(seq.root, "sequence has no stereo pair (right images and baseline) to compute depth from")
     return depth_from_stereo(seq.image(i), seq.image_right(i), seq.camera.fx, seq.baseline_m, config)

@@ -34,7 +34,10 @@ import dataclasses
 import numpy as np
 import torch
 
+from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
+from deepslam.core.errors import InputError
+from deepslam.core.progress import progress as progress_bar
 from deepslam.gen.flow import synthesize, visible_after_motion
 
 TARGET_EPE_PX = 0.01
@@ -171,9 +174,6 @@ def validate_sequence(seq, frames: range | None = None, config: ValidationConfig
         EPE mean/median/p95/max in px), ``per_instance``, ``per_frame``, excluded pixel counts,
         ``zbuffer_vs_next_depth`` and ``met`` (static visible mean EPE < target).
     """
-    from deepslam.core.errors import InputError
-    from deepslam.core.progress import progress as progress_bar
-
     if not seq.has_depth:
         raise InputError(seq.root, "sequence has no depth (validate-flow needs a rendered sequence with depth/ and flow/)")
     if seq.flow_paths is None:
@@ -236,6 +236,4 @@ def validate_sequence(seq, frames: range | None = None, config: ValidationConfig
 
 def _relative(world_from_cam: np.ndarray, t: int) -> np.ndarray:
     """cam_{t+1}_from_cam_t = inverse(world_from_cam[t+1]) @ world_from_cam[t]."""
-    from deepslam.core import se3
-
     return se3.relative(world_from_cam[t + 1], world_from_cam[t])

@@ -32,6 +32,8 @@ from typing import Any
 
 import numpy as np
 import torch
+from safetensors import SafetensorError, safe_open
+from safetensors.torch import save as safetensors_save
 
 from deepslam.core import atomic
 from deepslam.core.errors import InputError
@@ -95,11 +97,9 @@ def _decode(node: Any, tensors: dict[str, torch.Tensor]) -> Any:
 def to_bytes(kind: str, tree: dict) -> bytes:
     """The safetensors bytes of ``tree`` (nested dicts/lists/tuples of tensors, numbers, strings,
     bools and None), tagged with the file ``kind``."""
-    from safetensors.torch import save
-
     tensors: dict[str, torch.Tensor] = {}
     doc = _encode(tree, tensors, "")
-    return save(tensors, metadata={"deepslam": kind, "tree": json.dumps(doc, separators=(",", ":"))})
+    return safetensors_save(tensors, metadata={"deepslam": kind, "tree": json.dumps(doc, separators=(",", ":"))})
 
 
 def save(path: str | Path, kind: str, tree: dict) -> None:
@@ -207,8 +207,6 @@ def load(path: str | Path, kinds: tuple[str, ...]) -> tuple[str, dict]:
         InputError: missing, unreadable, pickle-based (never unpickled), not safetensors, another
             kind of file, or a malformed tree.
     """
-    from safetensors import SafetensorError, safe_open
-
     path = Path(path)
     if path.is_dir():
         raise InputError(path, "is a folder, not a model file")

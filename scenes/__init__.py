@@ -25,6 +25,11 @@ import functools
 import numpy as np
 
 from deepslam.core.errors import InputError
+from deepslam.scenes.custom import add_user_meshes, load_scene_file
+from deepslam.scenes.lighting import Lighting
+from deepslam.scenes.room import build_room
+from deepslam.scenes.street import StreetLayout, build_street
+from deepslam.scenes.street_kitti import build_kitti_street
 
 SCENE_NAMES = ("street", "room")
 STREET_STYLES = ("kitti", "town")
@@ -110,32 +115,22 @@ def build_scene(config: SceneConfig):
     rng = np.random.default_rng(config.seed)
     lighting = None
     if config.random_lighting:
-        from deepslam.scenes.lighting import Lighting
-
         lighting = Lighting.random(config.seed)
     if config.name == "street" and config.street_style == "kitti":
-        from deepslam.scenes.street_kitti import build_kitti_street
-
         scene = build_kitti_street(config.seed, config.px_per_m, config.moving_objects, float(config.deform_amplitude_m),
                                    rng, lighting)
     elif config.name == "street":
-        from deepslam.scenes.street import StreetLayout, build_street
-
         layout = (StreetLayout.varied(config.seed) if config.varied_layout else
                   StreetLayout.narrow(config.seed) if config.narrow_layout else StreetLayout())
         scene = build_street(config.seed, config.px_per_m, config.moving_objects, float(config.deform_amplitude_m), rng,
                              layout, lighting, grainy_road=config.grainy_road)
     else:
-        from deepslam.scenes.room import build_room
-
         scene = build_room(config.seed, config.px_per_m, config.moving_objects, float(config.deform_amplitude_m), rng,
                            lighting)
     if lighting is not None:  # the light's brightness and colour on the baked atlas and the sky
         scene.atlas = lighting.apply_gain(scene.atlas)
         scene.sky_rgb = tuple(int(c) for c in lighting.apply_gain(np.array(scene.sky_rgb, np.uint8)))
     if config.scene_file:
-        from deepslam.scenes.custom import add_user_meshes, load_scene_file
-
         spec = load_scene_file(config.scene_file)
         if spec.base != config.name:
             raise InputError(spec.path, f"the file's base scene is {spec.base!r}, the config's {config.name!r}")

@@ -1,6 +1,7 @@
 """Shared machinery of the scene builders: one atlas, one static mesh, movers and flags."""
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from deepslam.core import se3
@@ -100,7 +101,6 @@ def flag_painter(rng_style: np.random.Generator):
             img[:] = cols[0]
             yy, xx = np.mgrid[0:h, 0:w]
             img[((xx + yy) // max(2, h // 6)) % 2 == 0] = cols[1]
-        import cv2
         cv2.circle(img, (int(w * rng.uniform(0.3, 0.7)), h // 2), max(2, h // 4), tuple(float(c) for c in cols[2]), -1, cv2.LINE_AA)
         tx.put_text_box(img, w // 8, int(0.72 * h), 7 * w // 8, int(0.95 * h), tx._rand_text(rng, 4),
                         (250, 250, 250), tuple(float(c) for c in cols[1] * 0.5))

@@ -31,8 +31,11 @@ from pathlib import Path
 
 import numpy as np
 
+from deepslam.core import se3
 from deepslam.core.errors import InputError
 from deepslam.core.textio import loads_yaml, read_text, short
+from deepslam.scenes.geometry import MeshData, PeriodicPath
+from deepslam.scenes.spec import RIGID, STATIC, Body, PathFollower, PathProgress, StaticPose, speed_profile
 
 SHADE_LEVELS = 8
 """Shades of each mesh's colour (flat shading by the face normal)."""
@@ -153,7 +156,7 @@ def load_scene_file(path: str | Path) -> SceneFile:
 
 def _load_mesh(m: UserMesh, source: Path):
     """(vertices (V, 3) float64 m, faces (F, 3) int, colour (3,) float) of a mesh file, scaled."""
-    import trimesh
+    import trimesh  # deferred: trimesh is the [sim] extra, needed only for a scene file's own meshes
 
     try:
         mesh = trimesh.load(m.file, force="mesh", process=False)
@@ -180,10 +183,6 @@ def _load_mesh(m: UserMesh, source: Path):
 
 def add_user_meshes(scene, spec: SceneFile):
     """A new Scene: ``scene`` (built from the file's base) with the file's meshes added as bodies."""
-    from deepslam.core import se3
-    from deepslam.scenes.geometry import MeshData, PeriodicPath
-    from deepslam.scenes.spec import RIGID, STATIC, Body, PathFollower, PathProgress, StaticPose, speed_profile
-
     if not spec.meshes:
         return scene
     loaded = [_load_mesh(m, spec.path) for m in spec.meshes]

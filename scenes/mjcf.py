@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from deepslam.core import se3
+from deepslam.core import atomic, se3
 from deepslam.scenes.spec import RIGID, Scene
 
 RIG_BODY = "camera_rig"
@@ -93,8 +93,6 @@ def scene_xml(scene: Scene, width: int, height: int, fov_y_deg: float, baseline_
 def write_mjcf(scene: Scene, folder: str | Path, width: int = 640, height: int = 480, fov_y_deg: float = 45.0,
                baseline_m: float | None = None) -> Path:
     """Write ``<folder>/<scene>.xml`` and ``atlas.png`` (a model MuJoCo's viewer opens)."""
-    from deepslam.core import atomic
-
     folder = Path(folder)
     atomic.write_png(folder / "atlas.png", scene.atlas)
     path = folder / f"{scene.name}.xml"

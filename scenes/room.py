@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
 from deepslam.scenes import textures as tx
 from deepslam.scenes.assemble import Assembler, flag_painter
@@ -102,7 +103,6 @@ def build_room(seed: int, px_per_m: float, moving_objects: int, deform_amplitude
         half = rng.uniform(0.12, 0.25, 3)
         q = rng.normal(size=4)
         q /= np.linalg.norm(q)
-        from deepslam.core import se3
         rot0 = se3.from_quat_wxyz(q, np.zeros(3))[:3, :3]
         motion = Orbiter(centre=np.zeros(2), r0=3.1, r_amp=0.1, th0=float(2 * np.pi * k / max(1, moving_objects) + rng.uniform(0, 0.5)),
                          th_amp=float(rng.uniform(0.3, 0.8)), z0=float(rng.uniform(1.0, 2.2)), z_amp=float(rng.uniform(0.2, 0.5)),

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import cv2
 import numpy as np
 
 from deepslam.core.camera import PinholeCamera
@@ -181,8 +182,6 @@ def road_painter(length_m: float, width_m: float, along_y: bool, junctions: list
     ``grainy``: :func:`textures.asphalt_grainy` instead of the near-uniform :func:`textures.asphalt`."""
 
     def paint(h, w, ppm, rng):
-        import cv2
-
         lh, lw = (w, h) if along_y else (h, w)   # canvas: length along columns
         img = (tx.asphalt_grainy if grainy else tx.asphalt)(lh, lw, ppm, rng)
         sx = lw / length_m

@@ -104,7 +104,7 @@ SEQS=$(ls -d $R/*/ 2>/dev/null | while read -r d; do [ -f "$d/poses.txt" ] && ec
 TRAIN="--crop 128x320 --batch $BATCH --lr 1e-3 --seed 0 --device $DEVICE --loader-workers $WORKERS --quiet"
 
 say "calibration: 120 steps on one sequence"
-$DS train-flow --sequences $(echo "$SEQS" | head -1) --out /tmp/flowcal --max-steps 120 $TRAIN >/dev/null
+$DS train-flow --sequence $(echo "$SEQS" | head -1) --out /tmp/flowcal --max-steps 120 $TRAIN >/dev/null
 PER_STEP=$($PY -c "
 from deepslam.flow.net import load_flow_model
 _, m = load_flow_model('/tmp/flowcal/flow.safetensors'); print(m['train_seconds'] / m['steps'])")
@@ -117,7 +117,7 @@ say "training: $PER_STEP s/step (calibration, warm-up included) -> $STEPS steps 
 (while sleep 30; do [ -f /tmp/flowrun/checkpoint.safetensors ] && cp /tmp/flowrun/checkpoint.safetensors "$OUT/.ck" \
    && mv "$OUT/.ck" "$OUT/checkpoint.safetensors"; done) &
 COPY_PID=$!
-$DS train-flow --sequences $SEQS --out /tmp/flowrun --max-steps "$STEPS" --max-minutes "$($PY -c "print(($LEFT + 20) / 60)")" $TRAIN
+$DS train-flow --sequence $SEQS --out /tmp/flowrun --max-steps "$STEPS" --max-minutes "$($PY -c "print(($LEFT + 20) / 60)")" $TRAIN
 kill $COPY_PID 2>/dev/null
 cp /tmp/flowrun/flow.safetensors /tmp/flowrun/history.json /tmp/flowrun/config.json "$OUT"/ 2>/dev/null
 cp /tmp/flowrun/checkpoint.safetensors "$OUT"/ 2>/dev/null

@@ -45,33 +45,33 @@ OLD="--motion models/motion/kitti_s1.json"
 NEW="--motion $D/kitti_no0607.json"
 NAR="$D/narrow_s4 $D/narrow_s5 $D/narrow_s6 $D/narrow_s7 $D/narrow_s8 $D/narrow_s9"
 MIX="$D/street_s1 $D/street_s2 $D/street_s3 $D/varied2_s4 $D/varied2_s5 $D/varied2_s6 $D/varied2_s7 $D/varied2_s8 $D/varied2_s9"
-train $D/A_default $OLD --sample-pool 20000 --frames $D/street_s1 $D/street_s2 $D/street_s3
-train $D/B_varied $OLD --sample-pool 20000 --frames $D/varied_s1 $D/varied_s2 $D/varied_s3
-train $D/C_mixed $OLD --sample-pool 20000 --frames $MIX
-train $D/D_mixed_06 $OLD --sample-pool 30000 --frames $MIX $K06
-train $D/F_tilt $OLD --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $MIX
-train $D/G_tilt_06 $OLD --sample-pool 30000 --camera-tilt-deg=-1:3:1 --frames $MIX $K06
-train $D/I0_fit $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $MIX
-train $D/J_narrow $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $MIX $NAR
-train $D/I_wide --motion $D/kitti_no0607_wide.json --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $MIX
-train $D/J_wide --motion $D/kitti_no0607_wide.json --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $MIX $NAR
-train $D/J06_narrow_06 $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $MIX $NAR $K06
+train $D/A_default $OLD --sample-pool 20000 --source $D/street_s1 $D/street_s2 $D/street_s3
+train $D/B_varied $OLD --sample-pool 20000 --source $D/varied_s1 $D/varied_s2 $D/varied_s3
+train $D/C_mixed $OLD --sample-pool 20000 --source $MIX
+train $D/D_mixed_06 $OLD --sample-pool 30000 --source $MIX $K06
+train $D/F_tilt $OLD --sample-pool 20000 --camera-tilt-deg=-1:3:1 --source $MIX
+train $D/G_tilt_06 $OLD --sample-pool 30000 --camera-tilt-deg=-1:3:1 --source $MIX $K06
+train $D/I0_fit $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --source $MIX
+train $D/J_narrow $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --source $MIX $NAR
+train $D/I_wide --motion $D/kitti_no0607_wide.json --sample-pool 20000 --camera-tilt-deg=-1:3:1 --source $MIX
+train $D/J_wide --motion $D/kitti_no0607_wide.json --sample-pool 20000 --camera-tilt-deg=-1:3:1 --source $MIX $NAR
+train $D/J06_narrow_06 $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --source $MIX $NAR $K06
 GALL="$G/street_s1 $G/street_s2 $G/street_s3"
 for s in 4 5 6 7 8 9; do GALL="$GALL $G/varied2_s$s"; done
 for s in 4 5 6 7 8 9; do GALL="$GALL $G/narrow_s$s"; done
-train $D/K_grainy $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $GALL
-train $D/K06_grainy_06 $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $GALL $K06
+train $D/K_grainy $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --source $GALL
+train $D/K06_grainy_06 $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --source $GALL $K06
 # the seed study (sixth session): K06 at seeds 1-4, and seeds 0-4 joined into one ensemble file
 for s in 1 2 3 4; do
   out=$D/K06_seed$s
   [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 \
-      --frames $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
+      --source $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
 [ -f $D/K06_ens5.safetensors ] || $DS ensemble-model $D/K06_grainy_06/model.safetensors $D/K06_seed1/model.safetensors \
     $D/K06_seed2/model.safetensors $D/K06_seed3/model.safetensors $D/K06_seed4/model.safetensors --out $D/K06_ens5.safetensors
 [ -f $D/H_learned/model.safetensors ] || $DS train --mode synthetic --synthetic-flow learned --frame-scales 1,0.65 \
     --sample-pool 12000 --frame-step 2 --samples-per-epoch 12000 --max-epochs 8 --nll-epochs 10 --threads 2 \
-    --data-threads 2 --seed 0 --net cpu --appearance-noise 6 --quiet $NEW --camera-tilt-deg=-1:3:1 --frames $MIX \
+    --data-threads 2 --seed 0 --net cpu --appearance-noise 6 --quiet $NEW --camera-tilt-deg=-1:3:1 --source $MIX \
     --out $D/H_learned $([ -d $D/H_learned ] && echo --resume)
 # L06 (sixth session): K06's streets, prior and 06 frames on the LEARNED flow of the rendered views, seeds 0-2
 # (the learned flow as fine-tuned on 2026-12-02, scripts/train_flow_model.sh; H above was trained with its first run)
@@ -80,7 +80,7 @@ for s in 0 1 2; do
   [ -f $out/model.safetensors ] || $DS train --mode synthetic --synthetic-flow learned --frame-scales 1,0.65 \
       --sample-pool 12000 --frame-step 2 --samples-per-epoch 12000 --max-epochs 8 --nll-epochs 10 --threads 2 \
       --data-threads 2 --seed $s --net cpu --appearance-noise 6 --quiet $NEW --camera-tilt-deg=-1:3:1 \
-      --frames $GALL $K06 --out $out $([ -d $out ] && echo --resume)
+      --source $GALL $K06 --out $out $([ -d $out ] && echo --resume)
 done
 # M06 (fourteenth session): K06 exactly, with the joint KDE prior (fit-motion --consecutive kde on 00-05, 08-10,
 # models/motion/kitti_no0607_kde_s1.json) in place of the independent Student-t, seeds 0-4
@@ -88,13 +88,13 @@ KDE="--motion models/motion/kitti_no0607_kde_s1.json"
 for s in 0 1 2 3 4; do
   out=$D/M06_kde_s$s
   [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} $KDE --sample-pool 20000 --camera-tilt-deg=-1:3:1 \
-      --frames $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
+      --source $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
 # P06 (fourteenth session): K06 exactly, with every training frame also mirrored left-right, seeds 0-4
 for s in 0 1 2 3 4; do
   out=$D/P06_mirror_s$s
   [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} $NEW --mirror-frames --sample-pool 20000 \
-      --camera-tilt-deg=-1:3:1 --frames $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
+      --camera-tilt-deg=-1:3:1 --source $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
 # LP06 (sixteenth session): P06 exactly on the LEARNED flow of the rendered views (seeds 0-2; scored with
 # vo --flow learned --pose epipolar; rule: bench/criteria/2026-12-03_s16_lp06.md)
@@ -102,7 +102,7 @@ for s in 0 1 2; do
   out=$D/LP06_learned_s$s
   LEARNED=${DIS/--synthetic-flow dis --dis-preset medium/--synthetic-flow learned}
   [ -f "$out/model.safetensors" ] || $DS train ${LEARNED/--seed 0/--seed $s} $NEW --mirror-frames --sample-pool 20000 \
-      --camera-tilt-deg=-1:3:1 --frames $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
+      --camera-tilt-deg=-1:3:1 --source $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
 # W06 (eighteenth session): P06 exactly with DIS on frames at most 640 px wide (--dis-max-width 640: the renders as
 # before, KITTI 06's frames downscaled to 640 wide; the model records it, so vo/slam run DIS so; seeds 0-2;
@@ -110,7 +110,7 @@ done
 for s in 0 1 2; do
   out=$D/W06_w640_s$s
   [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} --dis-max-width 640 $NEW --mirror-frames \
-      --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
+      --sample-pool 20000 --camera-tilt-deg=-1:3:1 --source $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
 # U06 (nineteenth session): P06 exactly with a flat speed tail in the prior (--speed-range 0:30@0.2: a fifth of the
 # motions get a forward speed uniform in 0-30 m/s, the rest the fitted prior; seeds 0-2;
@@ -118,7 +118,7 @@ done
 for s in 0 1 2; do
   out=$D/U06_tail_s$s
   [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} --speed-range 0:30@0.2 $NEW --mirror-frames \
-      --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
+      --sample-pool 20000 --camera-tilt-deg=-1:3:1 --source $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
 # S06 (twentieth session): P06 exactly with DIS matching 8-pixel patches every 4 pixels instead of 3
 # (--dis-patch-stride 4: about three quarters of DIS medium's time; the model records it; seeds 0-2;
@@ -126,7 +126,7 @@ done
 for s in 0 1 2; do
   out=$D/S06_stride4_s$s
   [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} --dis-patch-stride 4 $NEW --mirror-frames \
-      --sample-pool 20000 --camera-tilt-deg=-1:3:1 --frames $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
+      --sample-pool 20000 --camera-tilt-deg=-1:3:1 --source $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
 # E (fifteenth session): the same models with --pose epipolar (rotation and direction of travel from the essential
 # matrix of the flow, the network's distance): results_real below scores every model in both pose modes.

@@ -17,7 +17,7 @@ CFG=$(mktemp); echo '{"moving_objects": [2, 8], "varied_layout_fraction": 0.5}' 
 render() { [ -f "$2/poses.txt" ] || $DS render --scene street --frames 200 --width 640 --seed "$1" --out "$2" --quiet ${3:-}; }
 for s in 1 2 3; do render $s $S/street_s$s; render $s $S/varied_s$s --varied-layout; done
 for s in 4 5 6 7 8 9; do render $s $S/varied2_s$s --varied-layout; done
-$DS train-flow --sequences out/flow_data $S/street_s1 $S/street_s2 $S/street_s3 $S/varied_s1 $S/varied_s2 $S/varied_s3 \
+$DS train-flow --sequence out/flow_data $S/street_s1 $S/street_s2 $S/street_s3 $S/varied_s1 $S/varied_s2 $S/varied_s3 \
   $S/varied2_s4 $S/varied2_s5 $S/varied2_s6 $S/varied2_s7 $S/varied2_s8 $S/varied2_s9 \
   --out out/flow_model --max-steps 20000 --stop-after 14500 --quiet $([ -d out/flow_model ] && echo --resume)
 # stage 2: fine-tuned on the same data plus six streets with grainy asphalt and three
@@ -28,7 +28,7 @@ for s in 34 35 36; do render $s $G/narrow_g$s "--narrow-layout --grainy-road --m
 [ -f $G/held_g41/poses.txt ] || $DS render --scene street --frames 60 --width 640 --seed 41 --out $G/held_g41 --quiet \
   --grainy-road --moving-objects 8   # held out: evaluation only
 $DS train-flow --init out/flow_model/flow.safetensors --lr 3e-4 --max-steps 4000 --quiet \
-  --sequences out/flow_data $S/street_s1 $S/street_s2 $S/street_s3 $S/varied_s1 $S/varied_s2 $S/varied_s3 \
+  --sequence out/flow_data $S/street_s1 $S/street_s2 $S/street_s3 $S/varied_s1 $S/varied_s2 $S/varied_s3 \
   $S/varied2_s4 $S/varied2_s5 $S/varied2_s6 $S/varied2_s7 $S/varied2_s8 $S/varied2_s9 \
   $G/varied_g31 $G/varied_g32 $G/varied_g33 $G/narrow_g34 $G/narrow_g35 $G/narrow_g36 \
   --out $G/ft $([ -d $G/ft ] && echo --resume)

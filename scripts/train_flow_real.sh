@@ -20,13 +20,13 @@ for s in 31 32 33; do render $s $G/varied_g$s "--varied-layout --grainy-road --m
 for s in 34 35 36; do render $s $G/narrow_g$s "--narrow-layout --grainy-road --moving-objects 3"; done
 render 41 $G/held_g41 "--grainy-road --moving-objects 8" 60   # held out: evaluation only
 $DS train-flow --init models/flow_learned.safetensors --lr 2e-4 --max-steps 2000 --quiet \
-  --sequences out/flow_data $G/varied_g31 $G/varied_g32 $G/varied_g33 $G/narrow_g34 $G/narrow_g35 $G/narrow_g36 \
+  --sequence out/flow_data $G/varied_g31 $G/varied_g32 $G/varied_g33 $G/narrow_g34 $G/narrow_g35 $G/narrow_g36 \
   --real $KITTI/06 --real-batch 4 --out out/flow_real $([ -d out/flow_real ] && echo --resume)
 .venv/bin/python -m bench.results_flow --model out/flow_real/flow.safetensors \
   --held out/flow_held/seq_0000 out/flow_held/seq_0001 $G/held_g41 --pairs 20 --out out/results/flow_real
 # the same with second-order smoothness (the first run over-moved the road: bench.results_road)
 $DS train-flow --init models/flow_learned.safetensors --lr 2e-4 --max-steps 2000 --quiet \
-  --sequences out/flow_data $G/varied_g31 $G/varied_g32 $G/varied_g33 $G/narrow_g34 $G/narrow_g35 $G/narrow_g36 \
+  --sequence out/flow_data $G/varied_g31 $G/varied_g32 $G/varied_g33 $G/narrow_g34 $G/narrow_g35 $G/narrow_g36 \
   --real $KITTI/06 --real-batch 4 --smooth-order 2 --out out/flow_real2 $([ -d out/flow_real2 ] && echo --resume)
 .venv/bin/python -m bench.results_flow --model out/flow_real2/flow.safetensors \
   --held out/flow_held/seq_0000 out/flow_held/seq_0001 $G/held_g41 --pairs 20 --out out/results/flow_real2

@@ -61,14 +61,13 @@ from deepslam.scenes import SceneConfig  # noqa: E402
 from deepslam.sim.config import BACKENDS, FORMATS, TRAJECTORY_KINDS, RenderConfig, SimConfig, TrajectoryConfig, camera_for
 from deepslam.sim.simulator import SimFrame, Simulator
 from deepslam.sim.trajectories import CarMotion, DroneMotion, KeyframeMotion, make_motion
+from deepslam.sim.writers import render_sequence as _render
 
 
 def render_sequence(config: SimConfig, out_dir, fmt: str = "ours", resume: bool = False, progress: bool = True,
                     sequence: str = "00"):
     """Render ``config`` into ``out_dir`` in format ``fmt`` ("ours", "kitti", "euroc", "tum"); see
     :func:`sim.writers.render_sequence`. Returns the output path of the sequence."""
-    from deepslam.sim.writers import render_sequence as _render
-
     return _render(config, out_dir, fmt=fmt, resume=resume, progress=progress, sequence=sequence)
 
 

@@ -37,15 +37,22 @@ import dataclasses
 import hashlib
 import json
 import os
+import resource
 import shutil
 import time
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from deepslam.core import atomic
 from deepslam.core.errors import InputError
-from deepslam.sim.config import FORMATS
+from deepslam.core.integrity import file_digests
+from deepslam.core.lock import output_lock
+from deepslam.core.textio import read_json_object
+from deepslam.scenes import SceneConfig
+from deepslam.sim.config import FORMATS, RenderConfig, SimConfig, TrajectoryConfig
+from deepslam.sim.writers import render_sequence
 
 SCENES = ("street", "room")
 BACKENDS = ("local", "ray")
@@ -176,9 +183,6 @@ class PlannedSequence:
 
 def plan(cfg: DatasetConfig) -> list[PlannedSequence]:
     """Every sequence's settings, from ``cfg.seed`` alone (see the module docstring)."""
-    from deepslam.scenes import SceneConfig
-    from deepslam.sim.config import RenderConfig, SimConfig, TrajectoryConfig
-
     rng = np.random.default_rng(np.random.SeedSequence([int(cfg.seed), 0xDA7A]))
     out = []
     for k in range(cfg.sequences):
@@ -212,8 +216,6 @@ def plan(cfg: DatasetConfig) -> list[PlannedSequence]:
 
 def tree_digest(root: Path) -> tuple[str, int, int]:
     """(sha256, files, bytes) of every file under ``root`` (see the module docstring)."""
-    from deepslam.core.integrity import file_digests
-
     files = sorted(p for p in root.rglob("*") if p.is_file())
     digests = file_digests(files, root)
     lines = "".join(f"{sha}  {rel}\n" for rel, sha in digests.items())
@@ -228,11 +230,6 @@ def render_planned(entry: dict, out_root: str, fmt: str) -> dict:
     deformation, layout), ``frames``, ``files``, ``bytes``, ``sha256``, ``seconds`` and
     ``peak_rss_mib`` (this process's peak resident memory so far).
     """
-    import resource
-
-    from deepslam.sim.config import SimConfig
-    from deepslam.sim.writers import render_sequence
-
     os.environ.setdefault("MUJOCO_GL", "egl")
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
     t0 = time.perf_counter()
@@ -281,10 +278,6 @@ def build(cfg: DatasetConfig, out_dir, backend: str = "local", workers: int = 2,
             was being rendered carries on from its last complete frame.
         progress: a progress bar over all frames of all sequences.
     """
-    from tqdm import tqdm
-
-    from deepslam.core.lock import output_lock
-
     cfg = cfg.validate()
     if backend not in BACKENDS:
         raise InputError(None, f"unknown backend {backend!r} (local or ray)")
@@ -296,8 +289,6 @@ def build(cfg: DatasetConfig, out_dir, backend: str = "local", workers: int = 2,
     with output_lock(out):
         cfg_path = out / CONFIG_FILE
         if resume and cfg_path.is_file():
-            from deepslam.core.textio import read_json_object
-
             old = read_json_object(cfg_path)
             if old != cfg.to_dict():
                 diff = sorted(k for k in set(old) | set(cfg.to_dict()) if old.get(k) != cfg.to_dict().get(k))
@@ -347,7 +338,7 @@ def build(cfg: DatasetConfig, out_dir, backend: str = "local", workers: int = 2,
 def _run_ray(todo: list[PlannedSequence], out: Path, cfg: DatasetConfig, workers: int, address: str | None,
              finished, bar) -> None:
     """One Ray task per sequence; the bar follows the frames written on disk."""
-    import ray
+    import ray  # deferred: the [ray] extra, only for the ray backend
 
     os.environ.setdefault("MUJOCO_GL", "egl")
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")

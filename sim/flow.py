@@ -107,7 +107,7 @@ def _occlusion_kernel():
     global _OCC_KERNEL
     if _OCC_KERNEL is None:
         try:
-            import numba
+            import numba  # deferred: numba (~0.2 s) loads only when a kernel is first compiled
         except ImportError:  # pragma: no cover - numba is a dependency
             _OCC_KERNEL = False
             return None

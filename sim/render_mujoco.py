@@ -24,7 +24,7 @@ from deepslam.sim.world import WorldState
 
 def compile_model(scene: Scene, width: int, height: int, fov_y_deg: float, baseline_m: float | None):
     """Compile the scene's MJCF and fill in its atlas; returns the ``mujoco.MjModel``."""
-    import mujoco
+    import mujoco  # deferred: the [sim] extra; read after MUJOCO_GL is set, only when rendering
 
     model = mujoco.MjModel.from_xml_string(mjcf.scene_xml(scene, width, height, fov_y_deg, baseline_m))
     tid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_TEXTURE, "atlas")
@@ -49,7 +49,7 @@ class MujocoBackend:
     name = "mujoco"
 
     def __init__(self, scene: Scene, camera: PinholeCamera, baseline_m: float | None = None):
-        import mujoco
+        import mujoco  # deferred: the [sim] extra; read after MUJOCO_GL is set, only when rendering
 
         _check_camera(camera)
         self.scene = scene
@@ -106,7 +106,7 @@ class MujocoBackend:
 
     def set_state(self, state: WorldState) -> None:
         """Move the camera rig and the movers, reshape the flags, and run MuJoCo's kinematics."""
-        import mujoco
+        import mujoco  # deferred: the [sim] extra; read after MUJOCO_GL is set, only when rendering
 
         m, d = self.model, self.data
         world_from_rig = world_from_cam_gl_from_cv(state.world_from_cam)
@@ -129,7 +129,7 @@ class MujocoBackend:
         Returns a dict with ``rgb`` (H, W, 3) uint8 (if colour), ``depth_z`` (H, W) float32 metres
         (0 = nothing hit) and ``body`` (H, W) int32 scene-body index, -1 = nothing (if depth).
         """
-        import mujoco
+        import mujoco  # deferred: the [sim] extra; read after MUJOCO_GL is set, only when rendering
 
         if side not in self._cams:
             raise ValueError(f"no {side} camera (baseline 0?)")

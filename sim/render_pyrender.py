@@ -31,7 +31,7 @@ class PyrenderBackend:
     name = "pyrender"
 
     def __init__(self, scene: Scene, camera: PinholeCamera, baseline_m: float | None = None):
-        import pyrender
+        import pyrender  # deferred: the [sim] extra; read after PYOPENGL_PLATFORM is set, only when rendering
 
         self.scene = scene
         self.camera = camera
@@ -121,7 +121,7 @@ class PyrenderBackend:
 
     def _configure_forward_pass_viewport(self, flags):
         """Stands in for ``pyrender.Renderer._configure_forward_pass_viewport``."""
-        from OpenGL import GL
+        from OpenGL import GL  # deferred: the [sim] extra, after PYOPENGL_PLATFORM is set
 
         r = self._renderer._renderer
         r._configure_main_framebuffer()
@@ -137,7 +137,7 @@ class PyrenderBackend:
         the multisampled buffer like pyrender and read the colour; for segmentation passes (drawn
         single-sampled) read the colour and the raw depth buffer (values in [0, 1]); flipped to
         image rows."""
-        from OpenGL import GL
+        from OpenGL import GL  # deferred: the [sim] extra, after PYOPENGL_PLATFORM is set
 
         r = self._renderer._renderer
         w, h = r._main_fb_dims
@@ -186,7 +186,7 @@ class PyrenderBackend:
         if plat is None:
             return
         if hasattr(plat, "_egl_display") and plat._egl_display is not None:
-            from OpenGL import EGL
+            from OpenGL import EGL  # deferred: the [sim] extra, after PYOPENGL_PLATFORM is set
 
             plat.make_current()
             r._renderer.delete()

@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from scipy import ndimage
 
 from deepslam.core.camera import PinholeCamera
 
@@ -86,8 +87,6 @@ def kinect_depth(depth_z: np.ndarray, camera: PinholeCamera, rng: np.random.Gene
         rng: the noise's generator (pass one seeded from the frame for determinism).
         model: the error model's parameters.
     """
-    from scipy import ndimage
-
     z = np.asarray(depth_z, dtype=np.float64)
     valid = np.isfinite(z) & (z >= model.min_range_m) & (z <= model.max_range_m)
     sigma = model.sigma_a_m + model.sigma_b_per_m * (z - model.sigma_z0_m) ** 2

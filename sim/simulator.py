@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import cv2
 import numpy as np
 
 from deepslam.core import se3
@@ -12,6 +13,9 @@ from deepslam.scenes import SceneConfig, build_scene
 from deepslam.scenes.spec import Scene
 from deepslam.sim.config import SimConfig, camera_for
 from deepslam.sim.flow import FlowComputer, occlusion_mask
+from deepslam.sim.render_mujoco import MujocoBackend
+from deepslam.sim.render_pyrender import PyrenderBackend
+from deepslam.sim.sensor import kinect_depth
 from deepslam.sim.trajectories import make_motion
 from deepslam.sim.world import WorldState, follow_camera, separate_movers, world_state
 
@@ -92,12 +96,8 @@ def rolling_shutter_bands(height: int, readout_s: float, bands: int) -> list[tup
 
 def make_backend(name: str, scene: Scene, camera: PinholeCamera, baseline_m: float | None):
     if name == "mujoco":
-        from deepslam.sim.render_mujoco import MujocoBackend
-
         return MujocoBackend(scene, camera, baseline_m)
     if name == "pyrender":
-        from deepslam.sim.render_pyrender import PyrenderBackend
-
         return PyrenderBackend(scene, camera, baseline_m)
     raise ValueError(f"unknown backend {name!r}")
 
@@ -214,8 +214,6 @@ class Simulator:
             back = self._flow_between(i, i - 1, left["depth_z"], left["body"])[0]
         sensor = None
         if self.config.render.depth_noise == "kinect":
-            from deepslam.sim.sensor import kinect_depth
-
             sensor = kinect_depth(left["depth_z"], self.camera, np.random.default_rng([self._effects_seed, 0x5E75, int(i)]))
         mask = self._inst[left["body"] + 1]
         poses = {b.instance_id: s0.world_from_body[k] for k, b in enumerate(self.scene.bodies) if b.kind == "rigid"}
@@ -362,8 +360,6 @@ class Simulator:
     def _distort(self, img: np.ndarray) -> np.ndarray:
         """The image a lens with ``render.distortion`` would give: pixel x_d of the distorted image shows
         what the pinhole render shows at undistort(x_d) (OpenCV's model, iterative inverse; bilinear)."""
-        import cv2
-
         if self._distort_maps is None:
             cam = self.camera
             u, v = np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64))

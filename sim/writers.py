@@ -34,20 +34,25 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 from pathlib import Path
 
+import cv2
 import numpy as np
+from tqdm import tqdm
 
 from deepslam.core import atomic, flowio, se3
 from deepslam.core.dynamic import dynamic_fraction
 from deepslam.core.errors import InputError
 from deepslam.core.integrity import file_digests, record_files_match
 from deepslam.core.lock import output_lock
+from deepslam.core.ours import OursWriter
 from deepslam.core.trajectory import Trajectory
 from deepslam.core.trajio import write_trajectory
 from deepslam.core.tum import DEPTH_SCALE as TUM_DEPTH_SCALE
 from deepslam.sim.config import FORMATS, SimConfig
+from deepslam.sim.simulator import Simulator
 
 EUROC_T0_NS = 1_600_000_000_000_000_000
 """Timestamp (ns) of frame 0 in EuRoC exports (absolute, like the real data's)."""
@@ -214,8 +219,6 @@ def _instances(sim) -> dict:
 
 class OursSink:
     def __init__(self, sim, root: Path, config: SimConfig, resume: bool):
-        from deepslam.core.ours import OursWriter
-
         self.sim = sim
         self.config = config
         self.n = sim.num_frames
@@ -304,8 +307,6 @@ class KittiSink(_Sink):
         return self.complete or super().done(i)
 
     def write(self, i: int, frame) -> None:
-        import cv2
-
         n = _name(i)
         written = []
 
@@ -394,8 +395,6 @@ class EurocSink(_Sink):
         return EUROC_T0_NS + int(round(i * 1e9 / self.sim.rate_hz))
 
     def write(self, i: int, frame) -> None:
-        import cv2
-
         ns = self.ns(i)
         written = []
 
@@ -495,8 +494,6 @@ class TumSink(_Sink):
 def _remove_stale_temporaries(root: Path) -> None:
     """Delete the temporary files (core.atomic: ``.<stem>.<random>.tmp<suffix>``) that a killed
     writer left behind; they are never complete files."""
-    import re
-
     pattern = re.compile(r"^\..+\.[A-Za-z0-9_]+\.tmp(\.[A-Za-z0-9]+)?$")
     for p in root.rglob(".*"):
         if p.is_file() and pattern.match(p.name):
@@ -529,10 +526,6 @@ def render_sequence(config: SimConfig, out_dir, fmt: str = "ours", resume: bool 
 
 def _render_locked(config: SimConfig, out: Path, created: bool, fmt: str, resume: bool, progress: bool,
                    sequence: str, simulator) -> Path:
-    from tqdm import tqdm
-
-    from deepslam.sim.simulator import Simulator
-
     check_output_folder(out, resume, render_record(out, fmt, sequence))
     try:
         out.mkdir(parents=True, exist_ok=True)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from typing import Sequence as SequenceT
 
+import cv2
 import numpy as np
 
 from deepslam.core import se3
@@ -44,15 +45,11 @@ class PnPOdometry:
         self.unit_translation_m = float(unit_translation_m)
 
     def _features(self, img: np.ndarray):
-        import cv2
-
         grey = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img
         sift = cv2.SIFT_create(nfeatures=self.max_features)
         return sift.detectAndCompute(grey, None)
 
     def _pair(self, seq, i: int, j: int, cache: dict) -> tuple[np.ndarray, np.ndarray]:
-        import cv2
-
         for k in (i, j):
             if k not in cache:
                 cache[k] = self._features(seq.image(k))

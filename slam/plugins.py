@@ -31,7 +31,9 @@ import numpy as np
 from deepslam.core import se3
 from deepslam.core.errors import InputError
 from deepslam.core.plugins import ENTRY_POINT_GROUPS, load_factory
-from deepslam.slam.odometry import check_prediction
+from deepslam.core.trajio import read_trajectory_and_format
+from deepslam.slam.odometry import GroundTruthOdometry, NoiseConfig, check_prediction
+from deepslam.vo import models
 
 ENTRY_POINT_GROUP = ENTRY_POINT_GROUPS["odometry"]
 """Entry-point group of odometry plugins (``NAME = "module:factory"``)."""
@@ -138,8 +140,6 @@ class CommandOdometry:
         self._cache: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
     def _run(self, seq) -> tuple[np.ndarray, np.ndarray]:
-        from deepslam.core.trajio import read_trajectory_and_format
-
         key = str(Path(seq.root).resolve())
         if key in self._cache:
             return self._cache[key]
@@ -237,8 +237,6 @@ def odometry_from_args(args, seq):
     if pose == "epipolar" and (args.odometry != "model" or getattr(args, "odometry_command", None)):
         raise InputError(None, f"--pose {pose} needs the network odometry (not a plug-in or gt-noisy)")
     if args.odometry == "gt-noisy":
-        from deepslam.slam.odometry import GroundTruthOdometry, NoiseConfig
-
         if seq.gt is None:
             raise InputError(args.sequence, "--odometry gt-noisy needs a sequence with ground truth")
         try:
@@ -259,8 +257,8 @@ def odometry_from_args(args, seq):
         loops_spec = getattr(args, "odometry_loops", None)
         loops = load_odometry(loops_spec) if loops_spec else cons
         return cons, loops
+    # deferred: both import torch; plug-in and gt-noisy odometries (and vo/slam --help) stay torch-free
     from deepslam.gen.device import resolve_device
-    from deepslam.vo import models
     from deepslam.flow.registry import given_estimator_options
 
     device = resolve_device(getattr(args, "device", "cpu"))

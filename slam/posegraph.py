@@ -283,7 +283,7 @@ def _check_consecutive(n_poses: int, cons: Edges) -> None:
 
 
 def _robust(config: PoseGraphConfig, base):
-    import gtsam
+    import gtsam  # deferred: gtsam loads only when a pose graph is built, not for chain() or vo
 
     if config.robust == "none":
         return base
@@ -305,7 +305,7 @@ def edge_covariances(edges: Edges, config: PoseGraphConfig, is_loop: bool) -> np
 
 def _between_factors(graph, edges: Edges, config: PoseGraphConfig, is_loop: bool, robust: bool) -> None:
     """Add BetweenFactorPose3(i, j, inv(T(mean6)), Gaussian(J Sigma_e J^T) [robust]) to ``graph``."""
-    import gtsam
+    import gtsam  # deferred: gtsam loads only when a pose graph is built, not for chain() or vo
 
     if not len(edges):
         return
@@ -327,7 +327,7 @@ def _check_config(config: PoseGraphConfig) -> None:
 
 def _base_graph(n_poses: int, cons: Edges, config: PoseGraphConfig, world_from_cam0: np.ndarray | None):
     """Prior on pose 0 and the consecutive edges."""
-    import gtsam
+    import gtsam  # deferred: gtsam loads only when a pose graph is built, not for chain() or vo
 
     _check_config(config)
     _check_consecutive(n_poses, cons)
@@ -341,7 +341,7 @@ def _base_graph(n_poses: int, cons: Edges, config: PoseGraphConfig, world_from_c
 
 def _with_loops(base, loops: Edges, config: PoseGraphConfig):
     """A new graph sharing ``base``'s factors, plus the loop edges (robust when a kernel is set)."""
-    import gtsam
+    import gtsam  # deferred: gtsam loads only when a pose graph is built, not for chain() or vo
 
     _check_config(config)
     graph = gtsam.NonlinearFactorGraph()
@@ -362,7 +362,7 @@ def build_graph(n_poses: int, cons: Edges, loops: Edges | None, config: PoseGrap
 def loop_residuals(world_from_cam: np.ndarray, edges: Edges, config: PoseGraphConfig, is_loop: bool = True) -> np.ndarray:
     """Whitened residual norms (P,) of edges at poses world_from_cam (N, 4, 4): sqrt(e^T Sigma^-1 e),
     e = Log(inv(measured) inv(pose_i) pose_j), Sigma as :func:`build_graph` weights the edge."""
-    import gtsam
+    import gtsam  # deferred: gtsam loads only when a pose graph is built, not for chain() or vo
 
     if not len(edges):
         return np.zeros(0)
@@ -375,7 +375,7 @@ def loop_residuals(world_from_cam: np.ndarray, edges: Edges, config: PoseGraphCo
 
 
 def _values(poses: np.ndarray):
-    import gtsam
+    import gtsam  # deferred: gtsam loads only when a pose graph is built, not for chain() or vo
 
     values = gtsam.Values()
     for i, m in enumerate(poses):
@@ -384,7 +384,7 @@ def _values(poses: np.ndarray):
 
 
 def _poses(values, n_poses: int) -> np.ndarray:
-    import gtsam
+    import gtsam  # deferred: gtsam loads only when a pose graph is built, not for chain() or vo
 
     flat = gtsam.utilities.extractPose3(values)  # (N, 12) in key order: row-major R (9) then t (3)
     out = se3.identity((n_poses,))
@@ -394,7 +394,7 @@ def _poses(values, n_poses: int) -> np.ndarray:
 
 
 def _run(graph, values, config: PoseGraphConfig, relative_tol: float):
-    import gtsam
+    import gtsam  # deferred: gtsam loads only when a pose graph is built, not for chain() or vo
 
     if config.optimizer == "lm":
         params = gtsam.LevenbergMarquardtParams()

@@ -25,7 +25,9 @@ import json
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
+import scipy.sparse as sp
 
 from deepslam.core import atomic
 from deepslam.core.errors import InputError
@@ -100,15 +102,11 @@ class FeatureExtractor:
     """SIFT on a downscaled grey image (one cv2.SIFT object reused)."""
 
     def __init__(self, config: RelocConfig = RelocConfig()):
-        import cv2
-
         self.config = config
         self._sift = cv2.SIFT_create(nfeatures=config.n_features, contrastThreshold=config.contrast_threshold)
 
     def __call__(self, image: np.ndarray) -> Features:
         """image: uint8 (H, W) grey or (H, W, 3) RGB -> Features."""
-        import cv2
-
         img = np.asarray(image)
         if img.ndim == 3:
             img = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
@@ -230,8 +228,6 @@ def kmeans(x: np.ndarray, k: int, rng: np.random.Generator, iterations: int = 10
     Returns:
         (k, d) float32 centres. Empty clusters are re-seeded at the points farthest from their centre.
     """
-    import scipy.sparse as sp
-
     x = np.ascontiguousarray(x, dtype=np.float32)
     n = len(x)
     if n < k:
@@ -347,8 +343,6 @@ class BowDatabase:
             self.add(ids, w)
 
     def _csr(self, start: int, stop: int):
-        import scipy.sparse as sp
-
         a, b = self._indptr[start], self._indptr[stop]
         return sp.csr_matrix((self._data[a:b], self._indices[a:b], self._indptr[start: stop + 1] - a),
                              shape=(stop - start, self.n_words), copy=False)
@@ -453,8 +447,6 @@ def verify(a: Features, b: Features, camera_k: np.ndarray, config: RelocConfig) 
         a, b: features of the two frames (full-resolution pixel coordinates).
         camera_k: (3, 3) float64 intrinsics of those pixel coordinates.
     """
-    import cv2
-
     ia, ib = ratio_matches(a, b, config.ratio)
     n = len(ia)
     if n < max(config.min_matches, 5):

@@ -12,11 +12,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
+from deepslam.core.ours import OursWriter, read_ours
 from deepslam.core.trajectory import Trajectory
+from deepslam.slam.odometry import GroundTruthOdometry, NoiseConfig
+from deepslam.slam.posegraph import Edges
 
 
 def circle_trajectory(n_frames: int, radius_m: float = 20.0, laps: float = 2.0, lap_offset_m: float = 0.0,
@@ -41,8 +45,6 @@ def circle_trajectory(n_frames: int, radius_m: float = 20.0, laps: float = 2.0, 
 
 def random_texture(rng: np.random.Generator, height: int, width: int) -> np.ndarray:
     """(H, W) uint8 blob texture: white noise blurred at several scales, contrast-stretched."""
-    import cv2
-
     img = np.zeros((height, width), np.float32)
     for sigma, amp in ((1.5, 0.6), (3.0, 1.0), (6.0, 1.0)):
         n = rng.standard_normal((height, width)).astype(np.float32)
@@ -72,8 +74,6 @@ def small_motion(rng: np.random.Generator, rot_std_rad: float = 0.03, t_std_m: f
 def revisit_image(texture: np.ndarray, camera_k: np.ndarray, cam_from_ref: np.ndarray,
                   distance_m: float = 5.0) -> np.ndarray:
     """The texture (a fronto-parallel plane at ``distance_m`` in the reference view) seen after cam_from_ref."""
-    import cv2
-
     h = plane_homography(camera_k, cam_from_ref, distance_m=distance_m)
     return cv2.warpPerspective(texture, h, (texture.shape[1], texture.shape[0]), flags=cv2.INTER_LINEAR,
                                borderMode=cv2.BORDER_REFLECT)
@@ -87,8 +87,6 @@ def write_loop_sequence(root: str | Path, n_frames: int = 120, laps: float = 2.0
     by a small random camera motion seeded by (seed, i). Poses: :func:`circle_trajectory`. The images are
     not rendered from the poses: they only carry the revisit structure the relocalization needs.
     """
-    from deepslam.core.ours import OursWriter, read_ours
-
     camera = PinholeCamera.from_fov_y(width, height, 60.0)
     poses = circle_trajectory(n_frames, radius_m, laps, lap_offset_m)
     per_lap = n_frames / laps
@@ -124,9 +122,6 @@ def loop_graph(n_frames: int = 400, laps: float = 2.0, radius_m: float = 50.0, l
     Returns:
         dict with ``gt`` (Trajectory), ``cons``, ``loops``, ``false_loops`` (slam.posegraph.Edges).
     """
-    from deepslam.slam.odometry import GroundTruthOdometry, NoiseConfig
-    from deepslam.slam.posegraph import Edges
-
     cons_noise = cons_noise or NoiseConfig(std6=(0.001, 0.001, 0.001, 0.02, 0.02, 0.02),
                                            bias6=(0.0, 0.002, 0.0, 0.0, 0.0, 0.0), seed=seed)
     loop_noise = loop_noise or NoiseConfig(std6=(0.003, 0.003, 0.003, 0.05, 0.05, 0.05), seed=seed + 1)

@@ -19,10 +19,11 @@ from typing import Callable
 import numpy as np
 
 from deepslam.core import metrics
+from deepslam.core.errors import InputError
 from deepslam.core.progress import progress
 from deepslam.core.trajectory import Trajectory
 from deepslam.slam.pipeline import Prepared, SlamParams, solve
-from deepslam.slam.posegraph import PoseGraphConfig
+from deepslam.slam.posegraph import PoseGraphConfig, chain
 
 SCORES = ("ate", "ate_ratio")
 
@@ -86,12 +87,8 @@ class TuneResult:
 
 def problem_from_prepared(prep: Prepared, graph: PoseGraphConfig = PoseGraphConfig(), name: str | None = None) -> TuneProblem:
     """A TuneProblem from a prepared sequence with ground truth (solves the pose graph per params)."""
-    from deepslam.slam.posegraph import chain
-
     gt = getattr(prep.seq, "gt", None)
     if gt is None:
-        from deepslam.core.errors import InputError
-
         raise InputError(getattr(prep.seq, "root", None), "a validation sequence needs ground truth")
     first = gt.world_from_cam[0]
 

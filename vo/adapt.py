@@ -147,8 +147,9 @@ def frames_view(seq_dir: Path, parent: Path) -> Path:
 
 
 def _stage(which: str, recipe: Recipe, start: Path, frames: str, cfg: AdaptConfig, out: Path, minutes: float,
-           resume: bool, progress: bool) -> dict:
-    """Fine-tune ``start`` on ``frames`` by ``recipe``; the model lands in ``out/model.safetensors``."""
+           resume: bool, progress: bool, tensorboard: Path | None = None) -> dict:
+    """Fine-tune ``start`` on ``frames`` by ``recipe``; the model lands in ``out/model.safetensors`` (TensorBoard
+    scalars in ``tensorboard``, None: none)."""
     tree = modeltree.read_header_tree(start)
     meta = modeltree.meta(tree)
     net = NetConfig.from_dict(modeltree.net_config(tree))
@@ -172,12 +173,14 @@ def _stage(which: str, recipe: Recipe, start: Path, frames: str, cfg: AdaptConfi
     run_meta = {"mode": "adapt", **data_meta, "adapted_from": {"file": start.name, "sha256": sha256_file(start)}}
     if meta.get("pose"):
         run_meta["pose"] = meta["pose"]  # the start model's pose mode (deepslam set-pose) carries over
-    res = train(train_cfg, train_src, hold_src, out, resume=resume, progress=progress, meta=run_meta)
+    res = train(train_cfg, train_src, hold_src, out, resume=resume, progress=progress, meta=run_meta,
+                tensorboard=tensorboard)
     return {"model": str(res.model_path), "stop_reason": res.stop_reason, "best_val_loss": res.best_val_loss,
             "holdout_nll": res.holdout_nll, "epochs": sum(1 for h in res.history if h["stage"] == 1)}
 
 
-def _run(seq_dir: Path, out: Path, cfg: AdaptConfig, resume: bool, progress: bool) -> tuple[dict, str, int]:
+def _run(seq_dir: Path, out: Path, cfg: AdaptConfig, resume: bool, progress: bool,
+         tensorboard: Path | None) -> tuple[dict, str, int]:
     """The stages of :func:`adapt` into ``out``: (results per stage, camera kind, frames)."""
     view = frames_view(seq_dir, out / "frames_view")
     seq = open_sequence(view)
@@ -201,7 +204,8 @@ def _run(seq_dir: Path, out: Path, cfg: AdaptConfig, resume: bool, progress: boo
         done = (stage_dir / "model.safetensors").is_file()
         if not done:
             results[which] = _stage(which, recipe, start, str(view), cfg, stage_dir, minutes,
-                                    resume and stage_dir.exists(), progress)
+                                    resume and stage_dir.exists(), progress,
+                                    None if tensorboard is None else tensorboard / which)
         else:
             results[which] = {"model": str(stage_dir / "model.safetensors"), "stop_reason": "finished earlier"}
         target = out / ("model.safetensors" if which == "cons" else "loops.safetensors")
@@ -211,9 +215,13 @@ def _run(seq_dir: Path, out: Path, cfg: AdaptConfig, resume: bool, progress: boo
 
 
 def adapt(seq_dir: str | Path, out: str | Path, cfg: AdaptConfig = AdaptConfig(), resume: bool = False,
-          progress: bool = True) -> dict:
+          progress: bool = True, tensorboard: str | Path | None = None) -> dict:
     """Adapt NN_cons (and NN_loops) to the sequence ``seq_dir``; returns the record written to
     ``out/adapt.json``.
+
+    ``tensorboard``: a folder for TensorBoard scalars of the training runs, one run per network
+    (``cons/``, ``loops/``; the scalars of :func:`vo.train.train`). None: none. It is not a setting: the
+    models are the same bytes with or without it, and a resumed run may add or drop it.
 
     Raises:
         InputError: the sequence cannot be read, has no depth for its frames, or ``out`` holds another run.
@@ -229,7 +237,8 @@ def adapt(seq_dir: str | Path, out: str | Path, cfg: AdaptConfig = AdaptConfig()
     created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     try:
-        results, kind, n_frames = _run(seq_dir, out, cfg, resume, progress)
+        results, kind, n_frames = _run(seq_dir, out, cfg, resume, progress,
+                                       None if tensorboard is None else Path(tensorboard))
     except InputError:
         # bad input found before any training: the folder this run created goes (an interrupted run keeps its
         # checkpoints for --resume)

@@ -22,12 +22,11 @@ from __future__ import annotations
 import os
 
 import torch
+import torch.distributed as dist
 
 
 def world() -> tuple[int, int]:
     """(rank, world size) of this process: (0, 1) outside a process group."""
-    import torch.distributed as dist
-
     if dist.is_available() and dist.is_initialized():
         return dist.get_rank(), dist.get_world_size()
     return 0, 1
@@ -43,8 +42,6 @@ def init_from_env(device: torch.device) -> torch.device:
     Returns:
         The device this rank trains on.
     """
-    import torch.distributed as dist
-
     if int(os.environ.get("WORLD_SIZE", "1")) <= 1 or (dist.is_available() and dist.is_initialized()):
         return device
     if device.type == "cuda":
@@ -62,8 +59,6 @@ def agree(count: int, stop: bool, device: torch.device) -> tuple[int, bool]:
     rank, size = world()
     if size <= 1:
         return count, stop
-    import torch.distributed as dist
-
     t = torch.tensor([float(count), 1.0 if stop else 0.0], dtype=torch.float64, device=device)
     dist.all_reduce(t)
     return int(t[0].item()), bool(t[1].item() > 0)
@@ -71,8 +66,6 @@ def agree(count: int, stop: bool, device: torch.device) -> tuple[int, bool]:
 
 def finish() -> None:
     """Leave the process group (end of a distributed command)."""
-    import torch.distributed as dist
-
     if dist.is_available() and dist.is_initialized():
         dist.barrier()
         dist.destroy_process_group()

@@ -25,9 +25,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from deepslam.core import se3
+from deepslam.vo.road_scale import RoadScaleConfig, RoadScan, road_distances, scan_road, travel_pitch_deg
 
 
 METHODS = ("usac_default", "usac_accurate", "usac_magsac", "usac_fast", "ransac")
@@ -65,7 +67,16 @@ class EpipolarConfig:
     twist, which then also passes the parallax test). A car's camera turns at most a few degrees a frame
     and the network errs by tenths of one."""
 
+    road_height_m: float | None = None
+    """Height of the camera above a road in front of it, metres (1.65 on KITTI and in the simulated street):
+    when set, the distance travelled is read from the road's motion in the flow (:mod:`vo.road_scale`: the
+    road plane's homography with the fit's rotation and direction of travel, the camera's pitch chosen once
+    per sequence) instead of from the network, in every pair whose road fits well enough. None: the
+    network's distance."""
+
     def __post_init__(self) -> None:
+        if self.road_height_m is not None and not (0.1 <= self.road_height_m <= 100.0):
+            raise ValueError(f"road_height_m must be in [0.1, 100] m, got {self.road_height_m}")
         if self.grid_step_px < 1:
             raise ValueError(f"grid_step_px must be >= 1, got {self.grid_step_px}")
         if self.max_points < 5 or self.min_inliers < 5:
@@ -96,6 +107,9 @@ class EpipolarFit:
     """Median inlier flow with the fitted rotation taken out, pixels (NaN when not fitted)."""
     reason: str = ""
     """Why the fit is not used ('' when ``ok``)."""
+    road: RoadScan | None = None
+    """The road's fit per distance (:func:`vo.road_scale.scan_road`) when :attr:`EpipolarConfig.road_height_m`
+    is set, else None."""
 
 
 def _failed(sampled: int, reason: str, inliers: int = 0, parallax: float = float("nan")) -> EpipolarFit:
@@ -139,8 +153,6 @@ def fit_essential(flow: np.ndarray, camera, cfg: EpipolarConfig = EpipolarConfig
     A point set OpenCV refuses (``cv2.error``) is a failed fit, not an exception; a flow of another size
     than the camera's is a ValueError.
     """
-    import cv2
-
     if flow.ndim != 3 or flow.shape[2] != 2 or flow.shape[:2] != (camera.height, camera.width):
         raise ValueError(f"flow must be ({camera.height}, {camera.width}, 2) for this camera, got {flow.shape}")
     pts0, pts1 = grid_correspondences(flow, cfg.grid_step_px, cfg.max_points)
@@ -172,11 +184,16 @@ def fit_essential(flow: np.ndarray, camera, cfg: EpipolarConfig = EpipolarConfig
     if parallax < cfg.min_parallax_px:
         return _failed(n, f"parallax {parallax:.2f} px below {cfg.min_parallax_px}", inl, parallax)
     d = np.asarray(t, dtype=np.float64).ravel()
-    return EpipolarFit(True, np.asarray(rot, dtype=np.float64), d / np.linalg.norm(d), inl, n, parallax)
+    d = d / np.linalg.norm(d)
+    rot = np.asarray(rot, dtype=np.float64)
+    road = scan_road(flow, camera, rot, d) if cfg.road_height_m is not None else None
+    return EpipolarFit(True, rot, d, inl, n, parallax, road=road)
 
 
-def fuse(mean6: np.ndarray, fit: EpipolarFit, cfg: EpipolarConfig = EpipolarConfig()) -> tuple[np.ndarray, bool]:
-    """One network motion with the fit's rotation and direction of travel, and the network's distance.
+def fuse(mean6: np.ndarray, fit: EpipolarFit, cfg: EpipolarConfig = EpipolarConfig(),
+         distance_m: float = float("nan")) -> tuple[np.ndarray, bool]:
+    """One network motion with the fit's rotation and direction of travel, and the network's distance (or
+    ``distance_m``, metres, where finite: the road's, :func:`vo.road_scale.road_distances`).
 
     Args:
         mean6: (6,) float the network's ``cam1_from_cam0`` (euler_x, euler_y, euler_z rad, t_x, t_y, t_z m).
@@ -199,6 +216,8 @@ def fuse(mean6: np.ndarray, fit: EpipolarFit, cfg: EpipolarConfig = EpipolarConf
     length = float(np.linalg.norm(t_net))
     if length > 0 and float(fit.direction_cam1 @ t_net) < 0:
         return m.copy(), False
+    if np.isfinite(distance_m):
+        length = float(distance_m)
     return se3.to_euler6(se3.from_rt(fit.cam1_from_cam0_rotation, fit.direction_cam1 * length)), True
 
 
@@ -210,9 +229,20 @@ def fuse_all(mean6: np.ndarray, fits, cfg: EpipolarConfig = EpipolarConfig()) ->
         raise ValueError(f"{len(mean6)} motions but {len(fits)} epipolar fits")
     out = np.empty_like(mean6)
     used = np.zeros(len(mean6), bool)
+    distances = np.full(len(fits), np.nan)
+    if cfg.road_height_m is not None:
+        distances = road_distances([f.road for f in fits], sequence_pitch_deg(fits),
+                                   RoadScaleConfig(height_m=cfg.road_height_m))
     for p, (m, fit) in enumerate(zip(mean6, fits)):
-        out[p], used[p] = fuse(m, fit, cfg)
+        out[p], used[p] = fuse(m, fit, cfg, distances[p])
     return out, used
+
+
+def sequence_pitch_deg(fits) -> float:
+    """The camera's pitch over the road from the direction of travel of the usable fits
+    (:func:`vo.road_scale.travel_pitch_deg`), degrees; NaN without any."""
+    ok = [f for f in fits if f.ok]
+    return travel_pitch_deg([f.cam1_from_cam0_rotation for f in ok], [f.direction_cam1 for f in ok])
 
 
 class EpipolarFitter:

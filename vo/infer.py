@@ -11,8 +11,14 @@ from typing import Sequence as Seq
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from deepslam.core import se3
+from deepslam.flow.estimators import to_network_input
+from deepslam.vo.epipolar import EpipolarFitter, fuse_all
+from deepslam.vo.frames import frame_inverse_depth
+from deepslam.vo.modelio import load_model
+from deepslam.vo.prefetch import PairInputs
 
 
 @functools.lru_cache(maxsize=1)
@@ -56,8 +62,6 @@ class VOPredictor:
     @classmethod
     def from_file(cls, path: str | Path, **kwargs) -> "VOPredictor":
         """Load a ``model.safetensors`` (or a training ``checkpoint.safetensors``); InputError when missing or malformed."""
-        from deepslam.vo.modelio import load_model
-
         model, meta = load_model(path)
         kwargs.setdefault("name", Path(path).stem)
         return cls(model, meta=meta, **kwargs)
@@ -104,8 +108,6 @@ class VOPredictor:
 
     def prepare(self, flow_full: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
         """Full-resolution flow (H, W, 2) -> network input ((2, h, w) px, (4,) intrinsics)."""
-        from deepslam.flow.estimators import to_network_input
-
         h, w = self.input_size
         return to_network_input(flow_full, camera, w, h, self.model.cfg.unknown_flow)
 
@@ -128,18 +130,11 @@ class VOPredictor:
 
         Returns (mean6, std6): float64 (P, 6) in the order of ``pairs``.
         """
-        from tqdm import tqdm
-
-        from deepslam.vo.frames import frame_inverse_depth
-        from deepslam.vo.prefetch import PairInputs
-
         pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
         h, w = self.input_size
         unknown = self.model.cfg.unknown_flow
         fit = None
         if epipolar is not None:
-            from deepslam.vo.epipolar import EpipolarFitter
-
             fit = EpipolarFitter(epipolar)
         if inputs is not None and ((inputs.height, inputs.width, inputs.unknown) != (h, w, unknown)
                                    or not np.array_equal(inputs.pairs, pairs) or inputs.full_flow_fn != fit):
@@ -168,8 +163,6 @@ class VOPredictor:
             return np.zeros((0, 6)), np.zeros((0, 6))
         mean6, std6 = np.concatenate(means), np.concatenate(stds)
         if fit is not None:
-            from deepslam.vo.epipolar import fuse_all
-
             side = inputs.side
             mean6, used = fuse_all(mean6, side, epipolar)
             if fits_out is not None:

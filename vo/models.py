@@ -13,9 +13,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import deepslam.models
 from deepslam.core.errors import InputError
 from deepslam.core.kinds import KINDS, kind_for_sequence  # noqa: F401 - part of this module's API
 from deepslam.core.textio import short
+from deepslam.vo import modeltree
+from deepslam.vo.epipolar import EpipolarConfig
 
 WHICH = ("cons", "loops")
 """NN_cons (consecutive frames) and NN_loops (loop pairs)."""
@@ -43,8 +46,6 @@ def flow_variant(flow: str | None) -> str | None:
 def models_dir() -> Path:
     """The shipped models' folder: the ``deepslam.models`` package (``<repo>/models`` in a checkout,
     ``site-packages/deepslam/models`` installed)."""
-    import deepslam.models
-
     return Path(deepslam.models.__file__).resolve().parent
 
 
@@ -71,7 +72,7 @@ def load_shipped(kind: str, which: str = "cons", flow=None, **kwargs):
 def load(path: Path, shipped: bool = False, **kwargs):
     """:class:`vo.infer.VOPredictor` of ``path``; a shipped model is named after its file and, when
     missing, reported with a pointer to models/README.md."""
-    from deepslam.vo.infer import VOPredictor
+    from deepslam.vo.infer import VOPredictor  # deferred: torch; the header readers here stay torch-free
 
     if shipped:
         if not path.is_file():
@@ -107,8 +108,6 @@ def recorded_flow_options(path: str | Path, flow: str) -> dict:
         InputError: naming ``path``, when the record's options are not ones ``flow`` takes
             (:data:`RECORDED_OPTIONS`).
     """
-    from deepslam.vo import modeltree
-
     try:
         record = modeltree.meta(modeltree.read_header_tree(path)).get("flow")
     except Exception:  # noqa: BLE001 - an unreadable file: the loader says what is wrong
@@ -133,8 +132,6 @@ def recorded_pose(path: str | Path) -> str:
     written by ``deepslam set-pose``): what ``vo`` and ``slam`` use when ``--pose`` is not given.
     ``net`` where the file records none or cannot be read (the loader reports that); read from the
     header, no torch. InputError naming ``path`` for a value that is not a pose mode."""
-    from deepslam.vo import modeltree
-
     try:
         pose = modeltree.meta(modeltree.read_header_tree(path)).get("pose", "net")
     except Exception:  # noqa: BLE001 - an unreadable file: the loader says what is wrong
@@ -151,8 +148,6 @@ def epipolar_config(path: str | Path, pose: str | None = None):
         raise ValueError(f"pose must be one of {', '.join(POSES)} or None, got {pose!r}")
     if (pose or recorded_pose(path)) != "epipolar":
         return None
-    from deepslam.vo.epipolar import EpipolarConfig
-
     return EpipolarConfig()
 
 
@@ -160,6 +155,7 @@ def write_with_pose(path: str | Path, out: str | Path, pose: str) -> dict:
     """Write the VO model file ``path`` (single network or ensemble) to ``out`` (atomically) with ``pose``
     (:data:`POSES`) recorded as its pose mode: the same weights and meta otherwise. Returns the new meta.
     InputError naming ``path`` when it is not a VO model file."""
+    # deferred: both import torch; the header readers here stay torch-free (deepslam vo starts its flows first)
     from deepslam.models import modelfile
     from deepslam.vo.modelio import MODEL_FORMAT
 
@@ -177,7 +173,7 @@ def flow_for_model(flow: str, path: str | Path, recorded: dict | None = None, **
     when the caller has read them already), with the options in ``given`` that are not None taking
     precedence (a command line's explicit flags). InputError naming ``path`` when its recorded
     options are not valid ones."""
-    from deepslam.flow import registry as flow_registry
+    from deepslam.flow import registry as flow_registry  # deferred: it imports torch (the learned estimators)
 
     if recorded is None:
         recorded = recorded_flow_options(path, flow)

@@ -20,6 +20,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from safetensors import safe_open
+
 from deepslam.core.textio import json_depth
 
 
@@ -45,8 +47,6 @@ def read_header_tree(path: str | Path) -> dict:
     tensors appear as the references :mod:`models.modelfile` wrote). Raises OSError, ValueError (incl.
     JSON errors), KeyError or safetensors' error on a missing or unreadable file: callers that only peek
     catch them and leave the report to :func:`models.modelfile.load`."""
-    from safetensors import safe_open
-
     with safe_open(str(path), framework="numpy") as f:
         text = (f.metadata() or {})["tree"]
     # bounded (models.modelfile.MAX_TREE_DEPTH): a deep tree would end json.loads in a RecursionError

@@ -14,12 +14,19 @@ This module does not import torch.
 """
 from __future__ import annotations
 
+import os
 import queue
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Iterator
 
+import cv2
 import numpy as np
+
+from deepslam.core.errors import InputError
+from deepslam.flow.estimators import to_network_input, unknown_flow
+from deepslam.vo import modeltree
 
 
 class _Failed:
@@ -36,10 +43,6 @@ WORKERS_ENV = "DEEPSLAM_FLOW_WORKERS"
 def default_workers() -> int:
     """Flow workers for :class:`PairInputs` when not given: ``$DEEPSLAM_FLOW_WORKERS`` where set (an integer
     >= 1), else the CPU cores this process may use, at most 8."""
-    import os
-
-    from deepslam.core.errors import InputError
-
     given = os.environ.get(WORKERS_ENV, "").strip()
     if given:
         try:
@@ -63,8 +66,6 @@ _OPENCV_HOLDERS = [0, None]  # [PairInputs with several workers alive, OpenCV's 
 def _opencv_single_threaded(on: bool) -> None:
     """OpenCV single-threaded while at least one multi-worker :class:`PairInputs` is alive (a process-wide
     setting, counted: the last one to close gives OpenCV back the thread count it had before the first)."""
-    import cv2
-
     with _OPENCV_LOCK:
         if on:
             if _OPENCV_HOLDERS[0] == 0:
@@ -129,8 +130,6 @@ class PairInputs:
         self._side_pool = None
         self._finished = False
         if full_flow_fn is not None:
-            from concurrent.futures import ThreadPoolExecutor
-
             self._side_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="deepslam-flow-side")
             # full-resolution flows wait for their fit: at most ``ahead`` of them (3.6 MB each on KITTI)
             self._side_slots = threading.BoundedSemaphore(max(1, int(ahead)))
@@ -152,8 +151,6 @@ class PairInputs:
             raise
 
     def _work(self, w: int, estimator) -> None:
-        from deepslam.flow.estimators import to_network_input
-
         q = self._queues[w]
         try:
             for k in range(w, len(self.pairs), self.workers):
@@ -237,9 +234,6 @@ def model_input(path: str | Path) -> tuple[int, int, str] | None:
     how its unknown flow is resized (:attr:`vo.net.NetConfig.unknown_flow`), from the file's header
     alone (:mod:`vo.modeltree`: no torch, no tensors read); None when the file is missing or not a
     readable model file (the loader then says what is wrong)."""
-    from deepslam.vo import modeltree
-    from deepslam.flow.estimators import unknown_flow
-
     try:
         net = modeltree.net_config(modeltree.read_header_tree(path))
         return int(net["input_height"]), int(net["input_width"]), unknown_flow(bool(net.get("valid_channel")))

@@ -47,7 +47,7 @@ def implied_road_height(flow: np.ndarray, camera, cam1_from_cam0: np.ndarray, *,
         step: sample every ``step``-th row and column.
         start_height_m: the fit's starting point.
     """
-    from scipy.optimize import least_squares
+    from scipy.optimize import least_squares  # deferred: scipy.optimize (~0.4 s) only when a road fit runs
 
     h, w = flow.shape[:2]
     v0 = int(np.ceil(camera.cy + row_below_horizon * camera.fy))
@@ -73,3 +73,154 @@ def implied_road_height(flow: np.ndarray, camera, cam1_from_cam0: np.ndarray, *,
     inv_h = float(sol.x[0])
     return RoadFit(1.0 / inv_h if inv_h > 0 else float("inf"), float(np.degrees(sol.x[1])),
                    float(np.median(np.abs(sol.fun))), int(len(uu)))
+
+
+# ----------------------------------------------------------------------------------------------
+# distance travelled from the road (deepslam vo --scale road)
+# ----------------------------------------------------------------------------------------------
+
+ROAD_BANDS = ((0.06, 0.12), (0.12, 0.25))
+"""Bands of image rows scanned for the road, far to near, as fractions of fy below the principal point
+(for a camera 1.65 m up: about 14-27 m and 7-14 m ahead), each ``ROAD_HALF_WIDTH`` x fx either side of
+the principal point (the ego lane, clear of cars parked along the kerbs). Rows nearer the horizon hold
+too little of the road's motion (on the rendered street they read 25 % long)."""
+ROAD_HALF_WIDTH = 0.1
+PITCHES_DEG = np.arange(-3.0, 4.01, 0.25)
+"""Camera pitches scanned (degrees, positive: looking down); the sequence's pitch is interpolated between them."""
+_Q_COARSE = np.geomspace(0.005, 12.0, 72)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class RoadScan:
+    """How well the road's motion in one flow fits each distance, per row band and camera pitch.
+
+    With the rotation and direction of travel known (the epipolar fit), a road plane ``h`` below the camera
+    moves by the homography ``R + q d n^T`` with ``q = |t| / h``: one unknown per pitch. For each band of
+    :data:`ROAD_BANDS` and pitch of :data:`PITCHES_DEG`, the ``q`` whose homography moves the band's pixels
+    most like the flow (smallest median end-point difference) is kept."""
+
+    q: np.ndarray
+    """(B, P) float64 best ``|t| / h`` (distance travelled over the camera's height)."""
+    cost_px: np.ndarray
+    """(B, P) float64 median end-point difference at that ``q``, pixels (NaN: too few pixels in the band)."""
+    flow90_px: np.ndarray
+    """(B, P) float64 90th percentile of the band's flow due to the translation at that ``q``, pixels."""
+    width: int
+    """Image width of the flow, pixels (limits scale with it)."""
+
+
+def scan_road(flow: np.ndarray, camera, rotation: np.ndarray, direction: np.ndarray, step: int = 3) -> RoadScan:
+    """:class:`RoadScan` of one flow.
+
+    Args:
+        flow: (H, W, 2) float32 (du, dv) pixels from frame 0 to frame 1 at the camera's size (NaN = unknown).
+        camera: :class:`core.camera.PinholeCamera` of the flow.
+        rotation: (3, 3) rotation of ``cam1_from_cam0``; direction: (3,) unit translation of ``cam1_from_cam0``.
+        step: sample every ``step``-th row and column (scaled down for small images, at least 1).
+    """
+    h, w = flow.shape[:2]
+    step = max(1, int(round(step * w / 1241.0)))
+    k = camera.k
+    kr = k @ np.asarray(rotation, np.float64)
+    kd = k @ np.asarray(direction, np.float64)
+    nb, npitch = len(ROAD_BANDS), len(PITCHES_DEG)
+    q_out = np.full((nb, npitch), np.nan)
+    cost = np.full((nb, npitch), np.nan)
+    f90 = np.full((nb, npitch), np.nan)
+    u0 = max(0, int(camera.cx - ROAD_HALF_WIDTH * camera.fx))
+    u1 = min(w, int(camera.cx + ROAD_HALF_WIDTH * camera.fx) + 1)
+    for b, (r0, r1) in enumerate(ROAD_BANDS):
+        v0, v1 = int(np.ceil(camera.cy + r0 * camera.fy)), min(h, int(camera.cy + r1 * camera.fy) + 1)
+        vv, uu = np.mgrid[min(v0, h):v1:step, u0:u1:step]
+        f = flow[vv, uu].reshape(-1, 2).astype(np.float64)
+        uu, vv = uu.ravel().astype(np.float64), vv.ravel().astype(np.float64)
+        ok = np.isfinite(f).all(axis=1)
+        if ok.sum() < 30:
+            continue
+        uu, vv, f = uu[ok], vv[ok], f[ok]
+        x0 = np.linalg.inv(k) @ np.stack([uu, vv, np.ones_like(uu)])
+        a = kr @ x0                                          # (3, N) the rotation's image of each ray
+        rot_uv = np.stack([a[0] / a[2], a[1] / a[2]], -1)
+        target = np.stack([uu + f[:, 0], vv + f[:, 1]], -1)
+        for p, pitch in enumerate(np.radians(PITCHES_DEG)):
+            nx = np.cos(pitch) * x0[1] + np.sin(pitch) * x0[2]   # n . x0 with n = (0, cos, sin): the road's normal
+
+            def costs(qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                x1 = a[None] + qs[:, None, None] * kd[None, :, None] * nx[None, None, :]   # (Q, 3, N)
+                uv = np.stack([x1[:, 0] / x1[:, 2], x1[:, 1] / x1[:, 2]], -1)            # (Q, N, 2)
+                return np.median(np.linalg.norm(uv - target[None], axis=-1), axis=1), uv
+
+            c, _ = costs(_Q_COARSE)
+            i = int(np.argmin(c))
+            fine = np.geomspace(_Q_COARSE[max(0, i - 1)], _Q_COARSE[min(len(_Q_COARSE) - 1, i + 1)], 41)
+            c, uv = costs(fine)
+            j = int(np.argmin(c))
+            q_out[b, p], cost[b, p] = fine[j], c[j]
+            f90[b, p] = float(np.percentile(np.linalg.norm(uv[j] - rot_uv, axis=-1), 90))
+    return RoadScan(q_out, cost, f90, int(w))
+
+
+@dataclasses.dataclass(frozen=True)
+class RoadScaleConfig:
+    """How the distances of a sequence's pairs are read from their road scans."""
+
+    height_m: float = 1.65
+    """Camera height above the road, metres."""
+    max_flow_frac: float = 0.02
+    """The nearest band is used whose translation flow (90th percentile) stays below this fraction of the
+    image width (25 px on KITTI): a flow estimator loses the near road's large motion first."""
+    max_cost_frac: float = 0.0012
+    """A pair whose band fits the flow worse than this fraction of the image width (1.5 px on KITTI, median
+    end-point difference) keeps the network's distance."""
+
+
+def travel_pitch_deg(rotations, directions) -> float:
+    """The camera's pitch over the road (degrees, positive: looking down), from the direction of travel of
+    many pairs: a car moves parallel to its road, so its camera sees itself move that far upwards. The
+    median over pairs of ``atan2(-m_y, m_z)``, ``m = -R^T d`` the motion in camera 0's axes (OpenCV: y
+    down); NaN without pairs.
+
+    Args:
+        rotations: (P, 3, 3) rotations of ``cam1_from_cam0``; directions: (P, 3) their unit translations.
+    """
+    rot = np.asarray(rotations, np.float64).reshape(-1, 3, 3)
+    d = np.asarray(directions, np.float64).reshape(-1, 3)
+    if len(d) == 0:
+        return float("nan")
+    m = -np.einsum("pji,pj->pi", rot, d)
+    return float(np.degrees(np.median(np.arctan2(-m[:, 1], m[:, 2]))))
+
+
+def _at_pitch(table: np.ndarray, pitch_deg: float) -> np.ndarray:
+    """(B,) ``table`` (B, P) linearly interpolated at ``pitch_deg`` along :data:`PITCHES_DEG`."""
+    x = float(np.clip(pitch_deg, PITCHES_DEG[0], PITCHES_DEG[-1]))
+    i = min(int(np.searchsorted(PITCHES_DEG, x, side="right")) - 1, len(PITCHES_DEG) - 2)
+    w = (x - PITCHES_DEG[i]) / (PITCHES_DEG[i + 1] - PITCHES_DEG[i])
+    return (1 - w) * table[:, i] + w * table[:, i + 1]
+
+
+def road_distances(scans: list[RoadScan | None], pitch_deg: float,
+                   cfg: RoadScaleConfig = RoadScaleConfig()) -> np.ndarray:
+    """Distance travelled in each pair (metres, NaN where the road cannot tell) from the pairs'
+    :class:`RoadScan` (None: no scan) at the camera pitch ``pitch_deg`` (:func:`travel_pitch_deg`). Per pair:
+    the distance from the far band gives each band's expected translation flow; the nearest band whose flow
+    stays within ``max_flow_frac`` of the width is read (the near road has the finest depth but moves most)."""
+    out = np.full(len(scans), np.nan)
+    if not np.isfinite(pitch_deg):
+        return out
+    for i, s in enumerate(scans):
+        if s is None:
+            continue
+        q, cost, f90 = _at_pitch(s.q, pitch_deg), _at_pitch(s.cost_px, pitch_deg), _at_pitch(s.flow90_px, pitch_deg)
+        if not np.isfinite(q[0]):
+            continue
+        limit = cfg.max_flow_frac * s.width
+        band = 0
+        for b in range(1, len(q)):
+            # the band's translation flow at the far band's distance (flow grows about linearly with q)
+            expected = f90[b] * q[0] / max(q[b], 1e-9)
+            if np.isfinite(expected) and expected <= limit:
+                band = b
+        if cost[band] <= cfg.max_cost_frac * s.width:
+            out[i] = cfg.height_m * q[band]
+    return out

@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Iterator, Protocol
 
 import torch
+import torch.distributed as dist
 
 from deepslam.core import atomic
 from deepslam.core.errors import InputError
@@ -297,8 +298,6 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, run: 
     if cfg.channels_last:
         model.set_channels_last(True)
     if n_ranks > 1:
-        import torch.distributed as dist
-
         dist.barrier()  # rank 0 has checked the folder
         # stage 1 trains the motion only: the log-std heads stay out of DDP's gradient reduction
         for p in model.uncertainty_parameters():

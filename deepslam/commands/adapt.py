@@ -24,7 +24,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--resume", action="store_true", help="continue a killed run in --out")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.add_argument("--json", action="store_true", help="print the record (adapt.json) as one JSON object")
+    p.add_argument("--json", action="store_true", help="no progress bars; print the record (adapt.json) as one "
+                                                        "JSON object")
+    p.add_argument("--tensorboard", default=None, metavar="DIR",
+                   help="also write TensorBoard scalars of the training runs into DIR/cons and DIR/loops (as "
+                        "`deepslam train --tensorboard`); needs the tensorboard package; the adapted models are the "
+                        "same bytes with or without it")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -38,7 +43,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = AdaptConfig(seed=args.seed, cons_samples=args.samples, cons_epochs=args.epochs,
                       loops_samples=max(128, args.samples // 2), loops_epochs=max(1, (args.epochs * 3) // 5),
                       max_minutes=args.max_minutes, loops=not args.no_loops, model=args.model, motion=args.motion)
-    record = adapt(args.sequence, args.out, cfg, resume=args.resume, progress=not (args.quiet or args.json))
+    record = adapt(args.sequence, args.out, cfg, resume=args.resume, progress=not (args.quiet or args.json),
+                   tensorboard=args.tensorboard)
     if args.json:
         print(json.dumps(record))
     else:

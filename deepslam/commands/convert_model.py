@@ -4,6 +4,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+# Library imports sit in the functions: building the parser of every command (deepslam --help) must
+# not import numpy, torch or the simulator.
+
 NAME = "convert-model"
 HELP = ("convert an old pickle-based VO model or checkpoint (.pt) into a safetensors file that cannot carry "
         "code; read with torch's restricted unpickler, so only do it for a file you trust")

@@ -2,6 +2,11 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
+
+# Library imports sit in the functions: building the parser of every command (deepslam --help) must
+# not import numpy, torch or the simulator.
 
 NAME = "dataset"
 HELP = "render many sequences (scenes, seeds, movers from a config and a seed) with a manifest; local or Ray"
@@ -31,9 +36,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import dataclasses
-    import json
-
     from deepslam.core.textio import read_json_object
     from deepslam.sim.dataset import DatasetConfig, build
 

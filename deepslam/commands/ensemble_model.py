@@ -3,6 +3,9 @@ from __future__ import annotations
 
 import argparse
 
+# Library imports sit in the functions: building the parser of every command (deepslam --help) must
+# not import numpy, torch or the simulator.
+
 NAME = "ensemble-model"
 HELP = ("join two or more VO model files of one input shape (seeds of one recipe) into one ensemble file: "
         "it predicts the members' mean and, as uncertainty, their own spread plus their disagreement "

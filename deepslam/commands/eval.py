@@ -17,6 +17,11 @@ import math
 import sys
 from pathlib import Path
 
+from deepslam.core.errors import InputError
+
+# Library imports sit in the functions: building the parser of every command (deepslam --help) must
+# not import numpy, torch or the simulator.
+
 NAME = "eval"
 HELP = "score an estimated trajectory against ground truth: ATE, RPE, KITTI t_err/r_err"
 
@@ -47,7 +52,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from deepslam.core import metrics, plots
-    from deepslam.core.errors import InputError
     from deepslam.core.outputs import check_output_not_input
     from deepslam.core.trajio import read_trajectory_and_format
 

@@ -3,6 +3,12 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
+
+from deepslam.core.errors import InputError
+
+# Library imports sit in the functions: building the parser of every command (deepslam --help) must
+# not import numpy, torch or the simulator.
 
 NAME = "fit-motion"
 HELP = ("fit the motion model (a Student-t per DoF, or a joint KDE) to the relative motions of ground-truth "
@@ -31,9 +37,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
-    from deepslam.core.errors import InputError
     from deepslam.core.trajio import read_trajectory
     from deepslam.gen import motion
 

@@ -5,6 +5,11 @@ import argparse
 import json
 import re
 
+from deepslam.core.errors import InputError
+
+# Library imports sit in the functions: building the parser of every command (deepslam --help) must
+# not import numpy, torch or the simulator.
+
 NAME = "gen"
 HELP = "write synthetic flow + 6DoF training samples (deterministic tar shards + manifest) from frames with depth"
 
@@ -41,8 +46,6 @@ MAX_SAMPLES = 100_000_000
 
 
 def parse_resolution(text: str | None) -> tuple[int, int] | None:
-    from deepslam.core.errors import InputError
-
     if text is None:
         return None
     m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
@@ -52,7 +55,6 @@ def parse_resolution(text: str | None) -> tuple[int, int] | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from deepslam.core.errors import InputError
     from deepslam.gen.motion import MotionModel
     from deepslam.gen.shards import GenConfig, generate
 

@@ -4,6 +4,9 @@ from __future__ import annotations
 import argparse
 import json
 
+# Library imports sit in the functions: building the parser of every command (deepslam --help) must
+# not import numpy, torch or the simulator.
+
 NAME = "info"
 HELP = "describe a sequence folder (KITTI, EuRoC or deepslam format) and check that its files read"
 

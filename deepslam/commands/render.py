@@ -32,7 +32,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rate", type=float, default=None, help="frame rate in Hz (default: car 10, drone 20)")
     p.add_argument("--texture-density", type=float, default=None, metavar="PX_PER_M",
                    help="texels per metre of the procedural textures (default: street 20, room 100)")
-    p.add_argument("--sequence", default="00", help="KITTI sequence number NN (default 00)")
+    p.add_argument("--kitti-sequence", default=None, metavar="NN",
+                   help="--format kitti: the sequence number, two digits, the folder sequences/NN (default 00)")
     p.add_argument("--no-flow", action="store_true", help="skip the ground-truth flow")
     p.add_argument("--resume", action="store_true", help="finish an interrupted render in --out (same settings)")
     p.add_argument("--focal-px", type=float, default=None, metavar="F",
@@ -81,6 +82,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="also write a contact sheet: up to 6 frames as rows of RGB | depth | flow | mask "
                         "(outside --out)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--json", action="store_true",
+                   help="no progress bar; print one JSON object at the end: path, frames, seconds, dynamic_fraction "
+                        "(mean and max share of the image on dynamic surfaces, from dynamic_fraction.txt), preview")
 
 
 def _distortion(text: str | None):
@@ -97,7 +101,32 @@ def _distortion(text: str | None):
     return d
 
 
+def _kitti_sequence(args: argparse.Namespace) -> str:
+    from deepslam.core.errors import InputError
+
+    if args.kitti_sequence is None:
+        return "00"
+    if args.format != "kitti":
+        raise InputError(None, f"--kitti-sequence names a folder of --format kitti, not of --format {args.format}")
+    if not (args.kitti_sequence.isdigit() and len(args.kitti_sequence) == 2):
+        raise InputError(None, f"--kitti-sequence must be two digits NN, got {args.kitti_sequence!r}")
+    return args.kitti_sequence
+
+
+def _dynamic_fractions(path) -> list[float]:
+    """The per-frame dynamic fractions the render wrote, one per frame (empty where it wrote none)."""
+    from deepslam.sim.writers import DYNAMIC_FRACTION_FILE
+
+    for f in (path / DYNAMIC_FRACTION_FILE, path / "mav0" / "cam0" / DYNAMIC_FRACTION_FILE):  # EuRoC: beside cam0
+        if f.is_file():
+            return [float(line) for line in f.read_text().split()]
+    return []
+
+
 def run(args: argparse.Namespace) -> int:
+    import json
+    import time
+
     from deepslam.core.preview import check_sheet_path, write_contact_sheet
     from deepslam.scenes import SceneConfig
     from deepslam.sim.config import RenderConfig, SimConfig, TrajectoryConfig
@@ -125,11 +154,22 @@ def run(args: argparse.Namespace) -> int:
                      distortion=_distortion(args.distortion), rolling_shutter_ms=args.rolling_shutter_ms,
                      rolling_shutter_bands=args.rolling_shutter_bands, flow_formats=args.flow_format),
     ).validate()
+    kitti_sequence = _kitti_sequence(args)
     if args.preview:  # checked before rendering: never inside the sequence nor onto the scene file
         check_sheet_path(args.preview, [("--out", args.out), ("--scene", scene_file)])
-    path = render_sequence(cfg, args.out, fmt=args.format, resume=args.resume, progress=not args.quiet,
-                           sequence=args.sequence)
+    t0 = time.perf_counter()
+    path = render_sequence(cfg, args.out, fmt=args.format, resume=args.resume,
+                           progress=not (args.quiet or args.json), sequence=kitti_sequence)
+    seconds = time.perf_counter() - t0
+    sheet = write_contact_sheet(path, args.preview) if args.preview else None
+    if args.json:
+        dyn = _dynamic_fractions(path)
+        print(json.dumps({"path": str(path), "format": args.format, "frames": len(dyn) or args.frames,
+                          "seconds": round(seconds, 2),
+                          "dynamic_fraction": {"mean": sum(dyn) / len(dyn), "max": max(dyn)} if dyn else None,
+                          "preview": None if sheet is None else str(sheet)}))
+        return 0
     print(path)
-    if args.preview:
-        print(write_contact_sheet(path, args.preview))
+    if sheet is not None:
+        print(sheet)
     return 0

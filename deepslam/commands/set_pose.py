@@ -3,6 +3,9 @@ from __future__ import annotations
 
 import argparse
 
+# Library imports sit in the functions: building the parser of every command (deepslam --help) must
+# not import numpy, torch or the simulator.
+
 NAME = "set-pose"
 HELP = ("write a VO model file with its pose mode recorded in its meta: net (the network's 6DoF) or epipolar "
         "(rotation and direction from the essential matrix of the flow, distance from the network); vo and slam "

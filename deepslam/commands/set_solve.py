@@ -3,6 +3,9 @@ from __future__ import annotations
 
 import argparse
 
+# Library imports sit in the functions: building the parser of every command (deepslam --help) must
+# not import numpy, torch or the simulator.
+
 NAME = "set-solve"
 HELP = ("write a solve-head VO model (train --pose-head solve) with another kernel or number of Gauss-Newton "
         "steps: same learned weights, a test-time change of the solve, recorded in the file's meta")

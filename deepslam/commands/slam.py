@@ -18,11 +18,17 @@ folder is locked for the run (:func:`core.lock.output_lock`): a second ``slam`` 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
 
 from deepslam.commands import _dis_flags
+from deepslam.core.errors import InputError
+from deepslam.core.lock import output_lock
+
+# Library imports sit in the functions: building the parser of every command (deepslam --help) must
+# not import numpy, torch or the simulator.
 
 NAME = "slam"
 HELP = "run SLAM (learned odometry + BoVW loop closure + gtsam pose graph) on a sequence"
@@ -94,7 +100,6 @@ def side_files(out) -> dict:
 def check_outputs(args: argparse.Namespace) -> None:
     """InputError before any work when an output would clobber an input, another output or a file an
     earlier ``slam`` did not write (module docstring)."""
-    from deepslam.core.errors import InputError
     from deepslam.core.outputs import check_run_outputs, same_path
 
     out = Path(args.out)
@@ -112,8 +117,6 @@ def check_outputs(args: argparse.Namespace) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from deepslam.core.lock import output_lock
-
     check_outputs(args)
     with output_lock(Path(args.out).parent, "--out"):  # one writer per output folder
         check_outputs(args)
@@ -121,10 +124,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    import dataclasses
-
     from deepslam.core import metrics, plots
-    from deepslam.core.errors import InputError
     from deepslam.core.outputs import write_side_files
     from deepslam.core.readers import open_sequence
     from deepslam.core.trajio import default_format, write_trajectory
@@ -205,8 +205,6 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _save_vocab(args, res, seq, vocab) -> None:
-    from deepslam.core.errors import InputError
-
     v = vocab if vocab is not None else res.vocabulary
     if v is None:
         raise InputError(None, "--save-vocabulary: no vocabulary was used (loop closure is off)")

@@ -11,6 +11,16 @@ See :mod:`deepslam.studies.stress`.
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+from deepslam.core.errors import InputError
+
+# Library imports sit in the functions: building the parser of every command (deepslam --help) must
+# not import numpy, torch or the simulator.
 
 NAME = "stress"
 HELP = ("stress study: sweep moving objects (count, size) and deformation in simulation; flow, VO and SLAM "
@@ -68,8 +78,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def parse_list(text: str, kind, what: str) -> tuple:
     """Comma-separated numbers -> tuple; InputError on an empty list or a bad number."""
-    from deepslam.core.errors import InputError
-
     items = [t.strip() for t in str(text).split(",")]
     if not any(items):
         raise InputError(None, f"--{what}: the list is empty")
@@ -112,11 +120,6 @@ def config_from_args(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    import os
-    import sys
-    import time
-    from pathlib import Path
-
     if "numpy" not in sys.modules and args.threads >= 1:
         # OpenBLAS reads its thread count once, when numpy loads: BoVW matching (float32 matrix products
         # of 400 x 400 descriptors) ran 6x faster with one thread than with two on a busy 2-core machine
@@ -134,8 +137,6 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     rows = report["rows"]
     if args.json:
-        import json
-
         print(json.dumps({"settings": report["side_by_side"], "conclusion": report["conclusion"]["text"],
                           "odometry": report["odometry_description"], "out": str(out)}))
         return 0

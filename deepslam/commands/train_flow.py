@@ -9,9 +9,9 @@ HELP = "train the learned optical-flow estimator (--flow learned) on rendered se
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--sequences", nargs="+", required=True, metavar="DIR",
+    p.add_argument("--sequence", nargs="+", action="extend", required=True, metavar="DIR",
                    help="rendered sequences with flow/ (and flow_backward/): ours, KITTI or EuRoC layout, or a "
-                        "`deepslam dataset` folder (all its sequences)")
+                        "`deepslam dataset` folder (all its sequences); list several, or repeat the flag")
     p.add_argument("--out", required=True, help="output folder (checkpoint.safetensors, flow.safetensors, history.json)")
     p.add_argument("--max-steps", type=int, default=20000, help="training steps, the learning-rate schedule's length (20000)")
     p.add_argument("--max-minutes", type=float, default=0.0, help="stop after this much training time (0: no cap)")
@@ -40,6 +40,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="order of the smoothness term: 1 (first differences) or 2 (second: a plane's flow is free)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--json", action="store_true",
+                   help="no progress bar; print one JSON object at the end: model, out, steps, last (history.json's "
+                        "last row), minutes (of the whole command, loading the pairs included)")
     p.add_argument("--tensorboard", default=None, metavar="DIR",
                    help="also write TensorBoard scalars into DIR: per step the loss and learning rate, every "
                         "checkpoint the history row; needs the tensorboard package; the trained bytes are the same "
@@ -60,7 +63,10 @@ def _sequence_dirs(paths: list[str]) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
+    import json
     import sys
+    import time
+    from pathlib import Path
 
     from deepslam.core.errors import InputError
     from deepslam.core.readers import open_sequence
@@ -68,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
     from deepslam.flow.train import FlowPairs, FlowTrainConfig, train_flow
     from deepslam.gen.training import TrainingDiverged
 
+    t0 = time.perf_counter()
     try:
         ch, cw = (int(x) for x in args.crop.lower().split("x"))
     except ValueError:
@@ -84,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(None, "--real-batch must be in [1, 1024], --real-weight in (0, 1000), --smooth-weight in [0, 1000)")
     from deepslam.core.outputs import check_output_not_input
 
-    check_output_not_input(args.out, [("--sequences", s) for s in args.sequences] + [("--real", s) for s in args.real]
+    check_output_not_input(args.out, [("--sequence", s) for s in args.sequence] + [("--real", s) for s in args.real]
                            + [("--init", args.init or None)])
     device = resolve_device(args.device)
     cfg = FlowTrainConfig(crop=(ch, cw), batch_size=args.batch, lr=args.lr, max_steps=args.max_steps,
@@ -96,27 +103,36 @@ def run(args: argparse.Namespace) -> int:
     init_meta = {}
     if args.init:  # checked before minutes of loading frames
         import hashlib
-        from pathlib import Path
 
         from deepslam.flow.train import initial_weights
 
         initial_weights(cfg)
         init_meta["init_sha256"] = hashlib.sha256(Path(args.init).read_bytes()).hexdigest()
-    seqs = [open_sequence(d) for d in _sequence_dirs(args.sequences)]
+    seqs = [open_sequence(d) for d in _sequence_dirs(args.sequence)]
     real = [open_sequence(d) for d in args.real]
-    pairs = FlowPairs(seqs, progress=not args.quiet)
+    progress = not (args.quiet or args.json)
+    pairs = FlowPairs(seqs, progress=progress)
     meta = {"sequences": [str(s.root) for s in seqs], "pairs": len(pairs), **init_meta}
     real_pairs = None
     if real:
         from deepslam.flow.unsup import RealPairs
 
-        real_pairs = RealPairs(real, cfg.net.work_width, progress=not args.quiet)
+        real_pairs = RealPairs(real, cfg.net.work_width, progress=progress)
         meta.update(real_sequences=[str(s.root) for s in real], real_pairs=len(real_pairs))
     try:
-        path = train_flow(cfg, pairs, args.out, resume=args.resume, progress=not args.quiet, meta=meta,
+        path = train_flow(cfg, pairs, args.out, resume=args.resume, progress=progress, meta=meta,
                           real_pairs=real_pairs, tensorboard=args.tensorboard)
     except TrainingDiverged as e:
         print(f"deepslam train-flow: error: {e}", file=sys.stderr)
         return 2
+    if args.json:
+        from deepslam.flow.net import load_flow_model
+
+        # history.json holds a row every checkpoint interval; the model file records the steps actually run
+        history = json.loads((Path(args.out) / "history.json").read_text())
+        print(json.dumps({"model": str(path), "out": str(args.out), "steps": load_flow_model(path)[1]["steps"],
+                          "last": history[-1] if history else None,
+                          "minutes": round((time.perf_counter() - t0) / 60, 3)}))
+        return 0
     print(f"model: {path}")
     return 0

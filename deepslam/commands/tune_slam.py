@@ -8,7 +8,13 @@ reads.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
+
+from deepslam.core.errors import InputError
+
+# Library imports sit in the functions: building the parser of every command (deepslam --help) must
+# not import numpy, torch or the simulator.
 
 NAME = "tune-slam"
 HELP = "search the SLAM hyperparameters C_s, C_r, T_loop on validation sequences (ranked by ATE)"
@@ -80,7 +86,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from deepslam.core.errors import InputError
     from deepslam.core.readers import open_sequence
     from deepslam.slam.plugins import odometry_from_args
     from deepslam.slam.pipeline import PipelineConfig, prepare
@@ -113,8 +118,6 @@ def run(args: argparse.Namespace) -> int:
              "robust": args.robust, "keyframe_stride": args.keyframe_stride, **res.to_dict()}
     res.best.save(args.out, extra)
     if getattr(args, "json", False):
-        import json
-
         print(json.dumps({"c_s": res.best.c_s, "c_r": res.best.c_r, "t_loop": res.best.t_loop, "score": res.score,
                           "best_score": res.best_score, "evaluations": res.evaluations, "method": res.method,
                           "vo_ate_m": extra["vo_ate_m"], "out": str(args.out)}))

@@ -4,6 +4,11 @@ from __future__ import annotations
 import argparse
 import json
 
+from deepslam.core.errors import InputError
+
+# Library imports sit in the functions: building the parser of every command (deepslam --help) must
+# not import numpy, torch or the simulator.
+
 NAME = "validate-flow"
 HELP = ("compare flow synthesized from depth + ground-truth motion with a rendered sequence's true flow "
         "(static visible EPE target < 0.01 px; moving/deforming pixels reported separately)")
@@ -24,8 +29,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _frames(args: argparse.Namespace, n: int) -> range | None:
     """The frames t compared (flow t -> t+1) of an n-frame sequence: [--start, --end), or the older --frames A:B;
     None for all."""
-    from deepslam.core.errors import InputError
-
     if args.frames is not None:
         if args.start is not None or args.end is not None:
             raise InputError(None, "give --start/--end or --frames A:B (the older spelling), not both")

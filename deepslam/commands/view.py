@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 
+# Library imports sit in the functions: building the parser of every command (deepslam --help) must
+# not import numpy, torch or the simulator.
+
 NAME = "view"
 HELP = "look at a sequence or a vo/slam run in the rerun 3-D viewer, or save a .rrd recording (--save)"
 

@@ -16,8 +16,16 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
+import math
+from pathlib import Path
 
 from deepslam.commands import _dis_flags
+from deepslam.core.errors import InputError
+from deepslam.core.lock import output_lock
+
+# Library imports sit in the functions: building the parser of every command (deepslam --help) must
+# not import numpy, torch or the simulator.
 
 NAME = "vo"
 HELP = "learned visual odometry: flow between frames -> network -> chained trajectory (+ CSV of motions with std)"
@@ -43,6 +51,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "the essential matrix of the full-resolution flow (OpenCV USAC), the distance from the network "
                         "(pairs without parallax keep the network's motion; see vo/epipolar.py). Default: the mode the "
                         "model file records (deepslam set-pose), net where it records none")
+    p.add_argument("--scale", choices=("network", "road"), default="network",
+                   help="with --pose epipolar, where the distance travelled comes from: network (the network's "
+                        "translation, default) or road (the road's motion in the flow and the camera's height above "
+                        "it, --camera-height; pairs whose road fit is not trusted keep the network's distance)")
+    p.add_argument("--camera-height", type=float, default=1.65, metavar="M",
+                   help="camera height above the road for --scale road, metres (default 1.65: KITTI and the "
+                        "simulated street)")
     p.add_argument("--stride", type=int, default=1, help="frame gap k: predict cam_{t+k}_from_cam_t for t = 0, k, 2k, ...")
     p.add_argument("--start", type=int, default=0, help="first frame")
     p.add_argument("--end", type=int, default=None, help="one past the last frame (default: all)")
@@ -72,8 +87,6 @@ COMMAND = "deepslam vo"
 
 def side_files(out) -> dict:
     """The files ``vo`` writes beside ``out``: {"motions", "config", "metrics", "plot"} -> path."""
-    from pathlib import Path
-
     stem = Path(out).with_suffix("")
     return {"motions": Path(f"{stem}.motions.csv"), "config": Path(f"{stem}.config.json"),
             "metrics": Path(f"{stem}.metrics.json"), "plot": Path(f"{stem}.png")}
@@ -82,9 +95,6 @@ def side_files(out) -> dict:
 def check_outputs(args: argparse.Namespace) -> None:
     """InputError before any work when ``--out`` or a side file would clobber an input, another output
     or a file an earlier ``vo`` did not write (module docstring)."""
-    from pathlib import Path
-
-    from deepslam.core.errors import InputError
     from deepslam.core.outputs import check_run_outputs, same_path
 
     out = Path(args.out)
@@ -100,10 +110,6 @@ def check_outputs(args: argparse.Namespace) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
-    from deepslam.core.lock import output_lock
-
     check_outputs(args)
     # one writer per output folder: a second vo/slam into it is refused, naming this one
     with output_lock(Path(args.out).parent, "--out"):
@@ -112,12 +118,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
     import numpy as np
 
     from deepslam.core import atomic, trajio
-    from deepslam.core.errors import InputError
     from deepslam.core.outputs import write_side_files
     from deepslam.core.readers import open_sequence
     from deepslam.core.trajectory import Trajectory
@@ -141,8 +144,9 @@ def _run(args: argparse.Namespace) -> int:
     if plugin is not None:
         if args.model is not None:
             raise InputError(None, "--model and --odometry/--odometry-command exclude each other")
-        if args.pose == "epipolar":
-            raise InputError(None, "--pose epipolar needs the network odometry (not --odometry/--odometry-command)")
+        for flag, on in (("--pose epipolar", args.pose == "epipolar"), ("--scale road", args.scale == "road")):
+            if on:
+                raise InputError(None, f"{flag} needs the network odometry (not --odometry/--odometry-command)")
         mean6, std6 = plugin.predict(seq, pairs)
         name, estimator, predictor = plugin.name, None, None
     else:
@@ -158,6 +162,12 @@ def _run(args: argparse.Namespace) -> int:
         spec = model_input(model_path)
         pose = args.pose or models.recorded_pose(model_path)
         epi = models.epipolar_config(model_path, pose)
+        if args.scale == "road":
+            if epi is None:
+                raise InputError(None, "--scale road needs --pose epipolar (the road fit uses its rotation and direction)")
+            if not 0.1 <= args.camera_height <= 100.0:
+                raise InputError(None, f"--camera-height must be in [0.1, 100] m, got {args.camera_height}")
+            epi = dataclasses.replace(epi, road_height_m=float(args.camera_height))
         fitter = None
         if epi is not None:
             from deepslam.vo.epipolar import EpipolarFitter
@@ -204,6 +214,14 @@ def _run(args: argparse.Namespace) -> int:
                       bf16=predictor.bf16, batch=args.batch, device=str(predictor.device), pose=pose)
         if epi is not None:
             config.update(epipolar=dataclasses.asdict(epi), epipolar_pairs_used=sum(u for _, u in fits))
+            if epi.road_height_m is not None:
+                from deepslam.vo.epipolar import sequence_pitch_deg
+                from deepslam.vo.road_scale import RoadScaleConfig, road_distances
+
+                pitch = sequence_pitch_deg([f for f, _ in fits])
+                dist = road_distances([f.road for f, _ in fits], pitch, RoadScaleConfig(height_m=epi.road_height_m))
+                config.update(road_scale_pairs_used=int(sum(bool(u) and math.isfinite(d) for (_, u), d in zip(fits, dist))),
+                              road_pitch_deg=pitch)
     say = (lambda *a, **k: None) if args.json else print
 
     if seq.gt is None:
@@ -220,6 +238,7 @@ def _run(args: argparse.Namespace) -> int:
         report["frames_scored"], report["frames"] = len(gt), int(len(frames))
         how = [config["flow"]] if "flow" in config else []
         how += ["pose epipolar"] if config.get("pose") == "epipolar" else []
+        how += ["scale road"] if args.scale == "road" else []
         writers += [(side["metrics"], lambda p: atomic.write_json(p, report)),
                     (side["plot"], lambda p: plots.plot_trajectories_topdown(
                         p, {"ground truth": gt.positions, name: est_scored.positions},
@@ -236,8 +255,6 @@ def _run(args: argparse.Namespace) -> int:
         say(line)
         say(f"wrote {stem}.metrics.json and {stem}.png")
     if args.json:
-        import json
-
         print(json.dumps({"out": str(out), "poses": int(len(frames)), "format": fmt, "model_name": name,
                           "metrics": report if seq.gt is not None else None}))
     return 0

@@ -21,12 +21,18 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import shlex
 import sys
 import time
 from pathlib import Path
 
+from deepslam import cli
+from deepslam.core import atomic
 from deepslam.core.errors import InputError
+from deepslam.core.paths import out_dir, shared_data_dir
+from deepslam.core.readers import open_sequence
+from deepslam.studies import demo_reference
 
 
 @dataclasses.dataclass(frozen=True)
@@ -69,13 +75,11 @@ class DemoConfig:
 
 
 def run_command(args: list[str], log: list[str]) -> None:
-    from deepslam.cli import main
-
     cmd = "deepslam " + " ".join(shlex.quote(a) for a in args)
     print(f"\n$ {cmd}", flush=True)
     log.append(cmd)
     t0 = time.perf_counter()
-    rc = main(args)
+    rc = cli.main(args)
     if rc != 0:
         raise SystemExit(f"deepslam demo: step failed with exit status {rc}: {cmd}")
     print(f"  ({time.perf_counter() - t0:.0f} s)", flush=True)
@@ -88,8 +92,6 @@ def render_once(scene: str, trajectory: str, frames: int, width: int, seed: int,
     A complete render made with another frame count or width is an error (InputError naming the
     folder), never silently reused."""
     if (out / "poses.txt").is_file():
-        from deepslam.core.readers import open_sequence
-
         seq = open_sequence(out)
         if (len(seq), seq.camera.width) != (frames, width):
             raise InputError(out, f"holds a render of {len(seq)} frames at {seq.camera.width} px, not {frames} at "
@@ -105,8 +107,6 @@ def _fmt(x, spec=".3f") -> str:
 
 
 def run(cfg: DemoConfig, out: Path, data: Path) -> Path:
-    from deepslam.core import atomic
-
     out.mkdir(parents=True, exist_ok=True)
     atomic.write_json(out / "config.json", dataclasses.asdict(cfg))
     log: list[str] = []
@@ -123,8 +123,7 @@ def run(cfg: DemoConfig, out: Path, data: Path) -> Path:
     if not validation.is_file():
         print(f"\n$ deepslam validate-flow --sequence {held} --json", flush=True)
         log.append(f"deepslam validate-flow --sequence {held} --json")
-        from deepslam.core.readers import open_sequence
-        from deepslam.gen.validate import validate_sequence
+        from deepslam.gen.validate import validate_sequence  # deferred: torch (~1 s); the demo's --help stays torch-free
 
         report = validate_sequence(open_sequence(held))
         report.pop("per_frame", None)
@@ -170,8 +169,6 @@ def run(cfg: DemoConfig, out: Path, data: Path) -> Path:
     rec_gt = slam("slam_trueflow", "", "gt", "trajectories_trueflow.png")
 
     # 6. metrics cross-check on published trajectories
-    from deepslam.studies import demo_reference
-
     print("\n$ python -m deepslam.studies.demo_reference", flush=True)
     demo_reference.run(data, out / "reference")
 
@@ -220,14 +217,9 @@ def run(cfg: DemoConfig, out: Path, data: Path) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    import os
-
     os.environ.setdefault("MUJOCO_GL", "egl")
     os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
     os.environ.setdefault("DEEPSLAM_PROGRESS", "1")
-    from deepslam.core.errors import InputError
-    from deepslam.core.paths import out_dir, shared_data_dir
-
     ap = argparse.ArgumentParser(prog="python -m deepslam.studies.demo", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", type=Path, default=None, help="output folder (default: out/demo)")
     ap.add_argument("--data", type=Path, default=None, help="shared data folder (default: ../shared/data)")

@@ -13,6 +13,11 @@ import sys
 import time
 from pathlib import Path
 
+from deepslam.core import atomic, metrics, plots
+from deepslam.core.errors import InputError
+from deepslam.core.paths import out_dir, shared_data_dir
+from deepslam.core.trajio import read_trajectory_and_format
+
 PAIRS = (
     # (name, ground truth, estimate, alignment)
     ("KITTI 00 ORB-SLAM2", "kitti/poses/00.txt", "reference/KITTI_00_ORB.txt", "se3"),
@@ -27,9 +32,6 @@ def _fmt(x, spec=".3f") -> str:
 
 
 def run(data: Path, out: Path) -> int:
-    from deepslam.core import atomic, metrics, plots
-    from deepslam.core.trajio import read_trajectory_and_format
-
     rows, results = [], {}
     for name, gt_rel, est_rel, align in PAIRS:
         gt, gt_fmt = read_trajectory_and_format(data / gt_rel)
@@ -91,9 +93,6 @@ def run(data: Path, out: Path) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from deepslam.core.errors import InputError
-    from deepslam.core.paths import out_dir, shared_data_dir
-
     ap = argparse.ArgumentParser(prog="python -m deepslam.studies.demo_reference", description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", type=Path, default=None, help="shared data folder (default: ../shared/data)")
     ap.add_argument("--out", type=Path, default=None, help="output folder (default: out/demo)")

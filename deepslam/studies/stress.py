@@ -47,7 +47,9 @@ import tempfile
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
+import torch
 
 from deepslam.core import atomic, metrics
 from deepslam.core.atomic import json_safe
@@ -336,7 +338,7 @@ def _main_odometries(config: StressConfig) -> OdometrySet:
     if config.odometry == "model":
         kind = camera_kind(config.scene)
         try:
-            # vo is imported here so that a missing or broken learned stack falls back to the rigid fit
+            # deferred: a missing or broken learned stack (ImportError) falls back to the rigid fit
             from deepslam.vo import models
 
             # shipped models follow the flow they are given (a DIS-trained variant where one is shipped)
@@ -450,10 +452,6 @@ def measure_sequence(seq, odometries: OdometrySet, config: StressConfig, vocabul
 @contextlib.contextmanager
 def cpu_threads(n: int):
     """Set torch's and OpenCV's thread counts to ``n`` inside the block, restore them after."""
-    # torch and OpenCV are imported for the run only: importing the study for its configuration stays light
-    import cv2
-    import torch
-
     old_torch, old_cv = torch.get_num_threads(), cv2.getNumThreads()
     torch.set_num_threads(n)
     cv2.setNumThreads(n)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from deepslam.core import atomic
+from deepslam.core import atomic, plots
 from deepslam.core.atomic import json_safe
 
 RESULT_FORMAT = "deepslam-stress-v1"
@@ -286,13 +286,10 @@ AXIS_MARKERS = {"objects": "o", "size": "s", "deform": "^", "combined": "*"}
 
 def plot_error(path: Path, rows: list[dict], ylabel: str, series: list[tuple[str, str]], log_y: bool, title: str) -> None:
     """One PNG: each error series against the percentage of dynamic pixels; marker = sweep axis."""
-    # matplotlib is imported only when a plot is drawn: it is the heaviest import of the report
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
+    # deferred: matplotlib is imported only when a plot is drawn: it is the heaviest import of the report
     from matplotlib.lines import Line2D
 
-    fig = Figure(figsize=(7.0, 4.6), dpi=110)
-    FigureCanvasAgg(fig)
+    fig = plots.new_figure((7.0, 4.6), dpi=110)
     ax = fig.add_subplot(1, 1, 1)
     colours = ["tab:red", "tab:blue", "tab:green", "tab:orange", "tab:purple", "tab:brown", "tab:pink", "tab:olive"]
     handles = []

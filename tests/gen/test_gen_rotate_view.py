@@ -98,7 +98,7 @@ def test_tilted_synthetic_source_is_seeded_and_zero_tilt_matches_none():
 
 
 @pytest.mark.parametrize("flag,what", [("--camera-tilt-deg=5:1", "bad camera tilt"),
-                                       ("--camera-tilt-deg=1:3", "needs --mode synthetic with --frames")])
+                                       ("--camera-tilt-deg=1:3", "needs --mode synthetic with --source")])
 def test_train_refuses_a_bad_or_unusable_tilt_before_writing(tmp_path, flag, what):
     """A tilt is validated up front, and refused where nothing would be tilted (toy samples)."""
     import subprocess

@@ -1,6 +1,7 @@
 """``deepslam adapt``: the paper's method on a sequence's own single frames; it never reads poses."""
 from __future__ import annotations
 
+import importlib.util
 import json
 import shutil
 from pathlib import Path
@@ -49,13 +50,19 @@ def _adapt(seq: Path, out: Path, capsys, *extra) -> dict:
 
 @pytest.mark.slow
 def test_adapt_reads_no_poses_and_is_deterministic(shared_data, tmp_path, capsys):
-    """With teddy's ground truth, without it, or with a junk file in its place: the same weights, bit for bit."""
+    """With teddy's ground truth, without it, or with a junk file in its place: the same weights, bit for bit;
+    also with --tensorboard, whose scalars land per network and leave the bytes alone."""
+    tensorboard = importlib.util.find_spec("tensorboard") is not None
     runs = {}
     for gt in ("copy", None, "junk"):
         seq = _teddy_slice(shared_data, tmp_path / f"seq_{gt}", groundtruth=gt)
-        record = _adapt(seq, tmp_path / f"out_{gt}", capsys)
+        extra = ["--tensorboard", str(tmp_path / "tb")] if gt == "junk" and tensorboard else []
+        record = _adapt(seq, tmp_path / f"out_{gt}", capsys, *extra)
         assert record["kind"] == "tum" and record["poses_opened"] is False
         runs[gt] = _tensors(tmp_path / f"out_{gt}" / "model.safetensors")
+    if tensorboard:
+        assert list((tmp_path / "tb" / "cons").glob("events.out.tfevents.*"))
+        assert not (tmp_path / "tb" / "loops").exists()  # --no-loops
     for gt in (None, "junk"):
         assert runs[gt].keys() == runs["copy"].keys()
         assert all((runs[gt][k] == runs["copy"][k]).all() for k in runs["copy"])

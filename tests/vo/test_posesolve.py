@@ -207,7 +207,7 @@ def test_train_and_vo_with_the_solve_head(plane_sequence, motion_json, tmp_path,
     from deepslam.vo.modelio import load_model
 
     out = tmp_path / "solve"
-    base = ["train", "--mode", "synthetic", "--frames", str(plane_sequence), "--motion", str(motion_json),
+    base = ["train", "--mode", "synthetic", "--source", str(plane_sequence), "--motion", str(motion_json),
             "--net", "tiny", "--batch", "16", "--samples-per-epoch", "32", "--max-epochs", "1", "--nll-epochs", "1",
             "--bf16", "off", "--threads", "1", "--quiet", "--pose-head", "solve"]
     assert main(base + ["--depth-channel", "--valid-channel", "--out", str(out)]) == 0

@@ -147,7 +147,7 @@ def test_train_cli_synthetic_from_single_frames(plane_sequence, motion_json, tmp
     from deepslam.cli import main
 
     out = tmp_path / "syn"
-    rc = main(["train", "--mode", "synthetic", "--frames", str(plane_sequence), "--motion", str(motion_json),
+    rc = main(["train", "--mode", "synthetic", "--source", str(plane_sequence), "--motion", str(motion_json),
                "--motion", f"{motion_json}@0.5", "--net", "tiny", "--batch", "16", "--samples-per-epoch", "64",
                "--max-epochs", "2", "--nll-epochs", "1", "--bf16", "off", "--threads", "1", "--quiet", "--out", str(out)])
     assert rc == 0
@@ -163,7 +163,7 @@ def test_train_cli_with_mirrored_frames_doubles_both_sides_of_the_split(plane_se
     from deepslam.cli import main
 
     out = tmp_path / "mir"
-    rc = main(["train", "--mode", "synthetic", "--frames", str(plane_sequence), "--motion", str(motion_json),
+    rc = main(["train", "--mode", "synthetic", "--source", str(plane_sequence), "--motion", str(motion_json),
                "--mirror-frames", "--net", "tiny", "--batch", "16", "--samples-per-epoch", "64", "--max-epochs", "1",
                "--nll-epochs", "1", "--bf16", "off", "--threads", "1", "--quiet", "--out", str(out)])
     assert rc == 0
@@ -212,7 +212,7 @@ def test_train_cli_synthetic_with_dis_flow_and_a_sample_pool(plane_sequence, mot
     out = tmp_path / "syn_dis"
     rc = main(["train", "--mode", "synthetic", "--synthetic-flow", "dis", "--dis-preset", "fast", "--sample-pool", "48",
                "--dis-min-texture", "0.5", "--dis-fb-check", "1", "--dis-max-width", "200",
-               "--dis-patch-stride", "4", "--frames", str(plane_sequence), "--motion", str(motion_json), "--net", "tiny", "--batch", "16",
+               "--dis-patch-stride", "4", "--source", str(plane_sequence), "--motion", str(motion_json), "--net", "tiny", "--batch", "16",
                "--samples-per-epoch", "64", "--max-epochs", "2", "--nll-epochs", "1", "--bf16", "off", "--threads", "1",
                "--quiet", "--out", str(out)])
     assert rc == 0
@@ -243,10 +243,10 @@ def test_train_cli_synthetic_with_dis_flow_and_a_sample_pool(plane_sequence, mot
         assert json.loads(traj.with_suffix(".config.json").read_text())["flow"] == name
     # a texture threshold for a flow it does not apply to is refused, not ignored
     for argv in (["vo", "--sequence", str(plane_sequence), "--model", str(model), "--flow", "gt"],
-                 ["train", "--mode", "synthetic", "--frames", str(plane_sequence), "--motion", str(motion_json)]):
+                 ["train", "--mode", "synthetic", "--source", str(plane_sequence), "--motion", str(motion_json)]):
         for flag in ("--dis-min-texture", "--dis-fb-check"):
             assert main([*argv, flag, "0.5", "--out", str(tmp_path / "refused"), "--quiet"]) == 2
-    assert main(["train", "--mode", "synthetic", "--synthetic-flow", "nope", "--frames", str(plane_sequence),
+    assert main(["train", "--mode", "synthetic", "--synthetic-flow", "nope", "--source", str(plane_sequence),
                  "--motion", str(motion_json), "--net", "tiny", "--quiet", "--out", str(tmp_path / "o")]) == 2
 
 
@@ -282,13 +282,13 @@ def test_train_cli_bad_input(tmp_path, plane_sequence):
     from deepslam.cli import main
 
     base = ["train", "--net", "tiny", "--quiet", "--out", str(tmp_path / "o")]
-    assert main([*base, "--mode", "synthetic", "--frames", str(plane_sequence)]) == 2  # no motion model
-    assert main([*base, "--mode", "synthetic", "--frames", str(plane_sequence), "--motion", str(tmp_path / "nope.json")]) == 2
+    assert main([*base, "--mode", "synthetic", "--source", str(plane_sequence)]) == 2  # no motion model
+    assert main([*base, "--mode", "synthetic", "--source", str(plane_sequence), "--motion", str(tmp_path / "nope.json")]) == 2
     (tmp_path / "bad.json").write_text("{\"format\": 3}")
-    assert main([*base, "--mode", "synthetic", "--frames", str(plane_sequence), "--motion", str(tmp_path / "bad.json")]) == 2
+    assert main([*base, "--mode", "synthetic", "--source", str(plane_sequence), "--motion", str(tmp_path / "bad.json")]) == 2
     assert main([*base, "--mode", "supervised"]) == 2
     assert main([*base, "--mode", "synthetic", "--toy", "64", "--scene-scale", "0.5:1"]) == 2  # no single frames
-    assert main([*base, "--mode", "synthetic", "--frames", str(plane_sequence), "--motion", str(tmp_path / "bad.json"),
+    assert main([*base, "--mode", "synthetic", "--source", str(plane_sequence), "--motion", str(tmp_path / "bad.json"),
                  "--scene-scale", "1:0.5"]) == 2
 
 
@@ -406,7 +406,7 @@ def test_train_refuses_a_bad_speed_range_fraction_before_writing(tmp_path):
 
     motion = base_dir() / "models" / "motion" / "kitti_no0607_s1.json"
     (tmp_path / "frames").mkdir()
-    r = subprocess.run([sys.executable, "-m", "deepslam", "train", "--mode", "synthetic", "--frames",
+    r = subprocess.run([sys.executable, "-m", "deepslam", "train", "--mode", "synthetic", "--source",
                         str(tmp_path / "frames"), "--motion", str(motion), "--speed-range", "0:30@2",
                         "--out", str(tmp_path / "o")],
                        capture_output=True, text=True)
@@ -496,7 +496,7 @@ def test_train_and_vo_with_a_depth_channel(plane_sequence, motion_json, tmp_path
     from deepslam.vo.infer import VOPredictor
 
     out = tmp_path / "depth"
-    base = ["train", "--mode", "synthetic", "--frames", str(plane_sequence), "--motion", str(motion_json), "--net", "tiny",
+    base = ["train", "--mode", "synthetic", "--source", str(plane_sequence), "--motion", str(motion_json), "--net", "tiny",
             "--batch", "16", "--samples-per-epoch", "64", "--max-epochs", "2", "--nll-epochs", "1", "--bf16", "off",
             "--threads", "1", "--quiet", "--depth-channel"]
     assert main([*base, "--out", str(out)]) == 0
@@ -578,7 +578,7 @@ def test_train_and_vo_with_a_validity_channel(plane_sequence, motion_json, tmp_p
 
     out = tmp_path / "valid"
     assert main(["train", "--mode", "synthetic", "--synthetic-flow", "dis", "--dis-preset", "fast", "--dis-min-texture",
-                 "0.5", "--valid-channel", "--sample-pool", "32", "--frames", str(plane_sequence), "--motion",
+                 "0.5", "--valid-channel", "--sample-pool", "32", "--source", str(plane_sequence), "--motion",
                  str(motion_json), "--net", "tiny", "--batch", "16", "--samples-per-epoch", "32", "--max-epochs", "1",
                  "--nll-epochs", "1", "--bf16", "off", "--threads", "1", "--quiet", "--out", str(out)]) == 0
     model = out / "model.safetensors"
