@@ -29,7 +29,7 @@ import numpy as np
 
 from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
-from deepslam.core.sequence import Sequence, dataset_file, read_image
+from deepslam.core.sequence import Sequence, dataset_file, ground_truth_files, read_image
 from deepslam.core.textio import read_text
 from deepslam.core.trajectory import Trajectory
 from deepslam.core.trajio import read_trajectory
@@ -183,9 +183,14 @@ def read_tum(root: str | Path, max_diff_s: float = MAX_DIFF_S) -> Sequence:
         if len(inside):
             gt = full.interpolate(times[inside])
             gt_frames = inside
+    def beside(folder: str, suffix: str) -> list[Path] | None:
+        # ground truth a deepslam render writes beside the TUM lists, one file per colour image, same stem
+        return [root / folder / f"{p.stem}{suffix}" for p in image_paths] if (root / folder).is_dir() else None
+
+    extra = {k: v for k, v in ground_truth_files(beside).items() if k != "depth_paths"}
     return Sequence(
         name=root.name, kind="tum", root=root, camera=camera, timestamps_s=times, image_paths=image_paths,
-        gt=gt, gt_frames=gt_frames, depth_paths=depth_paths, depth_reader=read_depth,
+        gt=gt, gt_frames=gt_frames, depth_paths=depth_paths, depth_reader=read_depth, **extra,
         postprocess=postprocess if maps is not None else None,
         meta={"depth_scale": scale, "distortion": list(dist), "associated": len(pairs), "rgb_listed": len(rgb),
               "depth_listed": len(depth), "max_diff_s": max_diff_s},
