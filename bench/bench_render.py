@@ -141,7 +141,34 @@ def run(quick: bool) -> list[dict]:
                      "baseline": "frame without flow", "baseline_value": round(1000 * t_noflow, 2),
                      "ratio": round(t_flow / t_noflow, 3), "target": None, "met": None})
     rows.extend(_options(quick))
+    rows.append(_street_styles(quick))
     return rows
+
+
+def _street_styles(quick: bool) -> dict:
+    """Frames/s of the default KITTI-look street against the town street (same seed, movers and frames,
+    interleaved); the target: the default street renders no slower than the town (ratio >= 0.9, the noise)."""
+    import dataclasses
+
+    from deepslam.scenes import SceneConfig
+    from deepslam.sim import RenderConfig, SimConfig, Simulator, TrajectoryConfig
+
+    n = 4 if quick else 20
+    indices = list(range(40, 40 + n + 1))
+    kitti = SimConfig(SceneConfig(name="street", seed=0, moving_objects=3, street_style="kitti"),
+                      TrajectoryConfig(frames=40 + n + 2), RenderConfig(width=640, height=480, stereo_baseline_m=0))
+    town = dataclasses.replace(kitti, scene=dataclasses.replace(kitti.scene, street_style="town"))
+    sims = {"kitti": Simulator(kitti), "town": Simulator(town)}
+    try:
+        t = _interleaved({k: (lambda i, s=s: s.frame(i, right=False)) for k, s in sims.items()}, indices)
+    finally:
+        for s in sims.values():
+            s.close()
+    ratio = t["town"] / t["kitti"]
+    return {"name": "render 640x480 of the KITTI-look street (the default)", "value": round(1.0 / t["kitti"], 2),
+            "unit": "frames/s", "baseline": "the town street (--street-style town), same frames",
+            "baseline_value": round(1.0 / t["town"], 2), "ratio": round(ratio, 3), "target": ">= 0.9 x the town",
+            "met": bool(ratio >= 0.9)}
 
 
 OPTIONS = {

@@ -1,7 +1,7 @@
 """The paper's training data from single frames: frames with depth + a motion model -> flow -> 6DoF targets,
 as :func:`vo.train.train` takes it (a training source and a held-out one), with the record of what it saw.
 
-Used by ``deepslam train --mode synthetic --frames ...`` and by ``deepslam adapt`` (:mod:`vo.adapt`). Nothing
+Used by ``deepslam train --mode synthetic --source ...`` and by ``deepslam adapt`` (:mod:`vo.adapt`). Nothing
 here reads a ground-truth pose: the frames' images and depth (rendered, sensor, or from the stereo pair) and
 the motion model's samples are all it uses.
 """
@@ -99,7 +99,7 @@ def synthetic_sources(spec: SyntheticData, net: NetConfig, seed: int, progress: 
     estimated flow, ``flow`` (the estimator and its options, which ``vo`` / ``slam`` set up to match).
     """
     if not spec.frames:
-        raise InputError(None, "synthetic mode needs --frames DIR... (or --toy N)")
+        raise InputError(None, "synthetic mode needs --source DIR... (or --toy N)")
     if not spec.motion:
         raise InputError(None, "synthetic mode needs --motion FILE (a gen.motion JSON; repeat for a mixture)")
     h, w = net.input_height, net.input_width
