@@ -47,12 +47,12 @@ class ResultsAgreementConfig:
     strides: tuple[int, ...] = (1, 2, 3)
     """Frame strides scored."""
     variants: tuple[tuple[str, tuple[str, ...]], ...] = (
-        ("default (kitti_cons_dis, DIS, epipolar pose)", ()),
+        ("default (kitti_cons_dis: DIS, epipolar pose, road scale)", ()),
+        ("network distance (--scale network)", ("--scale", "network")),
         ("network pose (--pose net)", ("--pose", "net")),
-        ("DIS patch stride 4", ("--dis-patch-stride", "4")),
-        ("learned flow (--flow learned)", ("--flow", "learned")),
+        ("DIS patch stride 4, network distance", ("--dis-patch-stride", "4", "--scale", "network")),
+        ("learned flow, network distance", ("--flow", "learned", "--scale", "network")),
         ("exact-flow model (kitti_cons)", ("--model", "{models}/kitti_cons.safetensors")),
-        ("road scale (--scale road)", ("--scale", "road")),
     )
     """(name, extra ``deepslam vo`` arguments) of each variant; ``{models}`` is the shipped models' folder."""
     real: tuple[str, ...] = ("06", "07")

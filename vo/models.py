@@ -141,28 +141,58 @@ def recorded_pose(path: str | Path) -> str:
     return pose
 
 
-def epipolar_config(path: str | Path, pose: str | None = None):
+SCALES = ("network", "road")
+"""Where the epipolar pose's distance comes from: the network's translation or the road (:mod:`vo.road_scale`)."""
+ROAD_HEIGHT_M = 1.65
+"""Camera height above the road of the KITTI cameras and the simulated street, metres."""
+
+
+def recorded_scale(path: str | Path) -> str:
+    """The distance source (:data:`SCALES`) the VO model file at ``path`` records (meta ``scale``, written by
+    ``deepslam set-pose --scale``); ``network`` where it records none or cannot be read. From the header,
+    no torch. InputError naming ``path`` for a value that is not a distance source."""
+    try:
+        scale = modeltree.meta(modeltree.read_header_tree(path)).get("scale", "network")
+    except Exception:  # noqa: BLE001 - an unreadable file: the loader says what is wrong
+        return "network"
+    if scale not in SCALES:
+        raise InputError(path, f"malformed VO model: its meta.scale {short(scale)} is not one of {', '.join(SCALES)}")
+    return scale
+
+
+def epipolar_config(path: str | Path, pose: str | None = None, scale: str | None = None,
+                    road_height_m: float = ROAD_HEIGHT_M):
     """The :class:`vo.epipolar.EpipolarConfig` to run the VO model file at ``path`` with in pose mode ``pose``
-    (None: the mode the file records, :func:`recorded_pose`); None in the ``net`` mode."""
+    and distance source ``scale`` (None: the ones the file records, :func:`recorded_pose`,
+    :func:`recorded_scale`; ``road``: read with the camera ``road_height_m`` above the road); None in the
+    ``net`` mode."""
     if pose not in (None, *POSES):
         raise ValueError(f"pose must be one of {', '.join(POSES)} or None, got {pose!r}")
+    if scale not in (None, *SCALES):
+        raise ValueError(f"scale must be one of {', '.join(SCALES)} or None, got {scale!r}")
     if (pose or recorded_pose(path)) != "epipolar":
         return None
-    return EpipolarConfig()
+    road = (scale or recorded_scale(path)) == "road"
+    return EpipolarConfig(road_height_m=float(road_height_m) if road else None)
 
 
-def write_with_pose(path: str | Path, out: str | Path, pose: str) -> dict:
+def write_with_pose(path: str | Path, out: str | Path, pose: str, scale: str | None = None) -> dict:
     """Write the VO model file ``path`` (single network or ensemble) to ``out`` (atomically) with ``pose``
-    (:data:`POSES`) recorded as its pose mode: the same weights and meta otherwise. Returns the new meta.
-    InputError naming ``path`` when it is not a VO model file."""
+    (:data:`POSES`) recorded as its pose mode and, when given, ``scale`` (:data:`SCALES`) as its distance
+    source: the same weights and meta otherwise. Returns the new meta. InputError naming ``path`` when it is
+    not a VO model file."""
     # deferred: both import torch; the header readers here stay torch-free (deepslam vo starts its flows first)
     from deepslam.models import modelfile
     from deepslam.vo.modelio import MODEL_FORMAT
 
     if pose not in POSES:
         raise InputError(None, f"pose must be one of {', '.join(POSES)}, got {pose!r}")
+    if scale is not None and scale not in SCALES:
+        raise InputError(None, f"scale must be one of {', '.join(SCALES)}, got {scale!r}")
     kind, tree = modelfile.load(path, (MODEL_FORMAT,))
     meta = {**(tree.get("meta") if isinstance(tree.get("meta"), dict) else {}), "pose": pose}
+    if scale is not None:
+        meta["scale"] = scale
     modelfile.save(out, kind, {**tree, "meta": meta})
     return meta
 

@@ -85,9 +85,11 @@ ROAD_BANDS = ((0.06, 0.12), (0.12, 0.25))
 the principal point (the ego lane, clear of cars parked along the kerbs). Rows nearer the horizon hold
 too little of the road's motion (on the rendered street they read 25 % long)."""
 ROAD_HALF_WIDTH = 0.1
-PITCHES_DEG = np.arange(-3.0, 4.01, 0.25)
+PITCHES_DEG = np.arange(-1.5, 3.51, 0.25)
 """Camera pitches scanned (degrees, positive: looking down); the sequence's pitch is interpolated between them."""
-_Q_COARSE = np.geomspace(0.005, 12.0, 72)
+_Q_COARSE = np.geomspace(0.005, 12.0, 40)
+_BAND_POINTS = 600
+"""At most about this many pixels per band (a regular grid): the median of the fit needs no more."""
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -109,17 +111,17 @@ class RoadScan:
     """Image width of the flow, pixels (limits scale with it)."""
 
 
-def scan_road(flow: np.ndarray, camera, rotation: np.ndarray, direction: np.ndarray, step: int = 3) -> RoadScan:
+def scan_road(flow: np.ndarray, camera, rotation: np.ndarray, direction: np.ndarray) -> RoadScan:
     """:class:`RoadScan` of one flow.
 
     Args:
         flow: (H, W, 2) float32 (du, dv) pixels from frame 0 to frame 1 at the camera's size (NaN = unknown).
         camera: :class:`core.camera.PinholeCamera` of the flow.
         rotation: (3, 3) rotation of ``cam1_from_cam0``; direction: (3,) unit translation of ``cam1_from_cam0``.
-        step: sample every ``step``-th row and column (scaled down for small images, at least 1).
+
+    Each band is sampled on a regular grid of at most about ``_BAND_POINTS`` pixels.
     """
     h, w = flow.shape[:2]
-    step = max(1, int(round(step * w / 1241.0)))
     k = camera.k
     kr = k @ np.asarray(rotation, np.float64)
     kd = k @ np.asarray(direction, np.float64)
@@ -131,6 +133,7 @@ def scan_road(flow: np.ndarray, camera, rotation: np.ndarray, direction: np.ndar
     u1 = min(w, int(camera.cx + ROAD_HALF_WIDTH * camera.fx) + 1)
     for b, (r0, r1) in enumerate(ROAD_BANDS):
         v0, v1 = int(np.ceil(camera.cy + r0 * camera.fy)), min(h, int(camera.cy + r1 * camera.fy) + 1)
+        step = max(1, int(np.ceil(np.sqrt(max(v1 - v0, 1) * max(u1 - u0, 1) / _BAND_POINTS))))
         vv, uu = np.mgrid[min(v0, h):v1:step, u0:u1:step]
         f = flow[vv, uu].reshape(-1, 2).astype(np.float64)
         uu, vv = uu.ravel().astype(np.float64), vv.ravel().astype(np.float64)
@@ -152,7 +155,7 @@ def scan_road(flow: np.ndarray, camera, rotation: np.ndarray, direction: np.ndar
 
             c, _ = costs(_Q_COARSE)
             i = int(np.argmin(c))
-            fine = np.geomspace(_Q_COARSE[max(0, i - 1)], _Q_COARSE[min(len(_Q_COARSE) - 1, i + 1)], 41)
+            fine = np.geomspace(_Q_COARSE[max(0, i - 1)], _Q_COARSE[min(len(_Q_COARSE) - 1, i + 1)], 25)
             c, uv = costs(fine)
             j = int(np.argmin(c))
             q_out[b, p], cost[b, p] = fine[j], c[j]

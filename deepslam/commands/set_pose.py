@@ -15,12 +15,15 @@ HELP = ("write a VO model file with its pose mode recorded in its meta: net (the
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("model", help="VO model file (model.safetensors or an ensemble file)")
     p.add_argument("--pose", required=True, choices=("net", "epipolar"), help="the pose mode to record")
+    p.add_argument("--scale", choices=("network", "road"), default=None,
+                   help="with --pose epipolar, the distance source to record: network (its translation) or road "
+                        "(the road's motion and the camera's height; vo --scale road); default: keep the file's")
     p.add_argument("--out", required=True, help="model file to write (may be MODEL itself)")
 
 
 def run(args: argparse.Namespace) -> int:
     from deepslam.vo.models import write_with_pose
 
-    write_with_pose(args.model, args.out, args.pose)
-    print(f"wrote {args.out}: pose {args.pose}")
+    write_with_pose(args.model, args.out, args.pose, args.scale)
+    print(f"wrote {args.out}: pose {args.pose}" + (f", scale {args.scale}" if args.scale else ""))
     return 0

@@ -51,10 +51,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "the essential matrix of the full-resolution flow (OpenCV USAC), the distance from the network "
                         "(pairs without parallax keep the network's motion; see vo/epipolar.py). Default: the mode the "
                         "model file records (deepslam set-pose), net where it records none")
-    p.add_argument("--scale", choices=("network", "road"), default="network",
+    p.add_argument("--scale", choices=("network", "road"), default=None,
                    help="with --pose epipolar, where the distance travelled comes from: network (the network's "
-                        "translation, default) or road (the road's motion in the flow and the camera's height above "
-                        "it, --camera-height; pairs whose road fit is not trusted keep the network's distance)")
+                        "translation) or road (the road's motion in the flow and the camera's height above it, "
+                        "--camera-height; pairs whose road fit is not trusted keep the network's distance). "
+                        "Default: the source the model file records (deepslam set-pose --scale), network where none")
     p.add_argument("--camera-height", type=float, default=1.65, metavar="M",
                    help="camera height above the road for --scale road, metres (default 1.65: KITTI and the "
                         "simulated street)")
@@ -161,13 +162,11 @@ def _run(args: argparse.Namespace) -> int:
         # the flows start before torch and the model load (seconds of start-up they overlap)
         spec = model_input(model_path)
         pose = args.pose or models.recorded_pose(model_path)
-        epi = models.epipolar_config(model_path, pose)
-        if args.scale == "road":
-            if epi is None:
-                raise InputError(None, "--scale road needs --pose epipolar (the road fit uses its rotation and direction)")
-            if not 0.1 <= args.camera_height <= 100.0:
-                raise InputError(None, f"--camera-height must be in [0.1, 100] m, got {args.camera_height}")
-            epi = dataclasses.replace(epi, road_height_m=float(args.camera_height))
+        if not 0.1 <= args.camera_height <= 100.0:
+            raise InputError(None, f"--camera-height must be in [0.1, 100] m, got {args.camera_height}")
+        epi = models.epipolar_config(model_path, pose, args.scale, args.camera_height)
+        if args.scale == "road" and epi is None:
+            raise InputError(None, "--scale road needs --pose epipolar (the road fit uses its rotation and direction)")
         fitter = None
         if epi is not None:
             from deepslam.vo.epipolar import EpipolarFitter
@@ -238,7 +237,7 @@ def _run(args: argparse.Namespace) -> int:
         report["frames_scored"], report["frames"] = len(gt), int(len(frames))
         how = [config["flow"]] if "flow" in config else []
         how += ["pose epipolar"] if config.get("pose") == "epipolar" else []
-        how += ["scale road"] if args.scale == "road" else []
+        how += ["scale road"] if (config.get("epipolar") or {}).get("road_height_m") is not None else []
         writers += [(side["metrics"], lambda p: atomic.write_json(p, report)),
                     (side["plot"], lambda p: plots.plot_trajectories_topdown(
                         p, {"ground truth": gt.positions, name: est_scored.positions},
