@@ -8,7 +8,8 @@ estimated / true path length and end-point drift in percent of the path (the iss
 saw in training, from the model file's own record: ``none``, or ``single frames, no poses`` (the
 paper's unsupervised adaptation). 07 is never trained on. Every model is scored with each pose mode of
 ``--pose`` (default both): ``net``, the network's 6DoF, and ``epipolar``, the rotation and direction of
-travel from the essential matrix of the flow with the network's distance (``deepslam vo --pose``). Writes results.json and results.md into
+travel from the essential matrix of the flow with the network's distance (``deepslam vo --pose epipolar
+--scale network``: this table compares pose modes; the road scale is in ``bench.results_agreement``). Writes results.json and results.md into
 ``out/results/real`` (``python -m bench.results_real``, about 1 minute per model).
 """
 from __future__ import annotations
@@ -66,7 +67,7 @@ def score(cand: Candidate, seq) -> dict:
     path, shipped = models.locate(cand.model, seq, flow=cand.flow)
     est, pred = models.flow_for_model(cand.flow, path), models.load(path, shipped)
     pairs = np.stack([np.arange(len(seq) - 1), np.arange(1, len(seq))], axis=1)
-    mean6, _ = pred.predict_pairs(seq, pairs, est, progress=False, epipolar=models.epipolar_config(path, cand.pose))
+    mean6, _ = pred.predict_pairs(seq, pairs, est, progress=False, epipolar=models.epipolar_config(path, cand.pose, "network"))
     traj = Trajectory(chain_euler6(mean6), seq.timestamps_s)
     res = metrics.evaluate(seq.gt, traj, align="se3")
     return {"model": cand.name, "model_file": pred.name, "flow": est.name, "pose": cand.pose, "slice": seq.name, "frames": len(seq),

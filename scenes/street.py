@@ -151,6 +151,12 @@ def build_street(seed: int, px_per_m: float, moving_objects: int, deform_amplitu
         b = asm.dynamic_builder(f"car{k}", RIGID, motion)
         car(asm, b, (0.0, 0.0), 0.0, rng.uniform(20, 235, 3), z0=0.0)
 
+    return street_scene(asm, seed, lane_path, (bx, by))
+
+
+def street_scene(asm: Assembler, seed: int, lane_path: PeriodicPath, block_m: tuple[float, float], **layout) -> Scene:
+    """The :class:`Scene` of a street built in ``asm``: KITTI's camera at 10 Hz, the ego route ``lane_path``,
+    the blocks' size ``block_m`` and any further ``layout`` entries."""
     atlas, bodies = asm.finish()
     verts = bodies[0].mesh.vertices  # the static body (world frame)
     bounds = np.stack([verts.min(0), verts.max(0)])
@@ -158,8 +164,8 @@ def build_street(seed: int, px_per_m: float, moving_objects: int, deform_amplitu
         name="street", seed=seed, atlas=atlas, bodies=bodies, camera=KITTI_CAMERA,
         stereo_baseline_m=KITTI_BASELINE_M, rate_hz=10.0, znear_m=1.5,
         zfar_m=float(np.linalg.norm(bounds[1] - bounds[0]) + 10.0), sky_rgb=(170, 200, 235), bounds=bounds,
-        layout={"lane_path": lane_path, "camera_height_m": CAMERA_HEIGHT_M, "block_m": (bx, by),
-                "mover_clearance_m": 2.2, "mover_mover_clearance_m": 6.0},
+        layout={"lane_path": lane_path, "camera_height_m": CAMERA_HEIGHT_M, "block_m": block_m,
+                "mover_clearance_m": 2.2, "mover_mover_clearance_m": 6.0, **layout},
     )
 
 

@@ -32,9 +32,9 @@ from deepslam.scenes.assemble import Assembler, flag_painter
 from deepslam.scenes.geometry import PeriodicPath, offset_polyline
 from deepslam.scenes.lighting import Lighting
 from deepslam.scenes.spec import RIGID, FlagDeform, LeadProgress, PathFollower, PathProgress, Scene, speed_profile
-from deepslam.scenes.street import (CAMERA_HEIGHT_M, EGO_CORNER_RADIUS_M, KERB_M, KITTI_BASELINE_M, KITTI_CAMERA,
-                                    LANE_OFFSET_M, MOVER_CORNER_RADIUS_M, all_sides, building_row, car, parked_cars,
-                                    road_painter, slab, street_furniture)
+from deepslam.scenes.street import (EGO_CORNER_RADIUS_M, KERB_M, LANE_OFFSET_M, MOVER_CORNER_RADIUS_M, all_sides,
+                                    building_row, car, parked_cars, road_painter, slab, street_furniture,
+                                    street_scene)
 
 ROAD_PIECE_M = 60.0
 """Longest road box, metres (a longer one would exceed the atlas's largest region at full density)."""
@@ -143,20 +143,10 @@ def build_kitti_street(seed: int, px_per_m: float, moving_objects: int, deform_a
         b_ = asm.dynamic_builder(f"car{k}", RIGID, PathFollower(progress, z_m=0.0))
         car(asm, b_, (0.0, 0.0), 0.0, rng.uniform(20, 235, 3), z0=0.0)
 
-    atlas, bodies = asm.finish()
-    verts = bodies[0].mesh.vertices
-    bounds = np.stack([verts.min(0), verts.max(0)])
-    return Scene(
-        name="street", seed=seed, atlas=atlas, bodies=bodies, camera=KITTI_CAMERA,
-        stereo_baseline_m=KITTI_BASELINE_M, rate_hz=10.0, znear_m=1.5,
-        zfar_m=float(np.linalg.norm(bounds[1] - bounds[0]) + 10.0), sky_rgb=(170, 200, 235), bounds=bounds,
-        layout={"lane_path": lane_path, "camera_height_m": CAMERA_HEIGHT_M, "block_m": (a, d),
-                "mover_clearance_m": 2.2, "mover_mover_clearance_m": 6.0,
-                "camera_pitch_rad": float(np.deg2rad(town.camera_pitch_deg)),
-                "road_segments": [(tuple(p), tuple(q), h) for p, q, h in segments],
-                "stop_and_go": {"stops_c": stops, "fast_c": avenue, "fast_mps": town.avenue_mps,
-                                "cruise_mps": town.residential_mps}},
-    )
+    return street_scene(asm, seed, lane_path, (a, d), camera_pitch_rad=float(np.deg2rad(town.camera_pitch_deg)),
+                        road_segments=[(tuple(p), tuple(q), h) for p, q, h in segments],
+                        stop_and_go={"stops_c": stops, "fast_c": avenue, "fast_mps": town.avenue_mps,
+                                     "cruise_mps": town.residential_mps})
 
 
 # ----------------------------------------------------------------------------------------------

@@ -93,7 +93,8 @@ def test_relative_motion_moves_points_from_frame_k_into_frame_k_plus_step(render
 def test_other_layouts(renders):
     tum = SequencePairs(renders["tum"])
     seq = open_sequence(renders["tum"])
-    assert tum.keys == ("image0", "image1", "depth0", "cam1_from_cam0", "intrinsics")  # TUM: no flow read
+    assert {"flow", "flow_backward", "occlusion", "mask0"} <= set(tum.keys)  # a render's TUM export keeps its flow
+    assert np.array_equal(_np(tum[0]["flow"]).transpose(1, 2, 0), open_sequence(renders["ours"]).flow(0))
     assert np.array_equal(_np(tum[1]["depth0"])[0], seq.depth(1))
     euroc = SequencePairs(renders["euroc"])
     item = euroc[0]

@@ -127,18 +127,24 @@ POSES = ("net", "epipolar")
 direction of travel from the essential matrix of the flow and the distance from the network (:mod:`vo.epipolar`)."""
 
 
+def _recorded(path: str | Path, key: str, choices: tuple[str, ...], default: str) -> str:
+    """The value of meta ``key`` of the VO model file at ``path`` (one of ``choices``), from the header (no
+    torch); ``default`` where the file records none or cannot be read (the loader reports that).
+    InputError naming ``path`` for a value not in ``choices``."""
+    try:
+        value = modeltree.meta(modeltree.read_header_tree(path)).get(key, default)
+    except Exception:  # noqa: BLE001 - an unreadable file: the loader says what is wrong
+        return default
+    if value not in choices:
+        raise InputError(path, f"malformed VO model: its meta.{key} {short(value)} is not one of {', '.join(choices)}")
+    return value
+
+
 def recorded_pose(path: str | Path) -> str:
     """The pose mode (:data:`POSES`) the VO model file at ``path`` records as its own (meta ``pose``,
     written by ``deepslam set-pose``): what ``vo`` and ``slam`` use when ``--pose`` is not given.
-    ``net`` where the file records none or cannot be read (the loader reports that); read from the
-    header, no torch. InputError naming ``path`` for a value that is not a pose mode."""
-    try:
-        pose = modeltree.meta(modeltree.read_header_tree(path)).get("pose", "net")
-    except Exception:  # noqa: BLE001 - an unreadable file: the loader says what is wrong
-        return "net"
-    if pose not in POSES:
-        raise InputError(path, f"malformed VO model: its meta.pose {short(pose)} is not one of {', '.join(POSES)}")
-    return pose
+    ``net`` where the file records none or cannot be read."""
+    return _recorded(path, "pose", POSES, "net")
 
 
 SCALES = ("network", "road")
@@ -149,15 +155,8 @@ ROAD_HEIGHT_M = 1.65
 
 def recorded_scale(path: str | Path) -> str:
     """The distance source (:data:`SCALES`) the VO model file at ``path`` records (meta ``scale``, written by
-    ``deepslam set-pose --scale``); ``network`` where it records none or cannot be read. From the header,
-    no torch. InputError naming ``path`` for a value that is not a distance source."""
-    try:
-        scale = modeltree.meta(modeltree.read_header_tree(path)).get("scale", "network")
-    except Exception:  # noqa: BLE001 - an unreadable file: the loader says what is wrong
-        return "network"
-    if scale not in SCALES:
-        raise InputError(path, f"malformed VO model: its meta.scale {short(scale)} is not one of {', '.join(SCALES)}")
-    return scale
+    ``deepslam set-pose --scale``); ``network`` where it records none or cannot be read."""
+    return _recorded(path, "scale", SCALES, "network")
 
 
 def epipolar_config(path: str | Path, pose: str | None = None, scale: str | None = None,

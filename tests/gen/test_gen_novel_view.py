@@ -102,7 +102,7 @@ def street_pair(tmp_path_factory):
     from deepslam.sim.config import RenderConfig, SimConfig, TrajectoryConfig
     from deepslam.sim.writers import render_sequence
 
-    cfg = SimConfig(SceneConfig(name="street", seed=3, moving_objects=0),
+    cfg = SimConfig(SceneConfig(name="street", seed=3, moving_objects=0, street_style="town"),
                     TrajectoryConfig(frames=2, rate_hz=0.5), RenderConfig(width=320, height=96)).validate()
     return render_sequence(cfg, tmp_path_factory.mktemp("pair") / "street", fmt="ours", progress=False)
 
