@@ -9,7 +9,7 @@ Rows (each against its baseline measured in the same run):
   straightforward per-frame loop); target >= 200 frames/s on 2 cores.
 - synthetic training data (single frames + motion model -> flow at 2x and pooled) samples/s at
   96 x 320, to show whether training is bound by the data or by the network.
-- the README's training command as a newcomer runs it (``deepslam train --mode synthetic --frames
+- the README's training command as a newcomer runs it (``deepslam train --mode synthetic --source
   STREET --motion M``, every default: paper network, batch 128, bf16 where native, torch's threads;
   a rendered 414-px street), end to end through the data pipeline, stopped by ``--max-samples``:
   its stage-1 samples/s against the network alone at the same settings (target: >= 0.7 of it).
@@ -142,7 +142,7 @@ def readme_train_throughput(samples: int) -> float:
         street, out = Path(tmp) / "street", Path(tmp) / "nn_cons"
         for argv in (["render", "--scene", "street", "--trajectory", "car", "--frames", "40", "--width", "414",
                       "--out", str(street), "--moving-objects", "2", "--deform", "0.3", "--quiet"],
-                     ["train", "--mode", "synthetic", "--frames", str(street), "--motion",
+                     ["train", "--mode", "synthetic", "--source", str(street), "--motion",
                       str(models_dir() / "motion" / "kitti_s1.json"), "--out", str(out), "--max-samples", str(samples),
                       "--nll-epochs", "1", "--quiet"]):
             subprocess.run([sys.executable, "-m", "deepslam", *argv], check=True, capture_output=True)

@@ -84,7 +84,7 @@ def _train(run_command, log, out: Path, mode: str, which: str, seed: int, cfg: R
     if mode == "synthetic":
         from deepslam.vo.models import models_dir
 
-        args += ["--frames", *train_dirs, *extra_frames, "--motion",
+        args += ["--source", *train_dirs, *extra_frames, "--motion",
                  str(models_dir() / "motion" / cfg.motion) + (":loops" if which == "loops" else ""), "--samples-per-epoch", str(cfg.samples_per_epoch),
                  "--max-epochs", str(max(1, round(budget / cfg.samples_per_epoch)))]
     else:

@@ -1,6 +1,6 @@
 """Would ``--dis-min-texture`` help on KITTI as it does on TUM fr3/teddy? DIS's error by texture.
 
-On KITTI 06 (its stereo depth, as ``deepslam train --frames`` computes it, and its ground-truth motion:
+On KITTI 06 (its stereo depth, as ``deepslam train --source`` computes it, and its ground-truth motion:
 06 is the slice whose single frames the shipped model trained on, never the scored 07), for every 5th
 consecutive pair: DIS medium's end-point error against the flow synthesized from the depth and the
 motion, on the real pair and on the view rendered from frame i with that motion (6 grey levels of

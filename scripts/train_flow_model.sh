@@ -11,9 +11,9 @@ DS=.venv/bin/deepslam
 S=out/s2r
 CFG=$(mktemp); echo '{"moving_objects": [2, 8], "varied_layout_fraction": 0.5}' > "$CFG"
 [ -f out/flow_data/manifest.json ] || $DS dataset --config "$CFG" --scenes street,room --sequences 6 --frames 150 \
-  --width 640 --seed 11 --out out/flow_data --backend local --quiet $([ -d out/flow_data ] && echo --resume)
+  --width 640 --seed 11 --out out/flow_data --executor local --quiet $([ -d out/flow_data ] && echo --resume)
 [ -f out/flow_held/manifest.json ] || $DS dataset --config "$CFG" --scenes street,room --sequences 2 --frames 60 \
-  --width 640 --seed 21 --out out/flow_held --backend local --quiet $([ -d out/flow_held ] && echo --resume)
+  --width 640 --seed 21 --out out/flow_held --executor local --quiet $([ -d out/flow_held ] && echo --resume)
 render() { [ -f "$2/poses.txt" ] || $DS render --scene street --frames 200 --width 640 --seed "$1" --out "$2" --quiet ${3:-}; }
 for s in 1 2 3; do render $s $S/street_s$s; render $s $S/varied_s$s --varied-layout; done
 for s in 4 5 6 7 8 9; do render $s $S/varied2_s$s --varied-layout; done

@@ -11,9 +11,9 @@ DS=.venv/bin/deepslam
 KITTI=${KITTI:-../shared/data/kitti/sequences}
 CFG=$(mktemp); echo '{"moving_objects": [2, 8], "varied_layout_fraction": 0.5}' > "$CFG"
 [ -f out/flow_data/manifest.json ] || $DS dataset --config "$CFG" --scenes street,room --sequences 6 --frames 150 \
-  --width 640 --seed 11 --out out/flow_data --backend local --quiet $([ -d out/flow_data ] && echo --resume)
+  --width 640 --seed 11 --out out/flow_data --executor local --quiet $([ -d out/flow_data ] && echo --resume)
 [ -f out/flow_held/manifest.json ] || $DS dataset --config "$CFG" --scenes street,room --sequences 2 --frames 60 \
-  --width 640 --seed 21 --out out/flow_held --backend local --quiet $([ -d out/flow_held ] && echo --resume)
+  --width 640 --seed 21 --out out/flow_held --executor local --quiet $([ -d out/flow_held ] && echo --resume)
 G=out/flowg
 render() { [ -f "$2/poses.txt" ] || $DS render --scene street --frames ${4:-200} --width 640 --seed "$1" --out "$2" --quiet $3; }
 for s in 31 32 33; do render $s $G/varied_g$s "--varied-layout --grainy-road --moving-objects 3"; done

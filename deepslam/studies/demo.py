@@ -51,17 +51,17 @@ class DemoConfig:
     """Frames of the held-out sequence (the car route closes its loop within 300 frames)."""
     moving_objects: int = 0
     """Moving cars in the held-out sequence (0: the rigid scene the method assumes)."""
-    train_samples_cons: int = 139_264
-    """Training budget of NN_cons in samples (stage 1; 34 epochs of 4096, about 2.5 minutes here): a
+    train_samples_cons: int = 106_496
+    """Training budget of NN_cons in samples (stage 1; 26 epochs of 4096, about 2.5 minutes here): a
     sample count, not minutes, so that the demo's numbers are the same run to run and machine to machine."""
-    train_samples_loops: int = 90_112
-    """Training budget of NN_loops in samples (22 epochs)."""
+    train_samples_loops: int = 69_632
+    """Training budget of NN_loops in samples (17 epochs)."""
     dis_pool: int = 8192
     """Samples of the DIS-flow training pool (second views rendered from the single frames, DIS on each pair)."""
-    train_samples_cons_dis: int = 147_456
-    """Training budget of NN_cons on DIS flow in samples (18 passes over its pool of 8192)."""
-    train_samples_loops_dis: int = 81_920
-    """Training budget of NN_loops on DIS flow in samples (10 passes)."""
+    train_samples_cons_dis: int = 114_688
+    """Training budget of NN_cons on DIS flow in samples (14 passes over its pool of 8192)."""
+    train_samples_loops_dis: int = 61_440
+    """Training budget of NN_loops on DIS flow in samples (7.5 passes)."""
     samples_per_epoch: int = 4096
     """Synthetic samples per epoch."""
     threads: int = 2
@@ -148,7 +148,7 @@ def run(cfg: DemoConfig, out: Path, data: Path) -> Path:
         models[which] = d / "model.safetensors"
         if not models[which].is_file():
             extra = ["--synthetic-flow", "dis", "--sample-pool", str(cfg.dis_pool)] if dis else []
-            run_command(["train", "--mode", "synthetic", "--frames", *train_dirs, "--motion", spec, "--net", cfg.net,
+            run_command(["train", "--mode", "synthetic", "--source", *train_dirs, "--motion", spec, "--net", cfg.net,
                          "--max-samples", str(budget), "--threads", str(cfg.threads),
                          "--samples-per-epoch", str(cfg.samples_per_epoch),
                          "--nll-epochs", str(cfg.nll_epochs), "--seed", str(cfg.seed), "--out", str(d), *extra]
