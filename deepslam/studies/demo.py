@@ -51,17 +51,17 @@ class DemoConfig:
     """Frames of the held-out sequence (the car route closes its loop within 300 frames)."""
     moving_objects: int = 0
     """Moving cars in the held-out sequence (0: the rigid scene the method assumes)."""
-    train_samples_cons: int = 106_496
-    """Training budget of NN_cons in samples (stage 1; 26 epochs of 4096, about 2.5 minutes here): a
+    train_samples_cons: int = 98_304
+    """Training budget of NN_cons in samples (stage 1; 24 epochs of 4096, about 2.5 minutes here): a
     sample count, not minutes, so that the demo's numbers are the same run to run and machine to machine."""
-    train_samples_loops: int = 69_632
-    """Training budget of NN_loops in samples (17 epochs)."""
+    train_samples_loops: int = 61_440
+    """Training budget of NN_loops in samples (15 epochs)."""
     dis_pool: int = 8192
     """Samples of the DIS-flow training pool (second views rendered from the single frames, DIS on each pair)."""
-    train_samples_cons_dis: int = 114_688
-    """Training budget of NN_cons on DIS flow in samples (14 passes over its pool of 8192)."""
-    train_samples_loops_dis: int = 61_440
-    """Training budget of NN_loops on DIS flow in samples (7.5 passes)."""
+    train_samples_cons_dis: int = 106_496
+    """Training budget of NN_cons on DIS flow in samples (13 passes over its pool of 8192)."""
+    train_samples_loops_dis: int = 57_344
+    """Training budget of NN_loops on DIS flow in samples (7 passes)."""
     samples_per_epoch: int = 4096
     """Synthetic samples per epoch."""
     threads: int = 2
