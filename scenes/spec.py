@@ -120,7 +120,6 @@ class StopGoProgress:
                  decel_mps2: float = 4.0, lat_accel_mps2: float = 3.0, smooth_s: float = 0.6, step_m: float = 0.25,
                  dt_s: float = 0.02):
         self.path = path
-        self.ramp_s = 0.0
         L = path.length
         c_start = float(np.mod(stops_c[0], L))
         n = max(64, int(np.ceil(L / step_m)))
@@ -128,15 +127,15 @@ class StopGoProgress:
         ds = np.linalg.norm(path.derivative(c), axis=-1) * (L / n)    # metres per step
         kappa = np.abs(path.curvature(c))
         v = np.minimum(np.asarray(limit_mps(np.mod(c, L)), np.float64), np.sqrt(lat_accel_mps2 / np.maximum(kappa, 1e-9)))
-        stop_idx = sorted({0, n} | {int(round(np.mod(s - c_start, L) / (L / n))) for s in stops_c[1:]})
-        v[stop_idx] = 0.0
+        at = [int(round(np.mod(s - c_start, L) / (L / n))) for s in stops_c[1:]]   # grid index of each other stop
+        v[[0, n, *at]] = 0.0
         for i in range(1, n + 1):                                     # accelerate ...
             v[i] = min(v[i], np.sqrt(v[i - 1] ** 2 + 2 * accel_mps2 * ds[i - 1]))
         for i in range(n - 1, -1, -1):                                # ... and brake in time
             v[i] = min(v[i], np.sqrt(v[i + 1] ** 2 + 2 * decel_mps2 * ds[i]))
         # time at each step (constant acceleration between samples), the dwell at each stop
         dt = 2.0 * ds[:-1] / np.maximum(v[:-1] + v[1:], 1e-6)
-        dwell = dict(zip([int(round(np.mod(s - c_start, L) / (L / n))) for s in stops_c[1:]], dwell_s[1:]))
+        dwell = dict(zip(at, dwell_s[1:]))
         t_knots, c_knots, t = [0.0], [c[0]], 0.0
         for i in range(n):
             t += dt[i]
@@ -158,7 +157,6 @@ class StopGoProgress:
         c_grid = c_start + np.concatenate([[0.0], np.cumsum(rate)])
         c_grid[-1] = c_start + L
         self.period_s = float(period)
-        self.limit_mps = limit_mps
         # periodic part c(t) - L t / T as a periodic spline: c is C2 across laps
         resid = c_grid - c_start - L * grid / period
         resid[-1] = resid[0]
@@ -191,7 +189,6 @@ class LeadProgress:
         self.path = fallback.path
         self.headway_s = float(headway_s)
         self.gap_m = float(gap_m)
-        self.ramp_s = 0.0
 
     def following(self, leader) -> "LeadProgress":
         """The same car ahead of ``leader`` (a progress on the same path: ``.path``, ``.c(t)``)."""

@@ -122,18 +122,7 @@ def build_street(seed: int, px_per_m: float, moving_objects: int, deform_amplitu
     lane_path = PeriodicPath.from_polyline(lane, EGO_CORNER_RADIUS_M)
 
     # flags on poles over the sidewalk on the ego's right, facing the traffic
-    for k, ((px, py), away) in enumerate(flag_sites):
-        asm.box((px, py, KERB_M + 2.0), (0.05, 0.05, 2.0), all_sides(tx.metal((150, 150, 150)), top=True))
-        x_b = np.array([away[0], away[1], 0.0])
-        z_b = np.array([0.0, 0.0, 1.0])
-        y_b = np.cross(z_b, x_b)
-        world_from_flag = np.eye(4)
-        world_from_flag[:3, :3] = np.stack([x_b, y_b, z_b], axis=1)
-        world_from_flag[:3, 3] = (px + 0.05 * away[0], py + 0.05 * away[1], KERB_M + 2.7)
-        deform = FlagDeform(nx=33, nz=17, length_m=1.6, height_m=1.0, amplitude_m=float(deform_amplitude_m),
-                            wavelength_m=float(rng.uniform(1.2, 2.2)), freq_hz=float(rng.uniform(0.5, 1.0)),
-                            phase=float(rng.uniform(0, 2 * np.pi)), tilt_rad_per_m=float(rng.uniform(0.3, 0.9)))
-        asm.flag(f"flag{k}", world_from_flag, deform, flag_painter(rng.spawn(1)[0]), dynamic=deform_amplitude_m > 0)
+    flags_on_poles(asm, flag_sites, deform_amplitude_m, rng)
 
     # movers: oncoming traffic clockwise around block A or around both blocks in the other lane, and
     # (every third) traffic ahead on the ego's own route, a little faster than the ego; where each
@@ -179,6 +168,23 @@ def all_sides(painter, top: bool = False, bottom: bool = False) -> dict:
     if bottom:
         faces["-z"] = painter
     return faces
+
+
+def flags_on_poles(asm: Assembler, sites, deform_amplitude_m: float, rng: np.random.Generator) -> None:
+    """A pole and a flag at each of ``sites``: ((x, y) of the pole, metres; (dx, dy) unit direction the flag
+    points to, away from the road), the flag 2.7-3.7 m up, waving with ``deform_amplitude_m`` (0: static)
+    at a wavelength, frequency, phase and tilt drawn from ``rng``."""
+    for k, ((px, py), away) in enumerate(sites):
+        asm.box((px, py, KERB_M + 2.0), (0.05, 0.05, 2.0), all_sides(tx.metal((150, 150, 150)), top=True))
+        x_b = np.array([away[0], away[1], 0.0])
+        z_b = np.array([0.0, 0.0, 1.0])
+        world_from_flag = np.eye(4)
+        world_from_flag[:3, :3] = np.stack([x_b, np.cross(z_b, x_b), z_b], axis=1)
+        world_from_flag[:3, 3] = (px + 0.05 * away[0], py + 0.05 * away[1], KERB_M + 2.7)
+        deform = FlagDeform(nx=33, nz=17, length_m=1.6, height_m=1.0, amplitude_m=float(deform_amplitude_m),
+                            wavelength_m=float(rng.uniform(1.2, 2.2)), freq_hz=float(rng.uniform(0.5, 1.0)),
+                            phase=float(rng.uniform(0, 2 * np.pi)), tilt_rad_per_m=float(rng.uniform(0.3, 0.9)))
+        asm.flag(f"flag{k}", world_from_flag, deform, flag_painter(rng.spawn(1)[0]), dynamic=deform_amplitude_m > 0)
 
 
 def road_painter(length_m: float, width_m: float, along_y: bool, junctions: list[tuple[float, float]],

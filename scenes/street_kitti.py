@@ -28,13 +28,12 @@ import dataclasses
 import numpy as np
 
 from deepslam.scenes import textures as tx
-from deepslam.scenes.assemble import Assembler, flag_painter
+from deepslam.scenes.assemble import Assembler
 from deepslam.scenes.geometry import PeriodicPath, offset_polyline
 from deepslam.scenes.lighting import Lighting
-from deepslam.scenes.spec import RIGID, FlagDeform, LeadProgress, PathFollower, PathProgress, Scene, speed_profile
-from deepslam.scenes.street import (EGO_CORNER_RADIUS_M, KERB_M, LANE_OFFSET_M, MOVER_CORNER_RADIUS_M, all_sides,
-                                    building_row, car, parked_cars, road_painter, slab, street_furniture,
-                                    street_scene)
+from deepslam.scenes.spec import RIGID, LeadProgress, PathFollower, PathProgress, Scene, speed_profile
+from deepslam.scenes.street import (EGO_CORNER_RADIUS_M, LANE_OFFSET_M, MOVER_CORNER_RADIUS_M, building_row, car,
+                                    flags_on_poles, parked_cars, road_painter, slab, street_furniture, street_scene)
 
 ROAD_PIECE_M = 60.0
 """Longest road box, metres (a longer one would exceed the atlas's largest region at full density)."""
@@ -104,23 +103,14 @@ def build_kitti_street(seed: int, px_per_m: float, moving_objects: int, deform_a
     flag_sites = [((0.5 * a, -h_rows[0][0] - 0.5), (0, -1)), ((a + 0.3 * b, -h_rows[0][1] - 0.5), (0, -1)),
                   ((a + 0.7 * b, d + h_rows[1][1] + 0.5), (0, 1)), ((-h_cols[0] - 0.5, 0.5 * d), (-1, 0))]
     street_furniture(asm, segments, rng, np.array([p for p, _ in flag_sites]), (12.0, 20.0), 0.8, 0.9)
-    for k, ((px, py), away) in enumerate(flag_sites):
-        asm.box((px, py, KERB_M + 2.0), (0.05, 0.05, 2.0), all_sides(tx.metal((150, 150, 150)), top=True))
-        x_b = np.array([away[0], away[1], 0.0])
-        z_b = np.array([0.0, 0.0, 1.0])
-        world_from_flag = np.eye(4)
-        world_from_flag[:3, :3] = np.stack([x_b, np.cross(z_b, x_b), z_b], axis=1)
-        world_from_flag[:3, 3] = (px + 0.05 * away[0], py + 0.05 * away[1], KERB_M + 2.7)
-        deform = FlagDeform(nx=33, nz=17, length_m=1.6, height_m=1.0, amplitude_m=float(deform_amplitude_m),
-                            wavelength_m=float(rng.uniform(1.2, 2.2)), freq_hz=float(rng.uniform(0.5, 1.0)),
-                            phase=float(rng.uniform(0, 2 * np.pi)), tilt_rad_per_m=float(rng.uniform(0.3, 0.9)))
-        asm.flag(f"flag{k}", world_from_flag, deform, flag_painter(rng.spawn(1)[0]), dynamic=deform_amplitude_m > 0)
+    flags_on_poles(asm, flag_sites, deform_amplitude_m, rng)
 
     # ego route: from (0, 0) heading +x round the residential block, then the avenue and back
     route = np.array([(0, 0), (a, 0), (a, d), (0, d), (0, 0), (a, 0), (a + b, 0), (a + b, d), (a, d), (0, d)], float)
-    lane_path = PeriodicPath.from_polyline(offset_polyline(route, LANE_OFFSET_M), EGO_CORNER_RADIUS_M)
+    lane = offset_polyline(route, LANE_OFFSET_M)
+    lane_path = PeriodicPath.from_polyline(lane, EGO_CORNER_RADIUS_M)
     # the route's stretches (path parameter ranges) and speed limits, for the stop-and-go drive
-    c_of = _arc_positions(lane_path, offset_polyline(route, LANE_OFFSET_M))
+    c_of = _arc_positions(lane_path, lane)
     avenue = [(c_of[5], c_of[6]), (c_of[7], c_of[8])]
     stops = [c_of[0] + EGO_CORNER_RADIUS_M, c_of[8] - 8.0, c_of[9] - 8.0]
 

@@ -229,20 +229,22 @@ def fuse_all(mean6: np.ndarray, fits, cfg: EpipolarConfig = EpipolarConfig()) ->
         raise ValueError(f"{len(mean6)} motions but {len(fits)} epipolar fits")
     out = np.empty_like(mean6)
     used = np.zeros(len(mean6), bool)
-    distances = np.full(len(fits), np.nan)
-    if cfg.road_height_m is not None:
-        distances = road_distances([f.road for f in fits], sequence_pitch_deg(fits),
-                                   RoadScaleConfig(height_m=cfg.road_height_m))
+    distances, _ = sequence_road_distances(fits, cfg)
     for p, (m, fit) in enumerate(zip(mean6, fits)):
         out[p], used[p] = fuse(m, fit, cfg, distances[p])
     return out, used
 
 
-def sequence_pitch_deg(fits) -> float:
-    """The camera's pitch over the road from the direction of travel of the usable fits
-    (:func:`vo.road_scale.travel_pitch_deg`), degrees; NaN without any."""
+def sequence_road_distances(fits, cfg: EpipolarConfig = EpipolarConfig()) -> tuple[np.ndarray, float]:
+    """((P,) distance travelled read from the road in each of a sequence's fits, metres, NaN where the road
+    cannot tell or ``cfg.road_height_m`` is None; the camera's pitch over the road, degrees, from the
+    direction of travel of the usable fits, :func:`vo.road_scale.travel_pitch_deg`, NaN when not asked)."""
+    fits = list(fits)
+    if cfg.road_height_m is None:
+        return np.full(len(fits), np.nan), float("nan")
     ok = [f for f in fits if f.ok]
-    return travel_pitch_deg([f.cam1_from_cam0_rotation for f in ok], [f.direction_cam1 for f in ok])
+    pitch = travel_pitch_deg([f.cam1_from_cam0_rotation for f in ok], [f.direction_cam1 for f in ok])
+    return road_distances([f.road for f in fits], pitch, RoadScaleConfig(height_m=cfg.road_height_m)), pitch
 
 
 class EpipolarFitter:

@@ -214,11 +214,9 @@ def _run(args: argparse.Namespace) -> int:
         if epi is not None:
             config.update(epipolar=dataclasses.asdict(epi), epipolar_pairs_used=sum(u for _, u in fits))
             if epi.road_height_m is not None:
-                from deepslam.vo.epipolar import sequence_pitch_deg
-                from deepslam.vo.road_scale import RoadScaleConfig, road_distances
+                from deepslam.vo.epipolar import sequence_road_distances
 
-                pitch = sequence_pitch_deg([f for f, _ in fits])
-                dist = road_distances([f.road for f, _ in fits], pitch, RoadScaleConfig(height_m=epi.road_height_m))
+                dist, pitch = sequence_road_distances([f for f, _ in fits], epi)
                 config.update(road_scale_pairs_used=int(sum(bool(u) and math.isfinite(d) for (_, u), d in zip(fits, dist))),
                               road_pitch_deg=pitch)
     say = (lambda *a, **k: None) if args.json else print
