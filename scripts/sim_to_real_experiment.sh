@@ -12,12 +12,12 @@
 #   K: J with every street re-rendered with --grainy-road (asphalt with visible grain)   K06: K + KITTI 06's single frames
 #   K06_seed1-4: K06 at other seeds; K06_ens5: seeds 0-4 as one ensemble file (the seed study; not shipped)
 #   L06: K06 on the learned flow of the rendered views (seeds 0-2; scored with vo --flow learned)
-#   M06: K06 with the joint KDE motion prior (seeds 0-4; fourteenth session)
-#   P06: K06 with every training frame also mirrored left-right (--mirror-frames; seeds 0-4; fourteenth session)
-#   LP06: P06 on the learned flow of the rendered views (seeds 0-2; sixteenth session)
-#   W06: P06 with DIS on frames at most 640 px wide (seeds 0-2; eighteenth session)
-#   U06: P06 with a flat speed tail in the motion prior, 0-30 m/s for a fifth of the samples (seeds 0-2; nineteenth session)
-#   E: every model above scored with vo --pose epipolar too (fifteenth session; no training): P06 seed 0 with it ships
+#   M06: K06 with the joint KDE motion prior (seeds 0-4)
+#   P06: K06 with every training frame also mirrored left-right (--mirror-frames; seeds 0-4)
+#   LP06: P06 on the learned flow of the rendered views (seeds 0-2)
+#   W06: P06 with DIS on frames at most 640 px wide (seeds 0-2)
+#   U06: P06 with a flat speed tail in the motion prior, 0-30 m/s for a fifth of the samples (seeds 0-2)
+#   E: every model above scored with vo --pose epipolar too (no training): P06 seed 0 with it ships
 # KITTI 06 is the validation slice of the sim-only recipes (they never see a real frame); 07 is never trained on.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -61,7 +61,7 @@ for s in 4 5 6 7 8 9; do GALL="$GALL $G/varied2_s$s"; done
 for s in 4 5 6 7 8 9; do GALL="$GALL $G/narrow_s$s"; done
 train $D/K_grainy $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --source $GALL
 train $D/K06_grainy_06 $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --source $GALL $K06
-# the seed study (sixth session): K06 at seeds 1-4, and seeds 0-4 joined into one ensemble file
+# the seed study: K06 at seeds 1-4, and seeds 0-4 joined into one ensemble file
 for s in 1 2 3 4; do
   out=$D/K06_seed$s
   [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 \
@@ -73,7 +73,7 @@ done
     --sample-pool 12000 --frame-step 2 --samples-per-epoch 12000 --max-epochs 8 --nll-epochs 10 --threads 2 \
     --data-threads 2 --seed 0 --net cpu --appearance-noise 6 --quiet $NEW --camera-tilt-deg=-1:3:1 --source $MIX \
     --out $D/H_learned $([ -d $D/H_learned ] && echo --resume)
-# L06 (sixth session): K06's streets, prior and 06 frames on the LEARNED flow of the rendered views, seeds 0-2
+# L06: K06's streets, prior and 06 frames on the LEARNED flow of the rendered views, seeds 0-2
 # (the learned flow as fine-tuned on 2026-12-02, scripts/train_flow_model.sh; H above was trained with its first run)
 for s in 0 1 2; do
   out=$D/L06_learned_s$s
@@ -82,7 +82,7 @@ for s in 0 1 2; do
       --data-threads 2 --seed $s --net cpu --appearance-noise 6 --quiet $NEW --camera-tilt-deg=-1:3:1 \
       --source $GALL $K06 --out $out $([ -d $out ] && echo --resume)
 done
-# M06 (fourteenth session): K06 exactly, with the joint KDE prior (fit-motion --consecutive kde on 00-05, 08-10,
+# M06: K06 exactly, with the joint KDE prior (fit-motion --consecutive kde on 00-05, 08-10,
 # models/motion/kitti_no0607_kde_s1.json) in place of the independent Student-t, seeds 0-4
 KDE="--motion models/motion/kitti_no0607_kde_s1.json"
 for s in 0 1 2 3 4; do
@@ -90,13 +90,13 @@ for s in 0 1 2 3 4; do
   [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} $KDE --sample-pool 20000 --camera-tilt-deg=-1:3:1 \
       --source $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
-# P06 (fourteenth session): K06 exactly, with every training frame also mirrored left-right, seeds 0-4
+# P06: K06 exactly, with every training frame also mirrored left-right, seeds 0-4
 for s in 0 1 2 3 4; do
   out=$D/P06_mirror_s$s
   [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} $NEW --mirror-frames --sample-pool 20000 \
       --camera-tilt-deg=-1:3:1 --source $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
-# LP06 (sixteenth session): P06 exactly on the LEARNED flow of the rendered views (seeds 0-2; scored with
+# LP06: P06 exactly on the LEARNED flow of the rendered views (seeds 0-2; scored with
 # vo --flow learned --pose epipolar; rule: bench/criteria/2026-12-03_s16_lp06.md)
 for s in 0 1 2; do
   out=$D/LP06_learned_s$s
@@ -104,7 +104,7 @@ for s in 0 1 2; do
   [ -f "$out/model.safetensors" ] || $DS train ${LEARNED/--seed 0/--seed $s} $NEW --mirror-frames --sample-pool 20000 \
       --camera-tilt-deg=-1:3:1 --source $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
-# W06 (eighteenth session): P06 exactly with DIS on frames at most 640 px wide (--dis-max-width 640: the renders as
+# W06: P06 exactly with DIS on frames at most 640 px wide (--dis-max-width 640: the renders as
 # before, KITTI 06's frames downscaled to 640 wide; the model records it, so vo/slam run DIS so; seeds 0-2;
 # rule: bench/criteria/2026-12-03_s18_dis_scale.md)
 for s in 0 1 2; do
@@ -112,7 +112,7 @@ for s in 0 1 2; do
   [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} --dis-max-width 640 $NEW --mirror-frames \
       --sample-pool 20000 --camera-tilt-deg=-1:3:1 --source $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
-# U06 (nineteenth session): P06 exactly with a flat speed tail in the prior (--speed-range 0:30@0.2: a fifth of the
+# U06: P06 exactly with a flat speed tail in the prior (--speed-range 0:30@0.2: a fifth of the
 # motions get a forward speed uniform in 0-30 m/s, the rest the fitted prior; seeds 0-2;
 # rule: bench/criteria/2026-12-03_s19_speed_tail.md; the sweep: python -m bench.results_speed --model U06=...)
 for s in 0 1 2; do
@@ -120,7 +120,7 @@ for s in 0 1 2; do
   [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} --speed-range 0:30@0.2 $NEW --mirror-frames \
       --sample-pool 20000 --camera-tilt-deg=-1:3:1 --source $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
-# S06 (twentieth session): P06 exactly with DIS matching 8-pixel patches every 4 pixels instead of 3
+# S06: P06 exactly with DIS matching 8-pixel patches every 4 pixels instead of 3
 # (--dis-patch-stride 4: about three quarters of DIS medium's time; the model records it; seeds 0-2;
 # rule: bench/criteria/2026-12-04_s20_dis_stride.md)
 for s in 0 1 2; do
@@ -128,9 +128,9 @@ for s in 0 1 2; do
   [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} --dis-patch-stride 4 $NEW --mirror-frames \
       --sample-pool 20000 --camera-tilt-deg=-1:3:1 --source $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
-# E (fifteenth session): the same models with --pose epipolar (rotation and direction of travel from the essential
+# E: the same models with --pose epipolar (rotation and direction of travel from the essential
 # matrix of the flow, the network's distance): results_real below scores every model in both pose modes.
-# Shipped since the fifteenth session: P06 seed 0 with the epipolar pose recorded (rule: bench/criteria/2026-12-03_s15_epipolar.md,
+# Shipped: P06 seed 0 with the epipolar pose recorded (rule: bench/criteria/2026-12-03_s15_epipolar.md,
 # quoted in the README); kitti_cons_learned (L06 seed 0) got the same recorded mode.
 [ -f $D/kitti_cons_dis_P06_epipolar.safetensors ] || $DS set-pose $D/P06_mirror_s0/model.safetensors --pose epipolar \
     --out $D/kitti_cons_dis_P06_epipolar.safetensors
@@ -162,7 +162,7 @@ done
   --model "U06_seed2=$D/U06_tail_s2/model.safetensors" \
   --model "S06=$D/S06_stride4_s0/model.safetensors" --model "S06_seed1=$D/S06_stride4_s1/model.safetensors" \
   --model "S06_seed2=$D/S06_stride4_s2/model.safetensors"
-# the forward read against the true speed (0-30 m/s) of P06 seed 0 (kitti_cons_dis as shipped in the fifteenth session) and U06
+# the forward read against the true speed (0-30 m/s) of P06 seed 0 (kitti_cons_dis as shipped with the epipolar pose) and U06
 .venv/bin/python -m bench.results_speed --no-shipped --model "P06=$D/P06_mirror_s0/model.safetensors" \
   --model "U06=$D/U06_tail_s0/model.safetensors" --model "U06_seed1=$D/U06_tail_s1/model.safetensors" \
   --model "U06_seed2=$D/U06_tail_s2/model.safetensors" --out $D/speed

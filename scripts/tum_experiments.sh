@@ -33,7 +33,7 @@ train $D/scale_depth $M30 --scene-scale 0.3:1.0 --depth-channel
 train $D/10hz --motion $D/euroc_10hz.json
 train $D/dis18 $M30 --appearance-noise 18
 train $D/10hz18 --motion $D/euroc_10hz.json --appearance-noise 18
-# seventh session (2026-12-02): DIS's flow left out where the first image has no texture (--dis-min-texture 0.5,
+# 2026-12-02: DIS's flow left out where the first image has no texture (--dis-min-texture 0.5,
 # the threshold from scripts/tum_dis_gap.py: teddy's real pairs against the pnp baseline's motion, no pose or score)
 #   tex, tex30: rooms only, 8 / 30 epochs      teddy_dis: rooms + teddy's single frames, no texture threshold (control)
 #   teddy_tex: rooms + teddy with it, 8 epochs  teddy_tex_depth30: + the depth channel, 30 epochs
@@ -54,12 +54,12 @@ for m in dis depth scale scale_depth dis18; do
 done
 $DS vo --sequence $TEDDY --model $D/10hz/model.safetensors --stride 3 --out $D/10hz/teddy.txt --quiet
 $DS vo --sequence $TEDDY --model $D/10hz18/model.safetensors --stride 3 --out $D/10hz18/teddy.txt --quiet
-# eighth session (2026-12-02): the shipped recipe (teddy_tex30) with the validity channel (--valid-channel: unknown
+# 2026-12-02: the shipped recipe (teddy_tex30) with the validity channel (--valid-channel: unknown
 # flow left out of the resize and marked, not read as 0); the criterion, fixed before training: the held-out synthetic
 # loss against teddy_tex30's. Trained on a machine without AVX-512/AMX, so in float32 (bf16 autocast: auto = off there).
 train $D/teddy_tex30_valid $M30 $TEX --source $ROOMS $TEDDY --max-epochs 30 --valid-channel
 $DS vo --sequence $TEDDY --model $D/teddy_tex30_valid/model.safetensors --out $D/teddy_tex30_valid/teddy.txt --quiet
-# ninth session (2026-12-02): the solve pose head (--pose-head solve, vo/posesolve.py: the network weighs each pixel
+# 2026-12-02: the solve pose head (--pose-head solve, vo/posesolve.py: the network weighs each pixel
 # and the pose is the weighted Gauss-Newton fit of the flow with the frame's depth; it needs both channels). The shipped
 # recipe's data at 10 epochs; criterion fixed before training: the held-out synthetic loss against tum_cons_teddy's
 # (0.000343). Trained in float32 (a machine without AVX-512/AMX).
@@ -73,7 +73,7 @@ for m in solve_teddy solve_rooms solve_teddy_seed1; do
 done
 $DS vo --sequence $TEDDY --model $D/unit_solve.safetensors --out $D/unit_solve_teddy.txt --quiet
 
-# Tenth session (2026-12-02; see README, RGB-D odometry): the same solve recipe (10 epochs, DIS tex0.5)
+# 2026-12-02 (docs/experiments/2026-12-03_tum_rgbd.md): the same solve recipe (10 epochs, DIS tex0.5)
 # (1) on the rooms rendered with the simulated Kinect's depth (the view from the exact surfaces, the depth channel
 # from the sensor); (2) rooms only with DIS's forward-backward check 0.5 px; (3) the shipped fb recipe at seed 1
 for s in 1 2 3; do
@@ -87,7 +87,7 @@ for m in solve_kinect solve_rooms_fb solve_teddy_fb_seed1; do
   $DS vo --sequence $TEDDY --model $D/$m/model.safetensors --out $D/$m/teddy.txt --quiet
 done
 
-# Twelfth session (2026-12-03): the shipped tum_cons_teddy recipe (fb 0.5, the Cauchy kernel in the solve, 6 steps;
+# 2026-12-03: the shipped tum_cons_teddy recipe (fb 0.5, the Cauchy kernel in the solve, 6 steps;
 # scripts/train_tum_models.sh's tum_cons_teddy_fb_cauchy) at seed 1: the recipe's spread, not used for any choice
 train $D/solve_teddy_cauchy_seed1 $M30 $TEX --source $ROOMS $TEDDY $SOLVE --dis-fb-check 0.5 \
     --solve-robust cauchy --solve-iterations 6 --seed 1
