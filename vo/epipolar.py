@@ -29,7 +29,8 @@ import cv2
 import numpy as np
 
 from deepslam.core import se3
-from deepslam.vo.road_scale import RoadScaleConfig, RoadScan, road_distances, scan_road, travel_pitch_deg
+from deepslam.vo.road_scale import (RoadScaleConfig, RoadScan, check_and_fill, image_road_q, road_distances, scan_road,
+                                    travel_pitch_deg)
 
 
 METHODS = ("usac_default", "usac_accurate", "usac_magsac", "usac_fast", "ransac")
@@ -73,6 +74,12 @@ class EpipolarConfig:
     road plane's homography with the fit's rotation and direction of travel, the camera's pitch chosen once
     per sequence) instead of from the network, in every pair whose road fits well enough. None: the
     network's distance."""
+    road_fill: bool = True
+    """With :attr:`road_height_m`: pairs whose flow shows no usable road are read from the images themselves
+    (:func:`vo.road_scale.image_road_q`, with the fit's rotation and direction, else the network's), a
+    distance far from its neighbours' is dropped and short gaps are interpolated
+    (:func:`vo.road_scale.check_and_fill`); the rest keep the network's distance. False: the road's motion in
+    the flow only (``deepslam vo --scale road-flow``)."""
 
     def __post_init__(self) -> None:
         if self.road_height_m is not None and not (0.1 <= self.road_height_m <= 100.0):
@@ -190,10 +197,25 @@ def fit_essential(flow: np.ndarray, camera, cfg: EpipolarConfig = EpipolarConfig
     return EpipolarFit(True, rot, d, inl, n, parallax, road=road)
 
 
+def fit_usable(mean6: np.ndarray, fit: EpipolarFit, cfg: EpipolarConfig = EpipolarConfig()) -> bool:
+    """Whether :func:`fuse` takes the fit's rotation and direction for a pair whose network motion is ``mean6``
+    ((6,) float, see :func:`fuse`): not where the fit failed, where its rotation is more than
+    ``cfg.max_rotation_disagreement_deg`` from the network's, or where its direction of travel points more than
+    90 degrees away from the network's (the cheirality sign disagreeing with the network: too little depth
+    structure to trust either)."""
+    if not fit.ok:
+        return False
+    m = np.asarray(mean6, dtype=np.float64).reshape(6)
+    net = se3.from_euler6(m)
+    if se3.rotation_angle(fit.cam1_from_cam0_rotation @ net[:3, :3].T) > np.radians(cfg.max_rotation_disagreement_deg):
+        return False
+    return not (np.linalg.norm(m[3:]) > 0 and float(fit.direction_cam1 @ m[3:]) < 0)
+
+
 def fuse(mean6: np.ndarray, fit: EpipolarFit, cfg: EpipolarConfig = EpipolarConfig(),
          distance_m: float = float("nan")) -> tuple[np.ndarray, bool]:
-    """One network motion with the fit's rotation and direction of travel, and the network's distance (or
-    ``distance_m``, metres, where finite: the road's, :func:`vo.road_scale.road_distances`).
+    """One network motion with the fit's rotation and direction of travel (where :func:`fit_usable`), and the
+    network's distance, or ``distance_m`` (metres) where finite: the road's (:func:`sequence_road_distances`).
 
     Args:
         mean6: (6,) float the network's ``cam1_from_cam0`` (euler_x, euler_y, euler_z rad, t_x, t_y, t_z m).
@@ -201,50 +223,111 @@ def fuse(mean6: np.ndarray, fit: EpipolarFit, cfg: EpipolarConfig = EpipolarConf
         cfg: the settings (:attr:`EpipolarConfig.max_rotation_disagreement_deg`).
 
     Returns:
-        (mean6, used): the fused (6,) float64 motion, and whether the fit was used. It is not where the fit
-        failed, where its rotation is more than ``cfg.max_rotation_disagreement_deg`` from the network's, or
-        where its direction of travel points more than 90 degrees away from the network's (the cheirality
-        sign disagreeing with the network: too little depth structure to trust either).
+        (mean6, used): the fused (6,) float64 motion, and whether the fit was used. Where it is not, the
+        network's motion is kept, its translation stretched to ``distance_m`` where that is finite.
     """
     m = np.asarray(mean6, dtype=np.float64).reshape(6)
-    if not fit.ok:
-        return m.copy(), False
-    net = se3.from_euler6(m)
-    if se3.rotation_angle(fit.cam1_from_cam0_rotation @ net[:3, :3].T) > np.radians(cfg.max_rotation_disagreement_deg):
-        return m.copy(), False
-    t_net = m[3:]
-    length = float(np.linalg.norm(t_net))
-    if length > 0 and float(fit.direction_cam1 @ t_net) < 0:
-        return m.copy(), False
+    used = fit_usable(m, fit, cfg)
+    if used:
+        rot, direction, length = fit.cam1_from_cam0_rotation, fit.direction_cam1, float(np.linalg.norm(m[3:]))
+    else:
+        length = float(np.linalg.norm(m[3:]))
+        if not (np.isfinite(distance_m) and length > 0):
+            return m.copy(), False
+        net = se3.from_euler6(m)
+        rot, direction = net[:3, :3], m[3:] / length
     if np.isfinite(distance_m):
         length = float(distance_m)
-    return se3.to_euler6(se3.from_rt(fit.cam1_from_cam0_rotation, fit.direction_cam1 * length)), True
+    return se3.to_euler6(se3.from_rt(rot, direction * length)), used
 
 
-def fuse_all(mean6: np.ndarray, fits, cfg: EpipolarConfig = EpipolarConfig()) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`fuse` for (P, 6) motions and their P fits -> ((P, 6) float64 motions, (P,) bool used)."""
+def fuse_all(mean6: np.ndarray, fits, cfg: EpipolarConfig = EpipolarConfig(), camera=None, pair_greys=None,
+             road_out: list | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`fuse` for (P, 6) motions and their P fits -> ((P, 6) float64 motions, (P,) bool used).
+
+    ``camera`` (:class:`core.camera.PinholeCamera`) and ``pair_greys`` (``f(p) -> (grey0, grey1)``, the
+    pair's (H, W) uint8 images at the camera's size): see :func:`sequence_road_distances`; ``road_out``: a list the :class:`RoadDistances` is appended to."""
     mean6 = np.asarray(mean6, dtype=np.float64).reshape(-1, 6)
     fits = list(fits)
     if len(fits) != len(mean6):
         raise ValueError(f"{len(mean6)} motions but {len(fits)} epipolar fits")
     out = np.empty_like(mean6)
     used = np.zeros(len(mean6), bool)
-    distances, _ = sequence_road_distances(fits, cfg)
+    road = sequence_road_distances(fits, cfg, mean6, camera, pair_greys)
+    if road_out is not None:
+        road_out.append(road)
     for p, (m, fit) in enumerate(zip(mean6, fits)):
-        out[p], used[p] = fuse(m, fit, cfg, distances[p])
+        out[p], used[p] = fuse(m, fit, cfg, road.distances_m[p])
     return out, used
 
 
-def sequence_road_distances(fits, cfg: EpipolarConfig = EpipolarConfig()) -> tuple[np.ndarray, float]:
-    """((P,) distance travelled read from the road in each of a sequence's fits, metres, NaN where the road
-    cannot tell or ``cfg.road_height_m`` is None; the camera's pitch over the road, degrees, from the
-    direction of travel of the usable fits, :func:`vo.road_scale.travel_pitch_deg`, NaN when not asked)."""
+@dataclass(frozen=True, eq=False)
+class RoadDistances:
+    """The distance travelled in each pair of a sequence as read from the road."""
+
+    distances_m: np.ndarray
+    """(P,) float64 metres, NaN where the road cannot tell (the network's distance is kept)."""
+    pitch_deg: float
+    """The camera's pitch over the road, degrees, from the direction of travel of the usable fits
+    (:func:`vo.road_scale.travel_pitch_deg`); NaN when not asked."""
+    source: tuple[str, ...]
+    """Per pair: ``flow`` (the road's motion in the flow), ``images`` (the road bands aligned,
+    :func:`vo.road_scale.image_road_q`), ``filled`` (interpolated between neighbours) or ``""`` (none)."""
+
+    def counts(self) -> dict[str, int]:
+        """Pairs per source (``network``: none read from the road)."""
+        return {k: sum(1 for s in self.source if s == v) for k, v in
+                (("flow", "flow"), ("images", "images"), ("filled", "filled"), ("network", ""))}
+
+
+def sequence_road_distances(fits, cfg: EpipolarConfig = EpipolarConfig(), mean6: np.ndarray | None = None,
+                            camera=None, pair_greys=None) -> RoadDistances:
+    """The distance travelled in each of a sequence's P pairs, read from the road (:class:`RoadDistances`).
+
+    Args:
+        fits: the P pairs' :class:`EpipolarFit`.
+        cfg: the settings; ``cfg.road_height_m`` None: nothing is read (all NaN).
+        mean6: (P, 6) float the network's motions (:func:`fuse`): which fits are used, and the rotation and
+            direction for the image alignment where the fit is not; None: every fit that is ``ok`` counts.
+        camera: :class:`core.camera.PinholeCamera` of the images; pair_greys: ``f(p) -> (grey0, grey1)``
+            (H, W) uint8 images of pair p at its size: with ``cfg.road_fill`` the pairs the flow cannot read
+            are read from them (either None: not).
+
+    The flow's road (:func:`vo.road_scale.road_distances`) is read in the pairs whose fit is used; with
+    ``cfg.road_fill`` the others are read from the images, then :func:`vo.road_scale.check_and_fill` drops
+    distances far from their neighbours' and interpolates short gaps.
+    """
     fits = list(fits)
+    n = len(fits)
     if cfg.road_height_m is None:
-        return np.full(len(fits), np.nan), float("nan")
-    ok = [f for f in fits if f.ok]
+        return RoadDistances(np.full(n, np.nan), float("nan"), ("",) * n)
+    usable = [f.ok if mean6 is None else fit_usable(m, f, cfg) for f, m in zip(fits, mean6 if mean6 is not None else fits)]
+    ok = [f for f, u in zip(fits, usable) if u]
     pitch = travel_pitch_deg([f.cam1_from_cam0_rotation for f in ok], [f.direction_cam1 for f in ok])
-    return road_distances([f.road for f in fits], pitch, RoadScaleConfig(height_m=cfg.road_height_m)), pitch
+    dist = road_distances([f.road if u else None for f, u in zip(fits, usable)], pitch,
+                          RoadScaleConfig(height_m=cfg.road_height_m))
+    source = np.where(np.isfinite(dist), "flow", "").astype(object)
+    if not cfg.road_fill or not np.isfinite(pitch):
+        return RoadDistances(dist, pitch, tuple(source))
+    if pair_greys is not None and camera is not None:
+        for p in np.flatnonzero(~np.isfinite(dist)):
+            fit = fits[p]
+            if usable[p]:
+                rot, direction = fit.cam1_from_cam0_rotation, fit.direction_cam1
+            elif mean6 is not None and np.linalg.norm(mean6[p][3:]) > 1e-6:
+                rot = se3.from_euler6(np.asarray(mean6[p], np.float64))[:3, :3]
+                direction = np.asarray(mean6[p][3:], np.float64) / np.linalg.norm(mean6[p][3:])
+            else:
+                continue
+            g0, g1 = pair_greys(int(p))
+            q = image_road_q(g0, g1, camera, rot, direction, pitch)
+            if np.isfinite(q):
+                dist[p], source[p] = cfg.road_height_m * q, "images"
+    filled, dropped = check_and_fill(dist)
+    source[dropped] = ""
+    source[np.isfinite(filled) & ~np.isfinite(dist)] = "filled"
+    source[dropped & np.isfinite(filled)] = "filled"
+    return RoadDistances(filled, pitch, tuple(source))
 
 
 class EpipolarFitter:

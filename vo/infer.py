@@ -14,7 +14,7 @@ import torch
 from tqdm import tqdm
 
 from deepslam.core import se3
-from deepslam.flow.estimators import to_network_input
+from deepslam.flow.estimators import to_grey, to_network_input
 from deepslam.vo.epipolar import EpipolarFitter, fuse_all
 from deepslam.vo.frames import frame_inverse_depth
 from deepslam.vo.modelio import load_model
@@ -113,7 +113,7 @@ class VOPredictor:
 
     def predict_pairs(self, seq, pairs: Seq[tuple[int, int]], flow_estimator, progress: bool = True,
                       chunk: int = 64, inputs=None, epipolar=None,
-                      fits_out: list | None = None) -> tuple[np.ndarray, np.ndarray]:
+                      fits_out: list | None = None, road_out: list | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Flow for every pair (i, j) of ``seq`` by ``flow_estimator`` (and, for a depth-channel
         network, frame i's depth: :func:`vo.frames.frame_inverse_depth`), then 6DoF of cam_j_from_cam_i.
 
@@ -126,7 +126,10 @@ class VOPredictor:
         travel from the essential matrix of its full-resolution flow and only the distance from the
         network (``deepslam vo --pose epipolar``; pairs the fit cannot serve keep the network's motion);
         ``(fit, used)`` of each pair, in the order of the pairs, is appended to ``fits_out`` when given
-        (``used``: :func:`vo.epipolar.fuse` took the fit). The std stays the network's.
+        (``used``: :func:`vo.epipolar.fuse` took the fit), and the sequence's
+        :class:`vo.epipolar.RoadDistances` to ``road_out`` (with a road height in ``epipolar``: the images of
+        pairs whose flow shows no usable road are read again for :func:`vo.road_scale.image_road_q`). The
+        std stays the network's.
 
         Returns (mean6, std6): float64 (P, 6) in the order of ``pairs``.
         """
@@ -164,7 +167,9 @@ class VOPredictor:
         mean6, std6 = np.concatenate(means), np.concatenate(stds)
         if fit is not None:
             side = inputs.side
-            mean6, used = fuse_all(mean6, side, epipolar)
+            mean6, used = fuse_all(mean6, side, epipolar, seq.camera,
+                                   lambda p: (to_grey(seq.image(int(pairs[p, 0]))), to_grey(seq.image(int(pairs[p, 1])))),
+                                   road_out)
             if fits_out is not None:
                 fits_out.extend(zip(side, used.tolist()))
         return mean6, std6

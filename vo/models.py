@@ -147,8 +147,10 @@ def recorded_pose(path: str | Path) -> str:
     return _recorded(path, "pose", POSES, "net")
 
 
-SCALES = ("network", "road")
-"""Where the epipolar pose's distance comes from: the network's translation or the road (:mod:`vo.road_scale`)."""
+SCALES = ("network", "road", "road-flow")
+"""Where the epipolar pose's distance comes from: the network's translation, the road (:mod:`vo.road_scale`:
+its motion in the flow, the images where the flow loses it, neighbours' distances across short gaps) or the
+road's motion in the flow only."""
 ROAD_HEIGHT_M = 1.65
 """Camera height above the road of the KITTI cameras and the simulated street, metres."""
 
@@ -163,16 +165,17 @@ def epipolar_config(path: str | Path, pose: str | None = None, scale: str | None
                     road_height_m: float = ROAD_HEIGHT_M):
     """The :class:`vo.epipolar.EpipolarConfig` to run the VO model file at ``path`` with in pose mode ``pose``
     and distance source ``scale`` (None: the ones the file records, :func:`recorded_pose`,
-    :func:`recorded_scale`; ``road``: read with the camera ``road_height_m`` above the road); None in the
-    ``net`` mode."""
+    :func:`recorded_scale`; ``road`` / ``road-flow``: read with the camera ``road_height_m`` above the road);
+    None in the ``net`` mode."""
     if pose not in (None, *POSES):
         raise ValueError(f"pose must be one of {', '.join(POSES)} or None, got {pose!r}")
     if scale not in (None, *SCALES):
         raise ValueError(f"scale must be one of {', '.join(SCALES)} or None, got {scale!r}")
     if (pose or recorded_pose(path)) != "epipolar":
         return None
-    road = (scale or recorded_scale(path)) == "road"
-    return EpipolarConfig(road_height_m=float(road_height_m) if road else None)
+    source = scale or recorded_scale(path)
+    road = source in ("road", "road-flow")
+    return EpipolarConfig(road_height_m=float(road_height_m) if road else None, road_fill=source == "road")
 
 
 def write_with_pose(path: str | Path, out: str | Path, pose: str, scale: str | None = None) -> dict:

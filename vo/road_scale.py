@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import cv2
 import numpy as np
 
 
@@ -227,3 +228,154 @@ def road_distances(scans: list[RoadScan | None], pitch_deg: float,
         if cost[band] <= cfg.max_cost_frac * s.width:
             out[i] = cfg.height_m * q[band]
     return out
+
+
+# ----------------------------------------------------------------------------------------------
+# the road read from the images themselves, where the flow loses it
+# ----------------------------------------------------------------------------------------------
+
+IMAGE_Q = np.geomspace(0.01, 12.0, 120)
+"""Distances over the camera height scanned by :func:`image_road_q` (steps of 6 %, refined by a parabola
+through the peak): 1.65 cm to 20 m a pair at a 1.65 m high camera."""
+_IMAGE_BAND_POINTS = 3000
+"""At most about this many pixels per band are compared (a regular grid)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ImageRoadConfig:
+    """How :func:`image_road_q` aligns the road bands of two images."""
+
+    blur_px: float = 1.5
+    """Gaussian blur (sigma, pixels) of both images before they are compared: widens the correlation's peak
+    so that the scan's 6 % steps do not step over it."""
+    min_ncc: float = 0.5
+    """A band whose best normalised cross-correlation is below this reads nothing (no road texture)."""
+    min_in_view: float = 0.6
+    """A distance is scored only where at least this fraction of the band's pixels lands inside image 1."""
+
+
+def image_road_q(grey0: np.ndarray, grey1: np.ndarray, camera, rotation: np.ndarray, direction: np.ndarray,
+                 pitch_deg: float, cfg: ImageRoadConfig = ImageRoadConfig()) -> float:
+    """Distance travelled over the camera's height, ``q = |t| / h``, from the road's appearance in two images.
+
+    With the rotation and the direction of travel known, the road plane moves by the homography
+    ``K (R + q d n^T) K^-1`` (``n`` the road's normal at the camera pitch ``pitch_deg``): one unknown. Each
+    band of :data:`ROAD_BANDS` (ego lane, ``ROAD_HALF_WIDTH`` x fx either side of the principal point) of
+    image 0 is compared with image 1 sampled through the homography of every ``q`` of :data:`IMAGE_Q`
+    (normalised cross-correlation over the pixels landing inside image 1). The nearest band whose
+    correlation peaks inside the scanned range, with both neighbours scored and a peak of at least
+    ``cfg.min_ncc``, gives ``q`` (parabola through the peak in log q). Unlike a flow estimator's patch
+    search, the homography follows the road's large motion and its change of scale at any speed.
+
+    Args:
+        grey0, grey1: (H, W) uint8 or float images of the two frames at the camera's size.
+        camera: :class:`core.camera.PinholeCamera` of the images (undistorted).
+        rotation: (3, 3) rotation of ``cam1_from_cam0``; direction: (3,) its unit translation.
+        pitch_deg: the camera's pitch over the road, degrees (positive: looking down).
+
+    Returns:
+        ``q`` (float, dimensionless), NaN where no band reads.
+    """
+    h, w = camera.height, camera.width
+    if grey0.shape[:2] != (h, w) or grey1.shape[:2] != (h, w):
+        raise ValueError(f"images must be {h}x{w} for this camera, got {grey0.shape[:2]} and {grey1.shape[:2]}")
+    k = camera.k
+    kr = k @ np.asarray(rotation, np.float64)
+    kd = k @ np.asarray(direction, np.float64)
+    p = np.radians(pitch_deg)
+    top = int(np.ceil(camera.cy + ROAD_BANDS[0][0] * camera.fy))
+    if top >= h:
+        return float("nan")
+    # only the rows below the far band's top are compared in image 0; image 1 is sampled anywhere
+    g0 = cv2.GaussianBlur(np.asarray(grey0, np.float32), (0, 0), cfg.blur_px)
+    g1 = cv2.GaussianBlur(np.asarray(grey1, np.float32), (0, 0), cfg.blur_px)
+    u0 = max(0, int(camera.cx - ROAD_HALF_WIDTH * camera.fx))
+    u1 = min(w, int(camera.cx + ROAD_HALF_WIDTH * camera.fx) + 1)
+    log_q = np.log(IMAGE_Q)
+    for r0, r1 in reversed(ROAD_BANDS):                      # nearest band first
+        v0, v1 = int(np.ceil(camera.cy + r0 * camera.fy)), min(h, int(camera.cy + r1 * camera.fy) + 1)
+        if v1 - v0 < 2 or u1 - u0 < 2:
+            continue
+        step = max(1, int(np.ceil(np.sqrt((v1 - v0) * (u1 - u0) / _IMAGE_BAND_POINTS))))
+        vv, uu = np.mgrid[v0:v1:step, u0:u1:step]
+        uu, vv = uu.ravel(), vv.ravel()
+        ref = g0[vv, uu].astype(np.float64)
+        x0 = np.linalg.inv(k) @ np.stack([uu, vv, np.ones_like(uu)]).astype(np.float64)
+        nx = np.cos(p) * x0[1] + np.sin(p) * x0[2]
+        x1 = (kr @ x0)[None] + IMAGE_Q[:, None, None] * kd[None, :, None] * nx[None, None, :]   # (Q, 3, N)
+        z = x1[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            mu, mv = x1[:, 0] / z, x1[:, 1] / z
+        inside = (z > 1e-9) & (mu >= 0) & (mu <= w - 1) & (mv >= 0) & (mv <= h - 1)
+        samples = cv2.remap(g1, np.where(inside, mu, -10).astype(np.float32), np.where(inside, mv, -10).astype(np.float32),
+                            cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0).astype(np.float64)
+        wgt = inside.astype(np.float64)
+        cnt = wgt.sum(axis=1)
+        scored = cnt >= cfg.min_in_view * len(ref)
+        cnt = np.maximum(cnt, 1.0)
+        m0 = (wgt * ref[None]).sum(axis=1) / cnt
+        m1 = (wgt * samples).sum(axis=1) / cnt
+        a0 = wgt * (ref[None] - m0[:, None])
+        a1 = wgt * (samples - m1[:, None])
+        den = np.sqrt((a0 * a0).sum(axis=1) * (a1 * a1).sum(axis=1))
+        ncc = np.where(scored & (den > 1e-9), (a0 * a1).sum(axis=1) / np.maximum(den, 1e-12), np.nan)
+        if not np.isfinite(ncc).any():
+            continue
+        i = int(np.nanargmax(ncc))
+        if not (0 < i < len(ncc) - 1 and np.isfinite(ncc[i - 1]) and np.isfinite(ncc[i + 1])) or ncc[i] < cfg.min_ncc:
+            continue
+        c_l, c_0, c_r = ncc[i - 1], ncc[i], ncc[i + 1]
+        curv = c_l - 2 * c_0 + c_r
+        shift = 0.5 * (c_l - c_r) / curv if curv < 0 else 0.0
+        dq = log_q[1] - log_q[0]
+        return float(np.exp(log_q[i] + float(np.clip(shift, -0.5, 0.5)) * dq))
+    return float("nan")
+
+
+@dataclasses.dataclass(frozen=True)
+class RoadSequenceConfig:
+    """How a sequence's per-pair road distances are checked against their neighbours and gaps filled."""
+
+    neighbours: int = 2
+    """Pairs on each side whose median a pair's distance is checked against."""
+    max_jump_frac: float = 0.3
+    """A distance differing from its neighbours' median by more than this fraction of it ..."""
+    min_jump_m: float = 0.2
+    """... and by more than this many metres is dropped (a car's speed changes little in a few frames)."""
+    fill_pairs: int = 2
+    """Runs of at most this many pairs without a distance, between two pairs with one, are interpolated; at
+    either end of the sequence, such a run takes the nearest pair's distance."""
+
+
+def check_and_fill(distances: np.ndarray, cfg: RoadSequenceConfig = RoadSequenceConfig()) -> tuple[np.ndarray, np.ndarray]:
+    """A sequence's road distances with outliers dropped and short gaps interpolated.
+
+    Args:
+        distances: (P,) float metres per consecutive pair, NaN where none was read.
+
+    Returns:
+        ((P,) float64 distances, NaN where still none; (P,) bool: dropped as an outlier). A distance is
+        dropped where it differs from the median of the (finite) distances of up to ``cfg.neighbours`` pairs on
+        each side (at least two of them) by more than ``cfg.max_jump_frac`` of that median and
+        ``cfg.min_jump_m``; then gaps of up to ``cfg.fill_pairs`` pairs are filled (:class:`RoadSequenceConfig`).
+    """
+    d = np.asarray(distances, np.float64).ravel()
+    n = len(d)
+    dropped = np.zeros(n, bool)
+    for i in np.flatnonzero(np.isfinite(d)):
+        nb = np.r_[d[max(0, i - cfg.neighbours):i], d[i + 1:i + 1 + cfg.neighbours]]
+        nb = nb[np.isfinite(nb)]
+        if len(nb) < 2:
+            continue
+        med = float(np.median(nb))
+        dropped[i] = abs(d[i] - med) > max(cfg.max_jump_frac * med, cfg.min_jump_m)
+    out = np.where(dropped, np.nan, d)
+    known = np.flatnonzero(np.isfinite(out))
+    for a, b in zip(known[:-1], known[1:]):
+        if 1 < b - a <= cfg.fill_pairs + 1:
+            out[a + 1:b] = np.interp(np.arange(a + 1, b), [a, b], [out[a], out[b]])
+    if len(known) and 0 < known[0] <= cfg.fill_pairs:
+        out[:known[0]] = out[known[0]]
+    if len(known) and 0 < n - 1 - known[-1] <= cfg.fill_pairs:
+        out[known[-1] + 1:] = out[known[-1]]
+    return out, dropped

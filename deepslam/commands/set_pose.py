@@ -15,9 +15,10 @@ HELP = ("write a VO model file with its pose mode recorded in its meta: net (the
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("model", help="VO model file (model.safetensors or an ensemble file)")
     p.add_argument("--pose", required=True, choices=("net", "epipolar"), help="the pose mode to record")
-    p.add_argument("--scale", choices=("network", "road"), default=None,
-                   help="with --pose epipolar, the distance source to record: network (its translation) or road "
-                        "(the road's motion and the camera's height; vo --scale road); default: keep the file's")
+    p.add_argument("--scale", choices=("network", "road", "road-flow"), default=None,
+                   help="with --pose epipolar, the distance source to record: network (its translation), road "
+                        "(the road's motion and the camera's height, the images where the flow loses it; vo --scale "
+                        "road) or road-flow (the flow's road only); default: keep the file's")
     p.add_argument("--out", required=True, help="model file to write (may be MODEL itself)")
 
 

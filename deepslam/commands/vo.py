@@ -51,10 +51,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "the essential matrix of the full-resolution flow (OpenCV USAC), the distance from the network "
                         "(pairs without parallax keep the network's motion; see vo/epipolar.py). Default: the mode the "
                         "model file records (deepslam set-pose), net where it records none")
-    p.add_argument("--scale", choices=("network", "road"), default=None,
+    p.add_argument("--scale", choices=("network", "road", "road-flow"), default=None,
                    help="with --pose epipolar, where the distance travelled comes from: network (the network's "
-                        "translation) or road (the road's motion in the flow and the camera's height above it, "
-                        "--camera-height; pairs whose road fit is not trusted keep the network's distance). "
+                        "translation), road (the road's motion in the flow and the camera's height above it, "
+                        "--camera-height; where the flow loses the road, the road bands of the two images aligned "
+                        "directly; short gaps between read pairs interpolated; other pairs keep the network's "
+                        "distance) or road-flow (the road's motion in the flow only). "
                         "Default: the source the model file records (deepslam set-pose --scale), network where none")
     p.add_argument("--camera-height", type=float, default=1.65, metavar="M",
                    help="camera height above the road for --scale road, metres (default 1.65: KITTI and the "
@@ -145,7 +147,7 @@ def _run(args: argparse.Namespace) -> int:
     if plugin is not None:
         if args.model is not None:
             raise InputError(None, "--model and --odometry/--odometry-command exclude each other")
-        for flag, on in (("--pose epipolar", args.pose == "epipolar"), ("--scale road", args.scale == "road")):
+        for flag, on in (("--pose epipolar", args.pose == "epipolar"), ("--scale road", args.scale in ("road", "road-flow"))):
             if on:
                 raise InputError(None, f"{flag} needs the network odometry (not --odometry/--odometry-command)")
         mean6, std6 = plugin.predict(seq, pairs)
@@ -165,7 +167,7 @@ def _run(args: argparse.Namespace) -> int:
         if not 0.1 <= args.camera_height <= 100.0:
             raise InputError(None, f"--camera-height must be in [0.1, 100] m, got {args.camera_height}")
         epi = models.epipolar_config(model_path, pose, args.scale, args.camera_height)
-        if args.scale == "road" and epi is None:
+        if args.scale in ("road", "road-flow") and epi is None:
             raise InputError(None, "--scale road needs --pose epipolar (the road fit uses its rotation and direction)")
         fitter = None
         if epi is not None:
@@ -184,8 +186,9 @@ def _run(args: argparse.Namespace) -> int:
                 inputs.close()
             raise
         fits: list = []
+        road: list = []
         mean6, std6 = predictor.predict_pairs(seq, pairs, estimator, progress=not (args.quiet or args.json),
-                                              inputs=inputs, epipolar=epi, fits_out=fits)
+                                              inputs=inputs, epipolar=epi, fits_out=fits, road_out=road)
         name = predictor.name
     from deepslam.vo.infer import chain_euler6
 
@@ -213,12 +216,9 @@ def _run(args: argparse.Namespace) -> int:
                       bf16=predictor.bf16, batch=args.batch, device=str(predictor.device), pose=pose)
         if epi is not None:
             config.update(epipolar=dataclasses.asdict(epi), epipolar_pairs_used=sum(u for _, u in fits))
-            if epi.road_height_m is not None:
-                from deepslam.vo.epipolar import sequence_road_distances
-
-                dist, pitch = sequence_road_distances([f for f, _ in fits], epi)
-                config.update(road_scale_pairs_used=int(sum(bool(u) and math.isfinite(d) for (_, u), d in zip(fits, dist))),
-                              road_pitch_deg=pitch)
+            if epi.road_height_m is not None and road:
+                config.update(road_scale_pairs_used=int(sum(math.isfinite(d) for d in road[0].distances_m)),
+                              road_scale_sources=road[0].counts(), road_pitch_deg=road[0].pitch_deg)
     say = (lambda *a, **k: None) if args.json else print
 
     if seq.gt is None:
