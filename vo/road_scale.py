@@ -337,9 +337,9 @@ class RoadSequenceConfig:
     """How a sequence's per-pair road distances are checked against their neighbours and gaps filled."""
 
     neighbours: int = 2
-    """Pairs on each side whose median a pair's distance is checked against."""
+    """Pairs on each side whose distances predict a pair's (:func:`check_and_fill`)."""
     max_jump_frac: float = 0.3
-    """A distance differing from its neighbours' median by more than this fraction of it ..."""
+    """A distance differing from what its neighbours predict by more than this fraction of it ..."""
     min_jump_m: float = 0.2
     """... and by more than this many metres is dropped (a car's speed changes little in a few frames)."""
     fill_pairs: int = 2
@@ -355,20 +355,24 @@ def check_and_fill(distances: np.ndarray, cfg: RoadSequenceConfig = RoadSequence
 
     Returns:
         ((P,) float64 distances, NaN where still none; (P,) bool: dropped as an outlier). A distance is
-        dropped where it differs from the median of the (finite) distances of up to ``cfg.neighbours`` pairs on
-        each side (at least two of them) by more than ``cfg.max_jump_frac`` of that median and
-        ``cfg.min_jump_m``; then gaps of up to ``cfg.fill_pairs`` pairs are filled (:class:`RoadSequenceConfig`).
+        dropped where it differs from what its neighbours predict (the median, over each finite neighbour up
+        to ``cfg.neighbours`` pairs before and each after, of the straight line through the two; at least one
+        on each side) by more than ``cfg.max_jump_frac`` of that prediction and ``cfg.min_jump_m``; then gaps
+        of up to ``cfg.fill_pairs`` pairs are filled (:class:`RoadSequenceConfig`).
     """
     d = np.asarray(distances, np.float64).ravel()
     n = len(d)
     dropped = np.zeros(n, bool)
-    for i in np.flatnonzero(np.isfinite(d)):
-        nb = np.r_[d[max(0, i - cfg.neighbours):i], d[i + 1:i + 1 + cfg.neighbours]]
-        nb = nb[np.isfinite(nb)]
-        if len(nb) < 2:
+    finite = np.isfinite(d)
+    for i in np.flatnonzero(finite):
+        before = [b for b in range(max(0, i - cfg.neighbours), i) if finite[b]]
+        after = [a for a in range(i + 1, min(n, i + 1 + cfg.neighbours)) if finite[a]]
+        if not (before and after):      # one side only: a speed-up or a slow-down would read as a jump
             continue
-        med = float(np.median(nb))
-        dropped[i] = abs(d[i] - med) > max(cfg.max_jump_frac * med, cfg.min_jump_m)
+        # the distance each (before, after) pair of neighbours predicts by a straight line: a steady
+        # speed-up is no jump, and one bad neighbour spoils only the lines through it
+        pred = float(np.median([d[b] + (d[a] - d[b]) * (i - b) / (a - b) for b in before for a in after]))
+        dropped[i] = abs(d[i] - pred) > max(cfg.max_jump_frac * abs(pred), cfg.min_jump_m)
     out = np.where(dropped, np.nan, d)
     known = np.flatnonzero(np.isfinite(out))
     for a, b in zip(known[:-1], known[1:]):

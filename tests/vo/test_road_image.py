@@ -1,0 +1,140 @@
+"""The road read from the images where the flow loses it (``deepslam vo --scale road``): the road bands of two
+rendered road images aligned through the road plane's homography give the distance at any speed; a
+sequence's distances checked against their neighbours, short gaps filled; a pair the fit cannot serve keeps
+the network's rotation and direction with the road's distance."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
+from deepslam.vo.epipolar import EpipolarConfig, EpipolarFit, fuse, sequence_road_distances
+from deepslam.vo.road_scale import RoadSequenceConfig, check_and_fill, image_road_q
+
+CAM = PinholeCamera(620, 188, 359.4, 359.4, 309.5, 93.5)
+HEIGHT_M = 1.65
+_TEXEL_M = 0.02
+_TEX_X0, _TEX_Z0 = -25.0, -15.0
+
+
+def _texture(seed: int = 0) -> np.ndarray:
+    """(4000, 2500) float32 asphalt-like noise on the road plane, 2 cm texels, x in [-25, 25] m, z in [-15, 65] m."""
+    rng = np.random.default_rng(seed)
+    tex = rng.normal(0, 1, (4000, 2500)).astype(np.float32)
+    tex = cv2.GaussianBlur(tex, (0, 0), 3.0) * 40 + cv2.GaussianBlur(rng.normal(0, 1, (4000, 2500)).astype(np.float32), (0, 0), 20.0) * 400
+    return np.clip(tex + 128, 0, 255).astype(np.float32)
+
+
+TEX = _texture()
+
+
+def _pitched(pitch_deg: float) -> np.ndarray:
+    """(3, 3) level-from-camera rotation of a camera pitched down by ``pitch_deg`` (OpenCV axes)."""
+    p = np.radians(pitch_deg)
+    return np.array([[1, 0, 0], [0, np.cos(p), np.sin(p)], [0, -np.sin(p), np.cos(p)]], float)
+
+
+def _drive(distance_m: float, pitch_deg: float, yaw_deg: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Two uint8 (188, 620) images of a textured flat road ``HEIGHT_M`` below a camera pitched ``pitch_deg``
+    down, before and after driving ``distance_m`` forward while turning ``yaw_deg`` (sky: mid grey), and
+    cam1_from_cam0 (4, 4)."""
+    level_from_cam = _pitched(pitch_deg)
+    yaw = np.radians(yaw_deg)
+    r_level = np.array([[np.cos(yaw), 0, np.sin(yaw)], [0, 1, 0], [-np.sin(yaw), 0, np.cos(yaw)]])
+    level0_from_level1 = se3.from_rt(r_level, np.array([0.0, 0.0, distance_m]))
+    to_level = se3.from_rt(level_from_cam, np.zeros(3))
+    cam1_from_cam0 = se3.inverse(to_level) @ se3.inverse(level0_from_level1) @ to_level
+    v, u = np.mgrid[0:CAM.height, 0:CAM.width].astype(np.float64)
+    rays = level_from_cam @ (np.linalg.inv(CAM.k) @ np.stack([u.ravel(), v.ravel(), np.ones(u.size)]))
+    images = []
+    for level0_from_levelk in (np.eye(4), level0_from_level1):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            depth = np.where(rays[1] > 1e-3, HEIGHT_M / rays[1], np.nan)
+        p = level0_from_levelk[:3, :3] @ (rays * depth) + level0_from_levelk[:3, 3:4]
+        mx = ((p[0] - _TEX_X0) / _TEXEL_M).reshape(CAM.height, CAM.width).astype(np.float32)
+        mz = ((p[2] - _TEX_Z0) / _TEXEL_M).reshape(CAM.height, CAM.width).astype(np.float32)
+        img = cv2.remap(TEX, np.nan_to_num(mx, nan=-1), np.nan_to_num(mz, nan=-1), cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_CONSTANT, borderValue=128)
+        images.append(np.clip(img, 0, 255).astype(np.uint8))
+    return images[0], images[1], cam1_from_cam0
+
+
+def _rd(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return m[:3, :3], m[:3, 3] / np.linalg.norm(m[:3, 3])
+
+
+@pytest.mark.parametrize("distance_m,pitch_deg,yaw_deg", [(0.5, 1.0, 0.0), (3.0, 1.0, 0.5), (8.0, 1.0, 0.0),
+                                                           (9.0, 0.0, -0.4), (2.0, 2.5, 0.0)])
+def test_aligning_the_road_bands_reads_the_distance_at_any_speed(distance_m, pitch_deg, yaw_deg):
+    g0, g1, m = _drive(distance_m, pitch_deg, yaw_deg)
+    q = image_road_q(g0, g1, CAM, *_rd(m), pitch_deg)
+    assert HEIGHT_M * q == pytest.approx(distance_m, rel=0.03)
+
+
+def test_a_featureless_road_reads_nothing():
+    flat = np.full((CAM.height, CAM.width), 90, np.uint8)
+    _, _, m = _drive(2.0, 1.0)
+    assert np.isnan(image_road_q(flat, flat, CAM, *_rd(m), 1.0))
+
+
+def test_images_of_another_size_are_refused():
+    g0, g1, m = _drive(1.0, 1.0)
+    with pytest.raises(ValueError, match="188x620"):
+        image_road_q(g0[:, :600], g1, CAM, *_rd(m), 1.0)
+
+
+@pytest.mark.parametrize("given,expected,dropped", [
+    # an isolated reading twice its neighbours' is dropped and interpolated
+    ([1.0, 1.0, 2.1, 1.0, 1.0], [1.0, 1.0, 1.0, 1.0, 1.0], [0, 0, 1, 0, 0]),
+    # ... on a steady speed-up too, and its neighbours are kept
+    ([1.0, 1.1, 1.2, 2.6, 1.4, 1.5, 1.6], [1.0, 1.1, 1.2, 1.3, 1.4, 1.5, 1.6], [0, 0, 0, 1, 0, 0, 0]),
+    # a car pulling away from a stop (0.25 m more a pair) is not an outlier
+    ([0.0, 0.25, 0.5, 0.75, 1.0, 1.25], [0.0, 0.25, 0.5, 0.75, 1.0, 1.25], [0, 0, 0, 0, 0, 0]),
+    # a gap of two pairs is interpolated, one of three is not
+    ([1.0, np.nan, np.nan, 1.6, 1.6, np.nan, np.nan, np.nan, 1.6], [1.0, 1.2, 1.4, 1.6, 1.6, np.nan, np.nan, np.nan, 1.6],
+     [0] * 9),
+    # a gap at either end takes the nearest distance (up to two pairs)
+    ([np.nan, 2.0, 2.0, 2.0, np.nan, np.nan], [2.0, 2.0, 2.0, 2.0, 2.0, 2.0], [0] * 6),
+    ([np.nan] * 3 + [2.0], [np.nan] * 3 + [2.0], [0] * 4),
+    # small distances differ by less than min_jump_m: kept
+    ([0.05, 0.05, 0.2, 0.05, 0.05], [0.05, 0.05, 0.2, 0.05, 0.05], [0] * 5),
+    ([], [], []),
+])
+def test_distances_far_from_their_neighbours_are_dropped_and_short_gaps_filled(given, expected, dropped):
+    out, was_dropped = check_and_fill(np.array(given, float), RoadSequenceConfig())
+    np.testing.assert_allclose(out, expected, atol=1e-12)
+    assert was_dropped.tolist() == [bool(x) for x in dropped]
+
+
+def _fit(m: np.ndarray, ok: bool = True) -> EpipolarFit:
+    r, d = _rd(m)
+    return EpipolarFit(ok, r if ok else np.eye(3), d if ok else np.zeros(3), 500, 800, 5.0, road=None)
+
+
+def test_pairs_without_a_flow_road_are_read_from_their_images():
+    drives = [_drive(dist, 1.0) for dist in (2.0, 2.2, 2.4)]
+    fits = [_fit(m) for _, _, m in drives]
+    mean6 = np.stack([se3.to_euler6(m) for _, _, m in drives]) * np.array([1, 1, 1, 0.6, 0.6, 0.6])  # the network: 40 % short
+    cfg = EpipolarConfig(road_height_m=HEIGHT_M)
+    road = sequence_road_distances(fits, cfg, mean6, CAM, lambda p: drives[p][:2])
+    np.testing.assert_allclose(road.distances_m, [2.0, 2.2, 2.4], rtol=0.03)
+    assert road.source == ("images",) * 3 and road.counts()["images"] == 3
+    assert road.pitch_deg == pytest.approx(1.0, abs=1e-6)
+    # the flow-only reading (--scale road-flow) leaves them to the network
+    flow_only = sequence_road_distances(fits, EpipolarConfig(road_height_m=HEIGHT_M, road_fill=False), mean6, CAM,
+                                        lambda p: drives[p][:2])
+    assert np.isnan(flow_only.distances_m).all() and flow_only.counts()["network"] == 3
+
+
+def test_a_pair_the_fit_cannot_serve_keeps_the_networks_rotation_and_direction_with_the_roads_distance():
+    _, _, m = _drive(3.0, 1.0, 0.5)
+    net = se3.to_euler6(m) * np.array([1, 1, 1, 0.5, 0.5, 0.5])
+    fused, used = fuse(net, _fit(m, ok=False), EpipolarConfig(road_height_m=HEIGHT_M), distance_m=3.0)
+    assert not used
+    np.testing.assert_allclose(fused[:3], net[:3], atol=1e-12)
+    np.testing.assert_allclose(fused[3:], net[3:] * 2, rtol=1e-9)
+    # no distance: the network's motion unchanged
+    same, used = fuse(net, _fit(m, ok=False), EpipolarConfig(road_height_m=HEIGHT_M))
+    assert not used and np.array_equal(same, net)
