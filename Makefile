@@ -48,6 +48,7 @@ results: $(STAMP)
 	$(PY) -m bench.results_turn
 	$(PY) -m bench.results_tum
 	$(PY) -m bench.results_flow
+	$(PY) -m bench.results_stress
 	$(PY) -m bench.results_agreement
 	$(PY) -m bench.results_adapt
 	$(PY) -m bench.results_doc

@@ -189,7 +189,7 @@ def markdown(report: dict) -> str:
         fmt = lambda v: "" if v is None else f"{v:.3f}"  # noqa: E731
         lines.append(f"| {name} | " + " | ".join(cells) + f" | {fmt(sm['sim_mean_abs_dev'])} | {fmt(sm['real_mean_abs_dev'])} |")
     rho = report["spearman_rho"]
-    lines += ["", f"Rank agreement of the variants, simulated against real (Spearman's rho of mean abs(ratio - 1)): "
+    lines += ["", "Rank agreement of the variants, simulated against real (Spearman's rho of mean abs(ratio - 1)): "
               + ("n/a (fewer than 3 variants)" if rho is None else f"{rho:.2f}"), "",
               "DIS medium's end-point error against the exact flow (pixels that stay in view) on the simulated streets: "
               + ", ".join(f"{k} {v:.2f} px" for k, v in report["dis_epe_px"].items()), "",

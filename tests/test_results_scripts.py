@@ -315,3 +315,36 @@ def test_adapt_table_leaves_the_adapted_cells_empty_where_nothing_was_adapted():
     md = results_adapt.markdown(rep).splitlines()
     assert md[-2] == "| teddy | 0.200 | 0.050 | 0.020 | 0.040 | 0.039 | 14.8 |"
     assert md[-1] == "| room | 0.100 | 0.200 | 0.020 |  |  |  |"
+
+
+def test_a_killed_agreement_run_resumes_with_the_rows_it_measured_at_the_same_commit(tmp_path, monkeypatch):
+    """Rows go to rows.jsonl as they are measured; a second run at the same clean commit measures nothing
+    again, one at another commit (or with uncommitted changes) measures everything; a line cut short by a
+    kill is skipped."""
+    from bench import results_agreement
+    import deepslam.studies.demo as demo
+
+    calls = []
+
+    def fake_vo(seq, stride, extra, out):
+        calls.append((str(seq), stride, extra))
+        return {"path_length_ratio": 1.0 + 0.01 * stride, "endpoint_drift_pct": float(stride), "ate_m": 0.1}
+
+    monkeypatch.setattr(results_agreement, "_vo", fake_vo)
+    monkeypatch.setattr(results_agreement, "_dis_epe", lambda seq, stride: 1.0)
+    monkeypatch.setattr(demo, "render_once", lambda *a, **k: tmp_path / "street")
+    cfg = dataclasses.replace(results_agreement.QUICK, real=(), strides=(1, 2))
+    out = tmp_path / "agreement"
+    commit = {"commit": "abc1234"}
+    monkeypatch.setattr(results_agreement, "stamp", lambda: dict(commit))
+    first = results_agreement.run(cfg, out, tmp_path)
+    assert len(calls) == 4 and len((out / "rows.jsonl").read_text().splitlines()) == 4
+    with open(out / "rows.jsonl", "a") as f:
+        f.write('{"key": "[\\"abc1234\\", [], \\"sim')          # a kill in the middle of a line
+    again = results_agreement.run(cfg, out, tmp_path)
+    assert len(calls) == 4 and again["rows"] == first["rows"]
+    for other in ("def5678", "abc1234-dirty"):
+        commit["commit"] = other
+        calls.clear()
+        results_agreement.run(cfg, out, tmp_path)
+        assert len(calls) == 4

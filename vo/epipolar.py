@@ -246,7 +246,8 @@ def fuse_all(mean6: np.ndarray, fits, cfg: EpipolarConfig = EpipolarConfig(), ca
     """:func:`fuse` for (P, 6) motions and their P fits -> ((P, 6) float64 motions, (P,) bool used).
 
     ``camera`` (:class:`core.camera.PinholeCamera`) and ``pair_greys`` (``f(p) -> (grey0, grey1)``, the
-    pair's (H, W) uint8 images at the camera's size): see :func:`sequence_road_distances`; ``road_out``: a list the :class:`RoadDistances` is appended to."""
+    pair's (H, W) uint8 images at the camera's size): see :func:`sequence_road_distances`; ``road_out``: a list
+    the sequence's :class:`RoadDistances` is appended to."""
     mean6 = np.asarray(mean6, dtype=np.float64).reshape(-1, 6)
     fits = list(fits)
     if len(fits) != len(mean6):

@@ -234,6 +234,10 @@ def road_distances(scans: list[RoadScan | None], pitch_deg: float,
 # the road read from the images themselves, where the flow loses it
 # ----------------------------------------------------------------------------------------------
 
+IMAGE_BANDS = ROAD_BANDS + ((0.03, 0.06),)
+"""Bands :func:`image_road_q` compares, tried nearest first (as fractions of fy below the principal point): the
+road bands, then one 27-55 m ahead of a 1.65 m high camera for the fastest pairs, when the nearer road leaves
+the view or changes scale too much between the frames."""
 IMAGE_Q = np.geomspace(0.01, 12.0, 120)
 """Distances over the camera height scanned by :func:`image_road_q` (steps of 6 %, refined by a parabola
 through the peak): 1.65 cm to 20 m a pair at a 1.65 m high camera."""
@@ -248,6 +252,9 @@ class ImageRoadConfig:
     blur_px: float = 1.5
     """Gaussian blur (sigma, pixels) of both images before they are compared: widens the correlation's peak
     so that the scan's 6 % steps do not step over it."""
+    highpass_px: float = 10.0
+    """The images compared are the ``blur_px`` blur minus this wider one (sigma, pixels): shading and exposure
+    out, the road's texture in (large-scale shading correlates with itself under any warp, a false peak)."""
     min_ncc: float = 0.5
     """A band whose best normalised cross-correlation is below this reads nothing (no road texture)."""
     min_in_view: float = 0.6
@@ -260,9 +267,9 @@ def image_road_q(grey0: np.ndarray, grey1: np.ndarray, camera, rotation: np.ndar
 
     With the rotation and the direction of travel known, the road plane moves by the homography
     ``K (R + q d n^T) K^-1`` (``n`` the road's normal at the camera pitch ``pitch_deg``): one unknown. Each
-    band of :data:`ROAD_BANDS` (ego lane, ``ROAD_HALF_WIDTH`` x fx either side of the principal point) of
+    band of :data:`IMAGE_BANDS` (ego lane, ``ROAD_HALF_WIDTH`` x fx either side of the principal point) of
     image 0 is compared with image 1 sampled through the homography of every ``q`` of :data:`IMAGE_Q`
-    (normalised cross-correlation over the pixels landing inside image 1). The nearest band whose
+    (normalised cross-correlation of the high-passed images over the pixels landing inside image 1). The nearest band whose
     correlation peaks inside the scanned range, with both neighbours scored and a peak of at least
     ``cfg.min_ncc``, gives ``q`` (parabola through the peak in log q). Unlike a flow estimator's patch
     search, the homography follows the road's large motion and its change of scale at any speed.
@@ -283,16 +290,18 @@ def image_road_q(grey0: np.ndarray, grey1: np.ndarray, camera, rotation: np.ndar
     kr = k @ np.asarray(rotation, np.float64)
     kd = k @ np.asarray(direction, np.float64)
     p = np.radians(pitch_deg)
-    top = int(np.ceil(camera.cy + ROAD_BANDS[0][0] * camera.fy))
-    if top >= h:
+    if int(np.ceil(camera.cy + min(b[0] for b in IMAGE_BANDS) * camera.fy)) >= h:
         return float("nan")
-    # only the rows below the far band's top are compared in image 0; image 1 is sampled anywhere
-    g0 = cv2.GaussianBlur(np.asarray(grey0, np.float32), (0, 0), cfg.blur_px)
-    g1 = cv2.GaussianBlur(np.asarray(grey1, np.float32), (0, 0), cfg.blur_px)
+
+    def highpass(g: np.ndarray) -> np.ndarray:
+        g = np.asarray(g, np.float32)
+        return cv2.GaussianBlur(g, (0, 0), cfg.blur_px) - cv2.GaussianBlur(g, (0, 0), cfg.highpass_px)
+
+    g0, g1 = highpass(grey0), highpass(grey1)
     u0 = max(0, int(camera.cx - ROAD_HALF_WIDTH * camera.fx))
     u1 = min(w, int(camera.cx + ROAD_HALF_WIDTH * camera.fx) + 1)
     log_q = np.log(IMAGE_Q)
-    for r0, r1 in reversed(ROAD_BANDS):                      # nearest band first
+    for r0, r1 in sorted(IMAGE_BANDS, key=lambda b: -b[0]):     # nearest band first
         v0, v1 = int(np.ceil(camera.cy + r0 * camera.fy)), min(h, int(camera.cy + r1 * camera.fy) + 1)
         if v1 - v0 < 2 or u1 - u0 < 2:
             continue

@@ -138,3 +138,37 @@ def test_a_pair_the_fit_cannot_serve_keeps_the_networks_rotation_and_direction_w
     # no distance: the network's motion unchanged
     same, used = fuse(net, _fit(m, ok=False), EpipolarConfig(road_height_m=HEIGHT_M))
     assert not used and np.array_equal(same, net)
+
+
+@pytest.mark.parametrize("scale,fill", [(None, True), ("road", True), ("road-flow", False)])
+def test_vo_on_kitti_records_where_each_distance_came_from(shared_data, tmp_path, scale, fill):
+    """`deepslam vo` on KITTI 07 at stride 3 (the shipped default records the road scale): the record counts
+    the pairs read from the flow's road, the images, filled between neighbours and left to the network; the
+    flow-only reading never uses the images."""
+    import json
+
+    from deepslam.cli import main
+
+    out = tmp_path / "t.txt"
+    args = ["vo", "--sequence", str(shared_data / "kitti" / "sequences" / "07"), "--end", "31", "--stride", "3",
+            "--out", str(out), "--quiet"] + (["--scale", scale] if scale else [])
+    assert main(args) == 0
+    cfg = json.loads((tmp_path / "t.config.json").read_text())
+    assert cfg["epipolar"]["road_height_m"] == 1.65 and cfg["epipolar"]["road_fill"] is fill
+    counts = cfg["road_scale_sources"]
+    assert sum(counts.values()) == 10 and cfg["road_scale_pairs_used"] == 10 - counts["network"]
+    if not fill:
+        assert counts["images"] == counts["filled"] == 0
+
+
+@pytest.mark.parametrize("distance_m", [3.0, 7.0])
+def test_shading_fixed_in_the_image_does_not_pull_the_alignment_to_standing_still(distance_m):
+    """Vignetting or a brightness ramp that stays put in the image correlates with itself under a near-identity
+    warp: the high-pass keeps only the road's texture."""
+    g0, g1, m = _drive(distance_m, 1.0)
+    v = np.arange(CAM.height, dtype=np.float32)[:, None]
+    u = np.arange(CAM.width, dtype=np.float32)[None, :]
+    ramp = 60 * (v / CAM.height) + 40 * np.cos((u - CAM.cx) / CAM.width * np.pi) ** 2
+    shaded = [np.clip(g.astype(np.float32) * 0.5 + ramp, 0, 255).astype(np.uint8) for g in (g0, g1)]
+    q = image_road_q(*shaded, CAM, *_rd(m), 1.0)
+    assert HEIGHT_M * q == pytest.approx(distance_m, rel=0.03)

@@ -1,0 +1,59 @@
+"""The stress study with its defaults: flow, VO and SLAM errors against the fraction of moving pixels.
+
+``deepslam stress`` on the default street (the KITTI-look street, seed 0, 300 frames per setting at 320 px,
+the shipped models, exact and DIS flow): static, moving cars by count and size, waving flags, and the
+heaviest setting. Writes its outputs (stress.json, stress.md, report.html, plots) and results.md (the table)
+into ``out/results/stress`` (``python -m bench.results_stress [--quick]``, a few minutes on 2 cores).
+"""
+from __future__ import annotations
+
+import dataclasses
+import sys
+import time
+from pathlib import Path
+
+from bench.results_common import results_main, write_report
+
+
+@dataclasses.dataclass(frozen=True)
+class ResultsStressConfig:
+    """The sweep: :class:`deepslam.studies.stress.StressConfig`'s defaults unless given here."""
+
+    frames: int | None = None
+    """Frames per setting (None: the study's default)."""
+    objects: tuple[int, ...] | None = None
+    """Moving-object counts (None: the study's default)."""
+    object_sizes: tuple[float, ...] | None = None
+    """Moving-object sizes (None: the study's default)."""
+    deform_amplitudes_m: tuple[float, ...] | None = None
+    """Flag amplitudes, metres (None: the study's default)."""
+    combined: bool | None = None
+    """The heaviest setting too (None: the study's default, yes)."""
+
+
+QUICK = ResultsStressConfig(frames=100, objects=(0, 8), object_sizes=(2.0,), deform_amplitudes_m=(0.3,), combined=False)
+
+
+def run(cfg: ResultsStressConfig, out: Path, data_dir: Path) -> dict:
+    from deepslam.studies.stress import StressConfig, run_stress
+
+    given = {k: v for k, v in dataclasses.asdict(cfg).items() if v is not None}
+    t0 = time.perf_counter()
+    run_stress(StressConfig(**given), out, resume=True, progress=False)
+    report = {"config": dataclasses.asdict(cfg), "markdown": (out / "stress.md").read_text(),
+              "minutes": (time.perf_counter() - t0) / 60}
+    write_report(out, report, markdown)
+    return report
+
+
+def markdown(report: dict) -> str:
+    return (report["markdown"].strip() + f"\n\nRun time: {report['minutes']:.1f} min (settings already measured in "
+            "the folder are reused).\n")
+
+
+def main(argv: list[str] | None = None) -> int:
+    return results_main("results_stress", __doc__, ResultsStressConfig(), QUICK, "stress", run, markdown, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
