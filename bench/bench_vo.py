@@ -13,6 +13,9 @@ Rows (each against its baseline measured in the same run):
   STREET --motion M``, every default: paper network, batch 128, bf16 where native, torch's threads;
   a rendered 414-px street), end to end through the data pipeline, stopped by ``--max-samples``:
   its stage-1 samples/s against the network alone at the same settings (target: >= 0.7 of it).
+- ``deepslam vo`` end to end on real KITTI 07 (../shared/data) at frame stride 3, where DIS loses the road in
+  a third of the pairs: the default distance (the road from the flow, and from the images where the flow
+  loses it) against ``--scale road-flow`` (the flow only), pairs/s (skipped without the shared data).
 """
 from __future__ import annotations
 
@@ -150,6 +153,29 @@ def readme_train_throughput(samples: int) -> float:
         return float(hist[0]["samples_per_s"])
 
 
+def vo_pairs_per_s(scale: str, stride: int = 3) -> float | None:
+    """Pairs/s of ``deepslam vo`` on KITTI 07 at ``stride`` with ``--scale scale``, whole command (start-up,
+    model load, flow, network, fit, writing); None without the shared data."""
+    import tempfile
+    from pathlib import Path
+
+    from deepslam.cli import main
+    from deepslam.core.paths import shared_data_dir
+
+    seq = shared_data_dir() / "kitti" / "sequences" / "07"
+    if not (seq / "calib.txt").is_file():
+        return None
+    with tempfile.TemporaryDirectory(prefix="bench-vo-") as tmp:
+        t0 = time.perf_counter()
+        rc = main(["vo", "--sequence", str(seq), "--stride", str(stride), "--scale", scale,
+                   "--out", str(Path(tmp) / "t.txt"), "--quiet"])
+        dt = time.perf_counter() - t0
+    if rc != 0:
+        raise RuntimeError(f"deepslam vo failed on {seq}")
+    frames = len(range(0, 160, stride))
+    return (frames - 1) / dt
+
+
 def _best(fns: dict, rounds: int) -> dict:
     """Best (highest) of ``rounds`` interleaved runs of each measurement: on a machine shared with
     other jobs the best run is the one least disturbed, and interleaving gives each the same chances."""
@@ -195,6 +221,12 @@ def run(quick: bool) -> list[dict]:
     dis, exact = estimated_flow_throughput(128 if quick else 512)
     rows.append(_row("synthetic data on DIS flow 48x160 (second view rendered from a 640x192 frame, DIS medium, "
                      "2 threads), batch 128", dis, "samples/s", "exact synthetic flow, same frames and size", exact))
+    if vo_pairs_per_s("road-flow", 3) is not None:  # also the warm-up: decoders, model file cache
+        m = _best({"road": lambda: vo_pairs_per_s("road", 3), "flow": lambda: vo_pairs_per_s("road-flow", 3)},
+                  1 if quick else 3)
+        rows.append(_row(f"deepslam vo on KITTI 07 at stride 3 (1226x370, DIS medium, best of {1 if quick else 3}): "
+                         "distance from the road of the flow and of the images", m["road"], "pairs/s",
+                         "--scale road-flow (the flow's road only)", m["flow"], ">= 0.9x", m["road"] >= 0.9 * m["flow"]))
     return rows
 
 
