@@ -17,7 +17,8 @@ shipped NN_cons / NN_loops and each flow estimator (the simulator's exact flow, 
 
 Writes ``results.json``, ``results.md`` and one top-down trajectory plot per scene and flow under
 ``--out``; renders and the per-case records are cached, so a killed run resumes (a record is reused
-only while the shipped models it ran with are the same files, by sha256). The target of the
+only while the shipped models it ran with are the same files, by sha256, and the code is the same commit
+without uncommitted changes: odometry code changes what a case measures as much as a model does). The target of the
 SLAM issue: SLAM at most half the ATE of VO (the paper: 14.30 -> 3.24 m on KITTI).
 """
 from __future__ import annotations
@@ -31,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.results_common import write_report
+from bench.stamp import stamp
 
 FLOWS = ("gt", "dis")
 
@@ -94,14 +96,17 @@ def _shipped_paths(seq, flow: str) -> list[Path]:
     return [models.shipped_path(kind, which, flow) for which in ("cons", "loops")]
 
 
-def cached_case(path: Path, models_sha256: dict[str, str]) -> dict | None:
-    """The case record at ``path`` if it was scored with exactly these model files, else None (also
-    when it is missing or unreadable: the case is then run again)."""
+def cached_case(path: Path, models_sha256: dict[str, str], commit: str) -> dict | None:
+    """The case record at ``path`` if it was scored with exactly these model files at ``commit`` (a clean
+    checkout's: ``-dirty`` never matches), else None (also when it is missing or unreadable: the case is
+    then run again)."""
     try:
         rec = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
-    return rec if isinstance(rec, dict) and rec.get("models_sha256") == models_sha256 else None
+    if commit.endswith("-dirty") or not isinstance(rec, dict):
+        return None
+    return rec if rec.get("models_sha256") == models_sha256 and rec.get("commit") == commit else None
 
 
 def _odometry(seq, flow: str):
@@ -213,18 +218,20 @@ def run(cfg: ResultsSlamConfig, out: Path) -> dict:
     log: list[str] = []
     t0 = time.perf_counter()
     cases = {}
+    commit = stamp()["commit"]
     for scene in cfg.scenes:
         vals = [open_sequence(_render(log, scene, s, cfg, out)) for s in cfg.validation_seeds]
         test = open_sequence(_render(log, scene, cfg.test_seed, cfg, out))
         for flow in FLOWS:
             path = out / "cases" / f"{scene}_{flow}.json"
             used = _models_used(test, flow)
-            rec = cached_case(path, used)
+            rec = cached_case(path, used, commit)
             if rec is not None:
                 cases[f"{scene}/{flow}"] = rec
                 continue
             print(f"{scene}, {flow} flow: tune on {', '.join(v.name for v in vals)}, test on {test.name}", flush=True)
-            rec = {**evaluate_case(vals, test, flow, out / f"{scene}_{flow}.png"), "models_sha256": used}
+            rec = {**evaluate_case(vals, test, flow, out / f"{scene}_{flow}.png"), "models_sha256": used,
+                   "commit": commit}
             atomic.write_json(path, rec)
             cases[f"{scene}/{flow}"] = rec
             print(f"  VO ATE {rec['vo']['ate_m']:.3f} m, SLAM {rec['slam_tuned']['ate_m']:.3f} m "

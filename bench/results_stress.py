@@ -2,8 +2,8 @@
 
 ``deepslam stress`` on the default street (the KITTI-look street, seed 0, 300 frames per setting at 320 px,
 the shipped models, exact and DIS flow): static, moving cars by count and size, waving flags, and the
-heaviest setting. Writes its outputs (stress.json, stress.md, report.html, plots) and results.md (the table)
-into ``out/results/stress`` (``python -m bench.results_stress [--quick]``, a few minutes on 2 cores).
+heaviest setting. Writes the study's outputs (stress.json, stress.md, report.html, plots) into
+``out/results/stress/study`` and results.md (the table) into ``out/results/stress`` (``python -m bench.results_stress [--quick]``, a few minutes on 2 cores).
 """
 from __future__ import annotations
 
@@ -39,8 +39,9 @@ def run(cfg: ResultsStressConfig, out: Path, data_dir: Path) -> dict:
 
     given = {k: v for k, v in dataclasses.asdict(cfg).items() if v is not None}
     t0 = time.perf_counter()
-    run_stress(StressConfig(**given), out, resume=True, progress=False)
-    report = {"config": dataclasses.asdict(cfg), "markdown": (out / "stress.md").read_text(),
+    study = out / "study"  # the study's own folder (and lock) inside the results folder
+    run_stress(StressConfig(**given), study, resume=True, progress=False)
+    report = {"config": dataclasses.asdict(cfg), "markdown": (study / "stress.md").read_text(),
               "minutes": (time.perf_counter() - t0) / 60}
     write_report(out, report, markdown)
     return report

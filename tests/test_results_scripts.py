@@ -253,20 +253,26 @@ def test_roadside_flow_per_metre_is_the_inverse_distance_of_a_wall_beside_the_ca
     assert r["left_px_per_m"] > 1.8 * r["right_px_per_m"]   # the left wall is twice as near
 
 
-def test_slam_case_cache_is_reused_only_with_the_same_model_files(tmp_path):
-    """A retrained default must not be scored by a record made with the model before it."""
+def test_slam_case_cache_is_reused_only_with_the_same_model_files_and_commit(tmp_path):
+    """A retrained default, or changed odometry code, must not be scored by a record made before it."""
     from bench.results_slam import cached_case
 
     path = tmp_path / "street_dis.json"
     used = {"kitti_cons_dis.safetensors": "a" * 64, "kitti_loops_dis.safetensors": "b" * 64}
-    assert cached_case(path, used) is None                       # nothing cached yet
+    assert cached_case(path, used, "abc1234") is None            # nothing cached yet
     path.write_text(json.dumps({"vo": {"ate_m": 1.0}}))          # a record from before the digests
-    assert cached_case(path, used) is None
-    path.write_text(json.dumps({"vo": {"ate_m": 1.0}, "models_sha256": used}))
-    assert cached_case(path, used) == {"vo": {"ate_m": 1.0}, "models_sha256": used}
-    assert cached_case(path, {**used, "kitti_cons_dis.safetensors": "c" * 64}) is None
+    assert cached_case(path, used, "abc1234") is None
+    path.write_text(json.dumps({"vo": {"ate_m": 1.0}, "models_sha256": used}))  # ... before the commit
+    assert cached_case(path, used, "abc1234") is None
+    rec = {"vo": {"ate_m": 1.0}, "models_sha256": used, "commit": "abc1234"}
+    path.write_text(json.dumps(rec))
+    assert cached_case(path, used, "abc1234") == rec
+    assert cached_case(path, {**used, "kitti_cons_dis.safetensors": "c" * 64}, "abc1234") is None
+    assert cached_case(path, used, "def5678") is None
+    path.write_text(json.dumps({**rec, "commit": "abc1234-dirty"}))
+    assert cached_case(path, used, "abc1234-dirty") is None      # uncommitted code: never reused
     path.write_text("{ not json")
-    assert cached_case(path, used) is None
+    assert cached_case(path, used, "abc1234") is None
 
 
 def test_a_results_folder_is_reused_only_with_the_same_settings(tmp_path):
