@@ -354,3 +354,25 @@ def test_a_killed_agreement_run_resumes_with_the_rows_it_measured_at_the_same_co
         calls.clear()
         results_agreement.run(cfg, out, tmp_path)
         assert len(calls) == 4
+
+
+def test_stress_results_run_the_study_in_a_folder_of_its_own(tmp_path, monkeypatch, capsys):
+    """The results folder is locked by the results script; the study takes its own folder's lock."""
+    from bench import results_stress
+    import deepslam.studies.stress as stress
+    from deepslam.core.lock import output_lock
+
+    seen = {}
+
+    def fake_run_stress(config, out, resume=False, progress=None):
+        with output_lock(out):
+            seen["config"] = config
+            out.mkdir(parents=True, exist_ok=True)
+            (out / "stress.md").write_text("| setting | dynamic pixels |\n|---|---|\n| static scene | 0 % |\n")
+        return {}
+
+    monkeypatch.setattr(stress, "run_stress", fake_run_stress)
+    assert results_stress.main(["--quick", "--out", str(tmp_path / "stress")]) == 0
+    md = (tmp_path / "stress" / "results.md").read_text()
+    assert "| static scene | 0 % |" in md and (tmp_path / "stress" / "stamp.json").is_file()
+    assert seen["config"].frames == 100 and seen["config"].objects == (0, 8) and not seen["config"].combined
