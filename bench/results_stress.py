@@ -8,6 +8,7 @@ heaviest setting. Writes the study's outputs (stress.json, stress.md, report.htm
 from __future__ import annotations
 
 import dataclasses
+import re
 import sys
 import time
 from pathlib import Path
@@ -41,7 +42,9 @@ def run(cfg: ResultsStressConfig, out: Path, data_dir: Path) -> dict:
     t0 = time.perf_counter()
     study = out / "study"  # the study's own folder (and lock) inside the results folder
     run_stress(StressConfig(**given), study, resume=True, progress=False)
-    report = {"config": dataclasses.asdict(cfg), "markdown": (study / "stress.md").read_text(),
+    # the study's figures sit in study/: links relative to this folder
+    table = re.sub(r"!\[([^\]]*)\]\(([^)/\s]+\.png)\)", r"![\1](study/\2)", (study / "stress.md").read_text())
+    report = {"config": dataclasses.asdict(cfg), "markdown": table,
               "minutes": (time.perf_counter() - t0) / 60}
     write_report(out, report, markdown)
     return report

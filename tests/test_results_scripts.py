@@ -368,11 +368,30 @@ def test_stress_results_run_the_study_in_a_folder_of_its_own(tmp_path, monkeypat
         with output_lock(out):
             seen["config"] = config
             out.mkdir(parents=True, exist_ok=True)
-            (out / "stress.md").write_text("| setting | dynamic pixels |\n|---|---|\n| static scene | 0 % |\n")
+            (out / "stress.md").write_text("| setting | dynamic pixels |\n|---|---|\n| static scene | 0 % |\n\n"
+                                           "![VO ATE](stress_vo_ate.png)\n")
         return {}
 
     monkeypatch.setattr(stress, "run_stress", fake_run_stress)
     assert results_stress.main(["--quick", "--out", str(tmp_path / "stress")]) == 0
     md = (tmp_path / "stress" / "results.md").read_text()
     assert "| static scene | 0 % |" in md and (tmp_path / "stress" / "stamp.json").is_file()
+    assert "![VO ATE](study/stress_vo_ate.png)" in md          # the figure, relative to the results folder
     assert seen["config"].frames == 100 and seen["config"].objects == (0, 8) and not seen["config"].combined
+
+
+def test_results_doc_copies_the_figures_a_table_links_and_drops_missing_ones(tmp_path, monkeypatch):
+    from bench import results_doc
+
+    slam = tmp_path / "out" / "results" / "slam"
+    slam.mkdir(parents=True)
+    (slam / "street_gt.png").write_bytes(b"\x89PNG fake")
+    (slam / "results.md").write_text("| a |\n|---|\n| 1 |\n\n![street](street_gt.png) ![room](room_gt.png)\n")
+    figures = {}
+    text = results_doc.build(tmp_path / "out", figures)
+    assert "![street](img/results/slam_street_gt.png)" in text and "room_gt.png" not in text
+    assert figures == {"img/results/slam_street_gt.png": slam / "street_gt.png"}
+    monkeypatch.setattr(results_doc, "out_dir", lambda: tmp_path / "out")
+    doc = tmp_path / "docs" / "results.md"
+    assert results_doc.main(["--out", str(doc)]) == 0
+    assert (tmp_path / "docs" / "img" / "results" / "slam_street_gt.png").read_bytes() == b"\x89PNG fake"
