@@ -36,12 +36,20 @@ QUICK = ResultsStressConfig(frames=100, objects=(0, 8), object_sizes=(2.0,), def
 
 
 def run(cfg: ResultsStressConfig, out: Path, data_dir: Path) -> dict:
+    from bench.stamp import stamp
+    from deepslam.core import atomic
     from deepslam.studies.stress import StressConfig, run_stress
 
     given = {k: v for k, v in dataclasses.asdict(cfg).items() if v is not None}
     t0 = time.perf_counter()
     study = out / "study"  # the study's own folder (and lock) inside the results folder
-    run_stress(StressConfig(**given), study, resume=True, progress=False)
+    # a killed run resumes only at the same clean commit: the odometry's code changes a setting's figures
+    # as much as its configuration does
+    commit = stamp()["commit"]
+    marker = out / "study_commit.txt"
+    resume = not commit.endswith("-dirty") and marker.is_file() and marker.read_text().strip() == commit
+    atomic.write_text(marker, commit + "\n")
+    run_stress(StressConfig(**given), study, resume=resume, progress=False)
     # the study's figures sit in study/: links relative to this folder
     table = re.sub(r"!\[([^\]]*)\]\(([^)/\s]+\.png)\)", r"![\1](study/\2)", (study / "stress.md").read_text())
     report = {"config": dataclasses.asdict(cfg), "markdown": table,
@@ -51,8 +59,8 @@ def run(cfg: ResultsStressConfig, out: Path, data_dir: Path) -> dict:
 
 
 def markdown(report: dict) -> str:
-    return (report["markdown"].strip() + f"\n\nRun time: {report['minutes']:.1f} min (settings already measured in "
-            "the folder are reused).\n")
+    return (report["markdown"].strip() + f"\n\nRun time: {report['minutes']:.1f} min (a killed run resumed at the "
+            "same commit reuses the settings it measured).\n")
 
 
 def main(argv: list[str] | None = None) -> int:

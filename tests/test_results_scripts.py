@@ -366,14 +366,24 @@ def test_stress_results_run_the_study_in_a_folder_of_its_own(tmp_path, monkeypat
 
     def fake_run_stress(config, out, resume=False, progress=None):
         with output_lock(out):
-            seen["config"] = config
+            seen["config"], seen["resume"] = config, resume
             out.mkdir(parents=True, exist_ok=True)
             (out / "stress.md").write_text("| setting | dynamic pixels |\n|---|---|\n| static scene | 0 % |\n\n"
                                            "![VO ATE](stress_vo_ate.png)\n")
         return {}
 
     monkeypatch.setattr(stress, "run_stress", fake_run_stress)
+    import bench.stamp
+
+    commit = {"commit": "abc1234"}
+    monkeypatch.setattr(bench.stamp, "stamp", lambda: {"date": "d", "machine": "m", **commit})
     assert results_stress.main(["--quick", "--out", str(tmp_path / "stress")]) == 0
+    assert seen["resume"] is False                               # nothing measured at this commit yet
+    assert results_stress.main(["--quick", "--out", str(tmp_path / "stress")]) == 0
+    assert seen["resume"] is True                                # a rerun at the same commit resumes
+    commit["commit"] = "def5678"
+    assert results_stress.main(["--quick", "--out", str(tmp_path / "stress")]) == 0
+    assert seen["resume"] is False                               # other code: measured again
     md = (tmp_path / "stress" / "results.md").read_text()
     assert "| static scene | 0 % |" in md and (tmp_path / "stress" / "stamp.json").is_file()
     assert "![VO ATE](study/stress_vo_ate.png)" in md          # the figure, relative to the results folder
