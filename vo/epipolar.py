@@ -33,10 +33,6 @@ from deepslam.vo.road_scale import (RoadScaleConfig, RoadScan, check_and_fill, i
                                     travel_pitch_deg)
 
 
-ROAD_BAND_DISAGREEMENT = 0.2
-"""With :attr:`EpipolarConfig.road_fill`: the flow's road bands must agree within this fraction
-(:attr:`vo.road_scale.RoadScaleConfig.max_band_disagreement`)."""
-
 METHODS = ("usac_default", "usac_accurate", "usac_magsac", "usac_fast", "ransac")
 """Robust estimators :class:`EpipolarConfig` takes (OpenCV's ``cv2.USAC_*`` flags and ``cv2.RANSAC``)."""
 
@@ -79,12 +75,11 @@ class EpipolarConfig:
     per sequence) instead of from the network, in every pair whose road fits well enough. None: the
     network's distance."""
     road_fill: bool = True
-    """With :attr:`road_height_m`: the flow's road is read only where its two bands agree
-    (:data:`ROAD_BAND_DISAGREEMENT`); pairs whose flow shows no usable road are read from the images
-    themselves (:func:`vo.road_scale.image_road_q`, with the fit's rotation and direction, else the
-    network's), a distance far from its neighbours' is dropped and short gaps are interpolated
+    """With :attr:`road_height_m`: pairs whose flow shows no usable road are read from the images themselves
+    (:func:`vo.road_scale.image_road_q`, with the fit's rotation and direction, else the network's), a
+    distance far from its neighbours' is dropped and short gaps are interpolated
     (:func:`vo.road_scale.check_and_fill`); the rest keep the network's distance. False: the road's motion in
-    the flow only, as one band reads it (``deepslam vo --scale road-flow``)."""
+    the flow only (``deepslam vo --scale road-flow``)."""
 
     def __post_init__(self) -> None:
         if self.road_height_m is not None and not (0.1 <= self.road_height_m <= 100.0):
@@ -311,8 +306,7 @@ def sequence_road_distances(fits, cfg: EpipolarConfig = EpipolarConfig(), mean6:
     ok = [f for f, u in zip(fits, usable) if u]
     pitch = travel_pitch_deg([f.cam1_from_cam0_rotation for f in ok], [f.direction_cam1 for f in ok])
     dist = road_distances([f.road if u else None for f, u in zip(fits, usable)], pitch,
-                          RoadScaleConfig(height_m=cfg.road_height_m,
-                                          max_band_disagreement=ROAD_BAND_DISAGREEMENT if cfg.road_fill else None))
+                          RoadScaleConfig(height_m=cfg.road_height_m))
     source = np.where(np.isfinite(dist), "flow", "").astype(object)
     if not cfg.road_fill or not np.isfinite(pitch):
         return RoadDistances(dist, pitch, tuple(source))

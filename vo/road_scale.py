@@ -176,10 +176,6 @@ class RoadScaleConfig:
     max_cost_frac: float = 0.0012
     """A pair whose band fits the flow worse than this fraction of the image width (1.5 px on KITTI, median
     end-point difference) keeps the network's distance."""
-    max_band_disagreement: float | None = None
-    """Where both bands fit (cost within ``max_cost_frac``) and the larger distance exceeds the smaller by
-    more than this fraction, the pair is not read: the bands do not both see the road (in a turn the ego
-    lane's far band looks at the roadside). None: not checked."""
 
 
 def travel_pitch_deg(rotations, directions) -> float:
@@ -212,8 +208,7 @@ def road_distances(scans: list[RoadScan | None], pitch_deg: float,
     """Distance travelled in each pair (metres, NaN where the road cannot tell) from the pairs'
     :class:`RoadScan` (None: no scan) at the camera pitch ``pitch_deg`` (:func:`travel_pitch_deg`). Per pair:
     the distance from the far band gives each band's expected translation flow; the nearest band whose flow
-    stays within ``max_flow_frac`` of the width is read (the near road has the finest depth but moves most),
-    unless the bands disagree (:attr:`RoadScaleConfig.max_band_disagreement`)."""
+    stays within ``max_flow_frac`` of the width is read (the near road has the finest depth but moves most)."""
     out = np.full(len(scans), np.nan)
     if not np.isfinite(pitch_deg):
         return out
@@ -230,10 +225,6 @@ def road_distances(scans: list[RoadScan | None], pitch_deg: float,
             expected = f90[b] * q[0] / max(q[b], 1e-9)
             if np.isfinite(expected) and expected <= limit:
                 band = b
-        if cfg.max_band_disagreement is not None:
-            fits = q[np.isfinite(q) & (cost <= cfg.max_cost_frac * s.width)]
-            if len(fits) >= 2 and fits.max() > (1 + cfg.max_band_disagreement) * fits.min():
-                continue
         if cost[band] <= cfg.max_cost_frac * s.width:
             out[i] = cfg.height_m * q[band]
     return out
@@ -268,10 +259,6 @@ class ImageRoadConfig:
     """A band whose best normalised cross-correlation is below this reads nothing (no road texture)."""
     min_in_view: float = 0.6
     """A distance is scored only where at least this fraction of the band's pixels lands inside image 1."""
-    max_band_disagreement: float | None = 0.2
-    """Every band is scanned; the nearest one whose distance agrees within this fraction with the next band
-    (near to far) that reads one is used; a single band reading is used alone; bands that all disagree read
-    nothing (in a turn the ego lane's bands look at the roadside). None: the nearest band that reads."""
 
 
 def image_road_q(grey0: np.ndarray, grey1: np.ndarray, camera, rotation: np.ndarray, direction: np.ndarray,
@@ -282,12 +269,10 @@ def image_road_q(grey0: np.ndarray, grey1: np.ndarray, camera, rotation: np.ndar
     ``K (R + q d n^T) K^-1`` (``n`` the road's normal at the camera pitch ``pitch_deg``): one unknown. Each
     band of :data:`IMAGE_BANDS` (ego lane, ``ROAD_HALF_WIDTH`` x fx either side of the principal point) of
     image 0 is compared with image 1 sampled through the homography of every ``q`` of :data:`IMAGE_Q`
-    (normalised cross-correlation of the high-passed images over the pixels landing inside image 1). A band
-    reads where its correlation peaks inside the scanned range, with both neighbours scored and a peak of at
-    least ``cfg.min_ncc`` (``q``: a parabola through the peak in log q); of the bands that read, the nearest
-    one that agrees with the next is used (:attr:`ImageRoadConfig.max_band_disagreement`). Unlike a flow
-    estimator's patch search, the homography follows the road's large motion and its change of scale at any
-    speed.
+    (normalised cross-correlation of the high-passed images over the pixels landing inside image 1). The nearest band whose
+    correlation peaks inside the scanned range, with both neighbours scored and a peak of at least
+    ``cfg.min_ncc``, gives ``q`` (parabola through the peak in log q). Unlike a flow estimator's patch
+    search, the homography follows the road's large motion and its change of scale at any speed.
 
     Args:
         grey0, grey1: (H, W) uint8 or float images of the two frames at the camera's size.
@@ -316,7 +301,6 @@ def image_road_q(grey0: np.ndarray, grey1: np.ndarray, camera, rotation: np.ndar
     u0 = max(0, int(camera.cx - ROAD_HALF_WIDTH * camera.fx))
     u1 = min(w, int(camera.cx + ROAD_HALF_WIDTH * camera.fx) + 1)
     log_q = np.log(IMAGE_Q)
-    reads: list[float] = []
     for r0, r1 in sorted(IMAGE_BANDS, key=lambda b: -b[0]):     # nearest band first
         v0, v1 = int(np.ceil(camera.cy + r0 * camera.fy)), min(h, int(camera.cy + r1 * camera.fy) + 1)
         if v1 - v0 < 2 or u1 - u0 < 2:
@@ -353,23 +337,7 @@ def image_road_q(grey0: np.ndarray, grey1: np.ndarray, camera, rotation: np.ndar
         curv = c_l - 2 * c_0 + c_r
         shift = 0.5 * (c_l - c_r) / curv if curv < 0 else 0.0
         dq = log_q[1] - log_q[0]
-        reads.append(float(np.exp(log_q[i] + float(np.clip(shift, -0.5, 0.5)) * dq)))
-        if cfg.max_band_disagreement is None:
-            break
-    return agreeing_read(reads, cfg.max_band_disagreement)
-
-
-def agreeing_read(reads: list[float], max_disagreement: float | None) -> float:
-    """Of the bands' reads (near to far, only bands that read), the nearest that agrees within
-    ``max_disagreement`` (a fraction of the smaller) with the next; a single read alone; NaN where all
-    disagree or none read. ``max_disagreement`` None: the nearest read."""
-    if not reads:
-        return float("nan")
-    if len(reads) == 1 or max_disagreement is None:
-        return float(reads[0])
-    for near, far in zip(reads[:-1], reads[1:]):
-        if max(near, far) <= (1 + max_disagreement) * min(near, far):
-            return float(near)
+        return float(np.exp(log_q[i] + float(np.clip(shift, -0.5, 0.5)) * dq))
     return float("nan")
 
 

@@ -172,36 +172,3 @@ def test_shading_fixed_in_the_image_does_not_pull_the_alignment_to_standing_stil
     shaded = [np.clip(g.astype(np.float32) * 0.5 + ramp, 0, 255).astype(np.uint8) for g in (g0, g1)]
     q = image_road_q(*shaded, CAM, *_rd(m), 1.0)
     assert HEIGHT_M * q == pytest.approx(distance_m, rel=0.03)
-
-
-def test_bands_that_disagree_read_nothing():
-    """A roadside object in the far band (a wall the car turns towards): the far band's distance disagrees
-    with the near band's, and neither the flow's reading nor the images' keeps the pair."""
-    from deepslam.vo.road_scale import RoadScan, road_distances
-
-    scan = RoadScan(q=np.array([[1.8] * 21, [1.0] * 21]), cost_px=np.full((2, 21), 0.2),
-                    flow90_px=np.array([[4.0] * 21, [20.0] * 21]), width=1226)
-    agree = RoadScan(q=np.array([[1.05] * 21, [1.0] * 21]), cost_px=np.full((2, 21), 0.2),
-                     flow90_px=np.array([[4.0] * 21, [20.0] * 21]), width=1226)
-    from deepslam.vo.road_scale import RoadScaleConfig
-
-    checked = road_distances([scan, agree], 1.0, RoadScaleConfig(max_band_disagreement=0.2))
-    assert np.isnan(checked[0]) and checked[1] == pytest.approx(1.65 * 1.0)
-    unchecked = road_distances([scan], 1.0, RoadScaleConfig())
-    assert unchecked[0] == pytest.approx(1.65 * 1.8)      # the far band, as one band reads it
-
-
-@pytest.mark.parametrize("reads,tol,expected", [
-    ([2.0, 2.1, 2.0], 0.2, 2.0),        # the road in every band: the nearest
-    ([1.0, 1.8, 1.85], 0.2, 1.8),       # the near band off the road: the next two agree
-    ([1.0, 1.8], 0.2, float("nan")),    # two that disagree: neither
-    ([1.0, 1.8, 3.0], 0.2, float("nan")),
-    ([1.3], 0.2, 1.3),                  # one band reads (the fastest pairs: only the far band)
-    ([], 0.2, float("nan")),
-    ([1.0, 1.8], None, 1.0),            # unchecked: the nearest
-])
-def test_the_image_alignment_keeps_the_nearest_band_that_agrees_with_the_next(reads, tol, expected):
-    from deepslam.vo.road_scale import agreeing_read
-
-    got = agreeing_read(reads, tol)
-    assert (np.isnan(got) and np.isnan(expected)) or got == pytest.approx(expected)
