@@ -242,19 +242,20 @@ def fuse(mean6: np.ndarray, fit: EpipolarFit, cfg: EpipolarConfig = EpipolarConf
 
 
 def fuse_all(mean6: np.ndarray, fits, cfg: EpipolarConfig = EpipolarConfig(), camera=None, pair_greys=None,
-             road_out: list | None = None) -> tuple[np.ndarray, np.ndarray]:
+             road_out: list | None = None, chained: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """:func:`fuse` for (P, 6) motions and their P fits -> ((P, 6) float64 motions, (P,) bool used).
 
     ``camera`` (:class:`core.camera.PinholeCamera`) and ``pair_greys`` (``f(p) -> (grey0, grey1)``, the
     pair's (H, W) uint8 images at the camera's size): see :func:`sequence_road_distances`; ``road_out``: a list
-    the sequence's :class:`RoadDistances` is appended to."""
+    the sequence's :class:`RoadDistances` is appended to; ``chained``: the pairs follow each other (see
+    :func:`sequence_road_distances`)."""
     mean6 = np.asarray(mean6, dtype=np.float64).reshape(-1, 6)
     fits = list(fits)
     if len(fits) != len(mean6):
         raise ValueError(f"{len(mean6)} motions but {len(fits)} epipolar fits")
     out = np.empty_like(mean6)
     used = np.zeros(len(mean6), bool)
-    road = sequence_road_distances(fits, cfg, mean6, camera, pair_greys)
+    road = sequence_road_distances(fits, cfg, mean6, camera, pair_greys, chained)
     if road_out is not None:
         road_out.append(road)
     for p, (m, fit) in enumerate(zip(mean6, fits)):
@@ -282,7 +283,7 @@ class RoadDistances:
 
 
 def sequence_road_distances(fits, cfg: EpipolarConfig = EpipolarConfig(), mean6: np.ndarray | None = None,
-                            camera=None, pair_greys=None) -> RoadDistances:
+                            camera=None, pair_greys=None, chained: bool = True) -> RoadDistances:
     """The distance travelled in each of a sequence's P pairs, read from the road (:class:`RoadDistances`).
 
     Args:
@@ -293,6 +294,8 @@ def sequence_road_distances(fits, cfg: EpipolarConfig = EpipolarConfig(), mean6:
         camera: :class:`core.camera.PinholeCamera` of the images; pair_greys: ``f(p) -> (grey0, grey1)``
             (H, W) uint8 images of pair p at its size: with ``cfg.road_fill`` the pairs the flow cannot read
             are read from them (either None: not).
+        chained: the pairs follow each other (pair p ends where pair p + 1 starts), as ``vo`` and ``slam``
+            make them; only then are distances checked against their neighbours and gaps filled.
 
     The flow's road (:func:`vo.road_scale.road_distances`) is read in the pairs whose fit is used; with
     ``cfg.road_fill`` the others are read from the images, then :func:`vo.road_scale.check_and_fill` drops
@@ -324,6 +327,8 @@ def sequence_road_distances(fits, cfg: EpipolarConfig = EpipolarConfig(), mean6:
             q = image_road_q(g0, g1, camera, rot, direction, pitch)
             if np.isfinite(q):
                 dist[p], source[p] = cfg.road_height_m * q, "images"
+    if not chained:
+        return RoadDistances(dist, pitch, tuple(source))
     filled, dropped = check_and_fill(dist)
     source[dropped] = ""
     source[np.isfinite(filled) & ~np.isfinite(dist)] = "filled"

@@ -169,7 +169,7 @@ class VOPredictor:
             side = inputs.side
             mean6, used = fuse_all(mean6, side, epipolar, seq.camera,
                                    lambda p: (to_grey(seq.image(int(pairs[p, 0]))), to_grey(seq.image(int(pairs[p, 1])))),
-                                   road_out)
+                                   road_out, chained=bool(np.array_equal(pairs[1:, 0], pairs[:-1, 1])))
             if fits_out is not None:
                 fits_out.extend(zip(side, used.tolist()))
         return mean6, std6

@@ -172,3 +172,15 @@ def test_shading_fixed_in_the_image_does_not_pull_the_alignment_to_standing_stil
     shaded = [np.clip(g.astype(np.float32) * 0.5 + ramp, 0, 255).astype(np.uint8) for g in (g0, g1)]
     q = image_road_q(*shaded, CAM, *_rd(m), 1.0)
     assert HEIGHT_M * q == pytest.approx(distance_m, rel=0.03)
+
+
+def test_pairs_that_do_not_follow_each_other_are_not_checked_against_each_other():
+    """Loop pairs or a hand-picked list: a neighbour is no prediction of a pair's distance."""
+    drives = [_drive(dist, 1.0) for dist in (2.0, 5.0, 2.0)]
+    fits = [_fit(m) for _, _, m in drives]
+    mean6 = np.stack([se3.to_euler6(m) for _, _, m in drives])
+    cfg = EpipolarConfig(road_height_m=HEIGHT_M)
+    loose = sequence_road_distances(fits, cfg, mean6, CAM, lambda p: drives[p][:2], chained=False)
+    np.testing.assert_allclose(loose.distances_m, [2.0, 5.0, 2.0], rtol=0.03)
+    chained = sequence_road_distances(fits, cfg, mean6, CAM, lambda p: drives[p][:2])
+    assert chained.source[1] == "filled"                  # as a sequence, 5 m between 2 m pairs is a jump
