@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -38,6 +39,7 @@ QUICK = ResultsStressConfig(frames=100, objects=(0, 8), object_sizes=(2.0,), def
 def run(cfg: ResultsStressConfig, out: Path, data_dir: Path) -> dict:
     from bench.stamp import stamp
     from deepslam.core import atomic
+    from deepslam.core.errors import InputError
     from deepslam.studies.stress import StressConfig, run_stress
 
     given = {k: v for k, v in dataclasses.asdict(cfg).items() if v is not None}
@@ -48,6 +50,10 @@ def run(cfg: ResultsStressConfig, out: Path, data_dir: Path) -> dict:
     commit = stamp()["commit"]
     marker = out / "study_commit.txt"
     resume = not commit.endswith("-dirty") and marker.is_file() and marker.read_text().strip() == commit
+    if study.exists() and not resume:
+        if not marker.is_file():  # not made by this script: not ours to replace
+            raise InputError(study, "holds a stress run this script did not make; remove it or choose another --out")
+        shutil.rmtree(study)      # this script's run at other code: measured again
     atomic.write_text(marker, commit + "\n")
     run_stress(StressConfig(**given), study, resume=resume, progress=False)
     # the study's figures sit in study/: links relative to this folder

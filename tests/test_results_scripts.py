@@ -382,8 +382,13 @@ def test_stress_results_run_the_study_in_a_folder_of_its_own(tmp_path, monkeypat
     assert results_stress.main(["--quick", "--out", str(tmp_path / "stress")]) == 0
     assert seen["resume"] is True                                # a rerun at the same commit resumes
     commit["commit"] = "def5678"
+    (tmp_path / "stress" / "study" / "settings").mkdir()
     assert results_stress.main(["--quick", "--out", str(tmp_path / "stress")]) == 0
-    assert seen["resume"] is False                               # other code: measured again
+    assert seen["resume"] is False                               # other code: measured again, from scratch
+    assert not (tmp_path / "stress" / "study" / "settings").exists()
+    (tmp_path / "stress" / "study_commit.txt").unlink()          # a study folder this script did not make
+    assert results_stress.main(["--quick", "--out", str(tmp_path / "stress")]) == 2
+    assert "did not make" in capsys.readouterr().err
     md = (tmp_path / "stress" / "results.md").read_text()
     assert "| static scene | 0 % |" in md and (tmp_path / "stress" / "stamp.json").is_file()
     assert "![VO ATE](study/stress_vo_ate.png)" in md          # the figure, relative to the results folder
