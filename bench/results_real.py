@@ -104,6 +104,8 @@ def markdown(report: dict) -> str:
         lines.append(f"| {r['model']} | {r['flow']} | {r.get('pose', 'net')} | KITTI {r['slice'].split('/')[-1]} ({r['frames']} frames, {r['gt_length_m']:.0f} m) | "
                      f"{r['seen_in_training']} | {r['path_length_ratio']:.3f} | {r['endpoint_drift_pct']:.1f} % | "
                      f"{r['ate_se3_m']:.2f} m | {'yes' if r['met'] else 'no'} |")
+    lines += ["", "Distance: each model's own (`--scale network`), to compare the models; what `deepslam vo` does by "
+              "default on these slices (the distance read from the road) is in the agreement table."]
     return "\n".join(lines) + "\n"
 
 
