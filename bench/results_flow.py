@@ -53,6 +53,11 @@ def photometric_error(g0: np.ndarray, g1: np.ndarray, fw: np.ndarray) -> float:
     return float(np.abs(g0.astype(np.float32) - warped)[inside].mean())
 
 
+HELD = (("street", "car", 211, 40, 620), ("street", "car", 212, 40, 620), ("room", "drone", 213, 40, 376))
+"""Held-out renders made when ``--held`` is not given: (scene, trajectory, seed, frames, width); the default
+street is the KITTI-look one; the training scripts here render no sequence with these seeds."""
+
+
 def main(argv: list[str] | None = None) -> int:
     from deepslam.core import atomic
     from deepslam.core.paths import out_dir, shared_data_dir
@@ -63,7 +68,9 @@ def main(argv: list[str] | None = None) -> int:
 
     ap = argparse.ArgumentParser(prog="python -m bench.results_flow")
     ap.add_argument("--model", default=None, help="learned flow model (default: the shipped one)")
-    ap.add_argument("--held", nargs="*", default=None, help="held-out rendered sequences (default: out/flow_held/seq_*)")
+    ap.add_argument("--held", nargs="*", default=None,
+                    help="held-out rendered sequences (default: two default streets and a room no flow model trained "
+                         "on, rendered into OUT/held if missing: " + ", ".join(f"{s} seed {n}" for s, _, n, _, _ in HELD) + ")")
     ap.add_argument("--pairs", type=int, default=30, help="pairs per sequence (evenly spread)")
     ap.add_argument("--dis-widths", default="640", help="comma-separated widths DIS also runs at (frames downscaled; "
                     "'' for none)")
@@ -81,7 +88,14 @@ def main(argv: list[str] | None = None) -> int:
         dis = DISFlow("medium", max_width=w)
         ests[dis.name] = dis
     ests.update({"learned": learned, "learned-dis": LearnedDISFlow(args.model)})
-    held = args.held if args.held is not None else sorted(str(p) for p in (out_dir() / "flow_held").glob("seq_*"))
+    if args.held is None:
+        from deepslam.studies.demo import render_once
+
+        log: list[str] = []
+        held = [str(render_once(scene, traj, frames, width, seed, Path(args.out) / "held" / f"{scene}_s{seed}", log))
+                for scene, traj, seed, frames, width in HELD]
+    else:
+        held = args.held
     rows = []
     for d in held:
         seq = open_sequence(d)
