@@ -237,7 +237,8 @@ def vo_end_to_end_fps(quick: bool) -> list[dict]:
 
     from deepslam.core.paths import base_dir, shared_data_dir
     from deepslam.core.readers import open_sequence
-    from deepslam.flow import estimators as flow_estimators, models
+    from deepslam.flow import estimators as flow_estimators
+    from deepslam.vo import models
     from deepslam.vo.prefetch import WORKERS_ENV, default_workers
 
     root = shared_data_dir() / "kitti" / "sequences" / "07"
