@@ -228,17 +228,24 @@ def fuse(mean6: np.ndarray, fit: EpipolarFit, cfg: EpipolarConfig = EpipolarConf
     """
     m = np.asarray(mean6, dtype=np.float64).reshape(6)
     used = fit_usable(m, fit, cfg)
+    axes = _rotation_direction(m, fit, used)
+    if axes is None or not (used or np.isfinite(distance_m)):
+        return m.copy(), False
+    length = float(distance_m) if np.isfinite(distance_m) else float(np.linalg.norm(m[3:]))
+    return se3.to_euler6(se3.from_rt(axes[0], axes[1] * length)), used
+
+
+def _rotation_direction(mean6: np.ndarray, fit: EpipolarFit, used: bool,
+                        min_length_m: float = 0.0) -> tuple[np.ndarray, np.ndarray] | None:
+    """The pair's rotation (3, 3) and unit direction of travel (3,) of ``cam1_from_cam0``: the fit's where
+    ``used``, else the network's ``mean6`` (6,); None where the network's translation is no longer than
+    ``min_length_m`` (no direction)."""
     if used:
-        rot, direction, length = fit.cam1_from_cam0_rotation, fit.direction_cam1, float(np.linalg.norm(m[3:]))
-    else:
-        length = float(np.linalg.norm(m[3:]))
-        if not (np.isfinite(distance_m) and length > 0):
-            return m.copy(), False
-        net = se3.from_euler6(m)
-        rot, direction = net[:3, :3], m[3:] / length
-    if np.isfinite(distance_m):
-        length = float(distance_m)
-    return se3.to_euler6(se3.from_rt(rot, direction * length)), used
+        return fit.cam1_from_cam0_rotation, fit.direction_cam1
+    length = float(np.linalg.norm(mean6[3:]))
+    if not length > min_length_m:
+        return None
+    return se3.from_euler6(np.asarray(mean6, np.float64))[:3, :3], np.asarray(mean6[3:], np.float64) / length
 
 
 def fuse_all(mean6: np.ndarray, fits, cfg: EpipolarConfig = EpipolarConfig(), camera=None, pair_greys=None,
@@ -305,7 +312,7 @@ def sequence_road_distances(fits, cfg: EpipolarConfig = EpipolarConfig(), mean6:
     n = len(fits)
     if cfg.road_height_m is None:
         return RoadDistances(np.full(n, np.nan), float("nan"), ("",) * n)
-    usable = [f.ok if mean6 is None else fit_usable(m, f, cfg) for f, m in zip(fits, mean6 if mean6 is not None else fits)]
+    usable = [f.ok for f in fits] if mean6 is None else [fit_usable(m, f, cfg) for m, f in zip(mean6, fits)]
     ok = [f for f, u in zip(fits, usable) if u]
     pitch = travel_pitch_deg([f.cam1_from_cam0_rotation for f in ok], [f.direction_cam1 for f in ok])
     dist = road_distances([f.road if u else None for f, u in zip(fits, usable)], pitch,
@@ -315,24 +322,19 @@ def sequence_road_distances(fits, cfg: EpipolarConfig = EpipolarConfig(), mean6:
         return RoadDistances(dist, pitch, tuple(source))
     if pair_greys is not None and camera is not None:
         for p in np.flatnonzero(~np.isfinite(dist)):
-            fit = fits[p]
-            if usable[p]:
-                rot, direction = fit.cam1_from_cam0_rotation, fit.direction_cam1
-            elif mean6 is not None and np.linalg.norm(mean6[p][3:]) > 1e-6:
-                rot = se3.from_euler6(np.asarray(mean6[p], np.float64))[:3, :3]
-                direction = np.asarray(mean6[p][3:], np.float64) / np.linalg.norm(mean6[p][3:])
-            else:
+            axes = (_rotation_direction(mean6[p] if mean6 is not None else np.zeros(6), fits[p], usable[p],
+                                        min_length_m=1e-6))
+            if axes is None:
                 continue
             g0, g1 = pair_greys(int(p))
-            q = image_road_q(g0, g1, camera, rot, direction, pitch)
+            q = image_road_q(g0, g1, camera, *axes, pitch)
             if np.isfinite(q):
                 dist[p], source[p] = cfg.road_height_m * q, "images"
     if not chained:
         return RoadDistances(dist, pitch, tuple(source))
     filled, dropped = check_and_fill(dist)
     source[dropped] = ""
-    source[np.isfinite(filled) & ~np.isfinite(dist)] = "filled"
-    source[dropped & np.isfinite(filled)] = "filled"
+    source[np.isfinite(filled) & (source == "")] = "filled"
     return RoadDistances(filled, pitch, tuple(source))
 
 
