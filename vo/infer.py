@@ -167,8 +167,9 @@ class VOPredictor:
         mean6, std6 = np.concatenate(means), np.concatenate(stds)
         if fit is not None:
             side = inputs.side
+            grey = functools.lru_cache(maxsize=2)(lambda i: to_grey(seq.image(i)))  # consecutive pairs share a frame
             mean6, used = fuse_all(mean6, side, epipolar, seq.camera,
-                                   lambda p: (to_grey(seq.image(int(pairs[p, 0]))), to_grey(seq.image(int(pairs[p, 1])))),
+                                   lambda p: (grey(int(pairs[p, 0])), grey(int(pairs[p, 1]))),
                                    road_out, chained=bool(np.array_equal(pairs[1:, 0], pairs[:-1, 1])))
             if fits_out is not None:
                 fits_out.extend(zip(side, used.tolist()))
