@@ -93,6 +93,16 @@ _BAND_POINTS = 600
 """At most about this many pixels per band (a regular grid): the median of the fit needs no more."""
 
 
+def _band_box(camera, r0: float, r1: float) -> tuple[int, int, int, int]:
+    """Pixel box ``(v0, v1, u0, u1)`` (rows ``v0:v1``, columns ``u0:u1``) of the band ``r0``-``r1`` x fy below
+    the principal point, ``ROAD_HALF_WIDTH`` x fx either side of it, clipped to the image (``v0`` may lie below
+    it)."""
+    v0, v1 = int(np.ceil(camera.cy + r0 * camera.fy)), min(camera.height, int(camera.cy + r1 * camera.fy) + 1)
+    u0 = max(0, int(camera.cx - ROAD_HALF_WIDTH * camera.fx))
+    u1 = min(camera.width, int(camera.cx + ROAD_HALF_WIDTH * camera.fx) + 1)
+    return v0, v1, u0, u1
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class RoadScan:
     """How well the road's motion in one flow fits each distance, per row band and camera pitch.
@@ -130,10 +140,8 @@ def scan_road(flow: np.ndarray, camera, rotation: np.ndarray, direction: np.ndar
     q_out = np.full((nb, npitch), np.nan)
     cost = np.full((nb, npitch), np.nan)
     f90 = np.full((nb, npitch), np.nan)
-    u0 = max(0, int(camera.cx - ROAD_HALF_WIDTH * camera.fx))
-    u1 = min(w, int(camera.cx + ROAD_HALF_WIDTH * camera.fx) + 1)
     for b, (r0, r1) in enumerate(ROAD_BANDS):
-        v0, v1 = int(np.ceil(camera.cy + r0 * camera.fy)), min(h, int(camera.cy + r1 * camera.fy) + 1)
+        v0, v1, u0, u1 = _band_box(camera, r0, r1)
         step = max(1, int(np.ceil(np.sqrt(max(v1 - v0, 1) * max(u1 - u0, 1) / _BAND_POINTS))))
         vv, uu = np.mgrid[min(v0, h):v1:step, u0:u1:step]
         f = flow[vv, uu].reshape(-1, 2).astype(np.float64)
@@ -269,10 +277,10 @@ def image_road_q(grey0: np.ndarray, grey1: np.ndarray, camera, rotation: np.ndar
     ``K (R + q d n^T) K^-1`` (``n`` the road's normal at the camera pitch ``pitch_deg``): one unknown. Each
     band of :data:`IMAGE_BANDS` (ego lane, ``ROAD_HALF_WIDTH`` x fx either side of the principal point) of
     image 0 is compared with image 1 sampled through the homography of every ``q`` of :data:`IMAGE_Q`
-    (normalised cross-correlation of the high-passed images over the pixels landing inside image 1). The nearest band whose
-    correlation peaks inside the scanned range, with both neighbours scored and a peak of at least
-    ``cfg.min_ncc``, gives ``q`` (parabola through the peak in log q). Unlike a flow estimator's patch
-    search, the homography follows the road's large motion and its change of scale at any speed.
+    (normalised cross-correlation of the high-passed images over the pixels landing inside image 1). The
+    nearest band whose correlation peaks inside the scanned range, with both neighbours scored and a peak of
+    at least ``cfg.min_ncc``, gives ``q`` (parabola through the peak in log q). Unlike a flow estimator's
+    patch search, the homography follows the road's large motion and its change of scale at any speed.
 
     Args:
         grey0, grey1: (H, W) uint8 or float images of the two frames at the camera's size.
@@ -298,11 +306,9 @@ def image_road_q(grey0: np.ndarray, grey1: np.ndarray, camera, rotation: np.ndar
         return cv2.GaussianBlur(g, (0, 0), cfg.blur_px) - cv2.GaussianBlur(g, (0, 0), cfg.highpass_px)
 
     g0, g1 = highpass(grey0), highpass(grey1)
-    u0 = max(0, int(camera.cx - ROAD_HALF_WIDTH * camera.fx))
-    u1 = min(w, int(camera.cx + ROAD_HALF_WIDTH * camera.fx) + 1)
     log_q = np.log(IMAGE_Q)
     for r0, r1 in sorted(IMAGE_BANDS, key=lambda b: -b[0]):     # nearest band first
-        v0, v1 = int(np.ceil(camera.cy + r0 * camera.fy)), min(h, int(camera.cy + r1 * camera.fy) + 1)
+        v0, v1, u0, u1 = _band_box(camera, r0, r1)
         if v1 - v0 < 2 or u1 - u0 < 2:
             continue
         step = max(1, int(np.ceil(np.sqrt((v1 - v0) * (u1 - u0) / _IMAGE_BAND_POINTS))))
