@@ -3,7 +3,8 @@
 ``deepslam stress`` on the default street (the KITTI-look street, seed 0, 300 frames per setting at 320 px,
 the shipped models, exact and DIS flow): static, moving cars by count and size, waving flags, and the
 heaviest setting. Writes the study's outputs (stress.json, stress.md, report.html, plots) into
-``out/results/stress/study`` and results.md (the table) into ``out/results/stress`` (``python -m bench.results_stress [--quick]``, a few minutes on 2 cores).
+``out/results/stress/study`` and results.md (the table) into ``out/results/stress``
+(``python -m bench.results_stress [--quick]``, a few minutes on 2 cores).
 """
 from __future__ import annotations
 
@@ -15,6 +16,9 @@ import time
 from pathlib import Path
 
 from bench.results_common import results_main, write_report
+from bench.stamp import stamp
+from deepslam.core import atomic
+from deepslam.core.errors import InputError
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,10 +41,7 @@ QUICK = ResultsStressConfig(frames=100, objects=(0, 8), object_sizes=(2.0,), def
 
 
 def run(cfg: ResultsStressConfig, out: Path, data_dir: Path) -> dict:
-    from bench.stamp import stamp
-    from deepslam.core import atomic
-    from deepslam.core.errors import InputError
-    from deepslam.studies.stress import StressConfig, run_stress
+    from deepslam.studies.stress import StressConfig, run_stress  # deferred: torch and the renderers
 
     given = {k: v for k, v in dataclasses.asdict(cfg).items() if v is not None}
     t0 = time.perf_counter()

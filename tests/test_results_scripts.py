@@ -377,6 +377,7 @@ def test_stress_results_run_the_study_in_a_folder_of_its_own(tmp_path, monkeypat
 
     commit = {"commit": "abc1234"}
     monkeypatch.setattr(bench.stamp, "stamp", lambda: {"date": "d", "machine": "m", **commit})
+    monkeypatch.setattr(results_stress, "stamp", bench.stamp.stamp)
     assert results_stress.main(["--quick", "--out", str(tmp_path / "stress")]) == 0
     assert seen["resume"] is False                               # nothing measured at this commit yet
     assert results_stress.main(["--quick", "--out", str(tmp_path / "stress")]) == 0

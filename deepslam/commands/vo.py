@@ -147,7 +147,7 @@ def _run(args: argparse.Namespace) -> int:
     if plugin is not None:
         if args.model is not None:
             raise InputError(None, "--model and --odometry/--odometry-command exclude each other")
-        for flag, on in (("--pose epipolar", args.pose == "epipolar"), ("--scale road", args.scale in ("road", "road-flow"))):
+        for flag, on in (("--pose epipolar", args.pose == "epipolar"), (f"--scale {args.scale}", args.scale in ("road", "road-flow"))):
             if on:
                 raise InputError(None, f"{flag} needs the network odometry (not --odometry/--odometry-command)")
         mean6, std6 = plugin.predict(seq, pairs)
@@ -168,7 +168,8 @@ def _run(args: argparse.Namespace) -> int:
             raise InputError(None, f"--camera-height must be in [0.1, 100] m, got {args.camera_height}")
         epi = models.epipolar_config(model_path, pose, args.scale, args.camera_height)
         if args.scale in ("road", "road-flow") and epi is None:
-            raise InputError(None, "--scale road needs --pose epipolar (the road fit uses its rotation and direction)")
+            raise InputError(None, f"--scale {args.scale} needs --pose epipolar (the road fit uses its rotation and "
+                                   "direction)")
         fitter = None
         if epi is not None:
             from deepslam.vo.epipolar import EpipolarFitter
