@@ -299,8 +299,8 @@ def sequence_road_distances(fits, cfg: EpipolarConfig = EpipolarConfig(), mean6:
         mean6: (P, 6) float the network's motions (:func:`fuse`): which fits are used, and the rotation and
             direction for the image alignment where the fit is not; None: every fit that is ``ok`` counts.
         camera: :class:`core.camera.PinholeCamera` of the images; pair_greys: ``f(p) -> (grey0, grey1)``
-            (H, W) uint8 images of pair p at its size: with ``cfg.road_fill`` the pairs the flow cannot read
-            are read from them (either None: not).
+            (H, W) uint8 images of pair p at its size, or their :class:`vo.road_scale.RoadImage`: with
+            ``cfg.road_fill`` the pairs the flow cannot read are read from them (either None: not).
         chained: the pairs follow each other (pair p ends where pair p + 1 starts), as ``vo`` and ``slam``
             make them; only then are distances checked against their neighbours and gaps filled.
 

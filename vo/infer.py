@@ -19,6 +19,7 @@ from deepslam.vo.epipolar import EpipolarFitter, fuse_all
 from deepslam.vo.frames import frame_inverse_depth
 from deepslam.vo.modelio import load_model
 from deepslam.vo.prefetch import PairInputs
+from deepslam.vo.road_scale import road_image
 
 
 @functools.lru_cache(maxsize=1)
@@ -167,9 +168,10 @@ class VOPredictor:
         mean6, std6 = np.concatenate(means), np.concatenate(stds)
         if fit is not None:
             side = inputs.side
-            grey = functools.lru_cache(maxsize=2)(lambda i: to_grey(seq.image(i)))  # consecutive pairs share a frame
+            # consecutive pairs share a frame: each is decoded and prepared once
+            frame = functools.lru_cache(maxsize=2)(lambda i: road_image(to_grey(seq.image(i)), seq.camera))
             mean6, used = fuse_all(mean6, side, epipolar, seq.camera,
-                                   lambda p: (grey(int(pairs[p, 0])), grey(int(pairs[p, 1]))),
+                                   lambda p: (frame(int(pairs[p, 0])), frame(int(pairs[p, 1]))),
                                    road_out, chained=bool(np.array_equal(pairs[1:, 0], pairs[:-1, 1])))
             if fits_out is not None:
                 fits_out.extend(zip(side, used.tolist()))

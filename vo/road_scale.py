@@ -267,9 +267,56 @@ class ImageRoadConfig:
     """A band whose best normalised cross-correlation is below this reads nothing (no road texture)."""
     min_in_view: float = 0.6
     """A distance is scored only where at least this fraction of the band's pixels lands inside image 1."""
+    rows_above: float = 0.02
+    """:class:`RoadImage` high-passes the rows from this fraction of fy above the farthest band down (the road
+    and its motion; rows a sample reaches above them are computed when needed)."""
 
 
-def image_road_q(grey0: np.ndarray, grey1: np.ndarray, camera, rotation: np.ndarray, direction: np.ndarray,
+def _blur_radius_px(sigma: float) -> int:
+    """Rows either side that OpenCV's Gaussian blur of a float image reads (its kernel is 8 sigma + 1 wide)."""
+    return int(np.ceil(4.0 * sigma)) + 1
+
+
+def road_rows_top(camera, cfg: ImageRoadConfig = ImageRoadConfig()) -> int:
+    """First image row of :class:`RoadImage`'s high-passed rows: ``cfg.rows_above`` x fy above the farthest
+    band of :data:`IMAGE_BANDS` (clipped to the image)."""
+    return max(0, int(np.floor(camera.cy + (min(b[0] for b in IMAGE_BANDS) - cfg.rows_above) * camera.fy)))
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class RoadImage:
+    """One frame prepared for :func:`image_road_q` (:func:`road_image`): the difference of its two blurs,
+    computed only on the rows the road bands and their motion reach. Consecutive pairs share a frame, so a
+    sequence prepares each frame once."""
+
+    highpass: np.ndarray
+    """(H, W) float32 ``cfg.blur_px`` blur minus ``cfg.highpass_px`` blur of the grey image (grey levels);
+    NaN in the rows above :func:`road_rows_top` (not computed)."""
+    grey: np.ndarray
+    """(H, W) the grey image it was made from (to compute the rows above, should a sample need them)."""
+    cfg: ImageRoadConfig
+    """The settings of the blurs."""
+
+
+def _highpass(grey: np.ndarray, cfg: ImageRoadConfig, top: int = 0) -> np.ndarray:
+    """(H, W) float32 ``cfg.blur_px`` blur minus ``cfg.highpass_px`` blur of ``grey``, exact from row ``top``
+    on (NaN above it): the blur is computed on the rows from ``top`` less the blur's reach, so that the rows
+    kept see the same neighbourhood, and the same values, as a blur of the whole image."""
+    g = np.asarray(grey, np.float32)
+    start = max(0, top - _blur_radius_px(max(cfg.blur_px, cfg.highpass_px)))
+    crop = g[start:]
+    out = np.full(g.shape, np.nan, np.float32)
+    out[start:] = cv2.GaussianBlur(crop, (0, 0), cfg.blur_px) - cv2.GaussianBlur(crop, (0, 0), cfg.highpass_px)
+    out[:top] = np.nan
+    return out
+
+
+def road_image(grey: np.ndarray, camera, cfg: ImageRoadConfig = ImageRoadConfig()) -> RoadImage:
+    """:class:`RoadImage` of a (H, W) uint8 or float grey image at ``camera``'s size."""
+    return RoadImage(_highpass(grey, cfg, road_rows_top(camera, cfg)), np.asarray(grey), cfg)
+
+
+def image_road_q(grey0, grey1, camera, rotation: np.ndarray, direction: np.ndarray,
                  pitch_deg: float, cfg: ImageRoadConfig = ImageRoadConfig()) -> float:
     """Distance travelled over the camera's height, ``q = |t| / h``, from the road's appearance in two images.
 
@@ -283,7 +330,8 @@ def image_road_q(grey0: np.ndarray, grey1: np.ndarray, camera, rotation: np.ndar
     patch search, the homography follows the road's large motion and its change of scale at any speed.
 
     Args:
-        grey0, grey1: (H, W) uint8 or float images of the two frames at the camera's size.
+        grey0, grey1: (H, W) uint8 or float images of the two frames at the camera's size, or their
+            :class:`RoadImage` (prepared once per frame: :func:`road_image`).
         camera: :class:`core.camera.PinholeCamera` of the images (undistorted).
         rotation: (3, 3) rotation of ``cam1_from_cam0``; direction: (3,) its unit translation.
         pitch_deg: the camera's pitch over the road, degrees (positive: looking down).
@@ -292,8 +340,9 @@ def image_road_q(grey0: np.ndarray, grey1: np.ndarray, camera, rotation: np.ndar
         ``q`` (float, dimensionless), NaN where no band reads.
     """
     h, w = camera.height, camera.width
-    if grey0.shape[:2] != (h, w) or grey1.shape[:2] != (h, w):
-        raise ValueError(f"images must be {h}x{w} for this camera, got {grey0.shape[:2]} and {grey1.shape[:2]}")
+    shapes = [(i.grey if isinstance(i, RoadImage) else np.asarray(i)).shape[:2] for i in (grey0, grey1)]
+    if shapes[0] != (h, w) or shapes[1] != (h, w):
+        raise ValueError(f"images must be {h}x{w} for this camera, got {shapes[0]} and {shapes[1]}")
     k = camera.k
     kr = k @ np.asarray(rotation, np.float64)
     kd = k @ np.asarray(direction, np.float64)
@@ -301,11 +350,20 @@ def image_road_q(grey0: np.ndarray, grey1: np.ndarray, camera, rotation: np.ndar
     if int(np.ceil(camera.cy + min(b[0] for b in IMAGE_BANDS) * camera.fy)) >= h:
         return float("nan")
 
-    def highpass(g: np.ndarray) -> np.ndarray:
-        g = np.asarray(g, np.float32)
-        return cv2.GaussianBlur(g, (0, 0), cfg.blur_px) - cv2.GaussianBlur(g, (0, 0), cfg.highpass_px)
+    def prepared(img) -> RoadImage:
+        if isinstance(img, RoadImage) and img.cfg == cfg:
+            return img
+        return road_image(img.grey if isinstance(img, RoadImage) else img, camera, cfg)
 
-    g0, g1 = highpass(grey0), highpass(grey1)
+    frames = (prepared(grey0), prepared(grey1))
+    g0, g1 = frames[0].highpass, frames[1].highpass
+    whole: dict[int, np.ndarray] = {}
+
+    def all_rows(i: int) -> np.ndarray:     # a sample above the prepared rows: the frame's every row
+        if i not in whole:
+            whole[i] = _highpass(frames[i].grey, cfg)
+        return whole[i]
+
     log_q = np.log(IMAGE_Q)
     for r0, r1 in sorted(IMAGE_BANDS, key=lambda b: -b[0]):     # nearest band first
         v0, v1, u0, u1 = _band_box(camera, r0, r1)
@@ -314,7 +372,8 @@ def image_road_q(grey0: np.ndarray, grey1: np.ndarray, camera, rotation: np.ndar
         step = max(1, int(np.ceil(np.sqrt((v1 - v0) * (u1 - u0) / _IMAGE_BAND_POINTS))))
         vv, uu = np.mgrid[v0:v1:step, u0:u1:step]
         uu, vv = uu.ravel(), vv.ravel()
-        ref = g0[vv, uu].astype(np.float64)
+        ref = g0[vv, uu]
+        ref = (all_rows(0)[vv, uu] if np.isnan(ref).any() else ref).astype(np.float64)
         x0 = np.linalg.inv(k) @ np.stack([uu, vv, np.ones_like(uu)]).astype(np.float64)
         nx = np.cos(p) * x0[1] + np.sin(p) * x0[2]
         x1 = (kr @ x0)[None] + IMAGE_Q[:, None, None] * kd[None, :, None] * nx[None, None, :]   # (Q, 3, N)
@@ -322,8 +381,12 @@ def image_road_q(grey0: np.ndarray, grey1: np.ndarray, camera, rotation: np.ndar
         with np.errstate(divide="ignore", invalid="ignore"):
             mu, mv = x1[:, 0] / z, x1[:, 1] / z
         inside = (z > 1e-9) & (mu >= 0) & (mu <= w - 1) & (mv >= 0) & (mv <= h - 1)
-        samples = cv2.remap(g1, np.where(inside, mu, -10).astype(np.float32), np.where(inside, mv, -10).astype(np.float32),
-                            cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0).astype(np.float64)
+        map_u, map_v = np.where(inside, mu, -10).astype(np.float32), np.where(inside, mv, -10).astype(np.float32)
+        samples = cv2.remap(g1, map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        if np.isnan(samples[inside]).any():
+            samples = cv2.remap(all_rows(1), map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                                borderValue=0)
+        samples = samples.astype(np.float64)
         wgt = inside.astype(np.float64)
         cnt = wgt.sum(axis=1)
         scored = cnt >= cfg.min_in_view * len(ref)

@@ -11,7 +11,8 @@ import pytest
 from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
 from deepslam.vo.epipolar import EpipolarConfig, EpipolarFit, fuse, sequence_road_distances
-from deepslam.vo.road_scale import RoadSequenceConfig, check_and_fill, image_road_q
+from deepslam.vo.road_scale import (ImageRoadConfig, RoadSequenceConfig, check_and_fill, image_road_q, road_image,
+                                    road_rows_top)
 
 CAM = PinholeCamera(620, 188, 359.4, 359.4, 309.5, 93.5)
 HEIGHT_M = 1.65
@@ -71,6 +72,21 @@ def test_aligning_the_road_bands_reads_the_distance_at_any_speed(distance_m, pit
     g0, g1, m = _drive(distance_m, pitch_deg, yaw_deg)
     q = image_road_q(g0, g1, CAM, *_rd(m), pitch_deg)
     assert HEIGHT_M * q == pytest.approx(distance_m, rel=0.03)
+
+
+@pytest.mark.parametrize("distance_m,pitch_deg,yaw_deg,rows_above", [
+    (3.0, 1.0, 0.5, 0.02),      # the rows prepared hold every sample
+    (2.0, 1.0, 0.0, -0.2),      # bands and samples reach above them: those rows computed when needed
+])
+def test_frames_prepared_once_read_exactly_what_the_images_read(distance_m, pitch_deg, yaw_deg, rows_above):
+    g0, g1, m = _drive(distance_m, pitch_deg, yaw_deg)
+    cfg = ImageRoadConfig(rows_above=rows_above)
+    f0, f1 = road_image(g0, CAM, cfg), road_image(g1, CAM, cfg)
+    top = road_rows_top(CAM, cfg)
+    assert np.isnan(f0.highpass[:top]).all() and np.isfinite(f0.highpass[top:]).all()
+    full = image_road_q(g0, g1, CAM, *_rd(m), pitch_deg, ImageRoadConfig(rows_above=10.0))   # every row prepared
+    assert image_road_q(f0, f1, CAM, *_rd(m), pitch_deg, cfg) == full
+    assert np.isfinite(full)
 
 
 def test_a_featureless_road_reads_nothing():
