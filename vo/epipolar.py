@@ -30,7 +30,7 @@ import numpy as np
 
 from deepslam.core import se3
 from deepslam.vo.road_scale import (RoadScaleConfig, RoadScan, check_and_fill, image_road_q, road_distances, scan_road,
-                                    travel_pitch_deg)
+                                    travel_pitch_deg, yaw_rad)
 
 
 METHODS = ("usac_default", "usac_accurate", "usac_magsac", "usac_fast", "ransac")
@@ -316,7 +316,8 @@ def sequence_road_distances(fits, cfg: EpipolarConfig = EpipolarConfig(), mean6:
     ok = [f for f, u in zip(fits, usable) if u]
     pitch = travel_pitch_deg([f.cam1_from_cam0_rotation for f in ok], [f.direction_cam1 for f in ok])
     dist = road_distances([f.road if u else None for f, u in zip(fits, usable)], pitch,
-                          RoadScaleConfig(height_m=cfg.road_height_m))
+                          RoadScaleConfig(height_m=cfg.road_height_m),
+                          [yaw_rad(f.cam1_from_cam0_rotation) if u else np.nan for f, u in zip(fits, usable)])
     source = np.where(np.isfinite(dist), "flow", "").astype(object)
     if not cfg.road_fill or not np.isfinite(pitch):
         return RoadDistances(dist, pitch, tuple(source))

@@ -211,15 +211,39 @@ def _at_pitch(table: np.ndarray, pitch_deg: float) -> np.ndarray:
     return (1 - w) * table[:, i] + w * table[:, i + 1]
 
 
+def yaw_rad(rotation: np.ndarray) -> float:
+    """Heading change of ``cam1_from_cam0`` (its (3, 3) rotation) about the camera's vertical axis, radians
+    (positive: turning towards +x, the image's right): the angle of camera 1's optical axis in camera 0's
+    x-z plane."""
+    r = np.asarray(rotation, np.float64)
+    return float(np.arctan2(r[2, 0], r[2, 2]))
+
+
+def path_leaves_band(curvature_per_m: float, ahead_m: float) -> bool:
+    """Whether a path of ``curvature_per_m`` (1/m, either sign) is more than ``ROAD_HALF_WIDTH`` x ``ahead_m`` to
+    the side by the time it is ``ahead_m`` metres ahead (or never gets that far ahead): a band of rows that
+    far ahead, straight ahead of the camera, does not look at the road the car drives on."""
+    k = abs(float(curvature_per_m)) * ahead_m        # sine of the heading change by then
+    if k >= 1.0:
+        return True
+    return k > 0 and bool((1.0 - np.sqrt(1.0 - k * k)) / k > ROAD_HALF_WIDTH)   # sideways over ahead
+
+
 def road_distances(scans: list[RoadScan | None], pitch_deg: float,
-                   cfg: RoadScaleConfig = RoadScaleConfig()) -> np.ndarray:
+                   cfg: RoadScaleConfig = RoadScaleConfig(), yaws_rad=None) -> np.ndarray:
     """Distance travelled in each pair (metres, NaN where the road cannot tell) from the pairs'
     :class:`RoadScan` (None: no scan) at the camera pitch ``pitch_deg`` (:func:`travel_pitch_deg`). Per pair:
     the distance from the far band gives each band's expected translation flow; the nearest band whose flow
-    stays within ``max_flow_frac`` of the width is read (the near road has the finest depth but moves most)."""
+    stays within ``max_flow_frac`` of the width is read (the near road has the finest depth but moves most).
+
+    ``yaws_rad`` ((P,) float, :func:`yaw_rad` of each pair's rotation; NaN or None: not known): in a turn
+    whose path (its yaw over the far band's distance) has left the bands before the far band's nearest row
+    (:func:`path_leaves_band`), the far band looks at the roadside, not the road: the nearest band whose own
+    translation flow stays within ``max_flow_frac`` is read instead, or none."""
     out = np.full(len(scans), np.nan)
     if not np.isfinite(pitch_deg):
         return out
+    far_ahead_m = cfg.height_m / ROAD_BANDS[0][1]      # the far band's nearest row, flat road
     for i, s in enumerate(scans):
         if s is None:
             continue
@@ -227,6 +251,12 @@ def road_distances(scans: list[RoadScan | None], pitch_deg: float,
         if not np.isfinite(q[0]):
             continue
         limit = cfg.max_flow_frac * s.width
+        yaw = float("nan") if yaws_rad is None else float(yaws_rad[i])
+        if np.isfinite(yaw) and q[0] > 0 and path_leaves_band(yaw / (cfg.height_m * q[0]), far_ahead_m):
+            band = next((b for b in range(len(q) - 1, 0, -1) if np.isfinite(q[b]) and f90[b] <= limit), None)
+            if band is not None and cost[band] <= cfg.max_cost_frac * s.width:
+                out[i] = cfg.height_m * q[band]
+            continue
         band = 0
         for b in range(1, len(q)):
             # the band's translation flow at the far band's distance (flow grows about linearly with q)

@@ -7,7 +7,8 @@ import pytest
 
 from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
-from deepslam.vo.road_scale import RoadScaleConfig, road_distances, scan_road, travel_pitch_deg
+from deepslam.vo.road_scale import (ROAD_BANDS, RoadScaleConfig, path_leaves_band, road_distances, scan_road,
+                                    travel_pitch_deg, yaw_rad)
 
 CAM = PinholeCamera(620, 188, 359.4, 359.4, 309.5, 93.5)
 
@@ -71,3 +72,41 @@ def test_a_road_flow_too_large_for_the_near_rows_is_read_on_farther_rows():
     scan = scan_road(flow, CAM, m[:3, :3], d)
     assert scan.flow90_px[1].max() > 0.02 * CAM.width   # the near band moves more than the limit
     np.testing.assert_allclose(road_distances([scan], 1.0), 4.0, rtol=0.01)
+
+
+@pytest.mark.parametrize("yaw_deg", [3.0, -2.0, 0.0])
+def test_yaw_is_the_turn_about_the_vertical_axis(yaw_deg):
+    _, m = _road_flow(0.5, 1.0, yaw_deg)
+    assert np.degrees(yaw_rad(m[:3, :3])) == pytest.approx(yaw_deg, abs=0.01)
+
+
+@pytest.mark.parametrize("curvature,ahead_m,leaves", [
+    (0.0, 13.75, False), (0.005, 13.75, False), (-0.005, 13.75, False),   # straight, a gentle bend: in the band
+    (0.02, 13.75, True), (-0.02, 13.75, True),                           # 0.2 x 13.75 / 2: beyond 0.1 x 13.75
+    (0.1, 13.75, True),                                                  # a 10 m radius never gets 13.75 m ahead
+    (0.02, 6.0, False),                                                  # nearer rows are still on its road
+])
+def test_a_tight_turn_leaves_the_band_straight_ahead(curvature, ahead_m, leaves):
+    assert path_leaves_band(curvature, ahead_m) is leaves
+
+
+def _far_band_on_the_roadside(distance_m: float, yaw_deg: float):
+    """A road flow whose far band's rows move like a surface 0.9 m below the camera instead of 1.65 m (the
+    kerb, parked cars and walls straight ahead in a turn read ~1.8x), and its scan."""
+    flow, m = _road_flow(distance_m, 1.0, yaw_deg)
+    near_things, _ = _road_flow(distance_m, 1.0, yaw_deg, height_m=0.9)
+    v0, v1 = int(np.ceil(CAM.cy + ROAD_BANDS[0][0] * CAM.fy)), int(CAM.cy + ROAD_BANDS[0][1] * CAM.fy) + 1
+    flow[v0:v1] = near_things[v0:v1]
+    d = m[:3, 3] / np.linalg.norm(m[:3, 3])
+    return scan_road(flow, CAM, m[:3, :3], d), m
+
+
+def test_in_a_tight_turn_the_near_band_is_read_not_the_roadside_ahead():
+    scan, m = _far_band_on_the_roadside(0.45, 3.0)
+    assert road_distances([scan], 1.0)[0] == pytest.approx(0.45 * 1.65 / 0.9, rel=0.03)    # judged by the far band
+    assert road_distances([scan], 1.0, yaws_rad=[yaw_rad(m[:3, :3])])[0] == pytest.approx(0.45, rel=0.02)
+
+
+def test_on_a_straight_road_the_yaw_changes_nothing():
+    scan, m = _far_band_on_the_roadside(0.45, 0.1)
+    assert road_distances([scan], 1.0, yaws_rad=[yaw_rad(m[:3, :3])])[0] == road_distances([scan], 1.0)[0]
