@@ -41,10 +41,11 @@ from bench.stamp import stamp
 class ResultsAgreementConfig:
     """Sizes of the comparison."""
 
-    sim_seeds: tuple[int, ...] = (901, 902, 903, 904, 906)
+    sim_seeds: tuple[int, ...] = (901, 902, 903, 904, 906, 907)
     """Towns of the simulated streets (no model was trained on them; 901-904 informed or saw road-scale
     decisions; 906 was rendered after the image road scale was decided and is reported, never deciding, in the
-    rules since: seen, but no default was chosen on it)."""
+    rules since: seen, but no default was chosen on it; 907 was first rendered after the turn rule of
+    bench/criteria/2026-12-05_road_turns.md was decided: unseen by every decision)."""
     sim_frames: int = 360
     """Frames per simulated street (10 Hz; 360: the residential block, a stop and the avenue at full speed)."""
     width: int = 620
@@ -170,7 +171,8 @@ def run(cfg: ResultsAgreementConfig, out: Path, data_dir: Path) -> dict:
                        "KITTI 07": "never trained on; has informed decisions: validation data",
                        "sim streets": "KITTI-look streets no model was trained on; 901-904 informed or were "
                                       "seen before road-scale decisions (validation); 906 rendered after the "
-                                      "image road scale was decided, reported but never deciding since"}}
+                                      "image road scale was decided, reported but never deciding since; 907 "
+                                      "rendered after the last road-scale decision (unseen)"}}
     write_report(out, report, markdown)
     return report
 
