@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.results_common import write_report
-from bench.stamp import stamp
+from bench.stamp import reusable_at, stamp
 
 FLOWS = ("gt", "dis")
 
@@ -104,9 +104,9 @@ def cached_case(path: Path, models_sha256: dict[str, str], commit: str) -> dict 
         rec = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
-    if commit.endswith("-dirty") or not isinstance(rec, dict):
+    if not isinstance(rec, dict):
         return None
-    return rec if rec.get("models_sha256") == models_sha256 and rec.get("commit") == commit else None
+    return rec if rec.get("models_sha256") == models_sha256 and reusable_at(rec.get("commit"), commit) else None
 
 
 def _odometry(seq, flow: str):

@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 from bench.results_common import results_main, write_report
-from bench.stamp import stamp
+from bench.stamp import reusable_at, stamp
 from deepslam.core import atomic
 from deepslam.core.errors import InputError
 
@@ -50,7 +50,7 @@ def run(cfg: ResultsStressConfig, out: Path, data_dir: Path) -> dict:
     # as much as its configuration does
     commit = stamp()["commit"]
     marker = out / "study_commit.txt"
-    resume = not commit.endswith("-dirty") and marker.is_file() and marker.read_text().strip() == commit
+    resume = marker.is_file() and reusable_at(marker.read_text().strip(), commit)
     if study.exists() and not resume:
         if not marker.is_file():  # not made by this script: not ours to replace
             raise InputError(study, "holds a stress run this script did not make; remove it or choose another --out")

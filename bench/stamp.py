@@ -48,6 +48,13 @@ def stamp() -> dict:
     return {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "commit": commit, "machine": machine()}
 
 
+def reusable_at(recorded_commit: str | None, commit: str) -> bool:
+    """Whether a figure measured at ``recorded_commit`` may be reused by a run at ``commit`` (both
+    :func:`stamp` commits): only at the same commit of a clean checkout (``-dirty`` never matches), since
+    the code measures as much as the models and settings do."""
+    return not commit.endswith("-dirty") and recorded_commit == commit
+
+
 def write_stamp(folder: Path, **extra) -> dict:
     """:func:`stamp` (and ``extra``) written to ``folder/stamp.json``; returns it."""
     s = {**stamp(), **extra}
