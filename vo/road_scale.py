@@ -297,6 +297,10 @@ class ImageRoadConfig:
     """A band whose best normalised cross-correlation is below this reads nothing (no road texture)."""
     min_in_view: float = 0.6
     """A distance is scored only where at least this fraction of the band's pixels lands inside image 1."""
+    radial: bool = False
+    """Compare the high-passed images' derivative along the direction away from the principal point instead of
+    the high-passed images: a forward-moving camera moves the road's texture that way, while lines along the
+    road (which map onto themselves at any distance, a false peak at the smallest) have none of it."""
     rows_above: float = 0.02
     """:class:`RoadImage` high-passes the rows from this fraction of fy above the farthest band down (the road
     and its motion; rows a sample reaches above them are computed when needed)."""
@@ -320,8 +324,9 @@ class RoadImage:
     sequence prepares each frame once."""
 
     highpass: np.ndarray
-    """(H, W) float32 ``cfg.blur_px`` blur minus ``cfg.highpass_px`` blur of the grey image (grey levels);
-    NaN in the rows above :func:`road_rows_top` (not computed)."""
+    """(H, W) float32 ``cfg.blur_px`` blur minus ``cfg.highpass_px`` blur of the grey image (grey levels; with
+    ``cfg.radial`` (H, W, 2) its x and y derivatives); NaN in the rows above :func:`road_rows_top` (not
+    computed)."""
     grey: np.ndarray
     """(H, W) the grey image it was made from (to compute the rows above, should a sample need them)."""
     cfg: ImageRoadConfig
@@ -329,14 +334,22 @@ class RoadImage:
 
 
 def _highpass(grey: np.ndarray, cfg: ImageRoadConfig, top: int = 0) -> np.ndarray:
-    """(H, W) float32 ``cfg.blur_px`` blur minus ``cfg.highpass_px`` blur of ``grey``, exact from row ``top``
-    on (NaN above it): the blur is computed on the rows from ``top`` less the blur's reach, so that the rows
-    kept see the same neighbourhood, and the same values, as a blur of the whole image."""
+    """(H, W) float32 ``cfg.blur_px`` blur minus ``cfg.highpass_px`` blur of ``grey`` (with ``cfg.radial``:
+    (H, W, 2) its x and y derivatives, Sobel 3x3, grey levels per pixel), exact from row ``top`` on (NaN
+    above it): the blur is computed on the rows from ``top`` less the blur's reach, so that the rows kept
+    see the same neighbourhood, and the same values, as a blur of the whole image."""
     g = np.asarray(grey, np.float32)
-    start = max(0, top - _blur_radius_px(max(cfg.blur_px, cfg.highpass_px)))
+    start = max(0, top - _blur_radius_px(max(cfg.blur_px, cfg.highpass_px)) - 1)
     crop = g[start:]
-    out = np.full(g.shape, np.nan, np.float32)
-    out[start:] = cv2.GaussianBlur(crop, (0, 0), cfg.blur_px) - cv2.GaussianBlur(crop, (0, 0), cfg.highpass_px)
+    band = cv2.GaussianBlur(crop, (0, 0), cfg.blur_px) - cv2.GaussianBlur(crop, (0, 0), cfg.highpass_px)
+    if not cfg.radial:
+        out = np.full(g.shape, np.nan, np.float32)
+        out[start:] = band
+        out[:top] = np.nan
+        return out
+    out = np.full(g.shape + (2,), np.nan, np.float32)
+    out[start:, :, 0] = cv2.Sobel(band, cv2.CV_32F, 1, 0, ksize=3)
+    out[start:, :, 1] = cv2.Sobel(band, cv2.CV_32F, 0, 1, ksize=3)
     out[:top] = np.nan
     return out
 
@@ -344,6 +357,21 @@ def _highpass(grey: np.ndarray, cfg: ImageRoadConfig, top: int = 0) -> np.ndarra
 def road_image(grey: np.ndarray, camera, cfg: ImageRoadConfig = ImageRoadConfig()) -> RoadImage:
     """:class:`RoadImage` of a (H, W) uint8 or float grey image at ``camera``'s size."""
     return RoadImage(_highpass(grey, cfg, road_rows_top(camera, cfg)), np.asarray(grey), cfg)
+
+
+def _point(x: np.ndarray, camera) -> tuple[float, float]:
+    """Pixel (u, v) of the homogeneous (3,) image point ``x``; the principal point where it lies at infinity."""
+    if abs(x[2]) < 1e-9:
+        return camera.cx, camera.cy
+    return float(x[0] / x[2]), float(x[1] / x[2])
+
+
+def _along(grad: np.ndarray, u, v, centre: tuple[float, float]) -> np.ndarray:
+    """(..., 2) x/y derivatives at pixels (u, v) (arrays of its leading shape) projected on the unit direction
+    away from ``centre`` -> (...) float64."""
+    du, dv = np.asarray(u, np.float64) - centre[0], np.asarray(v, np.float64) - centre[1]
+    n = np.sqrt(du * du + dv * dv) + 1e-9
+    return (grad[..., 0] * du + grad[..., 1] * dv) / n
 
 
 def image_road_q(grey0, grey1, camera, rotation: np.ndarray, direction: np.ndarray,
@@ -394,6 +422,9 @@ def image_road_q(grey0, grey1, camera, rotation: np.ndarray, direction: np.ndarr
             whole[i] = _highpass(frames[i].grey, cfg)
         return whole[i]
 
+    # the points the road's texture moves away from: the epipoles of image 0 (K c1) and image 1 (K t)
+    foe = (_point(k @ (-np.asarray(rotation, np.float64).T @ np.asarray(direction, np.float64)), camera),
+           _point(kd, camera))
     log_q = np.log(IMAGE_Q)
     for r0, r1 in sorted(IMAGE_BANDS, key=lambda b: -b[0]):     # nearest band first
         v0, v1, u0, u1 = _band_box(camera, r0, r1)
@@ -404,6 +435,8 @@ def image_road_q(grey0, grey1, camera, rotation: np.ndarray, direction: np.ndarr
         uu, vv = uu.ravel(), vv.ravel()
         ref = g0[vv, uu]
         ref = (all_rows(0)[vv, uu] if np.isnan(ref).any() else ref).astype(np.float64)
+        if cfg.radial:
+            ref = _along(ref, uu, vv, foe[0])
         x0 = np.linalg.inv(k) @ np.stack([uu, vv, np.ones_like(uu)]).astype(np.float64)
         nx = np.cos(p) * x0[1] + np.sin(p) * x0[2]
         x1 = (kr @ x0)[None] + IMAGE_Q[:, None, None] * kd[None, :, None] * nx[None, None, :]   # (Q, 3, N)
@@ -417,6 +450,8 @@ def image_road_q(grey0, grey1, camera, rotation: np.ndarray, direction: np.ndarr
             samples = cv2.remap(all_rows(1), map_u, map_v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                                 borderValue=0)
         samples = samples.astype(np.float64)
+        if cfg.radial:
+            samples = _along(samples, mu, mv, foe[1])
         wgt = inside.astype(np.float64)
         cnt = wgt.sum(axis=1)
         scored = cnt >= cfg.min_in_view * len(ref)

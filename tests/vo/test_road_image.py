@@ -37,10 +37,11 @@ def _pitched(pitch_deg: float) -> np.ndarray:
     return np.array([[1, 0, 0], [0, np.cos(p), np.sin(p)], [0, -np.sin(p), np.cos(p)]], float)
 
 
-def _drive(distance_m: float, pitch_deg: float, yaw_deg: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _drive(distance_m: float, pitch_deg: float, yaw_deg: float = 0.0,
+           texture: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Two uint8 (188, 620) images of a textured flat road ``HEIGHT_M`` below a camera pitched ``pitch_deg``
     down, before and after driving ``distance_m`` forward while turning ``yaw_deg`` (sky: mid grey), and
-    cam1_from_cam0 (4, 4)."""
+    cam1_from_cam0 (4, 4). ``texture``: the road's (4000, 2500) texels (default :data:`TEX`)."""
     level_from_cam = _pitched(pitch_deg)
     yaw = np.radians(yaw_deg)
     r_level = np.array([[np.cos(yaw), 0, np.sin(yaw)], [0, 1, 0], [-np.sin(yaw), 0, np.cos(yaw)]])
@@ -56,7 +57,7 @@ def _drive(distance_m: float, pitch_deg: float, yaw_deg: float = 0.0) -> tuple[n
         p = level0_from_levelk[:3, :3] @ (rays * depth) + level0_from_levelk[:3, 3:4]
         mx = ((p[0] - _TEX_X0) / _TEXEL_M).reshape(CAM.height, CAM.width).astype(np.float32)
         mz = ((p[2] - _TEX_Z0) / _TEXEL_M).reshape(CAM.height, CAM.width).astype(np.float32)
-        img = cv2.remap(TEX, np.nan_to_num(mx, nan=-1), np.nan_to_num(mz, nan=-1), cv2.INTER_LINEAR,
+        img = cv2.remap(TEX if texture is None else texture, np.nan_to_num(mx, nan=-1), np.nan_to_num(mz, nan=-1), cv2.INTER_LINEAR,
                         borderMode=cv2.BORDER_CONSTANT, borderValue=128)
         images.append(np.clip(img, 0, 255).astype(np.uint8))
     return images[0], images[1], cam1_from_cam0
@@ -74,19 +75,40 @@ def test_aligning_the_road_bands_reads_the_distance_at_any_speed(distance_m, pit
     assert HEIGHT_M * q == pytest.approx(distance_m, rel=0.03)
 
 
+@pytest.mark.parametrize("radial", [False, True])
 @pytest.mark.parametrize("distance_m,pitch_deg,yaw_deg,rows_above", [
     (3.0, 1.0, 0.5, 0.02),      # the rows prepared hold every sample
     (2.0, 1.0, 0.0, -0.2),      # bands and samples reach above them: those rows computed when needed
 ])
-def test_frames_prepared_once_read_exactly_what_the_images_read(distance_m, pitch_deg, yaw_deg, rows_above):
+def test_frames_prepared_once_read_exactly_what_the_images_read(distance_m, pitch_deg, yaw_deg, rows_above, radial):
     g0, g1, m = _drive(distance_m, pitch_deg, yaw_deg)
-    cfg = ImageRoadConfig(rows_above=rows_above)
+    cfg = ImageRoadConfig(rows_above=rows_above, radial=radial)
     f0, f1 = road_image(g0, CAM, cfg), road_image(g1, CAM, cfg)
     top = road_rows_top(CAM, cfg)
     assert np.isnan(f0.highpass[:top]).all() and np.isfinite(f0.highpass[top:]).all()
-    full = image_road_q(g0, g1, CAM, *_rd(m), pitch_deg, ImageRoadConfig(rows_above=10.0))   # every row prepared
+    full = image_road_q(g0, g1, CAM, *_rd(m), pitch_deg, ImageRoadConfig(rows_above=10.0, radial=radial))
     assert image_road_q(f0, f1, CAM, *_rd(m), pitch_deg, cfg) == full
     assert np.isfinite(full)
+
+
+def _lined(texture: np.ndarray, spacing_m: float = 1.75, width_m: float = 0.16, gain: float = 120.0) -> np.ndarray:
+    """``texture`` with bright lines along the road (constant in z) every ``spacing_m`` across it."""
+    x = np.arange(texture.shape[1]) * _TEXEL_M + _TEX_X0
+    lines = (np.abs(((x + spacing_m / 2) % spacing_m) - spacing_m / 2) < width_m / 2) * np.float32(gain)
+    return np.clip(texture - 108 + lines[None, :], 0, 255).astype(np.float32)
+
+
+LINED = _lined(TEX)
+
+
+@pytest.mark.parametrize("distance_m,texture", [(5.0, "lined"), (7.0, "lined"), (9.0, "plain")])
+def test_lines_along_the_road_fool_the_highpassed_images_not_their_radial_derivative(distance_m, texture):
+    # lines along the road map onto themselves at any distance: the high-passed images correlate best at
+    # the smallest; their derivative away from the epipole (where the texture's motion is) does not see them
+    g0, g1, m = _drive(distance_m, 1.0, texture=LINED if texture == "lined" else None)
+    assert HEIGHT_M * image_road_q(g0, g1, CAM, *_rd(m), 1.0) < 0.1 * distance_m
+    q = image_road_q(g0, g1, CAM, *_rd(m), 1.0, ImageRoadConfig(radial=True))
+    assert HEIGHT_M * q == pytest.approx(distance_m, rel=0.02)
 
 
 def test_a_featureless_road_reads_nothing():
