@@ -298,9 +298,10 @@ class ImageRoadConfig:
     min_in_view: float = 0.6
     """A distance is scored only where at least this fraction of the band's pixels lands inside image 1."""
     radial: bool = False
-    """Compare the high-passed images' derivative along the direction away from the principal point instead of
-    the high-passed images: a forward-moving camera moves the road's texture that way, while lines along the
-    road (which map onto themselves at any distance, a false peak at the smallest) have none of it."""
+    """Compare the high-passed images' derivative along the direction away from each image's epipole (``K c1``
+    in image 0, ``K t`` in image 1) instead of the high-passed images: a forward-moving camera moves the road's
+    texture that way, while lines along the road (which map onto themselves at any distance, a false peak at the
+    smallest, and converge at the epipole) have none of it."""
     rows_above: float = 0.02
     """:class:`RoadImage` high-passes the rows from this fraction of fy above the farthest band down (the road
     and its motion; rows a sample reaches above them are computed when needed)."""
