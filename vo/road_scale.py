@@ -297,7 +297,7 @@ class ImageRoadConfig:
     """A band whose best normalised cross-correlation is below this reads nothing (no road texture)."""
     min_in_view: float = 0.6
     """A distance is scored only where at least this fraction of the band's pixels lands inside image 1."""
-    radial: bool = False
+    radial: bool = True
     """Compare the high-passed images' derivative along the direction away from each image's epipole (``K c1``
     in image 0, ``K t`` in image 1) instead of the high-passed images: a forward-moving camera moves the road's
     texture that way, while lines along the road (which map onto themselves at any distance, a false peak at the
@@ -486,9 +486,11 @@ class RoadSequenceConfig:
     """A distance differing from what its neighbours predict by more than this fraction of it ..."""
     min_jump_m: float = 0.2
     """... and by more than this many metres is dropped (a car's speed changes little in a few frames)."""
-    fill_pairs: int = 2
+    fill_pairs: int = 6
     """Runs of at most this many pairs without a distance, between two pairs with one, are interpolated; at
-    either end of the sequence, such a run takes the nearest pair's distance."""
+    either end of the sequence, such a run takes the nearest pair's distance. (A car's speed changes by at most
+    about 3 m/s a second: across six pairs at 3.33 Hz the line between two readings errs by less than the
+    network's distance, a speed prior, does at speed.)"""
 
 
 def check_and_fill(distances: np.ndarray, cfg: RoadSequenceConfig = RoadSequenceConfig()) -> tuple[np.ndarray, np.ndarray]:

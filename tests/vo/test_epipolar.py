@@ -242,6 +242,19 @@ def test_a_fit_far_from_the_network_rotation_is_not_used():
     assert not epipolar.fuse(net, near, epipolar.EpipolarConfig(max_rotation_disagreement_deg=1.0))[1]
 
 
+@pytest.mark.parametrize("fit_yaw_deg,net_yaw_deg,used", [
+    (9.0, 6.0, True),     # a corner taken fast: the network reads the turn 3 degrees short, the fit is kept
+    (3.0, 2.7, True),
+    (12.0, 1.0, False),   # more than the bound apart: the network's
+    (180.0, 0.0, False),  # the twisted decomposition
+])
+def test_the_fits_rotation_is_kept_where_the_network_reads_a_turn_short(fit_yaw_deg, net_yaw_deg, used):
+    fit = epipolar.EpipolarFit(True, se3.from_euler6(np.array([0.0, np.radians(fit_yaw_deg), 0, 0, 0, 0]))[:3, :3],
+                               np.array([0.0, 0.0, -1.0]), 400, 700, 10.0)
+    net = np.array([0.0, np.radians(net_yaw_deg), 0.0, 0.0, 0.0, -2.0])
+    assert epipolar.fuse(net, fit)[1] is used
+
+
 def test_set_pose_records_the_mode_vo_uses_without_a_flag(street_sequence, street_model, tmp_path, capsys):
     from deepslam.cli import main
     from deepslam.models import modelfile

@@ -68,10 +68,20 @@ def _rd(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 @pytest.mark.parametrize("distance_m,pitch_deg,yaw_deg", [(0.5, 1.0, 0.0), (3.0, 1.0, 0.5), (8.0, 1.0, 0.0),
-                                                           (9.0, 0.0, -0.4), (2.0, 2.5, 0.0)])
+                                                           (9.0, 1.0, 0.0), (9.0, 1.0, -0.4), (2.0, 2.5, 0.0)])
 def test_aligning_the_road_bands_reads_the_distance_at_any_speed(distance_m, pitch_deg, yaw_deg):
     g0, g1, m = _drive(distance_m, pitch_deg, yaw_deg)
     q = image_road_q(g0, g1, CAM, *_rd(m), pitch_deg)
+    assert HEIGHT_M * q == pytest.approx(distance_m, rel=0.03)
+
+
+@pytest.mark.parametrize("distance_m", [8.0, 9.0])
+def test_a_level_camera_at_speed_reads_nothing_from_the_radial_derivative_not_a_wrong_distance(distance_m):
+    # the bands look 14-28 m ahead of a level camera: the derivatives of a road 1.5x nearer in the second
+    # image correlate below min_ncc at the right distance (0.37-0.47); the high-passed images still read it
+    g0, g1, m = _drive(distance_m, 0.0, -0.4)
+    assert np.isnan(image_road_q(g0, g1, CAM, *_rd(m), 0.0))
+    q = image_road_q(g0, g1, CAM, *_rd(m), 0.0, ImageRoadConfig(radial=False))
     assert HEIGHT_M * q == pytest.approx(distance_m, rel=0.03)
 
 
@@ -106,8 +116,8 @@ def test_lines_along_the_road_fool_the_highpassed_images_not_their_radial_deriva
     # lines along the road map onto themselves at any distance: the high-passed images correlate best at
     # the smallest; their derivative away from the epipole (where the texture's motion is) does not see them
     g0, g1, m = _drive(distance_m, 1.0, texture=LINED if texture == "lined" else None)
-    assert HEIGHT_M * image_road_q(g0, g1, CAM, *_rd(m), 1.0) < 0.1 * distance_m
-    q = image_road_q(g0, g1, CAM, *_rd(m), 1.0, ImageRoadConfig(radial=True))
+    assert HEIGHT_M * image_road_q(g0, g1, CAM, *_rd(m), 1.0, ImageRoadConfig(radial=False)) < 0.1 * distance_m
+    q = image_road_q(g0, g1, CAM, *_rd(m), 1.0)
     assert HEIGHT_M * q == pytest.approx(distance_m, rel=0.02)
 
 
@@ -130,7 +140,7 @@ def test_images_of_another_size_are_refused():
     ([1.0, 1.1, 1.2, 2.6, 1.4, 1.5, 1.6], [1.0, 1.1, 1.2, 1.3, 1.4, 1.5, 1.6], [0, 0, 0, 1, 0, 0, 0]),
     # a car pulling away from a stop (0.25 m more a pair) is not an outlier
     ([0.0, 0.25, 0.5, 0.75, 1.0, 1.25], [0.0, 0.25, 0.5, 0.75, 1.0, 1.25], [0, 0, 0, 0, 0, 0]),
-    # a gap of two pairs is interpolated, one of three is not
+    # with fill_pairs 2: a gap of two pairs is interpolated, one of three is not
     ([1.0, np.nan, np.nan, 1.6, 1.6, np.nan, np.nan, np.nan, 1.6], [1.0, 1.2, 1.4, 1.6, 1.6, np.nan, np.nan, np.nan, 1.6],
      [0] * 9),
     # a gap at either end takes the nearest distance (up to two pairs)
@@ -141,9 +151,21 @@ def test_images_of_another_size_are_refused():
     ([], [], []),
 ])
 def test_distances_far_from_their_neighbours_are_dropped_and_short_gaps_filled(given, expected, dropped):
-    out, was_dropped = check_and_fill(np.array(given, float), RoadSequenceConfig())
+    out, was_dropped = check_and_fill(np.array(given, float), RoadSequenceConfig(fill_pairs=2))
     np.testing.assert_allclose(out, expected, atol=1e-12)
     assert was_dropped.tolist() == [bool(x) for x in dropped]
+
+
+@pytest.mark.parametrize("gap", [1, 6, 7])
+def test_the_default_fills_runs_of_up_to_six_pairs(gap):
+    # a car at 30 m/s braking at 3 m/s^2: the readings either side of the run, and the line between them
+    speeds = 9.0 - 0.9 * np.arange(gap + 2) / (gap + 1)
+    given = np.concatenate([[9.0, speeds[0]], np.full(gap, np.nan), [speeds[-1], speeds[-1]]])
+    out, _ = check_and_fill(given)
+    if gap <= RoadSequenceConfig().fill_pairs:
+        np.testing.assert_allclose(out[2:2 + gap], speeds[1:-1], atol=1e-12)
+    else:
+        assert np.isnan(out[2:2 + gap]).all()
 
 
 def _fit(m: np.ndarray, ok: bool = True) -> EpipolarFit:
