@@ -411,3 +411,20 @@ def test_results_doc_copies_the_figures_a_table_links_and_drops_missing_ones(tmp
     doc = tmp_path / "docs" / "results.md"
     assert results_doc.main(["--out", str(doc)]) == 0
     assert (tmp_path / "docs" / "img" / "results" / "slam_street_gt.png").read_bytes() == b"\x89PNG fake"
+
+
+def test_results_doc_keeps_the_previous_table_of_a_run_not_on_disk(tmp_path):
+    from bench import results_doc
+
+    slam = tmp_path / "out" / "results" / "slam"
+    slam.mkdir(parents=True)
+    (slam / "results.md").write_text("| new slam |\n|---|\n")
+    previous = ("# Results\n\nold preamble\n\n## VO alone against SLAM\n\n| old slam |\n\n"
+                "## Turns\n\nRotation read in turns.\n\n*Measured 2026-01-01, commit `abc`, on M.*\n\n| old turn |\n"
+                "\n## Commands\n\n```\nx\n```\n\n## Some heading no run writes\n\ngone\n")
+    text = results_doc.build(tmp_path / "out", {}, previous)
+    assert "| new slam |" in text and "| old slam |" not in text        # measured again: the new table
+    turn = text[text.index("## Turns"):]
+    assert "*Measured 2026-01-01, commit `abc`, on M.*" in turn and "## Commands\n\n```\nx\n```" in turn
+    assert "old preamble" not in text and "Some heading no run writes" in text   # inside the kept section
+    assert results_doc.build(tmp_path / "out", {}, "").count("## ") == 1
