@@ -41,11 +41,12 @@ from bench.stamp import stamp
 class ResultsAgreementConfig:
     """Sizes of the comparison."""
 
-    sim_seeds: tuple[int, ...] = (901, 902, 903, 904, 906, 907)
+    sim_seeds: tuple[int, ...] = (901, 902, 903, 904, 906, 907, 908)
     """Towns of the simulated streets (no model was trained on them; 901-904 informed or saw road-scale
-    decisions; 906 was rendered after the image road scale was decided and is reported, never deciding, in the
-    rules since: seen, but no default was chosen on it; 907 was first rendered after the turn rule of
-    bench/criteria/2026-12-05_road_turns.md was decided: unseen by every decision)."""
+    decisions; 906 and 907 were rendered after road-scale decisions and are reported, never deciding, in the
+    rules since (906 from the image road scale, 907 from the turn rule of bench/criteria/2026-12-05_road_turns.md):
+    seen, but no default was chosen on them; 908 was first rendered after the road-gaps rule of
+    bench/criteria/2026-12-05_road_gaps.md was decided: unseen by every decision)."""
     sim_frames: int = 360
     """Frames per simulated street (10 Hz; 360: the residential block, a stop and the avenue at full speed)."""
     width: int = 620
@@ -170,9 +171,9 @@ def run(cfg: ResultsAgreementConfig, out: Path, data_dir: Path) -> dict:
               "seen": {"KITTI 06": "single frames in the shipped KITTI models' training (no poses); validation data",
                        "KITTI 07": "never trained on; has informed decisions: validation data",
                        "sim streets": "KITTI-look streets no model was trained on; 901-904 informed or were "
-                                      "seen before road-scale decisions (validation); 906 rendered after the "
-                                      "image road scale was decided, reported but never deciding since; 907 "
-                                      "rendered after the last road-scale decision (unseen)"}}
+                                      "seen before road-scale decisions (validation); 906 and 907 rendered after "
+                                      "road-scale decisions, reported but never deciding since; 908 rendered "
+                                      "after the last road-scale decision (unseen)"}}
     write_report(out, report, markdown)
     return report
 
