@@ -2,8 +2,9 @@
 each under its heading with the command that remakes it and the stamp of the run that measured it (date,
 commit, machine: ``stamp.json`` beside the table, :mod:`bench.stamp`). Nothing in docs/results.md is written
 by hand; a table whose run left no stamp says so. A table whose run is not on disk (a fresh clone, or only some
-of ``make results`` re-run) is kept as the previous docs/results.md had it, under its own stamp. The figures a table shows (``![...](name.png)`` beside its
-results.md) are copied to docs/img/results/ and linked from there; a figure that is not on disk is left out.
+of ``make results`` re-run) is kept as the previous docs/results.md had it, under its own stamp. The figures a
+table shows (``![...](name.png)`` beside its results.md) are copied to docs/img/results/ and linked from there;
+a figure that is not on disk is left out.
 
     python -m bench.results_doc [--out docs/results.md]      # the last step of `make results`
 """
@@ -165,7 +166,10 @@ def build(out: Path, figures: dict[str, Path] | None = None, previous: str = "")
         lines += [f"## {heading}", "", what, "", f"Remake: `{command}`", "", _stamp_line(folder), "",
                   _link_figures(table.read_text().strip(), folder, name, figures), ""]
     device = _device_section(out)
-    lines += device if device or DEVICE_HEADING not in kept else kept[DEVICE_HEADING] + [""]
+    if device:
+        lines += device
+    elif DEVICE_HEADING in kept:
+        lines += kept[DEVICE_HEADING] + [""]
     return "\n".join(lines).rstrip() + "\n"
 
 

@@ -343,14 +343,10 @@ def _highpass(grey: np.ndarray, cfg: ImageRoadConfig, top: int = 0) -> np.ndarra
     start = max(0, top - _blur_radius_px(max(cfg.blur_px, cfg.highpass_px)) - 1)
     crop = g[start:]
     band = cv2.GaussianBlur(crop, (0, 0), cfg.blur_px) - cv2.GaussianBlur(crop, (0, 0), cfg.highpass_px)
-    if not cfg.radial:
-        out = np.full(g.shape, np.nan, np.float32)
-        out[start:] = band
-        out[:top] = np.nan
-        return out
-    out = np.full(g.shape + (2,), np.nan, np.float32)
-    out[start:, :, 0] = cv2.Sobel(band, cv2.CV_32F, 1, 0, ksize=3)
-    out[start:, :, 1] = cv2.Sobel(band, cv2.CV_32F, 0, 1, ksize=3)
+    if cfg.radial:
+        band = np.stack([cv2.Sobel(band, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(band, cv2.CV_32F, 0, 1, ksize=3)], -1)
+    out = np.full(g.shape + band.shape[2:], np.nan, np.float32)
+    out[start:] = band
     out[:top] = np.nan
     return out
 
