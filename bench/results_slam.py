@@ -115,8 +115,9 @@ def _odometry(seq, flow: str):
     from deepslam.vo import models
 
     cons, loops = _shipped_paths(seq, flow)
-    # NN_cons in the mode its file records (as deepslam slam runs it); loop pairs always NN_loops' 6DoF
-    return models.odometry(cons, flow, True), models.odometry(loops, flow, True, pose="net")
+    # as deepslam slam runs them: NN_cons in the mode its file records, NN_loops in the epipolar mode with its own
+    # distance (slam.plugins.odometry_from_args)
+    return models.odometry(cons, flow, True), models.odometry(loops, flow, True, pose="epipolar", scale="network")
 
 
 def _loop_record(seq, loops, res) -> dict | None:

@@ -21,6 +21,11 @@ apart). The odometry computes whatever it needs (optical flow, resizing) from ``
 pipeline never passes images. It may show a progress bar. :func:`check_prediction` validates the
 result; the pipeline calls it on every answer.
 
+An odometry may also offer ``predict_verified(seq, pairs) -> (mean6, std6, rigid)`` (:class:`VerifiedOdometry`),
+``rigid`` (P,) bool telling where the pair's input fits one rigid motion: the pipeline then leaves the loop pairs
+where it does not out of the pose graph (:attr:`slam.pipeline.PipelineConfig.loop_check`). The network in the
+epipolar pose mode offers it (:meth:`vo.infer.PredictorOdometry.predict_verified`).
+
 :class:`GroundTruthOdometry` implements the protocol from ground-truth poses plus seeded Gaussian
 noise of known std and an optional bias per pair (which accumulates into drift along consecutive
 pairs), so the pose graph and loop closure can be tested against known answers.
@@ -53,6 +58,16 @@ class Odometry(Protocol):
             (mean6, std6): float64 (P, 6) each; mean6 rows are ``to_euler6(cam_j_from_cam_i)``
             (rad, m), std6 rows the predicted std of those numbers (> 0).
         """
+        ...
+
+
+@runtime_checkable
+class VerifiedOdometry(Odometry, Protocol):
+    """An :class:`Odometry` that also tells, per pair, whether its input fits one rigid motion."""
+
+    def predict_verified(self, seq, pairs: SequenceT[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(mean6, std6) as :meth:`Odometry.predict` returns them, and (P,) bool: True where the pair's input
+        (e.g. its optical flow) fits one rigid motion, False where it does not and the motion is not to be used."""
         ...
 
 

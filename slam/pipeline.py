@@ -11,7 +11,9 @@ Stages (each causal in the frame order, run as batches):
    keyframes at least ``t_loop + 1`` frames older, ratio test, N_th and an essential-matrix check.
    The database holds every keyframe but a query only sees frames older than its exclusion window, so
    the result equals an online run where each frame is inserted after its own query.
-3. Odometry of the accepted loop pairs (NN_loops) -> loop edges, only where the gap exceeds T_loop.
+3. Odometry of the accepted loop pairs (NN_loops) -> loop edges, only where the gap exceeds T_loop and,
+   with ``loop_check``, where the loop pair's flow fits one rigid motion (the odometry tells:
+   :class:`slam.odometry.VerifiedOdometry`).
 4. Pose graph (gtsam, Levenberg-Marquardt) with the paper's covariances, robust kernel on loops.
 
 The hyperparameters C_s, C_r and T_loop come from :class:`SlamParams` (a JSON file written by
@@ -33,7 +35,7 @@ from deepslam.core.kinds import kind_for_sequence
 from deepslam.core.progress import progress
 from deepslam.core.textio import loads_json
 from deepslam.core.trajectory import Trajectory
-from deepslam.slam.odometry import Odometry, check_prediction
+from deepslam.slam.odometry import Odometry, VerifiedOdometry, check_prediction
 from deepslam.slam.posegraph import Edges, PoseGraphConfig, chain, optimize
 from deepslam.slam.reloc import (FeatureExtractor, Features, LoopCandidate, LoopDetector, RelocConfig, Vocabulary,
                         accepted_pairs, train_vocabulary)
@@ -97,6 +99,12 @@ class PipelineConfig:
     """Every k-th frame is a relocalization keyframe."""
     loops: bool = True
     """False: odometry only (the graph then equals dead reckoning)."""
+    loop_check: bool = True
+    """Leave out the loop pairs whose input the loop odometry finds fits no rigid motion (where it can tell,
+    :class:`slam.odometry.VerifiedOdometry`: the network in the epipolar pose mode, where the essential-matrix fit
+    of the loop pair's flow finds too few inliers). Between frames metres and many degrees apart DIS can lose the
+    motion, and NN_loops, reading the same flow, is then 15-20 degrees or half the distance off
+    (bench/criteria/2026-12-05_loop_edges.md)."""
     vocabulary_train_frames: int = 400
     """Without a given vocabulary, train one on at most this many evenly spaced keyframes."""
     seed: int = 0
@@ -117,7 +125,9 @@ class Prepared:
         detector: keyframe database with features and cached verifications (None without loops).
         keyframes: keyframe indices.
         odo_loops: the loop odometry.
+        reloc: the relocalization settings used.
         timings: seconds per stage so far.
+        loop_check: leave out loop pairs whose flow fits no rigid motion (:attr:`PipelineConfig.loop_check`).
     """
 
     seq: object
@@ -128,6 +138,7 @@ class Prepared:
     odo_loops: Odometry | None
     reloc: RelocConfig
     timings: dict
+    loop_check: bool = True
     _loop_odo: dict = dataclasses.field(default_factory=dict)
     _loops_by_t: dict = dataclasses.field(default_factory=dict)
 
@@ -146,20 +157,42 @@ class Prepared:
         return [(i, j) for i, j in pairs if j - i > t_loop]
 
     def loop_edges(self, t_loop: int, show_progress: bool = False) -> Edges:
-        """Loop edges with gap > t_loop, their odometry predicted once per pair and cached."""
-        pairs = self.loop_pairs(t_loop, show_progress)
-        missing = [p for p in pairs if p not in self._loop_odo]
-        if missing and self.odo_loops is not None:
-            t0 = time.perf_counter()
-            mean6, std6 = self.odo_loops.predict(self.seq, missing)
-            mean6, std6 = check_prediction(self.odo_loops.name, missing, mean6, std6)
-            for p, m, s in zip(missing, mean6, std6):
-                self._loop_odo[p] = (m, s)
-            self.timings["odometry_loops_s"] = self.timings.get("odometry_loops_s", 0.0) + time.perf_counter() - t0
+        """Loop edges with gap > t_loop (without the pairs :meth:`unverified_pairs` names), their odometry
+        predicted once per pair and cached."""
+        pairs = self._predicted_loop_pairs(t_loop, show_progress)
+        pairs = [p for p in pairs if self._loop_odo[p][2] or not self.loop_check]
         if not pairs:
             return Edges.empty()
         return Edges(np.array(pairs), np.array([self._loop_odo[p][0] for p in pairs]),
                      np.array([self._loop_odo[p][1] for p in pairs]))
+
+    def unverified_pairs(self, t_loop: int) -> list[tuple[int, int]]:
+        """Loop pairs with gap > t_loop left out because their flow fits no rigid motion (none without
+        ``loop_check``)."""
+        if not self.loop_check:
+            return []
+        return [p for p in self._predicted_loop_pairs(t_loop) if not self._loop_odo[p][2]]
+
+    def _predicted_loop_pairs(self, t_loop: int, show_progress: bool = False) -> list[tuple[int, int]]:
+        """:meth:`loop_pairs`, each with (mean6, std6, rigid) in the cache."""
+        pairs = self.loop_pairs(t_loop, show_progress)
+        missing = [p for p in pairs if p not in self._loop_odo]
+        if missing and self.odo_loops is not None:
+            t0 = time.perf_counter()
+            if isinstance(self.odo_loops, VerifiedOdometry):
+                mean6, std6, rigid = self.odo_loops.predict_verified(self.seq, missing)
+                rigid = np.asarray(rigid, bool).reshape(-1)
+                if rigid.shape != (len(missing),):
+                    raise ValueError(f"odometry {self.odo_loops.name!r}: rigid has shape {rigid.shape}, "
+                                     f"expected ({len(missing)},)")
+            else:
+                mean6, std6 = self.odo_loops.predict(self.seq, missing)
+                rigid = np.ones(len(missing), bool)
+            mean6, std6 = check_prediction(self.odo_loops.name, missing, mean6, std6)
+            for p, m, s, r in zip(missing, mean6, std6, rigid):
+                self._loop_odo[p] = (m, s, bool(r))
+            self.timings["odometry_loops_s"] = self.timings.get("odometry_loops_s", 0.0) + time.perf_counter() - t0
+        return pairs
 
 
 @dataclasses.dataclass(frozen=True)
@@ -178,6 +211,8 @@ class SlamResult:
         vocabulary: the BoW vocabulary used (None without loop closure).
         loop_inliers: (L,) bool, loop edges kept by the pose graph's pruning stage.
         reloc: the relocalization settings used (resolved for the sequence's kind).
+        loops_not_rigid: (K, 2) int64 loop pairs left out because their flow fits no rigid motion
+            (:attr:`PipelineConfig.loop_check`).
     """
 
     vo: Trajectory
@@ -191,6 +226,7 @@ class SlamResult:
     vocabulary: Vocabulary | None = None
     loop_inliers: np.ndarray | None = None
     reloc: RelocConfig | None = None
+    loops_not_rigid: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 2), np.int64))
 
 
 def data_kind(seq) -> str:
@@ -283,7 +319,8 @@ def prepare(seq, odo_cons: Odometry, odo_loops: Odometry | None, config: Pipelin
             t3 = time.perf_counter()
             detector = _database(vocabulary, seq.camera.k, reloc, keyframes, feats)
             timings["database_s"] = time.perf_counter() - t3
-    return Prepared(seq, n, cons, detector, keyframes, odo_loops, reloc, timings, _loops_by_t=loops_by_t)
+    return Prepared(seq, n, cons, detector, keyframes, odo_loops, reloc, timings, config.loop_check,
+                    _loops_by_t=loops_by_t)
 
 
 def _database(vocabulary: Vocabulary, camera_k: np.ndarray, reloc: RelocConfig, keyframes: list[int],
@@ -343,7 +380,9 @@ def run_slam(seq, odo_cons: Odometry, odo_loops: Odometry | None = None, params:
     cands = prep.candidates(params.t_loop) if prep.detector is not None else []
     return SlamResult(vo, Trajectory(res.world_from_cam, times), prep.cons, loops, cands, params, timings,
                       (res.initial_error, res.final_error),
-                      prep.detector.vocabulary if prep.detector is not None else None, res.loop_inliers, prep.reloc)
+                      prep.detector.vocabulary if prep.detector is not None else None, res.loop_inliers, prep.reloc,
+                      np.array(prep.unverified_pairs(params.t_loop) if prep.detector is not None else [],
+                               np.int64).reshape(-1, 2))
 
 
 def pipeline_fps_frames(seq, odo_cons: Odometry, odo_loops: Odometry, params: SlamParams = SlamParams(),

@@ -232,7 +232,9 @@ def odometry_from_args(args, seq):
     (model, gt-noisy or a plug-in spec), ``odometry_loops``, ``odometry_command``, ``model_cons``,
     ``model_loops``, ``flow``, ``no_loops``, ``gt_noise``, ``gt_drift``, ``seed``, ``sequence``, and ``pose``
     (``epipolar``: the consecutive-frame network's rotation and direction from the essential matrix of the
-    flow, :mod:`vo.epipolar`; absent or None: the mode the NN_cons file records, :func:`vo.models.recorded_pose`)."""
+    flow, :mod:`vo.epipolar`; absent or None: the mode the NN_cons file records, :func:`vo.models.recorded_pose`).
+    NN_loops runs in the epipolar mode with its own distance: the loop pair's fit also tells where its flow
+    broke (:attr:`slam.pipeline.PipelineConfig.loop_check`)."""
     pose = getattr(args, "pose", None)
     if pose == "epipolar" and (args.odometry != "model" or getattr(args, "odometry_command", None)):
         raise InputError(None, f"--pose {pose} needs the network odometry (not a plug-in or gt-noisy)")
@@ -264,8 +266,9 @@ def odometry_from_args(args, seq):
     device = resolve_device(getattr(args, "device", "cpu"))
     given = given_estimator_options(args.flow, args)
     estimators: dict[tuple, object] = {}  # one estimator per set-up: cons and loops share it where they agree
+    show_progress = not (getattr(args, "quiet", False) or getattr(args, "json", False))
 
-    def odometry(spec, which, pose=None):
+    def odometry(spec, which, pose=None, scale=None):
         # each model gets the flow as it was trained on it (DIS's preset and texture threshold may differ),
         # with the options given on the command line for both
         path, shipped = models.locate(spec, seq, which, args.flow)
@@ -274,8 +277,11 @@ def odometry_from_args(args, seq):
         if key not in estimators:
             estimators[key] = models.flow_for_model(args.flow, path, recorded, **given)
         flow = estimators[key]
-        return models.load(path, shipped, device=device).as_odometry(flow, epipolar=models.epipolar_config(path, pose))
+        return models.load(path, shipped, device=device).as_odometry(flow, progress=show_progress,
+                                                                    epipolar=models.epipolar_config(path, pose, scale))
 
     cons = odometry(args.model_cons, "cons", pose)
-    loops = None if args.no_loops else odometry(args.model_loops, "loops", "net")  # loop pairs: NN_loops' 6DoF
+    # loop pairs: the rotation and direction of the loop pair's flow where its fit serves, NN_loops' distance (a
+    # loop pair is no step along a road), and the fit tells where the flow broke (PipelineConfig.loop_check)
+    loops = None if args.no_loops else odometry(args.model_loops, "loops", "epipolar", "network")
     return cons, loops

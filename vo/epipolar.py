@@ -121,6 +121,14 @@ class EpipolarFit:
     """The road's fit per distance (:func:`vo.road_scale.scan_road`) when :attr:`EpipolarConfig.road_height_m`
     is set, else None."""
 
+    @property
+    def rigid(self) -> bool:
+        """Whether the flow fits one rigid motion: the fit is usable, or failed only for want of parallax (its
+        inliers passed, and the parallax was measured). False where too few vectors were sampled, too few are
+        inliers, or OpenCV found no essential matrix: the flow broke (DIS lost a large turn or distance between
+        the frames) and anything read from it, the network's motion included, is suspect."""
+        return self.ok or bool(np.isfinite(self.parallax_px))
+
 
 def _failed(sampled: int, reason: str, inliers: int = 0, parallax: float = float("nan")) -> EpipolarFit:
     return EpipolarFit(False, np.eye(3), np.zeros(3), int(inliers), int(sampled), float(parallax), reason)

@@ -197,6 +197,17 @@ class PredictorOdometry:
         return self.predictor.predict_pairs(seq, pairs, self.flow_estimator, progress=self.progress,
                                             epipolar=self.epipolar)
 
+    def predict_verified(self, seq, pairs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`predict` and, per pair, whether its flow fits one rigid motion (:attr:`vo.epipolar.EpipolarFit.rigid`):
+        ((P, 6), (P, 6) float64, (P,) bool). Without an epipolar fit nothing is checked (all True)."""
+        if self.epipolar is None:
+            mean6, std6 = self.predict(seq, pairs)
+            return mean6, std6, np.ones(len(mean6), bool)
+        fits: list = []
+        mean6, std6 = self.predictor.predict_pairs(seq, pairs, self.flow_estimator, progress=self.progress,
+                                                   epipolar=self.epipolar, fits_out=fits)
+        return mean6, std6, np.array([fit.rigid for fit, _ in fits], bool)
+
 
 def chain(cam_next_from_cam: np.ndarray) -> np.ndarray:
     """Poses ``world_from_cam`` (N + 1, 4, 4) float64 with world = the first camera, from N relative

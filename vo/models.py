@@ -82,13 +82,14 @@ def load(path: Path, shipped: bool = False, **kwargs):
 
 
 def odometry(path: str | Path, flow: str = "dis", shipped: bool = False, progress: bool = False, pose: str | None = None,
-             flow_options: dict | None = None, **kwargs):
+             flow_options: dict | None = None, scale: str | None = None, **kwargs):
     """The VO model file at ``path`` as a SLAM odometry (:meth:`vo.infer.VOPredictor.as_odometry`) on flow
     estimator ``flow`` set up as the file records (:func:`flow_for_model`), each of ``flow_options`` (e.g.
     ``{"patch_stride": 4}``) taking precedence, in pose mode ``pose`` (:data:`POSES`; None: the mode the file
-    records, :func:`recorded_pose`); ``kwargs`` go to :func:`load`."""
+    records, :func:`recorded_pose`) with distance source ``scale`` (:data:`SCALES`; None: the file's,
+    :func:`recorded_scale`); ``kwargs`` go to :func:`load`."""
     return load(Path(path), shipped, **kwargs).as_odometry(flow_for_model(flow, path, **(flow_options or {})),
-                                                            progress=progress, epipolar=epipolar_config(path, pose))
+                                                            progress=progress, epipolar=epipolar_config(path, pose, scale))
 
 
 RECORDED_OPTIONS = {"dis": ("preset", "min_texture", "fb_max_px", "max_width", "patch_stride")}

@@ -52,13 +52,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pose", choices=("net", "epipolar"), default=None,
                    help="consecutive-frame motions: net (the network's 6DoF) or epipolar (rotation and direction of "
                         "travel from the essential matrix of the flow, distance from the network; as deepslam vo "
-                        "--pose); loop pairs keep NN_loops' 6DoF. Default: the mode the NN_cons file records, net "
-                        "where it records none")
+                        "--pose). Default: the mode the NN_cons file records, net where it records none. Loop pairs "
+                        "always take the rotation and direction of their flow's fit where it serves, and NN_loops' "
+                        "distance")
     p.add_argument("--vocabulary", default=None, metavar="NPZ",
                    help="BoW vocabulary (default: train one on the sequence's keyframes)")
     p.add_argument("--save-vocabulary", default=None, metavar="NPZ", help="write the vocabulary used")
     p.add_argument("--keyframe-stride", type=int, default=1, metavar="K", help="relocalize every K-th frame")
     p.add_argument("--no-loops", action="store_true", help="odometry only (no loop closure)")
+    p.add_argument("--no-loop-check", action="store_true",
+                   help="keep loop pairs whose flow fits no rigid motion (by default they are left out)")
     p.add_argument("--robust", choices=("none", "huber", "cauchy"), default="cauchy",
                    help="robust kernel on loop edges (default: cauchy)")
     p.add_argument("--align", choices=("none", "se3", "sim3"), default="se3",
@@ -148,7 +151,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.no_loops:
         odo_loops = None
     config = PipelineConfig(graph=PoseGraphConfig(robust=args.robust), keyframe_stride=args.keyframe_stride,
-                            loops=not args.no_loops, seed=args.seed)
+                            loops=not args.no_loops, loop_check=not args.no_loop_check, seed=args.seed)
     res = run_slam(seq, odo_cons, odo_loops, params, config, vocabulary=vocab, show_progress=not (args.json or args.quiet))
 
     side = side_files(out)
@@ -160,6 +163,7 @@ def _run(args: argparse.Namespace) -> int:
         "params": res.params.to_dict(),
         "config": {**config.to_dict(), "reloc": dataclasses.asdict(res.reloc) if res.reloc else None},
         "loops": res.loops.pairs.tolist(), "n_loops": len(res.loops),
+        "loops_not_rigid": res.loops_not_rigid.tolist(),
         "loops_kept_by_pose_graph": None if res.loop_inliers is None else res.loop_inliers.tolist(),
         "flow_cons": getattr(getattr(odo_cons, "flow_estimator", None), "name", None),
         "flow_loops": getattr(getattr(odo_loops, "flow_estimator", None), "name", None),
@@ -224,7 +228,8 @@ def format_report(r: dict) -> str:
              f"odometry      cons {r['odometry_cons']}, loops {r['odometry_loops']}",
              f"parameters    C_s {r['params']['c_s']:g}, C_r {r['params']['c_r']:g}, T_loop {r['params']['t_loop']}",
              f"loops         {r['n_loops']} edges, {sum(r['loops_kept_by_pose_graph'] or [])} kept by the pose graph "
-             f"({r['n_verified_ok']} of {r['n_candidates']} candidates passed verification)",
+             f"({r['n_verified_ok']} of {r['n_candidates']} candidates passed verification; "
+             f"{len(r['loops_not_rigid'])} left out, their flow fitting no rigid motion)",
              f"speed         {t['fps']:.2f} frames/s ({t['total_s']:.2f} s; optimisation {t['optimize_s']:.3f} s)",
              f"wrote         {r['trajectory']}, {r['trajectory_vo']}"]
     if "metrics_slam" in r:

@@ -65,6 +65,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "epipolar; default: the mode the NN_cons file records")
     p.add_argument("--keyframe-stride", type=int, default=1, metavar="K", help="relocalize every K-th frame")
     p.add_argument("--robust", choices=("none", "huber", "cauchy"), default="cauchy", help="robust kernel on loops")
+    p.add_argument("--no-loop-check", action="store_true",
+                   help="keep loop pairs whose flow fits no rigid motion (as deepslam slam --no-loop-check)")
     p.add_argument("--vocabulary", default=None, metavar="NPZ", help="BoW vocabulary (default: train per sequence)")
     p.add_argument("--json", action="store_true", help="print one JSON object: c_s, c_r, t_loop, score, best_score, "
                    "evaluations, method, vo_ate_m (per sequence), out (no progress bar)")
@@ -104,7 +106,8 @@ def run(args: argparse.Namespace) -> int:
                         t_loop=args.t_loop or _ints(DEFAULT_T_LOOP))
     vocab = Vocabulary.load(args.vocabulary) if args.vocabulary else None
     graph = PoseGraphConfig(robust=args.robust)
-    config = PipelineConfig(graph=graph, keyframe_stride=args.keyframe_stride, seed=args.seed)
+    config = PipelineConfig(graph=graph, keyframe_stride=args.keyframe_stride, loop_check=not args.no_loop_check,
+                            seed=args.seed)
     problems = []
     for path in args.sequence:
         seq = open_sequence(path)

@@ -9,7 +9,7 @@ import pytest
 from deepslam.core import se3
 from deepslam.core.errors import InputError
 from deepslam.core.metrics import ate
-from deepslam.slam.odometry import GroundTruthOdometry, NoiseConfig, Odometry, check_prediction
+from deepslam.slam.odometry import GroundTruthOdometry, NoiseConfig, Odometry, VerifiedOdometry, check_prediction
 from deepslam.slam.pipeline import PipelineConfig, SlamParams, prepare, run_slam, solve
 from deepslam.slam.reloc import RelocConfig
 from deepslam.slam.synthetic import synthetic_trajectory, write_loop_sequence
@@ -97,6 +97,43 @@ def test_t_loop_filters_loops_and_prepared_stages_are_reused(loop_seq):
     verified = prep.detector.timings["verifications"]
     solve(prep, SlamParams(t_loop=20, c_s=3.0))  # cached: no new verification
     assert prep.detector.timings["verifications"] == verified
+
+
+class _BrokenEvery3rd:
+    """A loop odometry whose input breaks on every third pair (by frame i): those pairs read 5 m off."""
+
+    name = "broken-every-3rd"
+
+    def __init__(self):
+        self.inner = GroundTruthOdometry(NoiseConfig(seed=2))
+
+    def predict(self, seq, pairs):
+        return self.predict_verified(seq, pairs)[:2]
+
+    def predict_verified(self, seq, pairs):
+        mean6, std6 = self.inner.predict(seq, pairs)
+        rigid = np.array([i % 3 != 0 for i, _ in pairs], bool)
+        mean6[~rigid, 5] += 5.0
+        return mean6, std6, rigid
+
+
+@pytest.mark.parametrize("loop_check", [True, False])
+def test_loop_pairs_whose_flow_breaks_are_left_out(loop_seq, loop_check):
+    assert isinstance(_BrokenEvery3rd(), VerifiedOdometry)
+    assert not isinstance(GroundTruthOdometry(), VerifiedOdometry)
+    cons = GroundTruthOdometry(NoiseConfig(bias6=(0, 0.004, 0, 0, 0, 0), seed=1))
+    config = PipelineConfig(reloc=RELOC, loop_check=loop_check)
+    res = run_slam(loop_seq, cons, _BrokenEvery3rd(), SlamParams(t_loop=20), config, show_progress=False)
+    plain = run_slam(loop_seq, cons, GroundTruthOdometry(NoiseConfig(seed=2)), SlamParams(t_loop=20), config,
+                     show_progress=False)
+    every = {tuple(p) for p in plain.loops.pairs.tolist()}
+    broken = {p for p in every if p[0] % 3 == 0}
+    assert broken and len(plain.loops_not_rigid) == 0
+    if loop_check:
+        assert {tuple(p) for p in res.loops.pairs.tolist()} == every - broken
+        assert {tuple(p) for p in res.loops_not_rigid.tolist()} == broken
+    else:
+        assert {tuple(p) for p in res.loops.pairs.tolist()} == every and len(res.loops_not_rigid) == 0
 
 
 def test_pipeline_without_loops_is_dead_reckoning(loop_seq):

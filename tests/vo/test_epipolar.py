@@ -89,6 +89,22 @@ def test_no_parallax_leaves_the_pair_to_the_network(motion, reason):
     assert not used and np.array_equal(fused, net)
 
 
+def _broken_flow() -> np.ndarray:
+    """A flow no rigid motion explains: every vector drawn independently (DIS lost the motion)."""
+    return np.random.default_rng(3).normal(0.0, 20.0, (KITTI_LIKE.height, KITTI_LIKE.width, 2)).astype(np.float32)
+
+
+@pytest.mark.parametrize("flow, ok, rigid", [
+    (lambda: exact_flow(car_motion(0.03, 1.0)), True, True),         # driving: fitted and used
+    (lambda: exact_flow(np.eye(4)), False, True),                    # standing still: rigid, no direction to read
+    (lambda: np.full((KITTI_LIKE.height, KITTI_LIKE.width, 2), np.nan, np.float32), False, False),  # no vectors
+    (_broken_flow, False, False),                                    # vectors that fit no motion
+])
+def test_rigid_tells_a_flow_without_parallax_from_a_broken_one(flow, ok, rigid):
+    fit = epipolar.fit_essential(flow(), KITTI_LIKE)
+    assert (fit.ok, fit.rigid) == (ok, rigid)
+
+
 def test_unknown_flow_leaves_the_pair_to_the_network():
     flow = np.full((KITTI_LIKE.height, KITTI_LIKE.width, 2), np.nan, np.float32)
     fit = epipolar.fit_essential(flow, KITTI_LIKE)
@@ -204,7 +220,7 @@ def test_vo_pose_epipolar_refuses_a_plugin(street_sequence, tmp_path, capsys):
     assert not (tmp_path / "t.txt").exists()
 
 
-def test_slam_pose_epipolar_chains_the_same_motions_as_vo(street_sequence, street_model, tmp_path):
+def test_slam_pose_epipolar_chains_the_same_motions_as_vo(street_sequence, street_model, tmp_path, capsys):
     from deepslam.cli import main
     from deepslam.core import trajio
     from tests.vo.test_vo_cli import _vo
@@ -212,8 +228,10 @@ def test_slam_pose_epipolar_chains_the_same_motions_as_vo(street_sequence, stree
     root, _ = street_sequence
     assert _vo("--sequence", root, "--model", street_model, "--out", tmp_path / "vo.txt", "--flow", "gt",
                "--pose", "epipolar", "--quiet") == 0
+    capsys.readouterr()
     assert main(["slam", "--sequence", str(root), "--model-cons", str(street_model), "--flow", "gt", "--pose",
                  "epipolar", "--no-loops", "--out", str(tmp_path / "slam.txt"), "--json"]) == 0
+    assert "pair/s" not in capsys.readouterr().err  # --json (and --quiet): no progress bar, the odometry's included
     vo = trajio.read_trajectory(tmp_path / "vo.txt", "tum")
     slam_vo = trajio.read_trajectory(tmp_path / "slam_vo.txt", "tum")  # our format: TUM rows by default
     np.testing.assert_allclose(slam_vo.positions, vo.positions, atol=1e-6)
@@ -298,7 +316,8 @@ def torch_equal(a, b) -> bool:
 
 
 def test_slam_takes_the_recorded_mode_for_consecutive_pairs_only(street_sequence, street_model, tmp_path):
-    """A marked file as NN_cons: epipolar; the same file as NN_loops: the network's 6DoF (loop pairs)."""
+    """A marked file as NN_cons: epipolar with the recorded distance; as NN_loops: epipolar with the network's
+    distance whatever the file records (a loop pair is no step along a road), and without a mark too."""
     from types import SimpleNamespace
 
     from deepslam.core.readers import open_sequence
@@ -308,12 +327,15 @@ def test_slam_takes_the_recorded_mode_for_consecutive_pairs_only(street_sequence
     root, _ = street_sequence
     marked = tmp_path / "marked.safetensors"
     models.write_with_pose(street_model, marked, "epipolar")
-    args = SimpleNamespace(odometry="model", odometry_command=None, model_cons=str(marked), model_loops=str(marked),
-                           flow="gt", no_loops=False, sequence=str(root), device="cpu", pose=None)
+    models.write_with_pose(street_model, tmp_path / "road.safetensors", "epipolar", "road")
+    args = SimpleNamespace(odometry="model", odometry_command=None, model_cons=str(marked),
+                           model_loops=str(tmp_path / "road.safetensors"), flow="gt", no_loops=False,
+                           sequence=str(root), device="cpu", pose=None)
     cons, loops = odometry_from_args(args, open_sequence(root))
-    assert cons.epipolar is not None and loops.epipolar is None
-    cons, _ = odometry_from_args(SimpleNamespace(**{**vars(args), "pose": "net"}), open_sequence(root))
-    assert cons.epipolar is None
+    assert cons.epipolar is not None and loops.epipolar is not None and loops.epipolar.road_height_m is None
+    cons, loops = odometry_from_args(SimpleNamespace(**{**vars(args), "pose": "net", "model_loops": str(street_model)}),
+                                     open_sequence(root))
+    assert cons.epipolar is None and loops.epipolar is not None and loops.epipolar.road_height_m is None
     with pytest.raises(ValueError, match="pose must be"):
         models.epipolar_config(marked, "epi")
 
