@@ -78,7 +78,7 @@ def run(cfg: ResultsTumConfig, out: Path, data: Path) -> dict:
     add("pnp (SIFT + PnP with sensor depth)", "-", chain_euler6(pnp.predict(seq, pairs)[0]), "VO")
     sub = seq if n == len(seq) else _head(seq, n)
     loops_path = models.models_dir() / "tum_loops.safetensors"
-    loops = models.odometry(loops_path, cfg.flow, pose="net")
+    loops = models.odometry(loops_path, cfg.flow, pose="epipolar", scale="network")  # as deepslam slam runs NN_loops
     shipped = {}
     for name, seen in (("tum_cons", "none"), ("tum_cons_teddy", "single frames, no poses")):
         path = models.models_dir() / f"{name}.safetensors"
