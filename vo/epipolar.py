@@ -23,6 +23,7 @@ This module does not import torch.
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import cv2
@@ -311,7 +312,8 @@ def sequence_road_distances(fits, cfg: EpipolarConfig = EpipolarConfig(), mean6:
             direction for the image alignment where the fit is not; None: every fit that is ``ok`` counts.
         camera: :class:`core.camera.PinholeCamera` of the images; pair_greys: ``f(p) -> (grey0, grey1)``
             (H, W) uint8 images of pair p at its size, or their :class:`vo.road_scale.RoadImage`: with
-            ``cfg.road_fill`` the pairs the flow cannot read are read from them (either None: not).
+            ``cfg.road_fill`` the pairs the flow cannot read are read from them (either None: not). Called
+            from two threads at once (each walking its half of the pairs in order): it must be thread-safe.
         chained: the pairs follow each other (pair p ends where pair p + 1 starts), as ``vo`` and ``slam``
             make them; only then are distances checked against their neighbours and gaps filled.
 
@@ -333,13 +335,22 @@ def sequence_road_distances(fits, cfg: EpipolarConfig = EpipolarConfig(), mean6:
     if not cfg.road_fill or not np.isfinite(pitch):
         return RoadDistances(dist, pitch, tuple(source))
     if pair_greys is not None and camera is not None:
+        tasks = []
         for p in np.flatnonzero(~np.isfinite(dist)):
             axes = (_rotation_direction(mean6[p] if mean6 is not None else np.zeros(6), fits[p], usable[p],
                                         min_length_m=1e-6))
-            if axes is None:
-                continue
-            g0, g1 = pair_greys(int(p))
-            q = image_road_q(g0, g1, camera, *axes, pitch)
+            if axes is not None:
+                tasks.append((int(p), axes))
+
+        def read(part: list) -> list[float]:  # each pair on its own: the order of the parts changes nothing
+            return [image_road_q(*pair_greys(p), camera, *axes, pitch) for p, axes in part]
+
+        # two halves in two threads (OpenCV and numpy's large operations release the GIL); each half in the
+        # order of the pairs, so consecutive pairs still share a prepared frame
+        halves = [tasks[:len(tasks) // 2], tasks[len(tasks) // 2:]] if len(tasks) >= 4 else [tasks]
+        with ThreadPoolExecutor(len(halves)) as pool:
+            qs = [q for part in pool.map(read, halves) for q in part]
+        for (p, _), q in zip(tasks, qs):
             if np.isfinite(q):
                 dist[p], source[p] = cfg.road_height_m * q, "images"
     if not chained:

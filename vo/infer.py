@@ -168,8 +168,9 @@ class VOPredictor:
         mean6, std6 = np.concatenate(means), np.concatenate(stds)
         if fit is not None:
             side = inputs.side
-            # consecutive pairs share a frame: each is decoded and prepared once
-            frame = functools.lru_cache(maxsize=2)(lambda i: road_image(to_grey(seq.image(i)), seq.camera))
+            # consecutive pairs share a frame: each is decoded and prepared once (two threads read the two
+            # halves of the pairs, each holding its last two frames)
+            frame = functools.lru_cache(maxsize=4)(lambda i: road_image(to_grey(seq.image(i)), seq.camera))
             mean6, used = fuse_all(mean6, side, epipolar, seq.camera,
                                    lambda p: (frame(int(pairs[p, 0])), frame(int(pairs[p, 1]))),
                                    road_out, chained=bool(np.array_equal(pairs[1:, 0], pairs[:-1, 1])))
