@@ -116,7 +116,8 @@ def test_a_cached_render_of_other_settings_is_not_reused(tmp_path):
         w.write_frame(i, i / 10.0, np.eye(4), np.zeros((30, 40, 3), np.uint8))
     w.finish()
     log: list[str] = []
-    assert render_once("street", "car", 3, 40, 1, root, log) == root and log == []   # reused, nothing run
+    assert render_once("street", "car", 3, 40, 1, root, log) == root   # reused: nothing run, its command logged
+    assert log == [f"deepslam render --scene street --trajectory car --frames 3 --width 40 --seed 1 --out {root}"]
     with pytest.raises(InputError, match="3 frames at 40 px, not 6 at 40"):
         render_once("street", "car", 6, 40, 1, root, log)
 

@@ -74,8 +74,13 @@ class DemoConfig:
     """Training seed."""
 
 
+def command_line(args: list[str]) -> str:
+    """The shell line of ``deepslam`` with ``args``."""
+    return "deepslam " + " ".join(shlex.quote(a) for a in args)
+
+
 def run_command(args: list[str], log: list[str]) -> None:
-    cmd = "deepslam " + " ".join(shlex.quote(a) for a in args)
+    cmd = command_line(args)
     print(f"\n$ {cmd}", flush=True)
     log.append(cmd)
     t0 = time.perf_counter()
@@ -87,18 +92,21 @@ def run_command(args: list[str], log: list[str]) -> None:
 
 def render_once(scene: str, trajectory: str, frames: int, width: int, seed: int, out: Path, log: list[str],
                 extra: tuple[str, ...] = ()) -> Path:
-    """``deepslam render`` into ``out`` unless it is already complete (an interrupted one is resumed).
+    """``deepslam render`` into ``out`` unless it is already complete (an interrupted one is resumed); the
+    command that makes it goes to ``log`` either way (a report lists how to remake its data).
 
     A complete render made with another frame count or width is an error (InputError naming the
     folder), never silently reused."""
+    args = ["render", "--scene", scene, "--trajectory", trajectory, "--frames", str(frames), "--width", str(width),
+            "--seed", str(seed), *extra, "--out", str(out)]
     if (out / "poses.txt").is_file():
         seq = open_sequence(out)
         if (len(seq), seq.camera.width) != (frames, width):
             raise InputError(out, f"holds a render of {len(seq)} frames at {seq.camera.width} px, not {frames} at "
                                   f"{width}: delete it or choose another output folder")
+        log.append(command_line(args))
     else:
-        run_command(["render", "--scene", scene, "--trajectory", trajectory, "--frames", str(frames), "--width", str(width),
-                     "--seed", str(seed), *extra, "--out", str(out)] + (["--resume"] if out.exists() else []), log)
+        run_command(args + (["--resume"] if out.exists() else []), log)
     return out
 
 
