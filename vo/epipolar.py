@@ -124,7 +124,7 @@ class EpipolarFit:
 
     @property
     def rigid(self) -> bool:
-        """Whether the flow fits one rigid motion: the fit is usable, or failed only for want of parallax (its
+        """Whether the flow fits one rigid motion: the fit is ok, or failed only for want of parallax (its
         inliers passed, and the parallax was measured). False where too few vectors were sampled, too few are
         inliers, or OpenCV found no essential matrix: the flow broke (DIS lost a large turn or distance between
         the frames) and anything read from it, the network's motion included, is suspect."""
