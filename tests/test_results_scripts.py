@@ -75,6 +75,13 @@ def test_slam_table_marks_the_half_target():
     lines = [ln for ln in md.splitlines() if ln.startswith("| street") or ln.startswith("| room")]
     assert "| 0.25 | yes |" in lines[0] and "| 0.80 | no |" in lines[1]
     assert "3, 1, 50" in lines[0] and "7 of 8" in lines[0]
+    assert "Unseen streets" not in md
+    unseen = {"vo": {"ate_m": 2.0}, "slam": {"ate_m": 1.7}, "ratio": 0.85, "vo_path_ratio": 0.99, "loop_edges": 40,
+              "loop_edges_kept": 39, "loops_not_rigid": 6, "loop_errors": {"t_rmse_m": 0.3, "r_rmse_deg": 0.25}}
+    md = results_slam.markdown({"config": dataclasses.asdict(results_slam.ResultsSlamConfig()), "minutes": 1.0,
+                                "commands": [], "cases": {"street/gt": case}, "unseen": {"7421": unseen}})
+    row = [ln for ln in md.splitlines() if ln.startswith("| 7421")]
+    assert row == ["| 7421 | 2 | 1.7 | 0.85 | no | 0.99 | 40 (39) | 6 | 0.3 / 0.25 |"]
 
 
 def test_true_loop_edges_remove_the_drift_they_span():
