@@ -18,23 +18,12 @@ os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 
 from deepslam.cli import main as deepslam_main  # noqa: E402
 from deepslam.core import se3  # noqa: E402
+from deepslam.core.colorize import flow_to_rgb  # noqa: E402
 from deepslam.core.plots import new_figure, save_figure  # noqa: E402
 from deepslam.core.readers import open_sequence  # noqa: E402
 from deepslam.gen.flow import synthesize  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-def flow_colour(flow: np.ndarray, max_px: float) -> np.ndarray:
-    """Middlebury-style colour of a flow (H, W, 2) px: hue = direction, saturation = magnitude / max_px."""
-    ok = np.isfinite(flow).all(-1)
-    f = np.where(ok[..., None], flow, 0.0)
-    mag, ang = cv2.cartToPolar(f[..., 0].astype(np.float32), f[..., 1].astype(np.float32), angleInDegrees=True)
-    hsv = np.zeros((*flow.shape[:2], 3), np.uint8)
-    hsv[..., 0] = (ang / 2).astype(np.uint8)
-    hsv[..., 1] = np.clip(mag / max_px * 255, 0, 255).astype(np.uint8)
-    hsv[..., 2] = np.where(ok, 255, 0).astype(np.uint8)
-    return cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)
 
 
 def main() -> int:
@@ -56,9 +45,9 @@ def main() -> int:
     mask = seq.mask(k)
     panels = [("rendered RGB", seq.image(k)),
               ("exact depth", cv2.applyColorMap(np.clip(255 - depth * 6, 0, 255).astype(np.uint8), cv2.COLORMAP_MAGMA)[..., ::-1]),
-              ("exact flow to the next frame", flow_colour(flow, top)),
+              ("exact flow to the next frame", flow_to_rgb(flow, top)),
               ("movers (instance masks)", np.where(mask[..., None] > 0, np.array([230, 80, 40], np.uint8), seq.image(k) // 3)),
-              ("flow synthesized from this frame's depth\nand a sampled motion (training data)", flow_colour(synth, top * 2))]
+              ("flow synthesized from this frame's depth\nand a sampled motion (training data)", flow_to_rgb(synth, top * 2))]
     fig = new_figure((12.0, 4.6), dpi=100)
     grid = fig.add_gridspec(2, 3)
     spots = [grid[0, 0], grid[0, 1], grid[0, 2], grid[1, 0], grid[1, 1]]

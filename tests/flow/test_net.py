@@ -10,6 +10,7 @@ from deepslam.core.errors import InputError
 from deepslam.flow.estimators import endpoint_error
 from deepslam.flow.net import FlowNet, FlowNetConfig, LearnedFlow, correlation, load_flow_model, warp
 from deepslam.flow.train import FlowTrainConfig, multiscale_loss, train_flow
+from tests.textures import shifted_texture_batch
 
 SMALL = FlowNetConfig(channels=(8, 12, 16), estimator_channels=(16,), finest_level=1, work_width=128, search_px=2)
 
@@ -63,17 +64,7 @@ class _Shifted:
         return 1
 
     def batch(self, rng, n, crop):
-        h, w = crop
-        i0, i1, fl = [], [], []
-        for _ in range(n):
-            base = rng.random((h // 4 + 4, w // 4 + 4)).astype(np.float32)
-            big = np.kron(base, np.ones((4, 4), np.float32))
-            du, dv = int(rng.integers(-3, 4)), int(rng.integers(-3, 4))
-            i0.append(big[8:8 + h, 8:8 + w])
-            i1.append(big[8 + dv:8 + dv + h, 8 + du:8 + du + w])  # img1(x - d) = img0(x): flow is -d
-            fl.append(np.stack([np.full((h, w), -du, np.float32), np.full((h, w), -dv, np.float32)]))
-        return {"img0": torch.from_numpy(np.stack(i0)[:, None]), "img1": torch.from_numpy(np.stack(i1)[:, None]),
-                "flow": torch.from_numpy(np.stack(fl))}
+        return shifted_texture_batch(rng, n, crop, 3)
 
 
 def test_training_learns_a_translation_and_the_model_file_loads(tmp_path):

@@ -22,6 +22,7 @@ from deepslam.vo.net import NetConfig
 from deepslam.vo.samples import TensorSamples
 from deepslam.vo.toy import toy_plane_samples
 from deepslam.vo.train import CHECKPOINT, TrainConfig, train
+from tests.textures import shifted_texture_batch
 
 SMALL = FlowNetConfig(channels=(8, 12, 16), estimator_channels=(16,), finest_level=1, work_width=128, search_px=2)
 FLOW_CFG = FlowTrainConfig(net=SMALL, crop=(32, 64), batch_size=2, max_steps=10, level_weights=(1.0, 0.5, 0.25),
@@ -41,16 +42,7 @@ class _Pairs:
         return 1
 
     def batch(self, rng, n, crop):
-        h, w = crop
-        i0, i1, fl = [], [], []
-        for _ in range(n):
-            big = np.kron(rng.random((h // 4 + 4, w // 4 + 4)).astype(np.float32), np.ones((4, 4), np.float32))
-            du, dv = int(rng.integers(-2, 3)), int(rng.integers(-2, 3))
-            i0.append(big[8:8 + h, 8:8 + w])
-            i1.append(big[8 + dv:8 + dv + h, 8 + du:8 + du + w])
-            fl.append(np.stack([np.full((h, w), -du, np.float32), np.full((h, w), -dv, np.float32)]))
-        b = {"img0": torch.from_numpy(np.stack(i0)[:, None]), "img1": torch.from_numpy(np.stack(i1)[:, None]),
-             "flow": torch.from_numpy(np.stack(fl))}
+        b = shifted_texture_batch(rng, n, crop, 2)
         k, self.calls = self.calls, self.calls + 1
         if self.fail_at is not None and k >= self.fail_at:
             if self.fail == "kill":
