@@ -28,7 +28,8 @@ sequence's path), ``world/estimate`` (the trajectory aligned onto the ground tru
 --align`` does, after anchoring its first pose on the ground truth's, as ``vo`` scores it),
 ``world/odometry`` (slam only: its odometry-only trajectory, aligned the same way), ``world/loops/kept`` and
 ``world/loops/rejected`` (slam only: the loop edges of the pose graph between the estimated positions,
-split by whether the graph's pruning kept them) and ``metrics`` (a text panel: ATE, RPE); per frame,
+split by whether the graph's pruning kept them), ``world/loops/not_rigid`` (slam only: the loop pairs left
+out because their flow fits no rigid motion) and ``metrics`` (a text panel: ATE, RPE); per frame,
 ``world/camera`` at the aligned estimate with the image at ``world/camera/image/rgb``.
 """
 from __future__ import annotations
@@ -61,7 +62,7 @@ APPLICATION_ID = "deepslam"
 """rerun's application id of every recording."""
 
 _COLOURS = {"ground_truth": (200, 200, 200), "estimate": (255, 140, 0), "odometry": (80, 160, 255),
-            "kept": (60, 220, 60), "rejected": (230, 50, 50)}
+            "kept": (60, 220, 60), "rejected": (230, 50, 50), "not_rigid": (160, 90, 230)}
 """RGB of the static paths and loop edges of a run."""
 
 
@@ -420,24 +421,29 @@ def log_run(rec, run: Run, config: ViewConfig = ViewConfig(), show_progress: boo
 
 
 def _log_loops(rr, rec, run: Run, placed: np.ndarray, frames: np.ndarray | None, notes: list[str]) -> None:
-    """slam's loop edges (record ``loops``: [i, j] frame pairs; ``loops_kept_by_pose_graph``: bools) as segments
-    between the placed estimate's positions."""
+    """slam's loop edges (record ``loops``: [i, j] frame pairs; ``loops_kept_by_pose_graph``: bools) and the loop
+    pairs it left out (``loops_not_rigid``) as segments between the placed estimate's positions."""
     loops = run.record.get("loops") or []
-    if not loops:
+    not_rigid = run.record.get("loops_not_rigid") or []
+    if not loops and not not_rigid:
         return
     if frames is None:
         notes.append("the record's frames do not match the trajectory's poses: loop edges not drawn")
         return
     index_of = {int(f): k for k, f in enumerate(frames)}
     kept = run.record.get("loops_kept_by_pose_graph")
-    groups: dict[str, list[np.ndarray]] = {"kept": [], "rejected": []}
-    for n, pair in enumerate(loops):
-        try:
-            a, b = index_of[int(pair[0])], index_of[int(pair[1])]
-        except (KeyError, TypeError, ValueError, IndexError):
-            raise InputError(run.record_path, f"loop edge {n} ({pair!r}) names no frame of the trajectory") from None
-        ok = True if not isinstance(kept, list) or n >= len(kept) else bool(kept[n])
-        groups["kept" if ok else "rejected"].append(placed[[a, b], :3, 3])
+    groups: dict[str, list[np.ndarray]] = {"kept": [], "rejected": [], "not_rigid": []}
+    for field, pairs in (("loops", loops), ("loops_not_rigid", not_rigid)):
+        for n, pair in enumerate(pairs):
+            try:
+                a, b = index_of[int(pair[0])], index_of[int(pair[1])]
+            except (KeyError, TypeError, ValueError, IndexError):
+                raise InputError(run.record_path, f"{field}[{n}] ({pair!r}) names no frame of the trajectory") from None
+            if field == "loops_not_rigid":
+                group = "not_rigid"
+            else:
+                group = "kept" if not isinstance(kept, list) or n >= len(kept) or kept[n] else "rejected"
+            groups[group].append(placed[[a, b], :3, 3])
     for name, segments in groups.items():
         if segments:
             rec.log(f"world/loops/{name}", rr.LineStrips3D(segments, colors=[_COLOURS[name]] * len(segments)),

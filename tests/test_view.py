@@ -131,6 +131,29 @@ def test_view_a_slam_run_draws_its_loop_edges(slam_run, tmp_path):
     assert scores["ate_m"] == pytest.approx(record["metrics_slam"]["ate_m"])
 
 
+def test_view_draws_the_loop_pairs_slam_left_out(slam_run, tmp_path, capsys):
+    """loops_not_rigid (pairs whose flow fits no rigid motion) drawn apart from the graph's edges; a pair naming
+    no frame is one line naming the field, exit 2."""
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(slam_run.parent, run)
+    record = json.loads((run / "slam.json").read_text())
+    (run / "slam.json").write_text(json.dumps({**record, "loops_not_rigid": [[0, 35], [3, 40]]}))
+    rrd = tmp_path / "slam.rrd"
+    assert main(["view", str(run / "slam.txt"), "--save", str(rrd)]) == 0
+    chunks = _chunks(rrd)
+    left_out = next(c for c in chunks if c.entity_path == "/world/loops/not_rigid")
+    assert len(left_out.to_record_batch().column("LineStrips3D:strips")[0]) == 2
+    kept = next(c for c in chunks if c.entity_path == "/world/loops/kept")
+    assert len(kept.to_record_batch().column("LineStrips3D:strips")[0]) == sum(record["loops_kept_by_pose_graph"])
+    (run / "slam.json").write_text(json.dumps({**record, "loops_not_rigid": [[0, 999]]}))
+    capsys.readouterr()
+    err = _bad(["view", str(run / "slam.txt"), "--save", str(tmp_path / "bad.rrd")], capsys)
+    assert "slam.json" in err and "loops_not_rigid[0]" in err
+    assert not (tmp_path / "bad.rrd").exists()
+
+
 def _bad(argv, capsys):
     rc = main(argv)
     err = capsys.readouterr().err.strip()
