@@ -346,10 +346,12 @@ def sequence_road_distances(fits, cfg: EpipolarConfig = EpipolarConfig(), mean6:
             return [image_road_q(*pair_greys(p), camera, *axes, pitch) for p, axes in part]
 
         # two halves in two threads (OpenCV and numpy's large operations release the GIL); each half in the
-        # order of the pairs, so consecutive pairs still share a prepared frame
-        halves = [tasks[:len(tasks) // 2], tasks[len(tasks) // 2:]] if len(tasks) >= 4 else [tasks]
-        with ThreadPoolExecutor(len(halves)) as pool:
-            qs = [q for part in pool.map(read, halves) for q in part]
+        # order of the pairs, so consecutive pairs still share a prepared frame. A few pairs: no thread.
+        if len(tasks) < 4:
+            qs = read(tasks)
+        else:
+            with ThreadPoolExecutor(2) as pool:
+                qs = [q for part in pool.map(read, (tasks[:len(tasks) // 2], tasks[len(tasks) // 2:])) for q in part]
         for (p, _), q in zip(tasks, qs):
             if np.isfinite(q):
                 dist[p], source[p] = cfg.road_height_m * q, "images"
