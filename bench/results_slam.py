@@ -288,7 +288,8 @@ def markdown(report: dict) -> str:
                       f"{_f(r.get('vo_ate_elsewhere_m'))} / {_f(r.get('slam_ate_elsewhere_m'))} |")
         md += ["", "The ATE is split (one alignment of the whole trajectory) between the frames inside a cycle that a "
                "loop edge closes and the rest, where only the odometry places a frame (the avenue after the route's "
-               "loop): loop closure can only lower the first."]
+               "loop): loop edges constrain the first; the rest follows the odometry from where the last closed cycle "
+               "ends."]
     md += ["", "![street, exact flow](street_gt.png) ![street, DIS flow](street_dis.png)", "",
            "![room, exact flow](room_gt.png) ![room, DIS flow](room_dis.png)", "",
            f"Run time: {report['minutes']:.1f} min.", "", "## Commands", "", "```"] + report["commands"] + ["```"]
