@@ -188,15 +188,6 @@ def evaluate_case(val_seqs: list, test_seq, flow: str, plot: Path) -> dict:
     return rec
 
 
-def loop_coverage(n: int, pairs: np.ndarray) -> np.ndarray:
-    """(n,) bool: the frames inside a cycle that a loop edge closes (frames ``i..j`` of each loop pair
-    ``(i, j)``); elsewhere (say the road after the last revisit) only the odometry places a frame."""
-    covered = np.zeros(n, bool)
-    for i, j in np.asarray(pairs, np.int64).reshape(-1, 2):
-        covered[min(i, j):max(i, j) + 1] = True
-    return covered
-
-
 def ate_split(seq, world_from_cam: np.ndarray, covered: np.ndarray) -> tuple[float, float]:
     """The se3-aligned ATE of ``world_from_cam`` ((n, 4, 4), frames of ``seq``) over the frames ``covered``
     and over the others (metres; NaN for an empty part): the whole-trajectory ATE's parts (one alignment, so
@@ -220,7 +211,7 @@ def evaluate_unseen(seq) -> dict:
     scored against the ground truth."""
     from bench.results_vo import pair_errors
     from deepslam.slam.pipeline import PipelineConfig, SlamParams, prepare, solve
-    from deepslam.slam.posegraph import chain
+    from deepslam.slam.posegraph import chain, loop_coverage
 
     t0 = time.perf_counter()
     prep = prepare(seq, *_odometry(seq, "dis"), PipelineConfig(), show_progress=False)

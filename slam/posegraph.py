@@ -276,6 +276,21 @@ def chain(n_poses: int, cons: Edges, world_from_cam0: np.ndarray | None = None) 
     return out
 
 
+def loop_coverage(n_poses: int, loop_pairs: np.ndarray) -> np.ndarray:
+    """(n_poses,) bool: the poses inside a cycle that a loop edge closes (poses ``i..j`` of each loop pair
+    ``(i, j)``, either order). Elsewhere (say the road after the last revisit) only the odometry places a pose:
+    loop closure constrains the first, and the rest follows from where the last closed cycle ends.
+
+    Args:
+        n_poses: poses of the graph.
+        loop_pairs: (L, 2) int pose indices of the loop edges (any shape with pairs in its last axis).
+    """
+    covered = np.zeros(int(n_poses), bool)
+    for i, j in np.asarray(loop_pairs, np.int64).reshape(-1, 2):
+        covered[min(i, j):max(i, j) + 1] = True
+    return covered
+
+
 def _check_consecutive(n_poses: int, cons: Edges) -> None:
     expect = np.stack([np.arange(n_poses - 1), np.arange(1, n_poses)], axis=1)
     if cons.pairs.shape != expect.shape or not np.array_equal(cons.pairs, expect):

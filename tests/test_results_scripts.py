@@ -90,15 +90,6 @@ def test_slam_table_marks_the_half_target():
     assert row[0].endswith("| 62 % | 1.5 / 0.5 | 2.5 / 2.4 |")
 
 
-@pytest.mark.parametrize("pairs,expected", [
-    ([], [0] * 8),
-    ([(1, 4)], [0, 1, 1, 1, 1, 0, 0, 0]),
-    ([(5, 2), (6, 7)], [0, 0, 1, 1, 1, 1, 1, 1]),     # either order; cycles joined
-])
-def test_loop_coverage_marks_the_frames_a_loop_edge_closes(pairs, expected):
-    assert results_slam.loop_coverage(8, np.array(pairs)).tolist() == [bool(x) for x in expected]
-
-
 def test_the_ate_split_adds_up_to_the_whole_trajectorys_ate():
     from deepslam.core import metrics
 

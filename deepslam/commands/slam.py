@@ -133,7 +133,7 @@ def _run(args: argparse.Namespace) -> int:
     from deepslam.core.trajio import default_format, write_trajectory
     from deepslam.slam import plugins
     from deepslam.slam.pipeline import PipelineConfig, SlamParams, run_slam
-    from deepslam.slam.posegraph import PoseGraphConfig
+    from deepslam.slam.posegraph import PoseGraphConfig, loop_coverage
     from deepslam.slam.reloc import Vocabulary
 
     if args.keyframe_stride < 1:
@@ -164,6 +164,7 @@ def _run(args: argparse.Namespace) -> int:
         "config": {**config.to_dict(), "reloc": dataclasses.asdict(res.reloc) if res.reloc else None},
         "loops": res.loops.pairs.tolist(), "n_loops": len(res.loops),
         "loops_not_rigid": res.loops_not_rigid.tolist(),
+        "frames_in_closed_cycles": int(loop_coverage(len(seq), res.loops.pairs).sum()),
         "loops_kept_by_pose_graph": None if res.loop_inliers is None else res.loop_inliers.tolist(),
         "flow_cons": getattr(getattr(odo_cons, "flow_estimator", None), "name", None),
         "flow_loops": getattr(getattr(odo_loops, "flow_estimator", None), "name", None),
@@ -230,6 +231,8 @@ def format_report(r: dict) -> str:
              f"loops         {r['n_loops']} edges, {sum(r['loops_kept_by_pose_graph'] or [])} kept by the pose graph "
              f"({r['n_verified_ok']} of {r['n_candidates']} candidates passed verification; "
              f"{len(r['loops_not_rigid'])} left out, their flow fitting no rigid motion)",
+             f"closed cycles {r['frames_in_closed_cycles']} of {r['frames']} frames lie inside a cycle a loop edge closes "
+             "(the rest only the odometry places)",
              f"speed         {t['fps']:.2f} frames/s ({t['total_s']:.2f} s; optimisation {t['optimize_s']:.3f} s)",
              f"wrote         {r['trajectory']}, {r['trajectory_vo']}"]
     if "metrics_slam" in r:

@@ -35,6 +35,10 @@ def test_slam_cli_writes_trajectories_record_and_plot(seq_dir, tmp_path, capsys)
     assert len(slam) == len(vo) == 60
     rec = json.loads((tmp_path / "run" / "traj.json").read_text())
     assert rec["n_loops"] > 10
+    # the frames inside a cycle a loop edge closes: at least the longest loop's span, at most all the loops' span
+    first, last = min(min(p) for p in rec["loops"]), max(max(p) for p in rec["loops"])
+    longest = max(abs(j - i) + 1 for i, j in rec["loops"])
+    assert longest <= rec["frames_in_closed_cycles"] <= last - first + 1 and "closed cycles" in text
     assert rec["metrics_slam"]["ate_m"] < 0.5 * rec["metrics_vo"]["ate_m"]
     assert (tmp_path / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # the saved vocabulary and a params file are read back; TUM output carries timestamps

@@ -10,7 +10,8 @@ from deepslam.core.metrics import ate
 from deepslam.core.trajectory import Trajectory
 from deepslam.slam.odometry import GroundTruthOdometry, NoiseConfig
 from deepslam.slam.posegraph import (Edges, PoseGraphConfig, chain, euler6_covariance, euler6_jacobian, euler_rate_matrix,
-                            loop_residuals, measurement_covariance, measurement_jacobian, optimize)
+                            loop_coverage, loop_residuals, measurement_covariance, measurement_jacobian,
+                            optimize)
 from deepslam.slam.synthetic import circle_trajectory, loop_graph
 
 P0 = np.array([0.3, -0.4, 0.8, 1.0, -2.0, 0.5])
@@ -153,3 +154,12 @@ def test_c_s_weighs_the_odometry_against_the_loops():
     a = optimize(300, g["cons"], g["loops"], plain, w0).world_from_cam
     b = optimize(300, g["cons"], g["loops"], PoseGraphConfig(robust="none", c_s=7.0, loop_cov_scale=7.0), w0).world_from_cam
     np.testing.assert_allclose(a, b, atol=1e-6)
+
+
+@pytest.mark.parametrize("pairs,expected", [
+    ([], [0] * 8),
+    ([(1, 4)], [0, 1, 1, 1, 1, 0, 0, 0]),
+    ([(5, 2), (6, 7)], [0, 0, 1, 1, 1, 1, 1, 1]),     # either order; cycles joined
+])
+def test_loop_coverage_marks_the_poses_a_loop_edge_closes(pairs, expected):
+    assert loop_coverage(8, np.array(pairs)).tolist() == [bool(x) for x in expected]
