@@ -188,20 +188,20 @@ def evaluate_case(val_seqs: list, test_seq, flow: str, plot: Path) -> dict:
     return rec
 
 
-def ate_split(seq, world_from_cam: np.ndarray, covered: np.ndarray) -> tuple[float, float]:
-    """The se3-aligned ATE of ``world_from_cam`` ((n, 4, 4), frames of ``seq``) over the frames ``covered``
-    and over the others (metres; NaN for an empty part): the whole-trajectory ATE's parts (one alignment, so
-    ``n_in in^2 + n_out out^2 = n ate^2``)."""
+def ate_split(seq, world_from_cam: np.ndarray, covered: np.ndarray) -> tuple[float | None, float | None]:
+    """The se3-aligned ATE of ``world_from_cam`` ((n, 4, 4) float, frames of ``seq``, which has ground truth for
+    every frame) over the frames where ``covered`` ((n,) bool) is true and over the others (metres; None for an
+    empty part): the whole-trajectory ATE's parts (one alignment, so ``n_in in^2 + n_out out^2 = n ate^2``)."""
     from deepslam.core import metrics
     from deepslam.core.trajectory import Trajectory
 
     ev = metrics.evaluate(seq.gt, Trajectory(world_from_cam, seq.timestamps_s))
     err = np.linalg.norm(ev["_gt_poses"][:, :3, 3] - ev["_est_aligned_poses"][:, :3, 3], axis=1)
     if len(err) != len(covered):
-        raise ValueError(f"{len(err)} matched poses for {len(covered)} frames")
+        raise ValueError(f"the ground truth matches {len(err)} of the {len(covered)} frames: the split needs every frame")
 
-    def rms(e: np.ndarray) -> float:
-        return float(np.sqrt(np.mean(e ** 2))) if len(e) else float("nan")
+    def rms(e: np.ndarray) -> float | None:
+        return float(np.sqrt(np.mean(e ** 2))) if len(e) else None
 
     return rms(err[covered]), rms(err[~covered])
 
@@ -225,7 +225,7 @@ def evaluate_unseen(seq) -> dict:
            "seconds": time.perf_counter() - t0}
     rec["ratio"] = rec["slam"]["ate_m"] / rec["vo"]["ate_m"]
     rec["vo_path_ratio"] = rec["vo"]["path_length_ratio"]
-    # where loop closure can help: the frames inside a closed cycle against the rest
+    # what the loop edges constrain: the frames inside a closed cycle against the rest
     covered = loop_coverage(prep.n, loops.pairs)
     rec["frames_in_loops_pct"] = 100.0 * float(covered.mean())
     for name, w in (("vo", vo), ("slam", res.world_from_cam)):
@@ -267,14 +267,14 @@ def markdown(report: dict) -> str:
                "(DIS flow, C_s 1, C_r 1, T_loop 50, no tuning):", "",
                "| street seed | VO ATE [m] | SLAM ATE [m] | SLAM/VO | met | VO path x | loop edges (kept by the graph) | "
                "left out: flow fits no rigid motion | loop edges' error t [m] / r [deg] | frames inside a closed "
-               "cycle | VO / SLAM ATE there [m] | VO / SLAM ATE elsewhere [m] |",
+               "cycle [%] | VO / SLAM ATE there [m] | VO / SLAM ATE elsewhere [m] |",
                "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for seed, r in unseen.items():
             le = r["loop_errors"] or {}
             md.append(f"| {seed} | {_f(r['vo']['ate_m'])} | {_f(r['slam']['ate_m'])} | {_f(r['ratio'], '.2f')} | "
                       f"{'yes' if r['ratio'] <= 0.5 else 'no'} | {_f(r.get('vo_path_ratio'))} | "
                       f"{r['loop_edges']} ({r['loop_edges_kept']}) | {r['loops_not_rigid']} | "
-                      f"{_f(le.get('t_rmse_m'))} / {_f(le.get('r_rmse_deg'))} | {_f(r.get('frames_in_loops_pct'), '.0f')} % | "
+                      f"{_f(le.get('t_rmse_m'))} / {_f(le.get('r_rmse_deg'))} | {_f(r.get('frames_in_loops_pct'), '.0f')} | "
                       f"{_f(r.get('vo_ate_in_loops_m'))} / {_f(r.get('slam_ate_in_loops_m'))} | "
                       f"{_f(r.get('vo_ate_elsewhere_m'))} / {_f(r.get('slam_ate_elsewhere_m'))} |")
         md += ["", "The ATE is split (one alignment of the whole trajectory) between the frames inside a cycle that a "

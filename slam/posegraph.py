@@ -278,15 +278,19 @@ def chain(n_poses: int, cons: Edges, world_from_cam0: np.ndarray | None = None) 
 
 def loop_coverage(n_poses: int, loop_pairs: np.ndarray) -> np.ndarray:
     """(n_poses,) bool: the poses inside a cycle that a loop edge closes (poses ``i..j`` of each loop pair
-    ``(i, j)``, either order). Elsewhere (say the road after the last revisit) only the odometry places a pose:
-    loop closure constrains the first, and the rest follows from where the last closed cycle ends.
+    ``(i, j)``, either order). Loop edges constrain those; the others (say the road before the first or after the
+    last revisit) only the odometry places, from the nearest closed cycle.
 
     Args:
         n_poses: poses of the graph.
-        loop_pairs: (L, 2) int pose indices of the loop edges (any shape with pairs in its last axis).
+        loop_pairs: (L, 2) int pose indices of the loop edges (any shape with pairs in its last axis), each in
+            ``[0, n_poses)``; ValueError otherwise.
     """
+    pairs = np.asarray(loop_pairs, np.int64).reshape(-1, 2)
+    if len(pairs) and (pairs.min() < 0 or pairs.max() >= n_poses):
+        raise ValueError(f"loop pairs must index poses 0..{n_poses - 1}, got {pairs.min()}..{pairs.max()}")
     covered = np.zeros(int(n_poses), bool)
-    for i, j in np.asarray(loop_pairs, np.int64).reshape(-1, 2):
+    for i, j in pairs:
         covered[min(i, j):max(i, j) + 1] = True
     return covered
 

@@ -163,3 +163,5 @@ def test_c_s_weighs_the_odometry_against_the_loops():
 ])
 def test_loop_coverage_marks_the_poses_a_loop_edge_closes(pairs, expected):
     assert loop_coverage(8, np.array(pairs)).tolist() == [bool(x) for x in expected]
+    with pytest.raises(ValueError, match="0..7"):
+        loop_coverage(8, np.array([(2, 8)]))
