@@ -189,21 +189,14 @@ def evaluate_case(val_seqs: list, test_seq, flow: str, plot: Path) -> dict:
 
 
 def ate_split(seq, world_from_cam: np.ndarray, covered: np.ndarray) -> tuple[float | None, float | None]:
-    """The se3-aligned ATE of ``world_from_cam`` ((n, 4, 4) float, frames of ``seq``, which has ground truth for
-    every frame) over the frames where ``covered`` ((n,) bool) is true and over the others (metres; None for an
-    empty part): the whole-trajectory ATE's parts (one alignment, so ``n_in in^2 + n_out out^2 = n ate^2``)."""
+    """The se3-aligned ATE of ``world_from_cam`` ((n, 4, 4) float, the frames of ``seq``) over the frames where
+    ``covered`` ((n,) bool) is true and over the others (metres; None for an empty part; the frames the ground
+    truth matches): :func:`core.metrics.ate_parts` of one alignment of the whole trajectory."""
     from deepslam.core import metrics
     from deepslam.core.trajectory import Trajectory
 
     ev = metrics.evaluate(seq.gt, Trajectory(world_from_cam, seq.timestamps_s))
-    err = np.linalg.norm(ev["_gt_poses"][:, :3, 3] - ev["_est_aligned_poses"][:, :3, 3], axis=1)
-    if len(err) != len(covered):
-        raise ValueError(f"the ground truth matches {len(err)} of the {len(covered)} frames: the split needs every frame")
-
-    def rms(e: np.ndarray) -> float | None:
-        return float(np.sqrt(np.mean(e ** 2))) if len(e) else None
-
-    return rms(err[covered]), rms(err[~covered])
+    return metrics.ate_parts(ev["_gt_poses"], ev["_est_aligned_poses"], np.asarray(covered, bool)[ev["_est_index"]])
 
 
 def evaluate_unseen(seq) -> dict:

@@ -159,6 +159,27 @@ def ate(gt, est, align: str = "se3") -> dict:
             "n": s["n"], "alignment": a, "errors_m": err}
 
 
+def ate_parts(gt_poses: np.ndarray, est_aligned_poses: np.ndarray, part: np.ndarray) -> tuple[float | None, float | None]:
+    """The ATE of one alignment split in two: the RMS position error over the poses where ``part`` is true and
+    over the others (metres; None for an empty side). The two add up to the whole:
+    ``n_in in^2 + n_out out^2 = n ate^2``.
+
+    Args:
+        gt_poses: (N, 4, 4) float matched ground-truth poses (world_from_cam); est_aligned_poses: (N, 4, 4) float
+            the matched estimate after the alignment (:func:`evaluate`'s ``_gt_poses`` / ``_est_aligned_poses``).
+        part: (N,) bool.
+    """
+    err = np.linalg.norm(np.asarray(gt_poses)[:, :3, 3] - np.asarray(est_aligned_poses)[:, :3, 3], axis=1)
+    part = np.asarray(part, bool).reshape(-1)
+    if part.shape != err.shape:
+        raise ValueError(f"part has {part.size} entries for {err.size} poses")
+
+    def rms(e: np.ndarray) -> float | None:
+        return float(np.sqrt(np.mean(e ** 2))) if len(e) else None
+
+    return rms(err[part]), rms(err[~part])
+
+
 def rpe_pairs(n: int, delta: int, all_pairs: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Index pairs (i, i + delta) for RPE: i = 0, delta, 2 delta, ... (evo's default) or every i."""
     if delta < 1:
@@ -335,7 +356,8 @@ def evaluate(gt: Trajectory, est: Trajectory, align: str = "se3", rpe_delta: int
     and, when the
     ground truth is long enough, ``kitti_t_err_pct``, ``kitti_r_err_deg_per_100m``,
     ``kitti_n_segments``, ``kitti_per_length``. Also ``_gt_poses``/``_est_aligned_poses``
-    ((M, 4, 4) matched, for plots; keys starting with ``_`` are not for JSON).
+    ((M, 4, 4) matched, for plots) and ``_est_index`` ((M,) int64, the estimate's pose of each match; keys
+    starting with ``_`` are not for JSON).
     """
     if align not in ALIGN_MODES:
         raise InputError(None, f"unknown alignment {align!r} (one of {', '.join(ALIGN_MODES)})")
@@ -367,5 +389,6 @@ def evaluate(gt: Trajectory, est: Trajectory, align: str = "se3", rpe_delta: int
                         "kitti_n_segments": k["n_segments"], "kitti_per_length": k["per_length"]})
     out["_gt_poses"] = g
     out["_est_aligned_poses"] = aligned
+    out["_est_index"] = ie
     return out
 

@@ -173,9 +173,13 @@ def _run(args: argparse.Namespace) -> int:
         "timings": res.timings, "graph_error": list(res.graph_error),
     }
     if seq.gt is not None:
+        in_cycles = loop_coverage(len(seq), res.loops.pairs)
         for name, traj in (("vo", res.vo), ("slam", res.slam)):
             ev = metrics.evaluate(seq.gt, traj, align=args.align)
             record[f"metrics_{name}"] = {k: v for k, v in ev.items() if not k.startswith("_")}
+            # the same ATE over the frames inside a closed cycle (what loop edges constrain) and the others
+            inside, elsewhere = metrics.ate_parts(ev["_gt_poses"], ev["_est_aligned_poses"], in_cycles[ev["_est_index"]])
+            record[f"metrics_{name}"].update(ate_in_closed_cycles_m=inside, ate_elsewhere_m=elsewhere)
             if name == "slam":
                 gt_aligned = ev["_gt_poses"]
                 slam_aligned = ev["_est_aligned_poses"]
@@ -242,6 +246,9 @@ def format_report(r: dict) -> str:
             return "n/a" if x is None else format(x, f)
         lines += ["", f"{'metric':<24}{'VO':>12}{'SLAM':>12}  unit",
                   f"{'ATE rmse':<24}{num(mv['ate_m']):>12}{num(ms['ate_m']):>12}  m",
+                  f"{'  in closed cycles':<24}{num(mv.get('ate_in_closed_cycles_m')):>12}"
+                  f"{num(ms.get('ate_in_closed_cycles_m')):>12}  m",
+                  f"{'  elsewhere':<24}{num(mv.get('ate_elsewhere_m')):>12}{num(ms.get('ate_elsewhere_m')):>12}  m",
                   f"{'RPE trans rmse (d=1)':<24}{num(mv['rpe_t_m']):>12}{num(ms['rpe_t_m']):>12}  m",
                   f"{'RPE rot rmse (d=1)':<24}{num(mv['rpe_r_deg']):>12}{num(ms['rpe_r_deg']):>12}  deg"]
         if "kitti_t_err_pct" in ms:

@@ -337,3 +337,26 @@ def test_drift_sees_a_heading_error_that_keeps_the_length():
     d = metrics.drift(gt, est)
     assert d["path_length_ratio"] == pytest.approx(1.0)
     assert d["endpoint_drift_m"] == pytest.approx(2 * 50 * math.sin(math.radians(5)), rel=1e-9)
+
+
+def test_ate_parts_split_one_alignment_and_add_up_to_the_whole():
+    rng = np.random.default_rng(3)
+    n = 40
+    gt = np.stack([se3.from_rt(np.eye(3), np.array([0.5 * k, 0.0, 0.0])) for k in range(n)])
+    est = gt.copy()
+    est[:, :3, 3] += np.cumsum(rng.normal(0, 0.03, (n, 3)), axis=0)
+    ev = metrics.evaluate(Trajectory(gt, None), Trajectory(est, None))
+    part = np.arange(n) % 3 == 0
+    inside, elsewhere = metrics.ate_parts(ev["_gt_poses"], ev["_est_aligned_poses"], part)
+    assert part.sum() * inside ** 2 + (~part).sum() * elsewhere ** 2 == pytest.approx(n * ev["ate_m"] ** 2)
+    assert metrics.ate_parts(ev["_gt_poses"], ev["_est_aligned_poses"], np.ones(n, bool))[1] is None
+    with pytest.raises(ValueError, match="39 entries for 40 poses"):
+        metrics.ate_parts(ev["_gt_poses"], ev["_est_aligned_poses"], np.ones(n - 1, bool))
+
+
+def test_evaluate_names_the_estimate_pose_of_each_match():
+    # the estimate has poses at 0.0 .. 2.9 s, the ground truth from 1.0 s: matches are estimate poses 10..29
+    times = np.arange(30) * 0.1
+    poses = np.stack([se3.from_rt(np.eye(3), np.array([0.3 * k, 0.0, 0.0])) for k in range(30)])
+    ev = metrics.evaluate(Trajectory(poses[10:], times[10:]), Trajectory(poses, times))
+    assert ev["_est_index"].tolist() == list(range(10, 30))

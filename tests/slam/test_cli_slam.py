@@ -39,6 +39,12 @@ def test_slam_cli_writes_trajectories_record_and_plot(seq_dir, tmp_path, capsys)
     first, last = min(min(p) for p in rec["loops"]), max(max(p) for p in rec["loops"])
     longest = max(abs(j - i) + 1 for i, j in rec["loops"])
     assert longest <= rec["frames_in_closed_cycles"] <= last - first + 1 and "closed cycles" in text
+    # the ATE split over those frames and the others adds up to the whole, for the VO and the SLAM trajectory
+    n_in = rec["frames_in_closed_cycles"]
+    for m in (rec["metrics_vo"], rec["metrics_slam"]):
+        parts = n_in * m["ate_in_closed_cycles_m"] ** 2 + (60 - n_in) * (m["ate_elsewhere_m"] or 0.0) ** 2
+        assert parts == pytest.approx(60 * m["ate_m"] ** 2)
+    assert "in closed cycles" in text
     assert rec["metrics_slam"]["ate_m"] < 0.5 * rec["metrics_vo"]["ate_m"]
     assert (tmp_path / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # the saved vocabulary and a params file are read back; TUM output carries timestamps
