@@ -75,7 +75,10 @@ def _render(log, scene: str, seed: int, cfg: ResultsSlamConfig, out: Path) -> Pa
                        ("--quiet",))
 
 
-def _metrics(seq, world_from_cam: np.ndarray) -> dict:
+def _metrics(seq, world_from_cam: np.ndarray, covered: np.ndarray | None = None) -> dict:
+    """The figures of one trajectory ((n, 4, 4) float world_from_cam, the frames of ``seq``), se3-aligned; with
+    ``covered`` ((n,) bool), also the same ATE over those frames and the others, ``ate_in_loops_m`` and
+    ``ate_elsewhere_m`` (:func:`core.metrics.ate_parts` of this alignment; None for an empty part)."""
     from bench.results_vo import metric_subset
     from deepslam.core import metrics
     from deepslam.core.trajectory import Trajectory
@@ -83,6 +86,9 @@ def _metrics(seq, world_from_cam: np.ndarray) -> dict:
     traj = Trajectory(world_from_cam, seq.timestamps_s)
     ev = metrics.evaluate(seq.gt, traj)
     out = {**metric_subset(ev), "path_length_ratio": ev["path_length_ratio"]}
+    if covered is not None:
+        out["ate_in_loops_m"], out["ate_elsewhere_m"] = metrics.ate_parts(
+            ev["_gt_poses"], ev["_est_aligned_poses"], np.asarray(covered, bool)[ev["_est_index"]])
     # sim3: the shape error once the scale is corrected (loop closure fixes drift, not a scale bias)
     out["ate_sim3_m"] = metrics.evaluate(seq.gt, traj, align="sim3")["ate_m"]
     return out
@@ -188,17 +194,6 @@ def evaluate_case(val_seqs: list, test_seq, flow: str, plot: Path) -> dict:
     return rec
 
 
-def ate_split(seq, world_from_cam: np.ndarray, covered: np.ndarray) -> tuple[float | None, float | None]:
-    """The se3-aligned ATE of ``world_from_cam`` ((n, 4, 4) float, the frames of ``seq``) over the frames where
-    ``covered`` ((n,) bool) is true and over the others (metres; None for an empty part; the frames the ground
-    truth matches): :func:`core.metrics.ate_parts` of one alignment of the whole trajectory."""
-    from deepslam.core import metrics
-    from deepslam.core.trajectory import Trajectory
-
-    ev = metrics.evaluate(seq.gt, Trajectory(world_from_cam, seq.timestamps_s))
-    return metrics.ate_parts(ev["_gt_poses"], ev["_est_aligned_poses"], np.asarray(covered, bool)[ev["_est_index"]])
-
-
 def evaluate_unseen(seq) -> dict:
     """VO and SLAM with ``deepslam slam``'s defaults (``SlamParams()``, DIS flow) on ``seq``, its loop edges
     scored against the ground truth."""
@@ -211,18 +206,16 @@ def evaluate_unseen(seq) -> dict:
     first = seq.gt.world_from_cam[0]
     res, loops = solve(prep, SlamParams(), world_from_cam0=first)
     vo = chain(prep.n, prep.cons, first)
-    rec = {"vo": _metrics(seq, vo), "slam": _metrics(seq, res.world_from_cam),
+    # what the loop edges constrain: the frames inside a closed cycle against the rest
+    covered = loop_coverage(prep.n, loops.pairs)
+    rec = {"vo": _metrics(seq, vo, covered), "slam": _metrics(seq, res.world_from_cam, covered),
+           "frames_in_loops_pct": 100.0 * float(covered.mean()),
            "loop_edges": int(len(loops)), "loop_edges_kept": int(res.loop_inliers.sum()),
            "loops_not_rigid": len(prep.unverified_pairs(SlamParams().t_loop)),
            "loop_errors": pair_errors(seq, loops.pairs, loops.mean6) if len(loops) else None,
            "seconds": time.perf_counter() - t0}
     rec["ratio"] = rec["slam"]["ate_m"] / rec["vo"]["ate_m"]
     rec["vo_path_ratio"] = rec["vo"]["path_length_ratio"]
-    # what the loop edges constrain: the frames inside a closed cycle against the rest
-    covered = loop_coverage(prep.n, loops.pairs)
-    rec["frames_in_loops_pct"] = 100.0 * float(covered.mean())
-    for name, w in (("vo", vo), ("slam", res.world_from_cam)):
-        rec[f"{name}_ate_in_loops_m"], rec[f"{name}_ate_elsewhere_m"] = ate_split(seq, w, covered)
     return rec
 
 
@@ -268,8 +261,8 @@ def markdown(report: dict) -> str:
                       f"{'yes' if r['ratio'] <= 0.5 else 'no'} | {_f(r.get('vo_path_ratio'))} | "
                       f"{r['loop_edges']} ({r['loop_edges_kept']}) | {r['loops_not_rigid']} | "
                       f"{_f(le.get('t_rmse_m'))} / {_f(le.get('r_rmse_deg'))} | {_f(r.get('frames_in_loops_pct'), '.0f')} | "
-                      f"{_f(r.get('vo_ate_in_loops_m'))} / {_f(r.get('slam_ate_in_loops_m'))} | "
-                      f"{_f(r.get('vo_ate_elsewhere_m'))} / {_f(r.get('slam_ate_elsewhere_m'))} |")
+                      f"{_f(r['vo'].get('ate_in_loops_m'))} / {_f(r['slam'].get('ate_in_loops_m'))} | "
+                      f"{_f(r['vo'].get('ate_elsewhere_m'))} / {_f(r['slam'].get('ate_elsewhere_m'))} |")
         md += ["", "The ATE is split (one alignment of the whole trajectory) between the frames inside a cycle that a "
                "loop edge closes and the rest, where only the odometry places a frame (the avenue after the route's "
                "loop): loop edges constrain the first; the rest follows the odometry from where the last closed cycle "

@@ -82,8 +82,8 @@ def test_slam_table_marks_the_half_target():
                                 "commands": [], "cases": {"street/gt": case}, "unseen": {"7421": unseen}})
     row = [ln for ln in md.splitlines() if ln.startswith("| 7421")]
     assert row == ["| 7421 | 2 | 1.7 | 0.85 | no | 0.99 | 40 (39) | 6 | 0.3 / 0.25 | n/a | n/a / n/a | n/a / n/a |"]
-    unseen.update(frames_in_loops_pct=62.0, vo_ate_in_loops_m=1.5, slam_ate_in_loops_m=0.5, vo_ate_elsewhere_m=2.5,
-                  slam_ate_elsewhere_m=2.4)
+    unseen.update(frames_in_loops_pct=62.0, vo={"ate_m": 2.0, "ate_in_loops_m": 1.5, "ate_elsewhere_m": 2.5},
+                  slam={"ate_m": 1.7, "ate_in_loops_m": 0.5, "ate_elsewhere_m": 2.4})
     md = results_slam.markdown({"config": dataclasses.asdict(results_slam.ResultsSlamConfig()), "minutes": 1.0,
                                 "commands": [], "cases": {"street/gt": case}, "unseen": {"7421": unseen}})
     row = [ln for ln in md.splitlines() if ln.startswith("| 7421")]
@@ -98,10 +98,13 @@ def test_the_ate_split_adds_up_to_the_whole_trajectorys_ate():
     est[:, :3, 3] += np.cumsum(rng.normal(0, 0.05, (n, 3)), axis=0)    # a drift
     seq = SimpleNamespace(gt=Trajectory(gt, None), timestamps_s=None)
     covered = np.arange(n) < 12
-    inside, elsewhere = results_slam.ate_split(seq, est, covered)
+    m = results_slam._metrics(seq, est, covered)
+    inside, elsewhere = m["ate_in_loops_m"], m["ate_elsewhere_m"]
     whole = metrics.evaluate(seq.gt, Trajectory(est, None))["ate_m"]
+    assert m["ate_m"] == pytest.approx(whole)
     assert 12 * inside ** 2 + 18 * elsewhere ** 2 == pytest.approx(n * whole ** 2)
-    assert results_slam.ate_split(seq, est, np.zeros(n, bool))[0] is None
+    assert results_slam._metrics(seq, est, np.zeros(n, bool))["ate_in_loops_m"] is None
+    assert "ate_in_loops_m" not in results_slam._metrics(seq, est)
 
 
 def test_true_loop_edges_remove_the_drift_they_span():

@@ -157,6 +157,7 @@ def _run(args: argparse.Namespace) -> int:
     side = side_files(out)
     vo_path, record_path = side["vo"], side["record"]
     write_trajectory(out, res.slam, fmt)
+    in_cycles = loop_coverage(len(seq), res.loops.pairs)    # the frames loop edges constrain
     record = {
         "sequence": str(args.sequence), "frames": len(seq), "trajectory": str(out), "trajectory_vo": str(vo_path),
         "format": fmt, "odometry_cons": odo_cons.name, "odometry_loops": getattr(odo_loops, "name", None),
@@ -164,7 +165,7 @@ def _run(args: argparse.Namespace) -> int:
         "config": {**config.to_dict(), "reloc": dataclasses.asdict(res.reloc) if res.reloc else None},
         "loops": res.loops.pairs.tolist(), "n_loops": len(res.loops),
         "loops_not_rigid": res.loops_not_rigid.tolist(),
-        "frames_in_closed_cycles": int(loop_coverage(len(seq), res.loops.pairs).sum()),
+        "frames_in_closed_cycles": int(in_cycles.sum()),
         "loops_kept_by_pose_graph": None if res.loop_inliers is None else res.loop_inliers.tolist(),
         "flow_cons": getattr(getattr(odo_cons, "flow_estimator", None), "name", None),
         "flow_loops": getattr(getattr(odo_loops, "flow_estimator", None), "name", None),
@@ -173,7 +174,6 @@ def _run(args: argparse.Namespace) -> int:
         "timings": res.timings, "graph_error": list(res.graph_error),
     }
     if seq.gt is not None:
-        in_cycles = loop_coverage(len(seq), res.loops.pairs)
         for name, traj in (("vo", res.vo), ("slam", res.slam)):
             ev = metrics.evaluate(seq.gt, traj, align=args.align)
             record[f"metrics_{name}"] = {k: v for k, v in ev.items() if not k.startswith("_")}
