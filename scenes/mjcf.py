@@ -25,6 +25,8 @@ from deepslam.scenes.spec import RIGID, Scene
 RIG_BODY = "camera_rig"
 LEFT_CAMERA = "left"
 RIGHT_CAMERA = "right"
+OFFSCREEN_SAMPLES = 4
+"""Multisampling of the offscreen buffer (the colour pass's antialiasing; 0: none)."""
 
 
 def _floats(a) -> str:
@@ -59,7 +61,7 @@ def scene_xml(scene: Scene, width: int, height: int, fov_y_deg: float, baseline_
         '  <compiler angle="radian" balanceinertia="true" boundmass="1e-4" boundinertia="1e-8"/>',
         '  <visual>',
         f'    <global offwidth="{int(width)}" offheight="{int(height)}"/>',
-        '    <quality shadowsize="0" offsamples="4"/>',
+        f'    <quality shadowsize="0" offsamples="{OFFSCREEN_SAMPLES}"/>',
         '    <headlight active="1" ambient="1 1 1" diffuse="0 0 0" specular="0 0 0"/>',
         f'    <map znear="{scene.znear_m / extent!r}" zfar="{scene.zfar_m / extent!r}"/>',
         '  </visual>',

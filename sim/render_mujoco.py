@@ -3,7 +3,9 @@
 Pass 1 (colour): ``mjr_render`` of the scene as lit by the pure-ambient headlight (textures carry
 baked lighting), 4x multisampled, read as RGB. Pass 2 (segmentation, as ``mujoco.Renderer`` does for
 depth and segmentation): flat ID colours, no multisampling, read as ID colours and the depth buffer
-in one go. MuJoCo renders depth with reversed Z into a float buffer; it is linearised here in
+in one go. MuJoCo draws it with multisampling off but into the 4-sample buffer, then resolves; here
+it is drawn straight into MuJoCo's single-sample resolve buffer and read with PyOpenGL's
+``glReadPixels`` (the same bytes, about half the pass's time: no 4-sample clear, no resolve). MuJoCo renders depth with reversed Z into a float buffer; it is linearised here in
 float64 (the same formula as ``mujoco.Renderer``, without its cast of the intermediate to float32),
 so depth_z is exact to about 1e-6 relative. Pixels where nothing is hit get depth 0 and body -1.
 
@@ -47,6 +49,10 @@ class MujocoBackend:
     """
 
     name = "mujoco"
+    segmentation_in_resolve_buffer = True
+    """Draw the segmentation pass into the single-sample resolve buffer (see the module docstring);
+    False: MuJoCo's own path (the multisampled buffer, then a resolve), the same bytes, kept as the
+    reference that tests and the speed bench compare with."""
 
     def __init__(self, scene: Scene, camera: PinholeCamera, baseline_m: float | None = None):
         import mujoco  # deferred: the [sim] extra; read after MUJOCO_GL is set, only when rendering
@@ -60,6 +66,9 @@ class MujocoBackend:
         m = self.model
         self._gl = mujoco.GLContext(camera.width, camera.height)
         self._gl.make_current()
+        from OpenGL import GL  # deferred like MuJoCo: PyOpenGL reads PYOPENGL_PLATFORM on import
+
+        self._gl_api = GL
         self._con = mujoco.MjrContext(m, mujoco.mjtFontScale.mjFONTSCALE_100)
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._con)
         self._con.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR
@@ -147,8 +156,7 @@ class MujocoBackend:
             flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = 1
             flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 1
             try:
-                mujoco.mjr_render(self._rect, self._scn, self._con)
-                mujoco.mjr_readPixels(self._seg_rgb, self._depth_raw, self._rect, self._con)
+                self._segmentation_pass()
             finally:
                 np.copyto(flags, old)
             seg = self._seg_rgb[::-1].astype(np.int32)
@@ -164,6 +172,35 @@ class MujocoBackend:
             out["depth_z"] = np.where(body >= 0, _linearise_reversed_z(raw, self._near, self._far), 0.0).astype(np.float32)
             out["body"] = body
         return out
+
+    def _segmentation_pass(self) -> None:
+        """Draw the scene (its flags set for segmentation) and read ID colours and raw depth into
+        ``_seg_rgb`` / ``_depth_raw`` (OpenGL's bottom-up rows).
+
+        With a multisampled offscreen buffer the pass goes into MuJoCo's single-sample resolve buffer
+        (``offFBO_r``): segmentation draws with multisampling off, so every sample of a pixel holds
+        the same value and the resolve would copy it; drawing there directly skips the 4-sample
+        clear and the resolve. Without multisampling (or with ``segmentation_in_resolve_buffer`` off)
+        MuJoCo's own render and read do it."""
+        import mujoco  # deferred: the [sim] extra; read after MUJOCO_GL is set, only when rendering
+
+        resolve = int(self._con.offFBO_r) if self.segmentation_in_resolve_buffer else 0
+        if not resolve:
+            mujoco.mjr_render(self._rect, self._scn, self._con)
+            mujoco.mjr_readPixels(self._seg_rgb, self._depth_raw, self._rect, self._con)
+            return
+        GL = self._gl_api
+        GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, resolve)
+        try:
+            mujoco.mjr_render(self._rect, self._scn, self._con)   # ends by re-binding MuJoCo's buffer
+            GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, resolve)
+            GL.glReadBuffer(GL.GL_COLOR_ATTACHMENT0)
+            GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 1)
+            w, h = self.camera.width, self.camera.height
+            GL.glReadPixels(0, 0, w, h, GL.GL_RGB, GL.GL_UNSIGNED_BYTE, self._seg_rgb)
+            GL.glReadPixels(0, 0, w, h, GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT, self._depth_raw)
+        finally:
+            mujoco.mjr_restoreBuffer(self._con)
 
     def close(self) -> None:
         if getattr(self, "_con", None) is not None:
