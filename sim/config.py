@@ -30,6 +30,12 @@ class TrajectoryConfig:
     """Frame rate in Hz (None: 10 for car, 20 for drone)."""
     seed: int | None = None
     """Seed of the trajectory's random choices (speeds, waypoints); None: the scene's seed."""
+    camera_ahead_m: float = 0.0
+    """Car only: how far the camera sits ahead of the car's rear axle, metres, along the car's heading. The
+    route is the rear axle's path; 0: the camera rides on it, moving along its own optical axis. A camera
+    ahead of the axle slides sideways in a turn, as KITTI's does: a fit of KITTI's ground truth 00-10 (the
+    sideways motion a pair = psi d / 2 + L psi, psi its turn, d its length) gives L = 0.84 m, 0.68-0.97 m by
+    city sequence (docs/experiments/2026-12-05_vo_drift_sources.md)."""
 
     def resolved_kind(self, scene_name: str) -> str:
         if self.kind != "auto":
@@ -45,6 +51,10 @@ class TrajectoryConfig:
             raise InputError(None, f"rate must be in [0.1, 1000] Hz, got {self.rate_hz}")
         if self.seed is not None and (not isinstance(self.seed, int) or self.seed < 0):
             raise InputError(None, f"trajectory seed must be a non-negative integer, got {self.seed}")
+        if not (np.isfinite(self.camera_ahead_m) and 0.0 <= self.camera_ahead_m <= 5.0):
+            raise InputError(None, f"camera distance ahead of the rear axle must be in [0, 5] m, got {self.camera_ahead_m}")
+        if self.camera_ahead_m and self.kind == "drone":
+            raise InputError(None, "a camera ahead of the rear axle is for the car trajectory, not the drone")
         return self
 
 

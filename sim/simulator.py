@@ -8,6 +8,7 @@ import numpy as np
 
 from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
+from deepslam.core.errors import InputError
 from deepslam.core.trajectory import Trajectory
 from deepslam.scenes import SceneConfig, build_scene
 from deepslam.scenes.spec import Scene
@@ -128,7 +129,11 @@ class Simulator:
         # seed of the per-frame image and sensor effects (noise, exposure, Kinect depth): the trajectory's, else the scene config's
         self._effects_seed = int(tcfg.seed if tcfg.seed is not None else config.scene.seed)
         if motion is None:
-            motion = make_motion(base, tcfg.resolved_kind(base.name), np.random.default_rng([tseed, 1]), tcfg.rate_hz)
+            if tcfg.camera_ahead_m and tcfg.resolved_kind(base.name) != "car":
+                raise InputError(None, f"a camera ahead of the rear axle is for the car trajectory, not the {base.name}'s "
+                                       f"{tcfg.resolved_kind(base.name)}")
+            motion = make_motion(base, tcfg.resolved_kind(base.name), np.random.default_rng([tseed, 1]), tcfg.rate_hz,
+                               tcfg.camera_ahead_m)
         self.motion = motion
         self.rate_hz = float(motion.rate_hz)
         self.num_frames = int(tcfg.frames)

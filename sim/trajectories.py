@@ -55,16 +55,18 @@ class CarMotion:
     name: str = "car"
     pitch_rad: float = 0.0
     """Downward pitch of the camera about its x axis, radians (0: looking along the road)."""
+    ahead_m: float = 0.0
+    """Distance of the camera ahead of the rear axle, whose path the progress follows, metres (0: on it)."""
 
     @staticmethod
-    def create(scene: Scene, rng: np.random.Generator, rate_hz: float = 10.0) -> "CarMotion":
+    def create(scene: Scene, rng: np.random.Generator, rate_hz: float = 10.0, ahead_m: float = 0.0) -> "CarMotion":
         path: PeriodicPath = scene.layout["lane_path"]
         cruise = float(rng.uniform(12.5, 14.5))
         pitch = float(scene.layout.get("camera_pitch_rad", 0.0))
         stop_go = scene.layout.get("stop_and_go")
         if stop_go is not None:
             return CarMotion(_stop_and_go(path, stop_go, rng), float(scene.layout["camera_height_m"]), rate_hz,
-                             float(stop_go["fast_mps"]), pitch_rad=pitch)
+                             float(stop_go["fast_mps"]), pitch_rad=pitch, ahead_m=ahead_m)
         prof = speed_profile(path, min(cruise, CAR_MAX_SPEED_MPS), lat_accel_mps2=float(rng.uniform(3.0, 3.4)),
                              long_accel_mps2=2.5, smooth_m=5.0)
         # start from standstill in the bend before the route's start (lowest speed there), so the
@@ -72,7 +74,7 @@ class CarMotion:
         c = np.linspace(path.length - 60.0, path.length, 601)
         c0 = float(c[np.argmin(prof(c))]) - path.length
         return CarMotion(PathProgress(path, prof, c0=c0, ramp_s=3.0), float(scene.layout["camera_height_m"]), rate_hz,
-                         cruise, pitch_rad=pitch)
+                         cruise, pitch_rad=pitch, ahead_m=ahead_m)
 
     def world_from_cam(self, t) -> np.ndarray:
         c = self.progress.c(t)
@@ -81,6 +83,8 @@ class CarMotion:
         d = path.derivative(c)
         fwd = np.concatenate([d, np.zeros((len(c), 1))], axis=-1)
         pos = np.concatenate([xy, np.full((len(c), 1), self.height_m)], axis=-1)
+        if self.ahead_m:
+            pos = pos + self.ahead_m * fwd / np.linalg.norm(fwd, axis=-1, keepdims=True)
         rot = cam_from_forward(fwd)
         if self.pitch_rad:
             s, k = np.sin(self.pitch_rad), np.cos(self.pitch_rad)
@@ -252,10 +256,14 @@ class KeyframeMotion:
         return se3.from_rt(rot, pos)
 
 
-def make_motion(scene: Scene, kind: str, rng: np.random.Generator, rate_hz: float | None = None):
-    """The scripted camera motion ``kind`` ("car" or "drone") for ``scene``."""
+def make_motion(scene: Scene, kind: str, rng: np.random.Generator, rate_hz: float | None = None,
+                camera_ahead_m: float = 0.0):
+    """The scripted camera motion ``kind`` ("car" or "drone") for ``scene``; ``camera_ahead_m``: the car's
+    camera that far ahead of its rear axle (:attr:`sim.config.TrajectoryConfig.camera_ahead_m`)."""
     if kind == "car":
-        return CarMotion.create(scene, rng, rate_hz or 10.0)
+        return CarMotion.create(scene, rng, rate_hz or 10.0, camera_ahead_m)
+    if camera_ahead_m:
+        raise ValueError("camera_ahead_m is for the car trajectory")
     if kind == "drone":
         if "lane_path" in scene.layout:
             return StreetDroneMotion.create(scene, rng, rate_hz or 20.0)

@@ -30,6 +30,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=None, help="seed of the scene and trajectory (default: the scene "
                                                               "file's, else 0)")
     p.add_argument("--rate", type=float, default=None, help="frame rate in Hz (default: car 10, drone 20)")
+    p.add_argument("--camera-ahead", type=float, default=0.0, metavar="M",
+                   help="car: the camera this far ahead of the rear axle, metres, so that it slides sideways in turns "
+                        "as a real car's does (KITTI's ground truth fits 0.84); default 0: on the axle's path")
     p.add_argument("--texture-density", type=float, default=None, metavar="PX_PER_M",
                    help="texels per metre of the procedural textures (default: street 20, room 100)")
     p.add_argument("--kitti-sequence", default=None, metavar="NN",
@@ -145,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
                     varied_layout=args.varied_layout, narrow_layout=args.narrow_layout,
                     random_lighting=args.random_lighting, grainy_road=args.grainy_road,
                     street_style=args.street_style),
-        TrajectoryConfig(kind=args.trajectory, frames=args.frames, rate_hz=args.rate),
+        TrajectoryConfig(kind=args.trajectory, frames=args.frames, rate_hz=args.rate, camera_ahead_m=args.camera_ahead),
         RenderConfig(backend=args.backend, width=args.width, height=args.height,
                      stereo_baseline_m=args.stereo_baseline, focal_px=args.focal_px, flow=not args.no_flow,
                      depth_noise=None if args.depth_noise == "none" else args.depth_noise,

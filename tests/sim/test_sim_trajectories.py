@@ -5,7 +5,9 @@ import numpy as np
 import pytest
 
 from deepslam.core import se3
+from deepslam.core.errors import InputError
 from deepslam.scenes import SceneConfig, build_scene
+from deepslam.sim import SimConfig, Simulator, TrajectoryConfig
 from deepslam.sim.trajectories import make_motion
 
 DT = 0.01
@@ -103,3 +105,34 @@ def test_street_drone_flies_above_the_route():
     motion, poses = _sample("street", "drone", 0, 20.0)
     pos, vel, acc, rate = _kinematics(poses)
     assert pos[:, 2].min() > 3.0 and np.linalg.norm(vel, axis=1).max() <= 2.0 and rate.max() <= 1.0
+
+
+@pytest.mark.parametrize("ahead_m", [0.0, 0.84, 2.0])
+def test_a_camera_ahead_of_the_rear_axle_slides_sideways_in_turns_as_a_real_cars_does(ahead_m):
+    """The route is the rear axle's path: a camera ``ahead_m`` in front of it moves, a frame pair at a time,
+    sideways by psi d / 2 (the chord) plus ahead_m psi (the fit KITTI's ground truth gives 0.84 m); the
+    camera keeps its height and heading, and ahead 0 is the camera on the path."""
+    scene = build_scene(SceneConfig(name="street", seed=2, texture_px_per_m=2))
+    on_path = make_motion(scene, "car", np.random.default_rng([2, 1]))
+    ahead = make_motion(scene, "car", np.random.default_rng([2, 1]), camera_ahead_m=ahead_m)
+    t = np.arange(0.0, 40.0, 0.1)
+    a, b = on_path.world_from_cam(t), ahead.world_from_cam(t)
+    np.testing.assert_allclose(b[:, :3, :3], a[:, :3, :3], atol=1e-12)                  # same heading and pitch
+    np.testing.assert_allclose(b[:, 2, 3], 1.65, atol=1e-12)
+    horizontal = a[:, :3, 2] * [1, 1, 0]
+    horizontal /= np.linalg.norm(horizontal, axis=1, keepdims=True)
+    np.testing.assert_allclose(b[:, :3, 3] - a[:, :3, 3], ahead_m * horizontal, atol=1e-12)
+    rel = np.einsum("nij,njk->nik", np.linalg.inv(b[:-1]), b[1:])      # camera k+1 in camera k's axes
+    psi = np.arctan2(rel[:, 0, 2], rel[:, 2, 2])
+    d = np.hypot(rel[:, 0, 3], rel[:, 2, 3])
+    turning = (np.abs(psi) > np.radians(0.3)) & (d > 0.3)
+    assert turning.sum() > 20
+    lever = np.linalg.lstsq(psi[turning, None], rel[turning, 0, 3] - 0.5 * psi[turning] * d[turning], rcond=None)[0][0]
+    assert lever == pytest.approx(ahead_m, abs=0.03)
+
+
+def test_a_camera_ahead_of_the_axle_is_for_the_car_only():
+    with pytest.raises(InputError, match="car trajectory"):
+        Simulator(SimConfig(SceneConfig(name="room", seed=0, texture_px_per_m=5), TrajectoryConfig(frames=2, camera_ahead_m=0.5)))
+    with pytest.raises(InputError, match=r"\[0, 5\] m"):
+        TrajectoryConfig(camera_ahead_m=-1.0).validate()
