@@ -53,8 +53,6 @@ class TrajectoryConfig:
             raise InputError(None, f"trajectory seed must be a non-negative integer, got {self.seed}")
         if not (np.isfinite(self.camera_ahead_m) and 0.0 <= self.camera_ahead_m <= 5.0):
             raise InputError(None, f"camera distance ahead of the rear axle must be in [0, 5] m, got {self.camera_ahead_m}")
-        if self.camera_ahead_m and self.kind == "drone":
-            raise InputError(None, "a camera ahead of the rear axle is for the car trajectory, not the drone")
         return self
 
 

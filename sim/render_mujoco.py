@@ -5,9 +5,10 @@ baked lighting), 4x multisampled, read as RGB. Pass 2 (segmentation, as ``mujoco
 depth and segmentation): flat ID colours, no multisampling, read as ID colours and the depth buffer
 in one go. MuJoCo draws it with multisampling off but into the 4-sample buffer, then resolves; here
 it is drawn straight into MuJoCo's single-sample resolve buffer and read with PyOpenGL's
-``glReadPixels`` (the same bytes, about half the pass's time: no 4-sample clear, no resolve). MuJoCo renders depth with reversed Z into a float buffer; it is linearised here in
-float64 (the same formula as ``mujoco.Renderer``, without its cast of the intermediate to float32),
-so depth_z is exact to about 1e-6 relative. Pixels where nothing is hit get depth 0 and body -1.
+``glReadPixels`` (the same bytes, about half the pass's time: no 4-sample clear, no resolve).
+MuJoCo renders depth with reversed Z into a float buffer; it is linearised here in float64 (the same
+formula as ``mujoco.Renderer``, without its cast of the intermediate to float32), so depth_z is exact
+to about 1e-6 relative. Pixels where nothing is hit get depth 0 and body -1.
 
 Camera: a fixed camera on a mocap rig body, ``fovy`` from the PinholeCamera's ``fy``; MuJoCo's
 cameras have square pixels and the principal point at the image centre, i.e. ((W-1)/2, (H-1)/2) in

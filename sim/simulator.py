@@ -129,11 +129,10 @@ class Simulator:
         # seed of the per-frame image and sensor effects (noise, exposure, Kinect depth): the trajectory's, else the scene config's
         self._effects_seed = int(tcfg.seed if tcfg.seed is not None else config.scene.seed)
         if motion is None:
-            if tcfg.camera_ahead_m and tcfg.resolved_kind(base.name) != "car":
-                raise InputError(None, f"a camera ahead of the rear axle is for the car trajectory, not the {base.name}'s "
-                                       f"{tcfg.resolved_kind(base.name)}")
-            motion = make_motion(base, tcfg.resolved_kind(base.name), np.random.default_rng([tseed, 1]), tcfg.rate_hz,
-                               tcfg.camera_ahead_m)
+            kind = tcfg.resolved_kind(base.name)
+            if tcfg.camera_ahead_m and kind != "car":
+                raise InputError(None, f"a camera ahead of the rear axle is for the car trajectory, not the {base.name}'s {kind}")
+            motion = make_motion(base, kind, np.random.default_rng([tseed, 1]), tcfg.rate_hz, tcfg.camera_ahead_m)
         self.motion = motion
         self.rate_hz = float(motion.rate_hz)
         self.num_frames = int(tcfg.frames)
