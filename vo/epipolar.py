@@ -30,8 +30,9 @@ import cv2
 import numpy as np
 
 from deepslam.core import se3
-from deepslam.vo.road_scale import (RoadScaleConfig, RoadScan, check_and_fill, image_road_q, road_distances, scan_road,
-                                    travel_pitch_deg, yaw_rad)
+from deepslam.vo.road_scale import (RoadScaleConfig, RoadScan, RoadSequenceConfig, check_and_fill, image_road_q,
+                                    road_distances, road_parallel, scan_road, travel_pitch_deg, turn_curvature,
+                                    yaw_rad)
 
 
 METHODS = ("usac_default", "usac_accurate", "usac_magsac", "usac_fast", "ransac")
@@ -80,7 +81,8 @@ class EpipolarConfig:
     network's distance."""
     road_fill: bool = True
     """With :attr:`road_height_m`: pairs whose flow shows no usable road are read from the images themselves
-    (:func:`vo.road_scale.image_road_q`, with the fit's rotation and direction, else the network's), a
+    (:func:`vo.road_scale.image_road_q`, with the fit's rotation and direction, else the network's, the direction
+    made parallel to the road, :func:`vo.road_scale.road_parallel`), a
     distance far from its neighbours' is dropped and short gaps are interpolated
     (:func:`vo.road_scale.check_and_fill`); the rest keep the network's distance. False: the road's motion in
     the flow only (``deepslam vo --scale road-flow``)."""
@@ -318,8 +320,11 @@ def sequence_road_distances(fits, cfg: EpipolarConfig = EpipolarConfig(), mean6:
             make them; only then are distances checked against their neighbours and gaps filled.
 
     The flow's road (:func:`vo.road_scale.road_distances`) is read in the pairs whose fit is used; with
-    ``cfg.road_fill`` the others are read from the images, then :func:`vo.road_scale.check_and_fill` drops
-    distances far from their neighbours' and interpolates short gaps.
+    ``cfg.road_fill`` the others are read from the images (with the pair's rotation, the fit's where used else
+    the network's, and its direction made parallel to the road: :func:`vo.road_scale.road_parallel`; in a sharp
+    turn with the bands moved onto the car's path, its curvature from the nearest pair the flow read:
+    :func:`vo.road_scale.turn_curvature`), then
+    :func:`vo.road_scale.check_and_fill` drops distances far from their neighbours' and interpolates short gaps.
     """
     fits = list(fits)
     n = len(fits)
@@ -336,14 +341,24 @@ def sequence_road_distances(fits, cfg: EpipolarConfig = EpipolarConfig(), mean6:
         return RoadDistances(dist, pitch, tuple(source))
     if pair_greys is not None and camera is not None:
         tasks = []
+        read_from_flow = np.flatnonzero(np.isfinite(dist))
         for p in np.flatnonzero(~np.isfinite(dist)):
             axes = (_rotation_direction(mean6[p] if mean6 is not None else np.zeros(6), fits[p], usable[p],
                                         min_length_m=1e-6))
             if axes is not None:
-                tasks.append((int(p), axes))
+                # a sharp turn's curvature from a distance known before the alignment: the nearest pair the
+                # flow read among chained pairs, up to fill_pairs away (a car's speed changes little in that
+                # time), else the network's
+                near = read_from_flow[np.argmin(np.abs(read_from_flow - p))] if len(read_from_flow) else -1
+                prior = (float(dist[near]) if chained and near >= 0 and abs(near - p) <= RoadSequenceConfig().fill_pairs
+                         else float(np.linalg.norm(mean6[p][3:])) if mean6 is not None else float("nan"))
+                # a car moves in its road's plane: the far road moves a pixel or two a frame at speed, and the
+                # fit's direction, a few tenths of a degree off that plane at 30 m/s, reads it 2 % short
+                tasks.append((int(p), (axes[0], road_parallel(axes[0], axes[1], pitch)),
+                              turn_curvature(yaw_rad(axes[0]), prior / cfg.road_height_m, camera)))
 
         def read(part: list) -> list[float]:  # each pair on its own: the order of the parts changes nothing
-            return [image_road_q(*pair_greys(p), camera, *axes, pitch) for p, axes in part]
+            return [image_road_q(*pair_greys(p), camera, *axes, pitch, kappa_h=kappa_h) for p, axes, kappa_h in part]
 
         # two halves in two threads (OpenCV and numpy's large operations release the GIL); each half in the
         # order of the pairs, so consecutive pairs still share a prepared frame. A few pairs: no thread.
@@ -352,7 +367,7 @@ def sequence_road_distances(fits, cfg: EpipolarConfig = EpipolarConfig(), mean6:
         else:
             with ThreadPoolExecutor(2) as pool:
                 qs = [q for part in pool.map(read, (tasks[:len(tasks) // 2], tasks[len(tasks) // 2:])) for q in part]
-        for (p, _), q in zip(tasks, qs):
+        for (p, _, _), q in zip(tasks, qs):
             if np.isfinite(q):
                 dist[p], source[p] = cfg.road_height_m * q, "images"
     if not chained:

@@ -186,11 +186,20 @@ class RoadScaleConfig:
     end-point difference) keeps the network's distance."""
 
 
+STRAIGHT_TURN_DEG = 1.0
+"""Pairs turning less than this (degrees about the camera's vertical, :func:`yaw_rad`) tell the camera's pitch
+(:func:`travel_pitch_deg`): in corners the essential-matrix fit reads the motion 0.2-0.3 deg up (the rendered
+streets at stride 3: 1.098 deg from all pairs against 1.000; 1.024 from these)."""
+STRAIGHT_MIN_PAIRS = 10
+"""Fewer straight pairs than this: the pitch is read from all pairs."""
+
+
 def travel_pitch_deg(rotations, directions) -> float:
     """The camera's pitch over the road (degrees, positive: looking down), from the direction of travel of
     many pairs: a car moves parallel to its road, so its camera sees itself move that far upwards. The
     median over pairs of ``atan2(-m_y, m_z)``, ``m = -R^T d`` the motion in camera 0's axes (OpenCV: y
-    down); NaN without pairs.
+    down), over the pairs turning less than :data:`STRAIGHT_TURN_DEG` (all pairs where fewer than
+    :data:`STRAIGHT_MIN_PAIRS` do); NaN without pairs.
 
     Args:
         rotations: (P, 3, 3) rotations of ``cam1_from_cam0``; directions: (P, 3) their unit translations.
@@ -200,7 +209,11 @@ def travel_pitch_deg(rotations, directions) -> float:
     if len(d) == 0:
         return float("nan")
     m = -np.einsum("pji,pj->pi", rot, d)
-    return float(np.degrees(np.median(np.arctan2(-m[:, 1], m[:, 2]))))
+    angle = np.arctan2(-m[:, 1], m[:, 2])
+    straight = np.abs(np.arctan2(rot[:, 2, 0], rot[:, 2, 2])) < np.radians(STRAIGHT_TURN_DEG)   # yaw_rad, per pair
+    if straight.sum() >= STRAIGHT_MIN_PAIRS:
+        angle = angle[straight]
+    return float(np.degrees(np.median(angle)))
 
 
 def _at_pitch(table: np.ndarray, pitch_deg: float) -> np.ndarray:
@@ -217,6 +230,32 @@ def yaw_rad(rotation: np.ndarray) -> float:
     x-z plane."""
     r = np.asarray(rotation, np.float64)
     return float(np.arctan2(r[2, 0], r[2, 2]))
+
+
+def road_parallel(rotation: np.ndarray, direction: np.ndarray, pitch_deg: float) -> np.ndarray:
+    """``direction`` made parallel to the road: a car moves in its road's plane, whatever its heading (a camera
+    ahead of the rear axle slides sideways in a turn, never off that plane).
+
+    With ``p`` the camera's pitch over the road (degrees, positive: looking down; :func:`travel_pitch_deg`) and
+    ``L`` the level-from-camera rotation it gives (OpenCV axes: x right, y down, z forward), the motion in
+    camera 0's axes is ``m = -R^T d`` (``R`` = ``rotation`` (3, 3) of ``cam1_from_cam0``, ``d`` = ``direction``
+    (3,) its unit translation); its level vertical component ``(L m)_y`` is set to zero and the result mapped
+    back, ``-R L^T (L m with y = 0)``, normalised. The heading (the sideways part) is ``direction``'s.
+
+    Returns:
+        (3,) float64 unit direction of travel in camera 1's axes; ``direction`` itself (normalised) where the
+        motion is along the road's normal (no heading to keep).
+    """
+    r = np.asarray(rotation, np.float64)
+    d = np.asarray(direction, np.float64)
+    p = np.radians(pitch_deg)
+    level_from_cam = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(p), np.sin(p)], [0.0, -np.sin(p), np.cos(p)]])
+    m = level_from_cam @ (-r.T @ d)
+    m[1] = 0.0
+    norm = float(np.linalg.norm(m))
+    if norm < 1e-9:
+        return d / np.linalg.norm(d)
+    return -r @ (level_from_cam.T @ (m / norm))
 
 
 def path_leaves_band(curvature_per_m: float, ahead_m: float) -> bool:
@@ -371,8 +410,53 @@ def _along(grad: np.ndarray, u, v, centre: tuple[float, float]) -> np.ndarray:
     return (grad[..., 0] * du + grad[..., 1] * dv) / n
 
 
+MIN_TURN_YAW_DEG = 0.5
+"""A pair turning less than this (degrees) keeps its bands straight ahead whatever its distance: 15 times the
+epipolar fit's rotation error on the rendered street (0.03 deg a pair), so that near a stop a rotation's noise
+over a tiny distance is no tight curve; corners turn 3-10 degrees a pair at strides 1-3."""
+
+
+def turn_curvature(yaw: float, q_prior: float, camera) -> float:
+    """The path's curvature times the camera height (1 / radius in camera heights, signed: positive turning
+    towards +x) where a pair's turn is so sharp that its path leaves the nearest image band by the band's
+    nearest visible row (:func:`path_leaves_band`); 0.0 elsewhere (and where ``q_prior`` is not a positive
+    number, or the yaw is below :data:`MIN_TURN_YAW_DEG`), so that straight roads and gentle bends keep the
+    bands straight ahead.
+
+    Args:
+        yaw: the pair's heading change, radians (:func:`yaw_rad`).
+        q_prior: a distance of the pair over the camera height known before its images are aligned (a
+            neighbour's road reading or the network's): the curvature is ``yaw / q_prior``. Taken from the
+            alignment's own scanned distance, a rotation's noise over a small scanned distance would look
+            like a tight curve (bench/criteria/2026-12-05_road_image_turns.md).
+        camera: :class:`core.camera.PinholeCamera` of the images.
+    """
+    if not (np.isfinite(yaw) and abs(yaw) >= np.radians(MIN_TURN_YAW_DEG) and np.isfinite(q_prior) and q_prior > 0):
+        return 0.0
+    r_near = min(max(b[1] for b in IMAGE_BANDS), (camera.height - 1 - camera.cy) / camera.fy)
+    kappa_h = float(yaw) / float(q_prior)
+    return kappa_h if r_near > 0 and path_leaves_band(kappa_h, 1.0 / r_near) else 0.0
+
+
+def _follow_path(uu: np.ndarray, vv: np.ndarray, camera, pitch_rad: float, kappa_h: float):
+    """Band pixels ``(uu, vv)`` moved sideways onto a path of curvature ``kappa_h`` (1 / radius in camera
+    heights, signed): each row's road point at depth ``Z`` (in camera heights, flat road at the pitch) is
+    shifted by the path's offset ``X(Z) = r - sqrt(r^2 - Z^2)`` to the side it turns, ``fx X / Z`` pixels;
+    rows deeper than the radius (the path never gets that far ahead) and pixels leaving the image drop out."""
+    x0 = np.linalg.inv(camera.k) @ np.stack([uu, vv, np.ones_like(uu)]).astype(np.float64)
+    nx = np.cos(pitch_rad) * x0[1] + np.sin(pitch_rad) * x0[2]
+    radius = 1.0 / abs(kappa_h)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        depth = np.where(nx > 1e-9, 1.0 / nx, np.inf)
+        offset = np.sign(kappa_h) * (radius - np.sqrt(np.maximum(radius * radius - depth * depth, 0.0)))
+        du = np.rint(camera.fx * offset / depth)
+    u = uu + np.nan_to_num(du, nan=0.0).astype(np.int64)
+    keep = (depth < radius) & (u >= 0) & (u <= camera.width - 1)
+    return u[keep], vv[keep]
+
+
 def image_road_q(grey0, grey1, camera, rotation: np.ndarray, direction: np.ndarray,
-                 pitch_deg: float, cfg: ImageRoadConfig = ImageRoadConfig()) -> float:
+                 pitch_deg: float, cfg: ImageRoadConfig = ImageRoadConfig(), kappa_h: float = 0.0) -> float:
     """Distance travelled over the camera's height, ``q = |t| / h``, from the road's appearance in two images.
 
     With the rotation and the direction of travel known, the road plane moves by the homography
@@ -390,6 +474,9 @@ def image_road_q(grey0, grey1, camera, rotation: np.ndarray, direction: np.ndarr
         camera: :class:`core.camera.PinholeCamera` of the images (undistorted).
         rotation: (3, 3) rotation of ``cam1_from_cam0``; direction: (3,) its unit translation.
         pitch_deg: the camera's pitch over the road, degrees (positive: looking down).
+        kappa_h: the path's curvature times the camera height in a sharp turn (:func:`turn_curvature`); nonzero:
+            each band's rows are moved sideways onto the path (:func:`_follow_path`), off the kerb and the cars
+            parked along it that the bands straight ahead look at (they stand above the road and read long).
 
     Returns:
         ``q`` (float, dimensionless), NaN where no band reads.
@@ -430,6 +517,11 @@ def image_road_q(grey0, grey1, camera, rotation: np.ndarray, direction: np.ndarr
         step = max(1, int(np.ceil(np.sqrt((v1 - v0) * (u1 - u0) / _IMAGE_BAND_POINTS))))
         vv, uu = np.mgrid[v0:v1:step, u0:u1:step]
         uu, vv = uu.ravel(), vv.ravel()
+        if kappa_h:
+            n_band = len(uu)
+            uu, vv = _follow_path(uu, vv, camera, p, kappa_h)
+            if len(uu) < 0.5 * n_band:      # most of the band's rows lie beyond the turn's radius
+                continue
         ref = g0[vv, uu]
         ref = (all_rows(0)[vv, uu] if np.isnan(ref).any() else ref).astype(np.float64)
         if cfg.radial:

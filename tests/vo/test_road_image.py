@@ -11,8 +11,8 @@ import pytest
 from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
 from deepslam.vo.epipolar import EpipolarConfig, EpipolarFit, fuse, sequence_road_distances
-from deepslam.vo.road_scale import (ImageRoadConfig, RoadSequenceConfig, check_and_fill, image_road_q, road_image,
-                                    road_rows_top)
+from deepslam.vo.road_scale import (IMAGE_BANDS, ImageRoadConfig, RoadSequenceConfig, _band_box, _follow_path,
+                                    check_and_fill, image_road_q, road_image, road_rows_top, turn_curvature)
 
 CAM = PinholeCamera(620, 188, 359.4, 359.4, 309.5, 93.5)
 HEIGHT_M = 1.65
@@ -38,10 +38,12 @@ def _pitched(pitch_deg: float) -> np.ndarray:
 
 
 def _drive(distance_m: float, pitch_deg: float, yaw_deg: float = 0.0,
-           texture: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+           texture: np.ndarray | None = None, block: tuple[float, ...] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Two uint8 (188, 620) images of a textured flat road ``HEIGHT_M`` below a camera pitched ``pitch_deg``
     down, before and after driving ``distance_m`` forward while turning ``yaw_deg`` (sky: mid grey), and
-    cam1_from_cam0 (4, 4). ``texture``: the road's (4000, 2500) texels (default :data:`TEX`)."""
+    cam1_from_cam0 (4, 4). ``texture``: the road's (4000, 2500) texels (default :data:`TEX`). ``block``:
+    ``(x0, x1, z0, z1, top_m)``, a textured flat top ``top_m`` below the camera over that footprint (metres,
+    camera 0's level frame: x right, z ahead), standing on the road like a parked car's roof."""
     level_from_cam = _pitched(pitch_deg)
     yaw = np.radians(yaw_deg)
     r_level = np.array([[np.cos(yaw), 0, np.sin(yaw)], [0, 1, 0], [-np.sin(yaw), 0, np.cos(yaw)]])
@@ -55,6 +57,13 @@ def _drive(distance_m: float, pitch_deg: float, yaw_deg: float = 0.0,
         with np.errstate(divide="ignore", invalid="ignore"):
             depth = np.where(rays[1] > 1e-3, HEIGHT_M / rays[1], np.nan)
         p = level0_from_levelk[:3, :3] @ (rays * depth) + level0_from_levelk[:3, 3:4]
+        if block is not None:
+            x0, x1, z0, z1, top_m = block
+            with np.errstate(divide="ignore", invalid="ignore"):
+                top = level0_from_levelk[:3, :3] @ (rays * np.where(rays[1] > 1e-3, top_m / rays[1], np.nan)) \
+                    + level0_from_levelk[:3, 3:4]
+            on_top = (top[0] >= x0) & (top[0] <= x1) & (top[2] >= z0) & (top[2] <= z1)
+            p = np.where(on_top[None], top, p)
         mx = ((p[0] - _TEX_X0) / _TEXEL_M).reshape(CAM.height, CAM.width).astype(np.float32)
         mz = ((p[2] - _TEX_Z0) / _TEXEL_M).reshape(CAM.height, CAM.width).astype(np.float32)
         img = cv2.remap(TEX if texture is None else texture, np.nan_to_num(mx, nan=-1), np.nan_to_num(mz, nan=-1), cv2.INTER_LINEAR,
@@ -166,6 +175,50 @@ def test_the_default_fills_runs_of_up_to_six_pairs(gap):
         np.testing.assert_allclose(out[2:2 + gap], speeds[1:-1], atol=1e-12)
     else:
         assert np.isnan(out[2:2 + gap]).all()
+
+
+@pytest.mark.parametrize("distance_m,yaw_deg,turns", [
+    (0.6, 3.0, True), (0.6, -3.0, True),     # a corner of 11.5 m radius: the path leaves the band straight ahead
+    (0.6, 0.3, False),                       # below MIN_TURN_YAW_DEG: a rotation's noise near a stop is no curve
+    (0.6, 0.6, False),                       # a 57 m radius: the nearest rows are still on its road
+    (9.0, 3.0, False),                       # the same yaw at 30 m/s: a 172 m radius
+    (float("nan"), 3.0, False), (0.0, 3.0, False),   # no distance known: no curve
+])
+def test_a_sharp_turn_is_told_by_its_yaw_over_a_distance_known_beforehand(distance_m, yaw_deg, turns):
+    kappa_h = turn_curvature(np.radians(yaw_deg), distance_m / HEIGHT_M, CAM)
+    if turns:
+        assert kappa_h == pytest.approx(np.radians(yaw_deg) * HEIGHT_M / distance_m)
+    else:
+        assert kappa_h == 0.0
+
+
+@pytest.mark.parametrize("kappa_h", [0.14, -0.14, 0.05])
+def test_band_rows_follow_the_path_and_rows_beyond_its_radius_drop_out(kappa_h):
+    v0, v1, u0, u1 = _band_box(CAM, *IMAGE_BANDS[1])
+    vv, uu = np.mgrid[v0:v1, u0:u1]
+    u, v = _follow_path(uu.ravel(), vv.ravel(), CAM, np.radians(1.0), kappa_h)
+    x0 = np.linalg.inv(CAM.k) @ np.stack([u, v, np.ones_like(u)]).astype(float)
+    p = np.radians(1.0)
+    depth = 1.0 / (np.cos(p) * x0[1] + np.sin(p) * x0[2])          # flat road, in camera heights
+    radius = 1.0 / abs(kappa_h)
+    assert len(u) and (depth < radius).all() and (u >= 0).all() and (u <= CAM.width - 1).all()
+    # each kept pixel sits within the band's half width (0.1 fx, plus a pixel's rounding) of the path
+    path_x = np.sign(kappa_h) * (radius - np.sqrt(radius ** 2 - depth ** 2))
+    centre_u = CAM.cx + CAM.fx * path_x / depth
+    assert (np.abs(u - centre_u) <= 0.1 * CAM.fx + 1.5).all()
+    if abs(kappa_h) > 0.1:       # a radius of 7 camera heights: the band's deeper rows (to 8.3) are gone
+        assert len(u) < uu.size
+
+
+@pytest.mark.parametrize("yaw_deg", [3.0, -3.0])
+def test_in_a_corner_the_bands_on_the_path_read_the_road_not_the_kerb_straight_ahead(yaw_deg):
+    # a kerb stone's top (0.3 m above the road) fills the band straight ahead, 4-14 m out; the path turns away
+    img0, img1, m = _drive(0.6, 1.0, yaw_deg, block=(-1.2, 1.2, 4.0, 14.0, HEIGHT_M - 0.3))
+    straight = HEIGHT_M * image_road_q(img0, img1, CAM, *_rd(m), 1.0)
+    assert straight > 0.6 * 1.1          # the raised top moves like a nearer road: read long
+    kappa_h = turn_curvature(np.radians(yaw_deg), 0.6 / HEIGHT_M, CAM)
+    on_path = HEIGHT_M * image_road_q(img0, img1, CAM, *_rd(m), 1.0, kappa_h=kappa_h)
+    assert on_path == pytest.approx(0.6, rel=0.03)
 
 
 def _fit(m: np.ndarray, ok: bool = True) -> EpipolarFit:

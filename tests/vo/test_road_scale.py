@@ -7,8 +7,8 @@ import pytest
 
 from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
-from deepslam.vo.road_scale import (ROAD_BANDS, RoadScaleConfig, path_leaves_band, road_distances, scan_road,
-                                    travel_pitch_deg, yaw_rad)
+from deepslam.vo.road_scale import (ROAD_BANDS, RoadScaleConfig, path_leaves_band, road_distances, road_parallel,
+                                    scan_road, travel_pitch_deg, yaw_rad)
 
 CAM = PinholeCamera(620, 188, 359.4, 359.4, 309.5, 93.5)
 
@@ -56,6 +56,26 @@ def test_an_exact_road_flow_gives_the_distance_travelled(distance_m, pitch_deg):
     np.testing.assert_allclose(dist, distance_m, rtol=0.01)
 
 
+@pytest.mark.parametrize("straight,corners,expected_deg", [
+    (12, 30, 1.0),    # enough straight pairs: the corners' motion, read 0.3 deg up, is left out
+    (9, 30, 1.3),     # too few: every pair counts, and the corners pull the median up
+    (0, 5, 1.3),
+])
+def test_the_travel_pitch_comes_from_pairs_that_do_not_turn(straight, corners, expected_deg):
+    rots, dirs = [], []
+    for k in range(straight + corners):
+        yaw = 0.2 if k < straight else 6.0
+        _, m = _road_flow(1.5, 1.0, yaw)
+        d = m[:3, 3] / np.linalg.norm(m[:3, 3])
+        if k >= straight:   # the corner's fit: the motion read 0.3 deg upwards (about the camera's x axis)
+            lift = np.radians(0.3)
+            up = np.array([[1, 0, 0], [0, np.cos(lift), -np.sin(lift)], [0, np.sin(lift), np.cos(lift)]])
+            d = -m[:3, :3] @ (up @ (-m[:3, :3].T @ d))
+        rots.append(m[:3, :3])
+        dirs.append(d)
+    assert travel_pitch_deg(rots, dirs) == pytest.approx(expected_deg, abs=0.01)
+
+
 def test_a_flow_that_is_not_a_road_is_left_to_the_network():
     flow, m = _road_flow(1.0, 1.0)
     rng = np.random.default_rng(0)
@@ -78,6 +98,39 @@ def test_a_road_flow_too_large_for_the_near_rows_is_read_on_farther_rows():
 def test_yaw_is_the_turn_about_the_vertical_axis(yaw_deg):
     _, m = _road_flow(0.5, 1.0, yaw_deg)
     assert np.degrees(yaw_rad(m[:3, :3])) == pytest.approx(yaw_deg, abs=0.01)
+
+
+def _level_motion(yaw_deg: float, pitch_deg: float, level_motion: np.ndarray) -> np.ndarray:
+    """(4, 4) cam1_from_cam0 of a camera pitched ``pitch_deg`` down that turns ``yaw_deg`` about the level
+    vertical while moving by ``level_motion`` (3,) in camera 0's level axes (x right, y down, z forward)."""
+    yaw = np.radians(yaw_deg)
+    r_level = np.array([[np.cos(yaw), 0, np.sin(yaw)], [0, 1, 0], [-np.sin(yaw), 0, np.cos(yaw)]])
+    to_level = se3.from_rt(_pitched(pitch_deg), np.zeros(3))
+    return se3.inverse(to_level) @ se3.inverse(se3.from_rt(r_level, level_motion)) @ to_level
+
+
+@pytest.mark.parametrize("yaw_deg,pitch_deg,motion", [
+    (0.0, 1.0, (0.0, 0.0, 3.0)),      # straight ahead
+    (9.0, 1.0, (0.2, 0.0, 1.5)),      # a corner's chord
+    (9.0, 1.0, (0.45, 0.0, 1.5)),     # the same with a camera 0.84 m ahead of the axle: slides sideways
+    (-4.0, 0.0, (-0.3, 0.0, 2.0)),
+    (3.0, 2.5, (0.1, 0.0, -1.0)),     # reversing
+])
+def test_a_direction_in_the_roads_plane_keeps_its_heading_and_one_off_it_returns_to_it(yaw_deg, pitch_deg, motion):
+    """Only the part along the road's normal is removed: any heading, a lever arm's slide included, stays."""
+    m_level = np.array(motion, float)
+    cam1_from_cam0 = _level_motion(yaw_deg, pitch_deg, m_level)
+    r, t = cam1_from_cam0[:3, :3], cam1_from_cam0[:3, 3]
+    d = t / np.linalg.norm(t)
+    np.testing.assert_allclose(road_parallel(r, d, pitch_deg), d, atol=1e-12)
+    # tilted 0.5 deg out of the road's plane (as the fit reads it at speed): back to the in-plane direction
+    off = np.radians(0.5) * np.linalg.norm(m_level)
+    t_off = -r @ (_pitched(pitch_deg).T @ (m_level - np.array([0.0, off, 0.0])))   # camera 1 a little higher
+    d_off = t_off / np.linalg.norm(t_off)
+    assert np.degrees(np.arccos(np.clip(d_off @ d, -1, 1))) > 0.4
+    got = road_parallel(r, d_off, pitch_deg)
+    np.testing.assert_allclose(got, d, atol=1e-12)
+    assert np.linalg.norm(got) == pytest.approx(1.0, abs=1e-12)
 
 
 @pytest.mark.parametrize("curvature,ahead_m,leaves", [
