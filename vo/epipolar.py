@@ -81,8 +81,8 @@ class EpipolarConfig:
     network's distance."""
     road_fill: bool = True
     """With :attr:`road_height_m`: pairs whose flow shows no usable road are read from the images themselves
-    (:func:`vo.road_scale.image_road_q`, with the fit's rotation and direction, else the network's, the direction
-    made parallel to the road, :func:`vo.road_scale.road_parallel`), a
+    (:func:`vo.road_scale.image_road_q`: the fit's rotation and direction where used, else the network's, the
+    direction made parallel to the road by :func:`vo.road_scale.road_parallel`), a
     distance far from its neighbours' is dropped and short gaps are interpolated
     (:func:`vo.road_scale.check_and_fill`); the rest keep the network's distance. False: the road's motion in
     the flow only (``deepslam vo --scale road-flow``)."""
@@ -320,11 +320,11 @@ def sequence_road_distances(fits, cfg: EpipolarConfig = EpipolarConfig(), mean6:
             make them; only then are distances checked against their neighbours and gaps filled.
 
     The flow's road (:func:`vo.road_scale.road_distances`) is read in the pairs whose fit is used; with
-    ``cfg.road_fill`` the others are read from the images (with the pair's rotation, the fit's where used else
-    the network's, and its direction made parallel to the road: :func:`vo.road_scale.road_parallel`; in a sharp
-    turn with the bands moved onto the car's path, its curvature from the nearest pair the flow read:
-    :func:`vo.road_scale.turn_curvature`), then
-    :func:`vo.road_scale.check_and_fill` drops distances far from their neighbours' and interpolates short gaps.
+    ``cfg.road_fill`` the others are read from the images (the pair's rotation, the fit's where used else the
+    network's, and its direction made parallel to the road, :func:`vo.road_scale.road_parallel`; in a sharp turn
+    the bands are moved onto the car's path, its curvature from the nearest pair the flow read,
+    :func:`vo.road_scale.turn_curvature`), then :func:`vo.road_scale.check_and_fill` drops distances far from
+    their neighbours' and interpolates short gaps.
     """
     fits = list(fits)
     n = len(fits)
