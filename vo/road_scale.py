@@ -210,7 +210,7 @@ def travel_pitch_deg(rotations, directions) -> float:
         return float("nan")
     m = -np.einsum("pji,pj->pi", rot, d)
     angle = np.arctan2(-m[:, 1], m[:, 2])
-    straight = np.abs(np.arctan2(rot[:, 2, 0], rot[:, 2, 2])) < np.radians(STRAIGHT_TURN_DEG)   # yaw_rad, per pair
+    straight = np.abs([yaw_rad(r) for r in rot]) < np.radians(STRAIGHT_TURN_DEG)
     if straight.sum() >= STRAIGHT_MIN_PAIRS:
         angle = angle[straight]
     return float(np.degrees(np.median(angle)))
