@@ -17,7 +17,8 @@ shipped NN_cons / NN_loops and each flow estimator (the simulator's exact flow, 
 
 A second table runs ``deepslam slam``'s defaults (no tuning; DIS flow) on longer street seeds that no
 decision has looked at (:attr:`ResultsSlamConfig.unseen_street_seeds`): VO against SLAM, the loop edges used
-and those left out because their flow fits no rigid motion, and their errors.
+and those left out because their flow fits no rigid motion, and their errors; and the same graph with perfect
+loops (an exact loop edge on every revisit of the route): whether the target is within loop closure's reach there.
 
 Writes ``results.json``, ``results.md`` and one top-down trajectory plot per scene and flow under
 ``--out``; renders and the per-case records are cached, so a killed run resumes (a record is reused
@@ -65,6 +66,12 @@ class ResultsSlamConfig:
     7416-7418), run with ``deepslam slam``'s defaults: the second table."""
     unseen_frames: int = 400
     """Frames per unseen street (40 s at 10 Hz: the route's loop and the avenue after it)."""
+    revisit_max_distance_m: float = 3.0
+    """Exact-revisit graph: the revisits are camera centres at most this far apart, metres (and at least T_loop frames apart)."""
+    revisit_max_angle_deg: float = 20.0
+    """Exact-revisit graph: the revisits' relative rotation at most this, degrees."""
+    exact_edge_std6: tuple[float, ...] = (1e-3, 1e-3, 1e-3, 1e-2, 1e-2, 1e-2)
+    """Exact-revisit graph: the exact loop edges' std in the graph (rad x3, m x3), tight against the odometry's."""
 
 
 def _render(log, scene: str, seed: int, cfg: ResultsSlamConfig, out: Path) -> Path:
@@ -150,15 +157,32 @@ def _loop_record(seq, loops, res) -> dict | None:
 def _with_true_loops(prep, loops, params, world_from_cam0: np.ndarray) -> np.ndarray | None:
     """(N, 4, 4) the tuned graph solved with the ground truth's relative poses on the same loop pairs
     (NN_loops' predicted std kept as the weights); None without loop pairs."""
-    from deepslam.core import se3
     from deepslam.slam.posegraph import Edges, PoseGraphConfig, optimize
 
     if not len(loops):
         return None
-    gt = prep.seq.gt.world_from_cam
-    mean6 = se3.to_euler6(se3.relative(gt[loops.pairs[:, 1]], gt[loops.pairs[:, 0]]))  # cam_j_from_cam_i
+    true = Edges.from_poses(prep.seq.gt.world_from_cam, loops.pairs, loops.std6)
     cfg = dataclasses.replace(PoseGraphConfig(), c_s=params.c_s, c_r=params.c_r)
-    return optimize(prep.n, prep.cons, Edges(loops.pairs, mean6, loops.std6), cfg, world_from_cam0).world_from_cam
+    return optimize(prep.n, prep.cons, true, cfg, world_from_cam0).world_from_cam
+
+
+def with_exact_revisits(prep, params, cfg: ResultsSlamConfig, world_from_cam0: np.ndarray) -> tuple[np.ndarray, int]:
+    """((N, 4, 4) poses, revisit pairs): the graph of ``params`` with the same consecutive edges and an exact
+    loop edge (the ground truth's relative pose, :attr:`ResultsSlamConfig.exact_edge_std6`) on every revisit of the
+    route (frames at least T_loop apart, within :attr:`ResultsSlamConfig.revisit_max_distance_m` and
+    :attr:`ResultsSlamConfig.revisit_max_angle_deg`): what loop closure gives on this route with this odometry
+    when it finds every revisit and measures it exactly. Not a strict bound on the ATE: pinning the revisits
+    exactly can push the odometry's error into the stretches no revisit ties."""
+    from deepslam.slam.posegraph import Edges, PoseGraphConfig, optimize
+    from deepslam.vo.supervised import PairSpec, frame_pairs
+
+    gt = prep.seq.gt.world_from_cam
+    pairs = frame_pairs(gt, PairSpec(kind="loops", loop_min_gap_frames=params.t_loop,
+                                     loop_max_distance_m=cfg.revisit_max_distance_m,
+                                     loop_max_angle_deg=cfg.revisit_max_angle_deg))
+    graph = dataclasses.replace(PoseGraphConfig(), c_s=params.c_s, c_r=params.c_r)
+    loops = Edges.from_poses(gt, pairs, cfg.exact_edge_std6)
+    return optimize(prep.n, prep.cons, loops, graph, world_from_cam0).world_from_cam, len(pairs)
 
 
 def evaluate_case(val_seqs: list, test_seq, flow: str, plot: Path) -> dict:
@@ -194,9 +218,9 @@ def evaluate_case(val_seqs: list, test_seq, flow: str, plot: Path) -> dict:
     return rec
 
 
-def evaluate_unseen(seq) -> dict:
+def evaluate_unseen(seq, cfg: ResultsSlamConfig) -> dict:
     """VO and SLAM with ``deepslam slam``'s defaults (``SlamParams()``, DIS flow) on ``seq``, its loop edges
-    scored against the ground truth."""
+    scored against the ground truth, and the graph of :func:`with_exact_revisits`."""
     from bench.results_vo import pair_errors
     from deepslam.slam.pipeline import PipelineConfig, SlamParams, prepare, solve
     from deepslam.slam.posegraph import chain, loop_coverage
@@ -208,19 +232,28 @@ def evaluate_unseen(seq) -> dict:
     vo = chain(prep.n, prep.cons, first)
     # what the loop edges constrain: the frames inside a closed cycle against the rest
     covered = loop_coverage(prep.n, loops.pairs)
+    exact, n_revisits = with_exact_revisits(prep, SlamParams(), cfg, first)
     rec = {"vo": _metrics(seq, vo, covered), "slam": _metrics(seq, res.world_from_cam, covered),
+           "slam_exact_revisits": _metrics(seq, exact, covered), "revisit_pairs": n_revisits,
            "frames_in_loops_pct": 100.0 * float(covered.mean()),
            "loop_edges": int(len(loops)), "loop_edges_kept": int(res.loop_inliers.sum()),
            "loops_not_rigid": len(prep.unverified_pairs(SlamParams().t_loop)),
            "loop_errors": pair_errors(seq, loops.pairs, loops.mean6) if len(loops) else None,
            "seconds": time.perf_counter() - t0}
     rec["ratio"] = rec["slam"]["ate_m"] / rec["vo"]["ate_m"]
+    rec["ratio_exact_revisits"] = rec["slam_exact_revisits"]["ate_m"] / rec["vo"]["ate_m"]
     rec["vo_path_ratio"] = rec["vo"]["path_length_ratio"]
     return rec
 
 
 def _f(x, f=".3g") -> str:
     return "n/a" if x is None else format(x, f)
+
+
+def _exact_cell(r: dict) -> str:
+    """The unseen table's exact-revisit cell: ATE (x VO), n/a for a record without it."""
+    b = r.get("slam_exact_revisits")
+    return "n/a" if b is None else f"{_f(b['ate_m'])} (x{r['ratio_exact_revisits']:.2f})"
 
 
 def markdown(report: dict) -> str:
@@ -251,14 +284,15 @@ def markdown(report: dict) -> str:
         md += ["", f"Unseen streets ({report['config']['unseen_frames']} frames at "
                f"{report['config']['street_width']} px; seeds no decision has looked at), `deepslam slam`'s defaults "
                "(DIS flow, C_s 1, C_r 1, T_loop 50, no tuning):", "",
-               "| street seed | VO ATE [m] | SLAM ATE [m] | SLAM/VO | met | VO path x | loop edges (kept by the graph) | "
+               "| street seed | VO ATE [m] | SLAM ATE [m] | SLAM/VO | met | perfect loops: exact loop edges at every revisit, "
+               "ATE [m] (x VO) | VO path x | loop edges (kept by the graph) | "
                "left out: flow fits no rigid motion | loop edges' error t [m] / r [deg] | frames inside a closed "
                "cycle [%] | VO / SLAM ATE there [m] | VO / SLAM ATE elsewhere [m] |",
-               "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+               "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for seed, r in unseen.items():
             le = r["loop_errors"] or {}
             md.append(f"| {seed} | {_f(r['vo']['ate_m'])} | {_f(r['slam']['ate_m'])} | {_f(r['ratio'], '.2f')} | "
-                      f"{'yes' if r['ratio'] <= 0.5 else 'no'} | {_f(r.get('vo_path_ratio'))} | "
+                      f"{'yes' if r['ratio'] <= 0.5 else 'no'} | {_exact_cell(r)} | {_f(r.get('vo_path_ratio'))} | "
                       f"{r['loop_edges']} ({r['loop_edges_kept']}) | {r['loops_not_rigid']} | "
                       f"{_f(le.get('t_rmse_m'))} / {_f(le.get('r_rmse_deg'))} | {_f(r.get('frames_in_loops_pct'), '.0f')} | "
                       f"{_f(r['vo'].get('ate_in_loops_m'))} / {_f(r['slam'].get('ate_in_loops_m'))} | "
@@ -266,7 +300,11 @@ def markdown(report: dict) -> str:
         md += ["", "The ATE is split (one alignment of the whole trajectory) between the frames inside a cycle that a "
                "loop edge closes and the rest, where only the odometry places a frame (the avenue after the route's "
                "loop): loop edges constrain the first; the rest follows the odometry from where the last closed cycle "
-               "ends."]
+               "ends. Perfect loops solve the same graph (same consecutive edges, same C_s, C_r) with an exact loop edge, "
+               "the ground truth's relative pose, on every revisit of the route (frames at least T_loop apart, "
+               f"within {report['config']['revisit_max_distance_m']:g} m and {report['config']['revisit_max_angle_deg']:g} deg): "
+               "what loop closure gives on this route with this odometry when it finds every revisit and measures it "
+               "exactly. Where that is above half the VO ATE, the target is out of loop closure's reach on that route."]
     md += ["", "![street, exact flow](street_gt.png) ![street, DIS flow](street_dis.png)", "",
            "![room, exact flow](room_gt.png) ![room, DIS flow](room_dis.png)", "",
            f"Run time: {report['minutes']:.1f} min.", "", "## Commands", "", "```"] + report["commands"] + ["```"]
@@ -311,7 +349,7 @@ def run(cfg: ResultsSlamConfig, out: Path) -> dict:
             rec = cached_case(path, used, commit)
             if rec is None:
                 print(f"street {seed} (unseen), deepslam slam defaults", flush=True)
-                rec = {**evaluate_unseen(seq), "models_sha256": used, "commit": commit}
+                rec = {**evaluate_unseen(seq, cfg), "models_sha256": used, "commit": commit}
                 atomic.write_json(path, rec)
                 print(f"  VO ATE {rec['vo']['ate_m']:.3f} m, SLAM {rec['slam']['ate_m']:.3f} m "
                       f"(ratio {rec['ratio']:.2f})", flush=True)

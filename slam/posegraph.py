@@ -153,6 +153,20 @@ class Edges:
         return Edges(np.zeros((0, 2), np.int64), np.zeros((0, 6)), np.ones((0, 6)))
 
     @staticmethod
+    def from_poses(world_from_cam: np.ndarray, pairs: np.ndarray, std6) -> "Edges":
+        """Edges that measure the given poses exactly: ``cam_j_from_cam_i`` of each pair (i, j).
+
+        Args:
+            world_from_cam: (N, 4, 4) float64 poses (the ground truth, for bounds on what loop closure can do).
+            pairs: (P, 2) int indices into ``world_from_cam``.
+            std6: (6,) or (P, 6) std given to the edges (rad, rad, rad, m, m, m): their weight in the graph.
+        """
+        pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
+        poses = np.asarray(world_from_cam, np.float64)
+        mean6 = se3.to_euler6(se3.relative(poses[pairs[:, 1]], poses[pairs[:, 0]])).reshape(-1, 6)
+        return Edges(pairs, mean6, np.broadcast_to(np.asarray(std6, np.float64), (len(pairs), 6)))
+
+    @staticmethod
     def concat(*edges: "Edges") -> "Edges":
         return Edges(np.concatenate([e.pairs for e in edges]), np.concatenate([e.mean6 for e in edges]),
                      np.concatenate([e.std6 for e in edges]))

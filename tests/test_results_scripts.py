@@ -81,13 +81,17 @@ def test_slam_table_marks_the_half_target():
     md = results_slam.markdown({"config": dataclasses.asdict(results_slam.ResultsSlamConfig()), "minutes": 1.0,
                                 "commands": [], "cases": {"street/gt": case}, "unseen": {"7421": unseen}})
     row = [ln for ln in md.splitlines() if ln.startswith("| 7421")]
-    assert row == ["| 7421 | 2 | 1.7 | 0.85 | no | 0.99 | 40 (39) | 6 | 0.3 / 0.25 | n/a | n/a / n/a | n/a / n/a |"]
+    assert row == ["| 7421 | 2 | 1.7 | 0.85 | no | n/a | 0.99 | 40 (39) | 6 | 0.3 / 0.25 | n/a | n/a / n/a | n/a / n/a |"]
     unseen.update(frames_in_loops_pct=62.0, vo={"ate_m": 2.0, "ate_in_loops_m": 1.5, "ate_elsewhere_m": 2.5},
                   slam={"ate_m": 1.7, "ate_in_loops_m": 0.5, "ate_elsewhere_m": 2.4})
     md = results_slam.markdown({"config": dataclasses.asdict(results_slam.ResultsSlamConfig()), "minutes": 1.0,
                                 "commands": [], "cases": {"street/gt": case}, "unseen": {"7421": unseen}})
     row = [ln for ln in md.splitlines() if ln.startswith("| 7421")]
     assert row[0].endswith("| 62 | 1.5 / 0.5 | 2.5 / 2.4 |")
+    unseen.update(slam_exact_revisits={"ate_m": 1.3}, ratio_exact_revisits=0.65)
+    md = results_slam.markdown({"config": dataclasses.asdict(results_slam.ResultsSlamConfig()), "minutes": 1.0,
+                                "commands": [], "cases": {"street/gt": case}, "unseen": {"7421": unseen}})
+    assert "| 0.85 | no | 1.3 (x0.65) | 0.99 |" in [ln for ln in md.splitlines() if ln.startswith("| 7421")][0]
 
 
 def test_the_ate_split_adds_up_to_the_whole_trajectorys_ate():
@@ -129,6 +133,33 @@ def test_true_loop_edges_remove_the_drift_they_span():
     assert drift > 1.0
     assert np.linalg.norm(fixed[:, :3, 3] - gt[:, :3, 3], axis=1).max() < 0.2 * drift
     assert _with_true_loops(prep, Edges.empty(), SlamParams(), gt[0]) is None
+
+
+def test_the_with_exact_revisits_ties_every_revisit_and_only_revisits():
+    """results_slam's perfect loops: exact loop edges on every pair of frames at least T_loop apart that revisit a place
+    (none on a route that does not come back); on a drifting circle driven twice they remove the drift."""
+    from types import SimpleNamespace
+
+    from bench.results_slam import ResultsSlamConfig, with_exact_revisits
+    from deepslam.core import se3
+    from deepslam.slam.pipeline import SlamParams
+    from deepslam.slam.posegraph import Edges, chain
+
+    n = 160
+    step = se3.from_euler6(np.array([0.0, 4 * np.pi / n, 0.0, 0.0, 0.0, 0.5]))    # two laps of a 6.4 m radius
+    gt = np.stack([np.linalg.matrix_power(step, k) for k in range(n)])
+    biased = se3.to_euler6(se3.inverse(step @ se3.from_euler6(np.array([0.0, 0.004, 0.0, 0.0, 0.0, 0.01]))))
+    cons = Edges(np.stack([np.arange(n - 1), np.arange(1, n)], 1), np.tile(biased, (n - 1, 1)), np.full((n - 1, 6), 0.01))
+    prep = SimpleNamespace(seq=SimpleNamespace(gt=SimpleNamespace(world_from_cam=gt)), n=n, cons=cons)
+    fixed, n_pairs = with_exact_revisits(prep, SlamParams(), ResultsSlamConfig(), gt[0])
+    drift = np.linalg.norm(chain(n, cons, gt[0])[:, :3, 3] - gt[:, :3, 3], axis=1).max()
+    assert drift > 1.0 and n_pairs >= 80
+    assert np.linalg.norm(fixed[:, :3, 3] - gt[:, :3, 3], axis=1).max() < 0.1 * drift
+    line = np.stack([se3.from_rt(np.eye(3), np.array([0.0, 0.0, 0.5 * k])) for k in range(n)])
+    prep.seq.gt.world_from_cam = line
+    straight, none = with_exact_revisits(prep, SlamParams(), ResultsSlamConfig(), line[0])
+    assert none == 0
+    np.testing.assert_allclose(straight, chain(n, cons, line[0]), atol=1e-6)
 
 
 def test_a_cached_render_of_other_settings_is_not_reused(tmp_path):

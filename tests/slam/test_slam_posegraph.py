@@ -78,6 +78,18 @@ def test_direction_of_edges_recovers_ground_truth():
     assert np.abs(chain(30, wrong, poses[0]) - poses).max() > 0.1
 
 
+def test_edges_from_poses_measure_the_poses_exactly():
+    """Edges.from_poses gives cam_j_from_cam_i, as the odometry does: chained, they rebuild the poses."""
+    poses = circle_trajectory(12, radius_m=4.0, laps=0.3)
+    pairs = np.array([(i, i + 1) for i in range(11)] + [(0, 9)])
+    edges = Edges.from_poses(poses, pairs, (0.01,) * 3 + (0.1,) * 3)
+    m, _ = GroundTruthOdometry(NoiseConfig(std6=(0,) * 6), gt=Trajectory(poses)).predict(None, pairs.tolist())
+    np.testing.assert_allclose(edges.mean6, m, atol=1e-12)
+    np.testing.assert_allclose(edges.std6, np.tile([0.01] * 3 + [0.1] * 3, (12, 1)))
+    np.testing.assert_allclose(chain(12, edges.subset(np.arange(12) < 11), poses[0]), poses, atol=1e-9)
+    assert len(Edges.from_poses(poses, np.zeros((0, 2), int), np.ones(6))) == 0
+
+
 def test_loop_closure_reduces_drift():
     g = loop_graph(n_frames=300, laps=2.0, radius_m=30.0, loop_every=5, seed=3)
     gt, cons, loops = g["gt"], g["cons"], g["loops"]
