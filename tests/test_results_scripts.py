@@ -388,15 +388,16 @@ def test_adapt_table_leaves_the_adapted_cells_empty_where_nothing_was_adapted():
 def test_a_killed_agreement_run_resumes_with_the_rows_it_measured_at_the_same_commit(tmp_path, monkeypatch):
     """Rows go to rows.jsonl as they are measured; a second run at the same clean commit measures nothing
     again, one at another commit (or with uncommitted changes) measures everything; a line cut short by a
-    kill is skipped."""
+    kill is skipped. A strided row is the mean of the runs from every start frame."""
     from bench import results_agreement
     import deepslam.studies.demo as demo
 
     calls = []
 
-    def fake_vo(seq, stride, extra, out):
-        calls.append((str(seq), stride, extra))
-        return {"path_length_ratio": 1.0 + 0.01 * stride, "endpoint_drift_pct": float(stride), "ate_m": 0.1}
+    def fake_vo(seq, stride, extra, out, start=0):
+        calls.append((str(seq), stride, extra, start))
+        return {"path_length_ratio": 1.0 + 0.01 * stride + 0.1 * start, "endpoint_drift_pct": float(stride + start),
+                "ate_m": 0.1}
 
     monkeypatch.setattr(results_agreement, "_vo", fake_vo)
     monkeypatch.setattr(results_agreement, "_dis_epe", lambda seq, stride: 1.0)
@@ -406,16 +407,22 @@ def test_a_killed_agreement_run_resumes_with_the_rows_it_measured_at_the_same_co
     commit = {"commit": "abc1234"}
     monkeypatch.setattr(results_agreement, "stamp", lambda: dict(commit))
     first = results_agreement.run(cfg, out, tmp_path)
-    assert len(calls) == 4 and len((out / "rows.jsonl").read_text().splitlines()) == 4
+    # two variants x one street: stride 1 from frame 0, stride 2 from frames 0 and 1
+    assert len(calls) == 6 and len((out / "rows.jsonl").read_text().splitlines()) == 4
+    assert sorted({c[1:] for c in calls if c[2] == ()}) == [(1, (), 0), (2, (), 0), (2, (), 1)]
+    strided = next(r for r in first["rows"] if r["stride"] == 2 and r["variant"] == first["config"]["variants"][0][0])
+    assert strided["path_ratio"] == pytest.approx(1.07) and strided["drift_pct"] == pytest.approx(2.5)
+    assert [r["start"] for r in strided["per_start"]] == [0, 1]
+    assert "mean over the runs from start frames" in (out / "results.md").read_text()
     with open(out / "rows.jsonl", "a") as f:
         f.write('{"key": "[\\"abc1234\\", [], \\"sim')          # a kill in the middle of a line
     again = results_agreement.run(cfg, out, tmp_path)
-    assert len(calls) == 4 and again["rows"] == first["rows"]
+    assert len(calls) == 6 and again["rows"] == first["rows"]
     for other in ("def5678", "abc1234-dirty"):
         commit["commit"] = other
         calls.clear()
         results_agreement.run(cfg, out, tmp_path)
-        assert len(calls) == 4
+        assert len(calls) == 6
 
 
 def test_stress_results_run_the_study_in_a_folder_of_its_own(tmp_path, monkeypatch, capsys):
