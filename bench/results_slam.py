@@ -66,12 +66,6 @@ class ResultsSlamConfig:
     7416-7418), run with ``deepslam slam``'s defaults: the second table."""
     unseen_frames: int = 400
     """Frames per unseen street (40 s at 10 Hz: the route's loop and the avenue after it)."""
-    revisit_max_distance_m: float = 3.0
-    """Exact-revisit graph: the revisits are camera centres at most this far apart, metres (and at least T_loop frames apart)."""
-    revisit_max_angle_deg: float = 20.0
-    """Exact-revisit graph: the revisits' relative rotation at most this, degrees."""
-    exact_edge_std6: tuple[float, ...] = (1e-3, 1e-3, 1e-3, 1e-2, 1e-2, 1e-2)
-    """Exact-revisit graph: the exact loop edges' std in the graph (rad x3, m x3), tight against the odometry's."""
 
 
 def _render(log, scene: str, seed: int, cfg: ResultsSlamConfig, out: Path) -> Path:
@@ -166,23 +160,15 @@ def _with_true_loops(prep, loops, params, world_from_cam0: np.ndarray) -> np.nda
     return optimize(prep.n, prep.cons, true, cfg, world_from_cam0).world_from_cam
 
 
-def with_exact_revisits(prep, params, cfg: ResultsSlamConfig, world_from_cam0: np.ndarray) -> tuple[np.ndarray, int]:
-    """((N, 4, 4) poses, revisit pairs): the graph of ``params`` with the same consecutive edges and an exact
-    loop edge (the ground truth's relative pose, :attr:`ResultsSlamConfig.exact_edge_std6`) on every revisit of the
-    route (frames at least T_loop apart, within :attr:`ResultsSlamConfig.revisit_max_distance_m` and
-    :attr:`ResultsSlamConfig.revisit_max_angle_deg`): what loop closure gives on this route with this odometry
-    when it finds every revisit and measures it exactly. Not a strict bound on the ATE: pinning the revisits
-    exactly can push the odometry's error into the stretches no revisit ties."""
-    from deepslam.slam.posegraph import Edges, PoseGraphConfig, optimize
-    from deepslam.vo.supervised import PairSpec, frame_pairs
+def with_exact_revisits(prep, params, world_from_cam0: np.ndarray) -> tuple[np.ndarray, int]:
+    """((N, 4, 4) poses, revisit pairs): :func:`slam.reference.perfect_loops` of the graph of ``params`` (its
+    C_s, C_r; revisits at least T_loop frames apart)."""
+    from deepslam.slam.posegraph import PoseGraphConfig
+    from deepslam.slam.reference import perfect_loops
 
-    gt = prep.seq.gt.world_from_cam
-    pairs = frame_pairs(gt, PairSpec(kind="loops", loop_min_gap_frames=params.t_loop,
-                                     loop_max_distance_m=cfg.revisit_max_distance_m,
-                                     loop_max_angle_deg=cfg.revisit_max_angle_deg))
     graph = dataclasses.replace(PoseGraphConfig(), c_s=params.c_s, c_r=params.c_r)
-    loops = Edges.from_poses(gt, pairs, cfg.exact_edge_std6)
-    return optimize(prep.n, prep.cons, loops, graph, world_from_cam0).world_from_cam, len(pairs)
+    got = perfect_loops(prep.seq.gt.world_from_cam, prep.cons, params.t_loop, graph, world_from_cam0=world_from_cam0)
+    return got.world_from_cam, len(got.pairs)
 
 
 def evaluate_case(val_seqs: list, test_seq, flow: str, plot: Path) -> dict:
@@ -218,7 +204,7 @@ def evaluate_case(val_seqs: list, test_seq, flow: str, plot: Path) -> dict:
     return rec
 
 
-def evaluate_unseen(seq, cfg: ResultsSlamConfig) -> dict:
+def evaluate_unseen(seq) -> dict:
     """VO and SLAM with ``deepslam slam``'s defaults (``SlamParams()``, DIS flow) on ``seq``, its loop edges
     scored against the ground truth, and the graph of :func:`with_exact_revisits`."""
     from bench.results_vo import pair_errors
@@ -232,7 +218,7 @@ def evaluate_unseen(seq, cfg: ResultsSlamConfig) -> dict:
     vo = chain(prep.n, prep.cons, first)
     # what the loop edges constrain: the frames inside a closed cycle against the rest
     covered = loop_coverage(prep.n, loops.pairs)
-    exact, n_revisits = with_exact_revisits(prep, SlamParams(), cfg, first)
+    exact, n_revisits = with_exact_revisits(prep, SlamParams(), first)
     rec = {"vo": _metrics(seq, vo, covered), "slam": _metrics(seq, res.world_from_cam, covered),
            "slam_exact_revisits": _metrics(seq, exact, covered), "revisit_pairs": n_revisits,
            "frames_in_loops_pct": 100.0 * float(covered.mean()),
@@ -248,6 +234,13 @@ def evaluate_unseen(seq, cfg: ResultsSlamConfig) -> dict:
 
 def _f(x, f=".3g") -> str:
     return "n/a" if x is None else format(x, f)
+
+
+def _perfect_loops_config() -> dict:
+    """The revisit settings of :func:`with_exact_revisits` (``slam.reference.PerfectLoopsConfig``'s defaults)."""
+    from deepslam.slam.reference import PerfectLoopsConfig
+
+    return dataclasses.asdict(PerfectLoopsConfig())
 
 
 def _exact_cell(r: dict) -> str:
@@ -281,6 +274,7 @@ def markdown(report: dict) -> str:
                   f"{_f((r.get('slam_true_loops') or {}).get('ate_m'))} |")
     unseen = report.get("unseen") or {}
     if unseen:
+        perfect = report.get("perfect_loops") or _perfect_loops_config()
         md += ["", f"Unseen streets ({report['config']['unseen_frames']} frames at "
                f"{report['config']['street_width']} px; seeds no decision has looked at), `deepslam slam`'s defaults "
                "(DIS flow, C_s 1, C_r 1, T_loop 50, no tuning):", "",
@@ -302,7 +296,7 @@ def markdown(report: dict) -> str:
                "loop): loop edges constrain the first; the rest follows the odometry from where the last closed cycle "
                "ends. Perfect loops solve the same graph (same consecutive edges, same C_s, C_r) with an exact loop edge, "
                "the ground truth's relative pose, on every revisit of the route (frames at least T_loop apart, "
-               f"within {report['config']['revisit_max_distance_m']:g} m and {report['config']['revisit_max_angle_deg']:g} deg): "
+               f"within {perfect['max_distance_m']:g} m and {perfect['max_angle_deg']:g} deg; `slam.reference`): "
                "what loop closure gives on this route with this odometry when it finds every revisit and measures it "
                "exactly. Where that is above half the VO ATE, the target is out of loop closure's reach on that route."]
     md += ["", "![street, exact flow](street_gt.png) ![street, DIS flow](street_dis.png)", "",
@@ -349,12 +343,13 @@ def run(cfg: ResultsSlamConfig, out: Path) -> dict:
             rec = cached_case(path, used, commit)
             if rec is None:
                 print(f"street {seed} (unseen), deepslam slam defaults", flush=True)
-                rec = {**evaluate_unseen(seq, cfg), "models_sha256": used, "commit": commit}
+                rec = {**evaluate_unseen(seq), "models_sha256": used, "commit": commit}
                 atomic.write_json(path, rec)
                 print(f"  VO ATE {rec['vo']['ate_m']:.3f} m, SLAM {rec['slam']['ate_m']:.3f} m "
                       f"(ratio {rec['ratio']:.2f})", flush=True)
             unseen[str(seed)] = rec
-    report = {"config": dataclasses.asdict(cfg), "cases": cases, "unseen": unseen, "commands": log,
+    report = {"config": dataclasses.asdict(cfg), "cases": cases, "unseen": unseen,
+              "perfect_loops": _perfect_loops_config(), "commands": log,
               "minutes": (time.perf_counter() - t0) / 60}
     write_report(out, report, markdown)
     return report

@@ -113,3 +113,25 @@ def associate(a: Trajectory, b: Trajectory, max_diff_s: float = 0.01) -> tuple[n
         return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
     ia, ib = map(np.array, zip(*pairs))
     return ia, ib
+
+
+def revisit_pairs(world_from_cam: np.ndarray, min_gap_frames: int, max_distance_m: float,
+                  max_angle_deg: float) -> np.ndarray:
+    """The frame pairs that see the same place again: (P, 2) int64 (i, j), i < j, ordered by i then j.
+
+    Args:
+        world_from_cam: (N, 4, 4) float poses (metres), one per frame.
+        min_gap_frames: j - i at least this (a revisit, not the next frames).
+        max_distance_m: camera centres at most this far apart, metres.
+        max_angle_deg: relative rotation at most this, degrees.
+    """
+    poses = np.asarray(world_from_cam, np.float64)
+    pos = poses[:, :3, 3]
+    pairs = []
+    for i in range(len(poses) - max(int(min_gap_frames), 0)):
+        j = np.arange(i + max(int(min_gap_frames), 1), len(poses))
+        j = j[np.linalg.norm(pos[j] - pos[i], axis=1) <= max_distance_m]
+        if len(j):
+            angle = np.rad2deg(se3.rotation_angle(se3.relative(poses[j], poses[i][None])))
+            pairs += [(i, int(k)) for k in j[angle <= max_angle_deg]]
+    return np.array(pairs, dtype=np.int64).reshape(-1, 2)

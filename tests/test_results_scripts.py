@@ -135,33 +135,6 @@ def test_true_loop_edges_remove_the_drift_they_span():
     assert _with_true_loops(prep, Edges.empty(), SlamParams(), gt[0]) is None
 
 
-def test_the_with_exact_revisits_ties_every_revisit_and_only_revisits():
-    """results_slam's perfect loops: exact loop edges on every pair of frames at least T_loop apart that revisit a place
-    (none on a route that does not come back); on a drifting circle driven twice they remove the drift."""
-    from types import SimpleNamespace
-
-    from bench.results_slam import ResultsSlamConfig, with_exact_revisits
-    from deepslam.core import se3
-    from deepslam.slam.pipeline import SlamParams
-    from deepslam.slam.posegraph import Edges, chain
-
-    n = 160
-    step = se3.from_euler6(np.array([0.0, 4 * np.pi / n, 0.0, 0.0, 0.0, 0.5]))    # two laps of a 6.4 m radius
-    gt = np.stack([np.linalg.matrix_power(step, k) for k in range(n)])
-    biased = se3.to_euler6(se3.inverse(step @ se3.from_euler6(np.array([0.0, 0.004, 0.0, 0.0, 0.0, 0.01]))))
-    cons = Edges(np.stack([np.arange(n - 1), np.arange(1, n)], 1), np.tile(biased, (n - 1, 1)), np.full((n - 1, 6), 0.01))
-    prep = SimpleNamespace(seq=SimpleNamespace(gt=SimpleNamespace(world_from_cam=gt)), n=n, cons=cons)
-    fixed, n_pairs = with_exact_revisits(prep, SlamParams(), ResultsSlamConfig(), gt[0])
-    drift = np.linalg.norm(chain(n, cons, gt[0])[:, :3, 3] - gt[:, :3, 3], axis=1).max()
-    assert drift > 1.0 and n_pairs >= 80
-    assert np.linalg.norm(fixed[:, :3, 3] - gt[:, :3, 3], axis=1).max() < 0.1 * drift
-    line = np.stack([se3.from_rt(np.eye(3), np.array([0.0, 0.0, 0.5 * k])) for k in range(n)])
-    prep.seq.gt.world_from_cam = line
-    straight, none = with_exact_revisits(prep, SlamParams(), ResultsSlamConfig(), line[0])
-    assert none == 0
-    np.testing.assert_allclose(straight, chain(n, cons, line[0]), atol=1e-6)
-
-
 def test_a_cached_render_of_other_settings_is_not_reused(tmp_path):
     """render_once reuses a complete render only when its frame count and width are the ones asked for."""
     from deepslam.core.camera import PinholeCamera

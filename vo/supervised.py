@@ -9,6 +9,7 @@ from tqdm import tqdm
 
 from deepslam.core import se3
 from deepslam.core.errors import InputError
+from deepslam.core.trajectory import revisit_pairs
 from deepslam.flow.estimators import to_network_input
 
 @dataclasses.dataclass(frozen=True)
@@ -35,17 +36,8 @@ def frame_pairs(gt_world_from_cam: np.ndarray, spec: PairSpec) -> np.ndarray:
     if spec.kind == "consecutive":
         pairs = [(i, i + k) for k in spec.strides for i in range(n - k)]
     elif spec.kind == "loops":
-        pos = gt_world_from_cam[:, :3, 3]
-        pairs = []
-        for i in range(n):
-            j = np.arange(i + spec.loop_min_gap_frames, n)
-            if not len(j):
-                break
-            near = np.linalg.norm(pos[j] - pos[i], axis=1) <= spec.loop_max_distance_m
-            j = j[near]
-            if len(j):
-                ang = np.rad2deg(se3.rotation_angle(se3.relative(gt_world_from_cam[j], gt_world_from_cam[i][None])))
-                pairs += [(i, int(jj)) for jj in j[ang <= spec.loop_max_angle_deg]]
+        pairs = revisit_pairs(gt_world_from_cam, spec.loop_min_gap_frames, spec.loop_max_distance_m,
+                              spec.loop_max_angle_deg)
     else:
         raise InputError(None, f"unknown pair kind {spec.kind!r} (consecutive or loops)")
     pairs = np.array(pairs, dtype=np.int64).reshape(-1, 2)
