@@ -253,11 +253,16 @@ class FlowPoseNet(PoseNet):
 def register_input_buffers(net: nn.Module, cfg: NetConfig) -> None:
     """What :func:`network_input` reads from a network: ``_inv_size`` (1, 2, 1, 1) float32
     ``flow_scale / (W, H)`` and ``_grid_uv`` (1, 2, h, w) float32 pixel coordinates at network
-    resolution (buffers, not saved), and ``channels_last`` (False)."""
-    size = torch.tensor([cfg.input_width, cfg.input_height], dtype=torch.float32).view(1, 2, 1, 1)
+    resolution (buffers, not saved), and ``channels_last`` (False).
+
+    The buffers are made on the CPU under any device context (``.to`` moves them with the network): under
+    ``torch.device("meta")``, where :func:`vo.modelio.load_model` checks a file's shapes, these few ops would run
+    through torch's Python meta kernels, whose first use imports ``torch._dynamo`` (seconds a process)."""
+    cpu = torch.device("cpu")
+    size = torch.tensor([cfg.input_width, cfg.input_height], dtype=torch.float32, device=cpu).view(1, 2, 1, 1)
     net.register_buffer("_inv_size", cfg.flow_scale / size, persistent=False)
-    v, u = torch.meshgrid(torch.arange(cfg.input_height, dtype=torch.float32),
-                          torch.arange(cfg.input_width, dtype=torch.float32), indexing="ij")
+    v, u = torch.meshgrid(torch.arange(cfg.input_height, dtype=torch.float32, device=cpu),
+                          torch.arange(cfg.input_width, dtype=torch.float32, device=cpu), indexing="ij")
     net.register_buffer("_grid_uv", torch.stack([u, v])[None], persistent=False)
     net.channels_last = False
 
