@@ -103,23 +103,66 @@ def _band_box(camera, r0: float, r1: float) -> tuple[int, int, int, int]:
     return v0, v1, u0, u1
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
 class RoadScan:
     """How well the road's motion in one flow fits each distance, per row band and camera pitch.
 
     With the rotation and direction of travel known (the epipolar fit), a road plane ``h`` below the camera
     moves by the homography ``R + q d n^T`` with ``q = |t| / h``: one unknown per pitch. For each band of
     :data:`ROAD_BANDS` and pitch of :data:`PITCHES_DEG`, the ``q`` whose homography moves the band's pixels
-    most like the flow (smallest median end-point difference) is kept."""
+    most like the flow (smallest median end-point difference) is kept.
 
-    q: np.ndarray
-    """(B, P) float64 best ``|t| / h`` (distance travelled over the camera's height)."""
-    cost_px: np.ndarray
-    """(B, P) float64 median end-point difference at that ``q``, pixels (NaN: too few pixels in the band)."""
-    flow90_px: np.ndarray
-    """(B, P) float64 90th percentile of the band's flow due to the translation at that ``q``, pixels."""
-    width: int
-    """Image width of the flow, pixels (limits scale with it)."""
+    Made by :func:`scan_road`, which keeps the flow at the bands' pixels; a pitch's fit is computed the first
+    time it is asked for (:meth:`at_pitch`: the two pitches either side of the sequence's camera pitch, known
+    only once every pair is fitted; :attr:`q`, :attr:`cost_px`, :attr:`flow90_px`: all of them), so a sequence
+    pays for 2 of the 21 pitches. Not thread-safe: read one scan from one thread at a time.
+    """
+
+    def __init__(self, samples: tuple, camera, rotation: np.ndarray, direction: np.ndarray, shape: tuple[int, int]):
+        """``samples``: per band of :data:`ROAD_BANDS`, the (N, 2) flow (pixels, NaN = unknown; the flow's dtype) at the
+        band's grid of pixels (:func:`_band_grid`); ``camera`` of the flow, ``rotation`` (3, 3) and ``direction``
+        (3,) of ``cam1_from_cam0``, ``shape`` the flow's (H, W)."""
+        self._samples = samples
+        self._camera = camera
+        self._rotation = np.asarray(rotation, np.float64)
+        self._direction = np.asarray(direction, np.float64)
+        self._shape = shape
+        self._fits: dict[tuple[int, int], tuple[float, float, float]] = {}
+
+    width = property(lambda self: int(self._shape[1]), doc="Image width of the flow, pixels (limits scale with it).")
+
+    def _fit(self, b: int, p: int) -> tuple[float, float, float]:
+        """(q, cost_px, flow90_px) of band ``b`` at pitch ``PITCHES_DEG[p]``; NaN where the band has fewer than 30
+        pixels of known flow."""
+        if (b, p) not in self._fits:
+            self._fits[b, p] = _fit_band(self._samples[b], self._camera, self._rotation, self._direction, self._shape,
+                                         b, float(np.radians(PITCHES_DEG)[p]))
+        return self._fits[b, p]
+
+    def _table(self, k: int) -> np.ndarray:
+        return np.array([[self._fit(b, p)[k] for p in range(len(PITCHES_DEG))] for b in range(len(ROAD_BANDS))])
+
+    q = property(lambda self: self._table(0), doc="(B, P) float64 best ``|t| / h`` (distance travelled over the "
+                 "camera's height).")
+    cost_px = property(lambda self: self._table(1), doc="(B, P) float64 median end-point difference at that ``q``, "
+                       "pixels (NaN: too few pixels in the band).")
+    flow90_px = property(lambda self: self._table(2), doc="(B, P) float64 90th percentile of the band's flow due to "
+                         "the translation at that ``q``, pixels.")
+
+    def at_pitch(self, pitch_deg: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(q, cost_px, flow90_px), each (B,) float64, linearly interpolated at ``pitch_deg`` along
+        :data:`PITCHES_DEG` (clipped to its range)."""
+        i, w = _pitch_index_weight(pitch_deg)
+        lo = np.array([self._fit(b, i) for b in range(len(ROAD_BANDS))])
+        hi = np.array([self._fit(b, i + 1) for b in range(len(ROAD_BANDS))])
+        return tuple((1 - w) * lo[:, k] + w * hi[:, k] for k in range(3))
+
+
+def _band_grid(camera, b: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, columns) int arrays of band ``b``'s regular grid of at most about ``_BAND_POINTS`` pixels in an image
+    ``height`` rows high, row-major."""
+    v0, v1, u0, u1 = _band_box(camera, *ROAD_BANDS[b])
+    step = max(1, int(np.ceil(np.sqrt(max(v1 - v0, 1) * max(u1 - u0, 1) / _BAND_POINTS))))
+    return np.mgrid[min(v0, height):v1:step, u0:u1:step]
 
 
 def scan_road(flow: np.ndarray, camera, rotation: np.ndarray, direction: np.ndarray) -> RoadScan:
@@ -130,46 +173,46 @@ def scan_road(flow: np.ndarray, camera, rotation: np.ndarray, direction: np.ndar
         camera: :class:`core.camera.PinholeCamera` of the flow.
         rotation: (3, 3) rotation of ``cam1_from_cam0``; direction: (3,) unit translation of ``cam1_from_cam0``.
 
-    Each band is sampled on a regular grid of at most about ``_BAND_POINTS`` pixels.
+    Each band is sampled on a regular grid of at most about ``_BAND_POINTS`` pixels; only those samples are kept.
     """
-    h, w = flow.shape[:2]
+    h = flow.shape[0]
+    samples = []
+    for b in range(len(ROAD_BANDS)):
+        vv, uu = _band_grid(camera, b, h)
+        samples.append(flow[vv, uu].reshape(-1, 2).copy())
+    return RoadScan(tuple(samples), camera, rotation, direction, tuple(flow.shape[:2]))
+
+
+def _fit_band(samples: np.ndarray, camera, rotation: np.ndarray, direction: np.ndarray, shape: tuple[int, int],
+              b: int, pitch: float) -> tuple[float, float, float]:
+    """:meth:`RoadScan._fit`: band ``b``'s best ``q`` at ``pitch`` (radians), its cost and flow's 90th percentile."""
     k = camera.k
-    kr = k @ np.asarray(rotation, np.float64)
-    kd = k @ np.asarray(direction, np.float64)
-    nb, npitch = len(ROAD_BANDS), len(PITCHES_DEG)
-    q_out = np.full((nb, npitch), np.nan)
-    cost = np.full((nb, npitch), np.nan)
-    f90 = np.full((nb, npitch), np.nan)
-    for b, (r0, r1) in enumerate(ROAD_BANDS):
-        v0, v1, u0, u1 = _band_box(camera, r0, r1)
-        step = max(1, int(np.ceil(np.sqrt(max(v1 - v0, 1) * max(u1 - u0, 1) / _BAND_POINTS))))
-        vv, uu = np.mgrid[min(v0, h):v1:step, u0:u1:step]
-        f = flow[vv, uu].reshape(-1, 2).astype(np.float64)
-        uu, vv = uu.ravel().astype(np.float64), vv.ravel().astype(np.float64)
-        ok = np.isfinite(f).all(axis=1)
-        if ok.sum() < 30:
-            continue
-        uu, vv, f = uu[ok], vv[ok], f[ok]
-        x0 = np.linalg.inv(k) @ np.stack([uu, vv, np.ones_like(uu)])
-        a = kr @ x0                                          # (3, N) the rotation's image of each ray
-        rot_uv = np.stack([a[0] / a[2], a[1] / a[2]], -1)
-        target = np.stack([uu + f[:, 0], vv + f[:, 1]], -1)
-        for p, pitch in enumerate(np.radians(PITCHES_DEG)):
-            nx = np.cos(pitch) * x0[1] + np.sin(pitch) * x0[2]   # n . x0 with n = (0, cos, sin): the road's normal
+    kr = k @ rotation
+    kd = k @ direction
+    vv, uu = _band_grid(camera, b, shape[0])
+    f = samples.astype(np.float64)
+    uu, vv = uu.ravel().astype(np.float64), vv.ravel().astype(np.float64)
+    ok = np.isfinite(f).all(axis=1)
+    if ok.sum() < 30:
+        return float("nan"), float("nan"), float("nan")
+    uu, vv, f = uu[ok], vv[ok], f[ok]
+    x0 = np.linalg.inv(k) @ np.stack([uu, vv, np.ones_like(uu)])
+    a = kr @ x0                                          # (3, N) the rotation's image of each ray
+    rot_uv = np.stack([a[0] / a[2], a[1] / a[2]], -1)
+    target = np.stack([uu + f[:, 0], vv + f[:, 1]], -1)
+    nx = np.cos(pitch) * x0[1] + np.sin(pitch) * x0[2]   # n . x0 with n = (0, cos, sin): the road's normal
 
-            def costs(qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-                x1 = a[None] + qs[:, None, None] * kd[None, :, None] * nx[None, None, :]   # (Q, 3, N)
-                uv = np.stack([x1[:, 0] / x1[:, 2], x1[:, 1] / x1[:, 2]], -1)            # (Q, N, 2)
-                return np.median(np.linalg.norm(uv - target[None], axis=-1), axis=1), uv
+    def costs(qs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        x1 = a[None] + qs[:, None, None] * kd[None, :, None] * nx[None, None, :]   # (Q, 3, N)
+        uv = np.stack([x1[:, 0] / x1[:, 2], x1[:, 1] / x1[:, 2]], -1)            # (Q, N, 2)
+        return np.median(np.linalg.norm(uv - target[None], axis=-1), axis=1), uv
 
-            c, _ = costs(_Q_COARSE)
-            i = int(np.argmin(c))
-            fine = np.geomspace(_Q_COARSE[max(0, i - 1)], _Q_COARSE[min(len(_Q_COARSE) - 1, i + 1)], 25)
-            c, uv = costs(fine)
-            j = int(np.argmin(c))
-            q_out[b, p], cost[b, p] = fine[j], c[j]
-            f90[b, p] = float(np.percentile(np.linalg.norm(uv[j] - rot_uv, axis=-1), 90))
-    return RoadScan(q_out, cost, f90, int(w))
+    c, _ = costs(_Q_COARSE)
+    i = int(np.argmin(c))
+    fine = np.geomspace(_Q_COARSE[max(0, i - 1)], _Q_COARSE[min(len(_Q_COARSE) - 1, i + 1)], 25)
+    c, uv = costs(fine)
+    j = int(np.argmin(c))
+    return float(fine[j]), float(c[j]), float(np.percentile(np.linalg.norm(uv[j] - rot_uv, axis=-1), 90))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -216,12 +259,12 @@ def travel_pitch_deg(rotations, directions) -> float:
     return float(np.degrees(np.median(angle)))
 
 
-def _at_pitch(table: np.ndarray, pitch_deg: float) -> np.ndarray:
-    """(B,) ``table`` (B, P) linearly interpolated at ``pitch_deg`` along :data:`PITCHES_DEG`."""
+def _pitch_index_weight(pitch_deg: float) -> tuple[int, float]:
+    """(i, w): ``pitch_deg`` (clipped to :data:`PITCHES_DEG`' range) lies ``w`` of the way from ``PITCHES_DEG[i]``
+    to ``PITCHES_DEG[i + 1]``."""
     x = float(np.clip(pitch_deg, PITCHES_DEG[0], PITCHES_DEG[-1]))
     i = min(int(np.searchsorted(PITCHES_DEG, x, side="right")) - 1, len(PITCHES_DEG) - 2)
-    w = (x - PITCHES_DEG[i]) / (PITCHES_DEG[i + 1] - PITCHES_DEG[i])
-    return (1 - w) * table[:, i] + w * table[:, i + 1]
+    return i, (x - PITCHES_DEG[i]) / (PITCHES_DEG[i + 1] - PITCHES_DEG[i])
 
 
 def yaw_rad(rotation: np.ndarray) -> float:
@@ -286,7 +329,7 @@ def road_distances(scans: list[RoadScan | None], pitch_deg: float,
     for i, s in enumerate(scans):
         if s is None:
             continue
-        q, cost, f90 = _at_pitch(s.q, pitch_deg), _at_pitch(s.cost_px, pitch_deg), _at_pitch(s.flow90_px, pitch_deg)
+        q, cost, f90 = s.at_pitch(pitch_deg)
         if not np.isfinite(q[0]):
             continue
         limit = cfg.max_flow_frac * s.width

@@ -94,6 +94,24 @@ def test_a_road_flow_too_large_for_the_near_rows_is_read_on_farther_rows():
     np.testing.assert_allclose(road_distances([scan], 1.0), 4.0, rtol=0.01)
 
 
+@pytest.mark.parametrize("pitch_deg", [-3.0, -1.5, 0.1, 1.0, 1.125, 3.5, 9.0])
+def test_a_scan_at_a_pitch_is_its_tables_interpolated_and_fits_only_that_pitchs_neighbours(pitch_deg):
+    """RoadScan fits a pitch when asked: at_pitch gives what the whole tables interpolated give (clipped to the
+    scanned pitches), having fitted only the two pitches either side (of 21), each band."""
+    from deepslam.vo.road_scale import PITCHES_DEG
+
+    flow, m = _road_flow(1.5, 1.0, 0.4)
+    d = m[:3, 3] / np.linalg.norm(m[:3, 3])
+    lazy, whole = scan_road(flow, CAM, m[:3, :3], d), scan_road(flow, CAM, m[:3, :3], d)
+    got = lazy.at_pitch(pitch_deg)
+    assert len(lazy._fits) == 2 * len(ROAD_BANDS)
+    x = np.clip(pitch_deg, PITCHES_DEG[0], PITCHES_DEG[-1])
+    for value, table in zip(got, (whole.q, whole.cost_px, whole.flow90_px)):
+        expected = [np.interp(x, PITCHES_DEG, row) for row in table]
+        np.testing.assert_allclose(value, expected, rtol=1e-12, atol=1e-12)
+    assert np.isfinite(got[0]).all() and lazy.width == CAM.width
+
+
 @pytest.mark.parametrize("yaw_deg", [3.0, -2.0, 0.0])
 def test_yaw_is_the_turn_about_the_vertical_axis(yaw_deg):
     _, m = _road_flow(0.5, 1.0, yaw_deg)
