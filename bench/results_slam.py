@@ -295,8 +295,9 @@ def markdown(report: dict) -> str:
                "loop edge closes and the rest, where only the odometry places a frame (the avenue after the route's "
                "loop): loop edges constrain the first; the rest follows the odometry from where the last closed cycle "
                "ends. Perfect loops solve the same graph (same consecutive edges, same C_s, C_r) with an exact loop edge, "
-               "the ground truth's relative pose, on every revisit of the route (frames at least T_loop apart, "
-               f"within {perfect['max_distance_m']:g} m and {perfect['max_angle_deg']:g} deg; `slam.reference`): "
+               "the ground truth's relative pose, from every frame that sees a place again to its nearest earlier view "
+               f"(at least T_loop frames before, within {perfect['max_distance_m']:g} m and "
+               f"{perfect['max_angle_deg']:g} deg; `slam.reference`): "
                "what loop closure gives on this route with this odometry when it finds every revisit and measures it "
                "exactly. Where that is above half the VO ATE, the target is out of loop closure's reach on that route."]
     md += ["", "![street, exact flow](street_gt.png) ![street, DIS flow](street_dis.png)", "",

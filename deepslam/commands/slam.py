@@ -257,7 +257,7 @@ def format_report(r: dict) -> str:
                   f"{'  elsewhere':<24}{num(mv.get('ate_elsewhere_m')):>12}{num(ms.get('ate_elsewhere_m')):>12}  m",
                   *([f"{'  with perfect loops':<24}{'':>12}{num(r['metrics_perfect_loops']['ate_m']):>12}  m "
                      f"(an exact loop edge on each of the route's {r['metrics_perfect_loops']['revisit_pairs']} "
-                     "revisits)"] if r.get("metrics_perfect_loops") else []),
+                     "revisiting frames)"] if r.get("metrics_perfect_loops") else []),
                   f"{'RPE trans rmse (d=1)':<24}{num(mv['rpe_t_m']):>12}{num(ms['rpe_t_m']):>12}  m",
                   f"{'RPE rot rmse (d=1)':<24}{num(mv['rpe_r_deg']):>12}{num(ms['rpe_r_deg']):>12}  deg"]
         if "kitti_t_err_pct" in ms:

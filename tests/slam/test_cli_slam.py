@@ -47,7 +47,7 @@ def test_slam_cli_writes_trajectories_record_and_plot(seq_dir, tmp_path, capsys)
     assert "in closed cycles" in text
     # the same graph with an exact loop edge on every revisit (T_loop 20 apart, the second lap 0.2 m aside)
     perfect = rec["metrics_perfect_loops"]
-    assert perfect["revisit_pairs"] > rec["n_loops"] and perfect["ate_m"] < 0.5 * rec["metrics_vo"]["ate_m"]
+    assert 20 <= perfect["revisit_pairs"] <= 40 and perfect["ate_m"] < 0.5 * rec["metrics_vo"]["ate_m"]
     assert "with perfect loops" in text
     assert rec["metrics_slam"]["ate_m"] < 0.5 * rec["metrics_vo"]["ate_m"]
     assert (tmp_path / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
