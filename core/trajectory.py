@@ -116,7 +116,7 @@ def associate(a: Trajectory, b: Trajectory, max_diff_s: float = 0.01) -> tuple[n
 
 
 def revisit_pairs(world_from_cam: np.ndarray, min_gap_frames: int, max_distance_m: float,
-                  max_angle_deg: float) -> np.ndarray:
+                  max_angle_deg: float, nearest_only: bool = False) -> np.ndarray:
     """The frame pairs that see the same place again: (P, 2) int64 (i, j), i < j, ordered by i then j.
 
     Args:
@@ -124,14 +124,26 @@ def revisit_pairs(world_from_cam: np.ndarray, min_gap_frames: int, max_distance_
         min_gap_frames: j - i at least this (a revisit, not the next frames).
         max_distance_m: camera centres at most this far apart, metres.
         max_angle_deg: relative rotation at most this, degrees.
+        nearest_only: keep, for each later frame j, only the pair whose camera centres are nearest (at most one
+            pair per j, then ordered by j): a camera standing still for n frames gives about n pairs, not n^2 / 2.
     """
     poses = np.asarray(world_from_cam, np.float64)
     pos = poses[:, :3, 3]
+    gap = max(int(min_gap_frames), 1)
     pairs = []
-    for i in range(len(poses) - max(int(min_gap_frames), 0)):
-        j = np.arange(i + max(int(min_gap_frames), 1), len(poses))
-        j = j[np.linalg.norm(pos[j] - pos[i], axis=1) <= max_distance_m]
-        if len(j):
-            angle = np.rad2deg(se3.rotation_angle(se3.relative(poses[j], poses[i][None])))
-            pairs += [(i, int(k)) for k in j[angle <= max_angle_deg]]
-    return np.array(pairs, dtype=np.int64).reshape(-1, 2)
+    for j in range(gap, len(poses)):
+        i = np.arange(j - gap + 1)
+        dist = np.linalg.norm(pos[j] - pos[i], axis=1)
+        near = dist <= max_distance_m
+        if not near.any():
+            continue
+        i, dist = i[near], dist[near]
+        ok = np.rad2deg(se3.rotation_angle(se3.relative(poses[j][None], poses[i]))) <= max_angle_deg
+        if not ok.any():
+            continue
+        if nearest_only:
+            pairs.append((int(i[np.argmin(np.where(ok, dist, np.inf))]), j))
+        else:
+            pairs += [(int(k), j) for k in i[ok]]
+    pairs = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+    return pairs if nearest_only else pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]

@@ -2,10 +2,11 @@
 
 Given the ground truth, :func:`perfect_loops` solves the SLAM's own graph (the same consecutive edges, the same
 C_s and C_r) with its loop edges replaced by the ground truth's relative pose from every frame that sees a place
-again to the nearest earlier view of it (:func:`nearest_revisits`; one a frame, as the SLAM's own search keeps
-one loop a query, so that a camera standing still adds n edges, not n^2). Its ATE tells a SLAM that misses or mismeasures loops
-from a route that has few revisits: on a route that closes one cycle, a drift-like odometry error keeps most of
-its size whatever the loops (docs/experiments/2026-12-05_slam_reach.md).
+again to the nearest earlier view of it (:func:`core.trajectory.revisit_pairs` with ``nearest_only``: one edge a
+frame, as the SLAM's own search keeps one loop a query, so that a camera standing still adds n edges, not n^2).
+Its ATE tells a SLAM that misses or mismeasures loops from a route that has few revisits: on a route that closes
+one cycle, a drift-like odometry error keeps most of its size whatever the loops
+(docs/experiments/2026-12-05_slam_reach.md).
 """
 from __future__ import annotations
 
@@ -13,8 +14,8 @@ import dataclasses
 
 import numpy as np
 
-from deepslam.core import metrics, se3
-from deepslam.core.trajectory import Trajectory
+from deepslam.core import metrics
+from deepslam.core.trajectory import Trajectory, revisit_pairs
 from deepslam.slam.posegraph import Edges, PoseGraphConfig, optimize
 
 
@@ -43,38 +44,11 @@ class PerfectLoops:
     pairs: np.ndarray
 
 
-def nearest_revisits(world_from_cam: np.ndarray, min_gap_frames: int, max_distance_m: float,
-                     max_angle_deg: float) -> np.ndarray:
-    """(P, 2) int64 pairs (i, j), i < j, ordered by j: each frame j that sees a place again with the earlier frame
-    i (at least ``min_gap_frames`` before it, camera centres within ``max_distance_m``, relative rotation within
-    ``max_angle_deg``) whose camera centre is nearest; at most one pair per frame j (the subset of
-    :func:`core.trajectory.revisit_pairs` that keeps the nearest of each frame's).
-
-    Args:
-        world_from_cam: (N, 4, 4) float poses (metres), one per frame.
-    """
-    poses = np.asarray(world_from_cam, np.float64)
-    pos = poses[:, :3, 3]
-    gap = max(int(min_gap_frames), 1)
-    pairs = []
-    for j in range(gap, len(poses)):
-        i = np.arange(j - gap + 1)
-        dist = np.linalg.norm(pos[i] - pos[j], axis=1)
-        near = dist <= max_distance_m
-        if not near.any():
-            continue
-        i, dist = i[near], dist[near]
-        angle = np.rad2deg(se3.rotation_angle(se3.relative(poses[i], poses[j][None])))
-        ok = angle <= max_angle_deg
-        if ok.any():
-            pairs.append((int(i[np.argmin(np.where(ok, dist, np.inf))]), j))
-    return np.array(pairs, dtype=np.int64).reshape(-1, 2)
-
-
 def perfect_loops(gt_world_from_cam: np.ndarray, cons: Edges, min_gap_frames: int,
                   graph: PoseGraphConfig = PoseGraphConfig(), config: PerfectLoopsConfig = PerfectLoopsConfig(),
                   world_from_cam0: np.ndarray | None = None) -> PerfectLoops:
-    """The graph of ``cons`` with an exact loop edge on every revisit of the ground-truth route (:func:`nearest_revisits`).
+    """The graph of ``cons`` with an exact loop edge on every revisit of the ground-truth route, each revisiting
+    frame tied to its nearest earlier view (:func:`core.trajectory.revisit_pairs` with ``nearest_only``).
 
     Args:
         gt_world_from_cam: (N, 4, 4) float64 ground-truth poses, one per graph node (frame).
@@ -88,7 +62,7 @@ def perfect_loops(gt_world_from_cam: np.ndarray, cons: Edges, min_gap_frames: in
         :class:`PerfectLoops`; on a route with no revisit, the graph equals dead reckoning of ``cons``.
     """
     gt = np.asarray(gt_world_from_cam, np.float64)
-    pairs = nearest_revisits(gt, min_gap_frames, config.max_distance_m, config.max_angle_deg)
+    pairs = revisit_pairs(gt, min_gap_frames, config.max_distance_m, config.max_angle_deg, nearest_only=True)
     loops = Edges.from_poses(gt, pairs, config.std6)
     return PerfectLoops(optimize(len(gt), cons, loops, graph, world_from_cam0).world_from_cam, pairs)
 

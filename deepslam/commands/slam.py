@@ -182,15 +182,15 @@ def _run(args: argparse.Namespace) -> int:
             inside, elsewhere = metrics.ate_parts(ev["_gt_poses"], ev["_est_aligned_poses"], in_cycles[ev["_est_index"]])
             record[f"metrics_{name}"].update(ate_in_closed_cycles_m=inside, ate_elsewhere_m=elsewhere)
             if name == "slam":
-                # the same graph with an exact loop edge on every revisit: what loop closure gives on this route
-                graph = dataclasses.replace(config.graph, c_s=res.params.c_s, c_r=res.params.c_r)
-                perfect = perfect_loops_record(seq, res.cons, res.params.t_loop, graph, args.align)
-                if perfect is not None:
-                    record["metrics_perfect_loops"] = perfect
                 gt_aligned = ev["_gt_poses"]
                 slam_aligned = ev["_est_aligned_poses"]
             else:
                 vo_aligned = ev["_est_aligned_poses"]
+        # the same graph with an exact loop edge on every revisit: what loop closure gives on this route
+        graph = dataclasses.replace(config.graph, c_s=res.params.c_s, c_r=res.params.c_r)
+        perfect = perfect_loops_record(seq, res.cons, res.params.t_loop, graph, args.align)
+        if perfect is not None:
+            record["metrics_perfect_loops"] = perfect
     if args.plot:
         series = {}
         if seq.gt is not None:

@@ -7,7 +7,7 @@ import pytest
 from deepslam.core import se3
 from deepslam.core.trajectory import revisit_pairs
 from deepslam.slam.posegraph import Edges, PoseGraphConfig, chain
-from deepslam.slam.reference import PerfectLoopsConfig, nearest_revisits, perfect_loops
+from deepslam.slam.reference import PerfectLoopsConfig, perfect_loops
 
 
 def _drifting(gt: np.ndarray, bias6) -> Edges:
@@ -54,19 +54,19 @@ def test_perfect_loops_revisits_follow_the_config(config, expect_pairs):
 
 
 def test_nearest_revisits_keep_each_frames_nearest_earlier_view():
-    """One pair per revisiting frame, the nearest of its revisit_pairs: a camera standing still for 300 frames
+    """revisit_pairs(nearest_only=True), what perfect_loops ties: one pair per revisiting frame, the nearest of its pairs: a camera standing still for 300 frames
     gives 250 edges, not 31,000."""
     still = np.tile(np.eye(4), (300, 1, 1))
     still[:, 0, 3] = np.linspace(0.0, 0.3, 300)            # creeping forward, 1 mm a frame
-    pairs = nearest_revisits(still, 50, 3.0, 20.0)
+    pairs = revisit_pairs(still, 50, 3.0, 20.0, nearest_only=True)
     every = revisit_pairs(still, 50, 3.0, 20.0)
     assert len(every) == 250 * 251 // 2 and len(pairs) == 250
     np.testing.assert_array_equal(pairs[:, 1], np.arange(50, 300))
     np.testing.assert_array_equal(pairs[:, 0], pairs[:, 1] - 50)   # the nearest is the latest one allowed
     assert set(map(tuple, pairs)) <= set(map(tuple, every))
     gt = _circle(120, laps=2.0)
-    lap_pairs = nearest_revisits(gt, 30, 3.0, 20.0)
+    lap_pairs = revisit_pairs(gt, 30, 3.0, 20.0, nearest_only=True)
     second = lap_pairs[:, 1] >= 60                             # a lap is 60 frames: the same place a lap earlier
     np.testing.assert_array_equal(lap_pairs[second, 0], lap_pairs[second, 1] - 60)
     assert second.sum() == 60 and (lap_pairs[~second, 0] == 0).all()   # nearing the start: the start
-    assert nearest_revisits(np.zeros((0, 4, 4)), 5, 1.0, 20.0).shape == (0, 2)
+    assert revisit_pairs(np.zeros((0, 4, 4)), 5, 1.0, 20.0, nearest_only=True).shape == (0, 2)
