@@ -230,8 +230,9 @@ def vo_end_to_end_fps(quick: bool) -> list[dict]:
     beforehand, OpenCV's threads); and, run in turn with it, the same with ``--pose net``, with DIS on the
     full-size frames (``--dis-max-width 0``; only where the shipped model records a working width), with one
     flow worker (``DEEPSLAM_FLOW_WORKERS=1``: DIS on OpenCV's threads), with ``--scale network`` (the network's
-    distance: what reading the distance from the road costs), with ``--flow learned``, and with ``--dis-patch-stride 4`` (DIS matching a patch every 4 pixels, not the
-    preset's 3: the speed option the README documents, run on the shipped model, which was trained on stride 3)."""
+    distance: what reading the distance from the road costs), with ``--flow learned``, and with
+    ``--dis-patch-stride 4`` (DIS matching a patch every 4 pixels, not the preset's 3: the speed option the README
+    documents, run on the shipped model, which was trained on stride 3)."""
     import subprocess
     import sys
 
@@ -248,7 +249,8 @@ def vo_end_to_end_fps(quick: bool) -> list[dict]:
     n = len(seq)
     env = {k: v for k, v in os.environ.items() if k != WORKERS_ENV}
     dis = models.flow_for_model("dis", models.shipped_path("kitti", "cons", "dis"))  # as `vo` sets it up
-    variants = {"default": ([], env), "net": (["--pose", "net"], env), "network distance": (["--scale", "network"], env),
+    variants = {"default": ([], env), "net": (["--pose", "net"], env),
+                "network distance": (["--scale", "network"], env),
                 "one worker": ([], {**env, WORKERS_ENV: "1"}), "learned": (["--flow", "learned"], env),
                 "stride 4": (["--dis-patch-stride", "4"], env)}
     if dis.max_width:  # the shipped model runs DIS on downscaled frames: time it against full-size frames too
@@ -281,7 +283,8 @@ def vo_end_to_end_fps(quick: bool) -> list[dict]:
                  "frames/s", "deepslam vo (no flags: epipolar pose) in turn", fps["default"], ">= 20 frames/s",
                  fps["net"] >= 20, wall_s=wall["net"], runs_s=times["net"]),
             _row(f"deepslam vo end to end (no flags: the distance read from the road) against --scale network (the "
-                 f"network's distance, no road read), KITTI 07 slice, fresh processes in turn", fps["default"], "frames/s",
+                 f"network's distance, no road read), KITTI 07 slice, fresh processes in turn", fps["default"],
+                 "frames/s",
                  "--scale network in turn", fps["network distance"], ">= 0.85x (the road costs at most 15 %)",
                  fps["default"] >= 0.85 * fps["network distance"], wall_s=wall["default"],
                  network_distance_runs_s=times["network distance"]),

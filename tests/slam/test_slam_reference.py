@@ -54,8 +54,8 @@ def test_perfect_loops_revisits_follow_the_config(config, expect_pairs):
 
 
 def test_nearest_revisits_keep_each_frames_nearest_earlier_view():
-    """revisit_pairs(nearest_only=True), what perfect_loops ties: one pair per revisiting frame, the nearest of its pairs: a camera standing still for 300 frames
-    gives 250 edges, not 31,000."""
+    """revisit_pairs(nearest_only=True), what perfect_loops ties: one pair per revisiting frame, the nearest of
+    its pairs: a camera standing still for 300 frames gives 250 edges, not 31,000."""
     still = np.tile(np.eye(4), (300, 1, 1))
     still[:, 0, 3] = np.linspace(0.0, 0.3, 300)            # creeping forward, 1 mm a frame
     pairs = revisit_pairs(still, 50, 3.0, 20.0, nearest_only=True)
