@@ -40,7 +40,7 @@ d['consecutive']['dofs']['t_z']={'df':1000.0,'loc':-1.4,'scale':100.0,'lo':-2.8,
     $D/kitti_no0607.json $D/kitti_no0607_wide.json
 DIS="--mode synthetic --synthetic-flow dis --dis-preset medium --frame-scales 1,0.65 --frame-step 2 --samples-per-epoch 20000
      --max-epochs 6 --nll-epochs 10 --threads 2 --data-threads 2 --seed 0 --net cpu --appearance-noise 6 --quiet"
-train() { local out=$1; shift; [ -f "$out/model.safetensors" ] || $DS train $DIS "$@" --out "$out" $([ -d "$out" ] && echo --resume); }
+train() { local out=$1; shift; [ -f "$out/model.safetensors" ] || $DS train --loss mse $DIS "$@" --out "$out" $([ -d "$out" ] && echo --resume); }
 OLD="--motion models/motion/kitti_s1.json"
 NEW="--motion $D/kitti_no0607.json"
 NAR="$D/narrow_s4 $D/narrow_s5 $D/narrow_s6 $D/narrow_s7 $D/narrow_s8 $D/narrow_s9"
@@ -64,12 +64,12 @@ train $D/K06_grainy_06 $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 --sourc
 # the seed study: K06 at seeds 1-4, and seeds 0-4 joined into one ensemble file
 for s in 1 2 3 4; do
   out=$D/K06_seed$s
-  [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 \
+  [ -f "$out/model.safetensors" ] || $DS train --loss mse ${DIS/--seed 0/--seed $s} $NEW --sample-pool 20000 --camera-tilt-deg=-1:3:1 \
       --source $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
 [ -f $D/K06_ens5.safetensors ] || $DS ensemble-model $D/K06_grainy_06/model.safetensors $D/K06_seed1/model.safetensors \
     $D/K06_seed2/model.safetensors $D/K06_seed3/model.safetensors $D/K06_seed4/model.safetensors --out $D/K06_ens5.safetensors
-[ -f $D/H_learned/model.safetensors ] || $DS train --mode synthetic --synthetic-flow learned --frame-scales 1,0.65 \
+[ -f $D/H_learned/model.safetensors ] || $DS train --loss mse --mode synthetic --synthetic-flow learned --frame-scales 1,0.65 \
     --sample-pool 12000 --frame-step 2 --samples-per-epoch 12000 --max-epochs 8 --nll-epochs 10 --threads 2 \
     --data-threads 2 --seed 0 --net cpu --appearance-noise 6 --quiet $NEW --camera-tilt-deg=-1:3:1 --source $MIX \
     --out $D/H_learned $([ -d $D/H_learned ] && echo --resume)
@@ -77,7 +77,7 @@ done
 # (the learned flow as fine-tuned on 2026-12-02, scripts/train_flow_model.sh; H above was trained with its first run)
 for s in 0 1 2; do
   out=$D/L06_learned_s$s
-  [ -f $out/model.safetensors ] || $DS train --mode synthetic --synthetic-flow learned --frame-scales 1,0.65 \
+  [ -f $out/model.safetensors ] || $DS train --loss mse --mode synthetic --synthetic-flow learned --frame-scales 1,0.65 \
       --sample-pool 12000 --frame-step 2 --samples-per-epoch 12000 --max-epochs 8 --nll-epochs 10 --threads 2 \
       --data-threads 2 --seed $s --net cpu --appearance-noise 6 --quiet $NEW --camera-tilt-deg=-1:3:1 \
       --source $GALL $K06 --out $out $([ -d $out ] && echo --resume)
@@ -87,13 +87,13 @@ done
 KDE="--motion models/motion/kitti_no0607_kde_s1.json"
 for s in 0 1 2 3 4; do
   out=$D/M06_kde_s$s
-  [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} $KDE --sample-pool 20000 --camera-tilt-deg=-1:3:1 \
+  [ -f "$out/model.safetensors" ] || $DS train --loss mse ${DIS/--seed 0/--seed $s} $KDE --sample-pool 20000 --camera-tilt-deg=-1:3:1 \
       --source $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
 # P06: K06 exactly, with every training frame also mirrored left-right, seeds 0-4
 for s in 0 1 2 3 4; do
   out=$D/P06_mirror_s$s
-  [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} $NEW --mirror-frames --sample-pool 20000 \
+  [ -f "$out/model.safetensors" ] || $DS train --loss mse ${DIS/--seed 0/--seed $s} $NEW --mirror-frames --sample-pool 20000 \
       --camera-tilt-deg=-1:3:1 --source $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
 # LP06: P06 exactly on the LEARNED flow of the rendered views (seeds 0-2; scored with
@@ -101,7 +101,7 @@ done
 for s in 0 1 2; do
   out=$D/LP06_learned_s$s
   LEARNED=${DIS/--synthetic-flow dis --dis-preset medium/--synthetic-flow learned}
-  [ -f "$out/model.safetensors" ] || $DS train ${LEARNED/--seed 0/--seed $s} $NEW --mirror-frames --sample-pool 20000 \
+  [ -f "$out/model.safetensors" ] || $DS train --loss mse ${LEARNED/--seed 0/--seed $s} $NEW --mirror-frames --sample-pool 20000 \
       --camera-tilt-deg=-1:3:1 --source $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
 # W06: P06 exactly with DIS on frames at most 640 px wide (--dis-max-width 640: the renders as
@@ -109,7 +109,7 @@ done
 # rule: bench/criteria/2026-12-03_s18_dis_scale.md)
 for s in 0 1 2; do
   out=$D/W06_w640_s$s
-  [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} --dis-max-width 640 $NEW --mirror-frames \
+  [ -f "$out/model.safetensors" ] || $DS train --loss mse ${DIS/--seed 0/--seed $s} --dis-max-width 640 $NEW --mirror-frames \
       --sample-pool 20000 --camera-tilt-deg=-1:3:1 --source $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
 # U06: P06 exactly with a flat speed tail in the prior (--speed-range 0:30@0.2: a fifth of the
@@ -117,7 +117,7 @@ done
 # rule: bench/criteria/2026-12-03_s19_speed_tail.md; the sweep: python -m bench.results_speed --model U06=...)
 for s in 0 1 2; do
   out=$D/U06_tail_s$s
-  [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} --speed-range 0:30@0.2 $NEW --mirror-frames \
+  [ -f "$out/model.safetensors" ] || $DS train --loss mse ${DIS/--seed 0/--seed $s} --speed-range 0:30@0.2 $NEW --mirror-frames \
       --sample-pool 20000 --camera-tilt-deg=-1:3:1 --source $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
 # S06: P06 exactly with DIS matching 8-pixel patches every 4 pixels instead of 3
@@ -125,7 +125,7 @@ done
 # rule: bench/criteria/2026-12-04_s20_dis_stride.md)
 for s in 0 1 2; do
   out=$D/S06_stride4_s$s
-  [ -f "$out/model.safetensors" ] || $DS train ${DIS/--seed 0/--seed $s} --dis-patch-stride 4 $NEW --mirror-frames \
+  [ -f "$out/model.safetensors" ] || $DS train --loss mse ${DIS/--seed 0/--seed $s} --dis-patch-stride 4 $NEW --mirror-frames \
       --sample-pool 20000 --camera-tilt-deg=-1:3:1 --source $GALL $K06 --out "$out" $([ -d "$out" ] && echo --resume)
 done
 # E: the same models with --pose epipolar (rotation and direction of travel from the essential

@@ -23,7 +23,7 @@ done
 ROOMS="$D/room_s1 $D/room_s2 $D/room_s3"
 COMMON="--mode synthetic --frame-step 3 --net cpu --height 96 --width 128 --flow-scale 30 --samples-per-epoch 10000
         --max-epochs 8 --nll-epochs 10 --threads 2 --seed 0 --quiet"
-train() { local out=$1; shift; [ -f "$out/model.safetensors" ] || $DS train $COMMON "$@" --out "$out" $([ -d "$out" ] && echo --resume); }
+train() { local out=$1; shift; [ -f "$out/model.safetensors" ] || $DS train --loss mse $COMMON "$@" --out "$out" $([ -d "$out" ] && echo --resume); }
 train $D/tum_cons --source $ROOMS --motion models/motion/euroc_s1_30hz.json
 train $D/tum_loops --source $ROOMS --motion models/motion/euroc_s1_30hz.json:loops
 train $D/tum_cons_teddy --source $ROOMS $TEDDY --motion models/motion/euroc_s1_30hz.json  # exact flow

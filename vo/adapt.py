@@ -168,7 +168,8 @@ def _stage(which: str, recipe: Recipe, start: Path, frames: str, cfg: AdaptConfi
                          camera_tilt_deg=recipe.camera_tilt_deg, mirror_frames=recipe.mirror_frames)
     train_cfg = TrainConfig(net=net, lr_max=cfg.lr_max, lr_min=cfg.lr_max / 10, max_epochs=epochs,
                             max_minutes=minutes, nll_epochs=cfg.nll_epochs, seed=cfg.seed, bf16=recipe.bf16,
-                            threads=cfg.threads, init=str(start))
+                            threads=cfg.threads, init=str(start),
+                            loss="mse")  # the shipped models it starts from were trained with the MSE
     train_src, hold_src, data_meta = synthetic_sources(spec, net, cfg.seed, progress)
     run_meta = {"mode": "adapt", **data_meta, "adapted_from": {"file": start.name, "sha256": sha256_file(start)}}
     if meta.get("pose"):

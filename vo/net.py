@@ -301,13 +301,25 @@ def network_input(net: nn.Module, flow_px: torch.Tensor, intrinsics: torch.Tenso
     return x.contiguous(memory_format=torch.channels_last) if net.channels_last else x
 
 
-def pose_loss(mean: torch.Tensor, target: torch.Tensor, rot_weight: float = 50.0) -> torch.Tensor:
-    """The paper's first-stage loss: ``rot_weight * MSE(euler) + MSE(translation)`` (scalar).
+POSE_LOSSES = ("l1", "mse")
+"""The first-stage losses :func:`pose_loss` knows."""
 
-    mean, target: (B, 6) float (radians, metres).
+
+def pose_loss(mean: torch.Tensor, target: torch.Tensor, rot_weight: float = 50.0, kind: str = "l1") -> torch.Tensor:
+    """The first-stage loss: ``rot_weight * E(euler) + E(translation)`` (scalar), E the mean over batch
+    and the three DoF of the absolute error (``kind="l1"``, the paper's published code: each output's
+    mean absolute error, rotations weighted 50) or of the squared error (``kind="mse"``).
+
+    mean, target: (B, 6) float (euler x, y, z in radians; t x, y, z in metres).
     """
-    err2 = (mean.float() - target.float()) ** 2
-    return rot_weight * err2[:, :3].mean() + err2[:, 3:].mean()
+    err = mean.float() - target.float()
+    if kind == "l1":
+        err = err.abs()
+    elif kind == "mse":
+        err = err * err
+    else:
+        raise ValueError(f"loss must be one of {', '.join(POSE_LOSSES)}, got {kind!r}")
+    return rot_weight * err[:, :3].mean() + err[:, 3:].mean()
 
 
 def gaussian_nll(mean: torch.Tensor, log_std: torch.Tensor, target: torch.Tensor) -> torch.Tensor:

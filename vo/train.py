@@ -2,7 +2,7 @@
 
 Stage 1 (motion): Adam with amsgrad, batch 128, a cyclic learning rate (triangular, between
 ``lr_min`` and ``lr_max``, torch's CyclicLR stepped every batch), loss
-``rot_weight * MSE(euler) + MSE(translation)`` with ``rot_weight = 50``. After every epoch the loss on
+``rot_weight * L1(euler) + L1(translation)`` with ``rot_weight = 50`` (``loss="mse"``: squared errors). After every epoch the loss on
 the held-out samples is measured; after ``patience_epochs`` epochs without improvement both bounds of
 the cycle are halved; training stops when the lower bound falls below ``lr_stop`` (1e-5), or at the
 ``max_epochs`` / ``max_samples`` / ``max_minutes`` caps. The sample and time caps are checked after
@@ -137,7 +137,7 @@ def evaluate(model: PoseNet, source: Source, cfg: TrainConfig) -> dict:
         with _autocast(cfg):
             mean, log_std = model(b["flow"], b["intrinsics"], b.get("inv_depth"))
         k = len(b["target"])
-        loss += float(pose_loss(mean, b["target"], cfg.rot_weight)) * k
+        loss += float(pose_loss(mean, b["target"], cfg.rot_weight, cfg.loss)) * k
         nll += float(gaussian_nll(mean, log_std, b["target"])) * k
         se += ((mean.double() - b["target"].double()) ** 2).sum(0).cpu()
         n += k
@@ -184,7 +184,7 @@ def head_inputs(model: PoseNet, source: Source, cfg: TrainConfig) -> HeadInputs:
 def evaluate_heads(model: PoseNet, hi: HeadInputs, cfg: TrainConfig) -> dict:
     """:func:`evaluate`'s figures from cached trunk features."""
     log_std = model.log_std_head(hi.hr, hi.ht)
-    return {"loss": float(pose_loss(hi.mean, hi.target, cfg.rot_weight)),
+    return {"loss": float(pose_loss(hi.mean, hi.target, cfg.rot_weight, cfg.loss)),
             "nll": float(gaussian_nll(hi.mean, log_std, hi.target)), "rmse6": hi.rmse6().cpu().tolist()}
 
 
@@ -374,7 +374,7 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, run: 
             b = _on(cfg, b)
             with _autocast(cfg):
                 mean, _ = step_model(b["flow"], b["intrinsics"], b.get("inv_depth"))
-            loss = pose_loss(mean, b["target"], cfg.rot_weight)
+            loss = pose_loss(mean, b["target"], cfg.rot_weight, cfg.loss)
             _check_finite(loss, "stage-1", epoch, step, sched.get_last_lr()[0])
             opt.zero_grad(set_to_none=True)
             loss.backward()

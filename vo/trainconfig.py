@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from deepslam.vo.net import NetConfig
+from deepslam.vo.net import POSE_LOSSES, NetConfig
 
 
 @dataclasses.dataclass(frozen=True)
@@ -34,7 +34,10 @@ class TrainConfig:
     """Cap on stage-1 training samples (0 = none), checked after every batch: the deterministic way to
     bound a run (same seed, same bytes)."""
     rot_weight: float = 50.0
-    """Weight of the rotation (euler, radians) MSE against the translation (metres) MSE."""
+    """Weight of the rotation (euler, radians) loss against the translation (metres) loss."""
+    loss: str = "l1"
+    """Stage-1 loss of each DoF: ``l1`` (mean absolute error, the paper's published code) or ``mse``
+    (mean squared error; what files recorded before this field existed were trained with)."""
     holdout_fraction: float = 0.1
     """Fraction of the data held out: stage-1 validation and the stage-2 (NLL) training set."""
     nll_epochs: int = 20
@@ -57,6 +60,10 @@ class TrainConfig:
     """A single-network VO model file whose weights start the training (fine-tuning, ``deepslam adapt``); its
     network must be ``net``. Empty: random initial weights from ``seed``."""
 
+    def __post_init__(self) -> None:
+        if self.loss not in POSE_LOSSES:
+            raise ValueError(f"loss must be one of {', '.join(POSE_LOSSES)}, got {self.loss!r}")
+
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d["net"] = self.net.to_dict()
@@ -68,6 +75,7 @@ class TrainConfig:
     def from_dict(cls, d: dict) -> "TrainConfig":
         d = dict(d)
         d["net"] = NetConfig.from_dict(d.get("net", {}))
+        d.setdefault("loss", "mse")  # recorded before the loss was a setting: trained with the MSE
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = set(d) - names
         if unknown:

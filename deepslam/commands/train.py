@@ -161,6 +161,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="stop stage 1 after this many training samples, checked every batch: a bounded run that is "
                         "bit-reproducible, unlike --max-minutes (0 = no cap)")
     g.add_argument("--rot-weight", type=float, default=50.0)
+    g.add_argument("--loss", choices=("l1", "mse"), default="l1",
+                   help="stage-1 loss per DoF: l1 (the paper's published code) or mse (the shipped models' recipe)")
     g.add_argument("--holdout", type=float, default=0.1, help="held-out fraction (validation + NLL stage)")
     g.add_argument("--nll-epochs", type=int, default=20)
     g.add_argument("--nll-lr", type=float, default=1e-3)
@@ -290,7 +292,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = TrainConfig(net=net, batch_size=args.batch, lr_min=args.lr_min, lr_max=args.lr_max,
                       lr_half_cycle_steps=args.half_cycle_steps, patience_epochs=args.patience, lr_stop=args.lr_stop,
                       max_epochs=args.max_epochs, max_minutes=args.max_minutes, max_samples=args.max_samples,
-                      rot_weight=args.rot_weight,
+                      rot_weight=args.rot_weight, loss=args.loss,
                       holdout_fraction=args.holdout, nll_epochs=args.nll_epochs, nll_lr=args.nll_lr, seed=args.seed,
                       bf16=bf16, channels_last=args.channels_last == "on", threads=args.threads, device=str(device))
     if not 0 < args.holdout < 1:

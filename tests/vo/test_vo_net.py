@@ -91,8 +91,14 @@ def test_parameter_split_and_losses():
     assert count_parameters(net) == sum(p.numel() for p in unc + mot)
     mean = torch.zeros(2, 6)
     target = torch.tensor([[0.1, 0, 0, 1.0, 0, 0], [0, 0, 0, 0, 0, 0]])
-    # 50 * mean(0.01, 0, 0, 0, 0, 0) + mean(1, 0, 0, 0, 0, 0)
-    assert pose_loss(mean, target) == pytest.approx(50 * 0.01 / 6 + 1.0 / 6)
+    # the paper's L1: 50 * mean(|0.1|, 0, 0) over (B, 3) + mean(|1|, 0, 0) over (B, 3)
+    assert pose_loss(mean, target) == pytest.approx(50 * 0.1 / 6 + 1.0 / 6)
+    # the squared error: 50 * mean(0.01, 0, 0, 0, 0, 0) + mean(1, 0, 0, 0, 0, 0)
+    assert pose_loss(mean, target, kind="mse") == pytest.approx(50 * 0.01 / 6 + 1.0 / 6)
+    # the rotation weight scales the euler part only
+    assert pose_loss(mean, target, rot_weight=1.0) == pytest.approx(0.1 / 6 + 1.0 / 6)
+    with pytest.raises(ValueError, match="loss must be one of"):
+        pose_loss(mean, target, kind="huber")
     # NLL at sigma = 1: 0.5 * mean(z^2)
     assert gaussian_nll(mean, torch.zeros(2, 6), target) == pytest.approx(0.5 * (0.01 + 1.0) / 12)
 
@@ -142,3 +148,15 @@ def test_unknown_flow_reads_as_zero_and_the_valid_channel_marks_it(valid_channel
         assert torch.equal(x[:, 3], known)
     mean, log_std = net(flow, None, inv)
     assert torch.isfinite(mean).all() and torch.isfinite(log_std).all()
+
+
+def test_train_config_loss_default_and_older_records():
+    from deepslam.vo.trainconfig import TrainConfig
+
+    assert TrainConfig().loss == "l1"  # the paper's published code
+    assert TrainConfig.from_dict(TrainConfig().to_dict()).loss == "l1"
+    old = TrainConfig().to_dict()
+    del old["loss"]  # a file recorded before the loss was a setting was trained with the MSE
+    assert TrainConfig.from_dict(old).loss == "mse"
+    with pytest.raises(ValueError, match="loss must be one of"):
+        TrainConfig(loss="huber")
