@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# The paper's recipe at scale on the cpu preset: NN_cons trained (a) synthetically from the single frames of
+# two rendered towns and (b) supervised on the same renders' frame pairs (exact flow, ground-truth poses),
+# each for the same budget of samples (default 2,000,000), strides 1 and 2 mixed, the paper's L1 loss with
+# rotations x50, Adam (amsgrad), batch 128, cyclic learning rate 1e-4..1e-3 (half-cycle 1000 steps) halved
+# after 10 epochs without a held-out improvement, stopped under 1e-5; then the uncertainty heads on the 10 %
+# hold-out with the pose frozen. The synthetic motions are drawn from Student-t fits of the training renders'
+# own motions at strides 1 and 2 (the paper's "statistics of the training data's motion"; only their
+# distribution is used, never a pair's pose).
+#
+#   bash scripts/train_paper_recipe.sh [OUT] [SAMPLES] [SEEDS]     # OUT = out/paper_recipe, SEEDS = "0"
+#
+# Resumable: every step whose output exists is skipped and a training folder with a checkpoint continues
+# with --resume (a killed run loses at most one epoch). About 45 minutes per model on 2 idle cores at
+# 2,000,000 samples. docs/training.md says how the figures are read (bench.results_repro).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+OUT=${1:-out/paper_recipe}
+SAMPLES=${2:-2000000}
+SEEDS=${3:-0}
+DS="${DS:-.venv/bin/deepslam}"
+export MUJOCO_GL=${MUJOCO_GL:-egl} PYOPENGL_PLATFORM=${PYOPENGL_PLATFORM:-egl}
+mkdir -p "$OUT"
+
+for s in 1 2; do
+  [ -f "$OUT/street_train_s$s/poses.txt" ] || $DS render --scene street --frames 300 --width 414 --seed $s \
+      --out "$OUT/street_train_s$s" --quiet
+done
+TRAIN="$OUT/street_train_s1 $OUT/street_train_s2"
+for k in 1 2; do
+  [ -f "$OUT/motion_s$k.json" ] || $DS fit-motion --poses $OUT/street_train_s1/poses.txt \
+      $OUT/street_train_s2/poses.txt --stride $k --out "$OUT/motion_s$k.json"
+done
+
+RECIPE="--net cpu --loss l1 --rot-weight 50 --batch 128 --lr-min 1e-4 --lr-max 1e-3 --half-cycle-steps 1000 \
+  --patience 10 --lr-stop 1e-5 --max-epochs 100000 --max-samples $SAMPLES --holdout 0.1 --nll-epochs 20 --threads 2 --quiet"
+train() {
+  local out=$1; shift
+  [ -f "$out/model.safetensors" ] && return 0
+  $DS train $RECIPE "$@" --out "$out" $([ -f "$out/checkpoint.safetensors" ] && echo --resume)
+}
+for seed in $SEEDS; do
+  train "$OUT/synthetic_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
+      --motion "$OUT/motion_s1.json@1" --motion "$OUT/motion_s2.json@1" --samples-per-epoch 20000
+  train "$OUT/supervised_cons_s$seed" --mode supervised --seed $seed --sequence $TRAIN --flow gt --strides 1,2
+done
+echo "done: $OUT"
