@@ -9,6 +9,8 @@ import math
 
 import numpy as np
 
+from deepslam.core.errors import InputError
+
 # The single place where OpenGL camera axes (x right, y up, z backward; MuJoCo, pyrender) meet
 # OpenCV's (x right, y down, z forward). Both matrices are their own inverse.
 GL_FROM_CV = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -23,6 +25,20 @@ def world_from_cam_cv_from_gl(world_from_cam_gl: np.ndarray) -> np.ndarray:
 def world_from_cam_gl_from_cv(world_from_cam_cv: np.ndarray) -> np.ndarray:
     """Camera pose in OpenGL axes from the same camera's pose in OpenCV axes, (..., 4, 4)."""
     return np.asarray(world_from_cam_cv, dtype=np.float64) @ CV_FROM_GL
+
+
+MIN_FLOW_WIDTH_PX = 32
+"""Narrowest image the odometry reads: OpenCV's DIS flow refuses smaller pyramids (a 24 x 7 render fails)."""
+MIN_FLOW_HEIGHT_PX = 10
+"""Lowest image the odometry reads (a 32 x 10 render is the smallest the tests run ``vo`` on)."""
+
+
+def check_flow_size(width: int, height: int, where=None) -> None:
+    """InputError naming ``where`` (a file or folder, or None for an option) when a ``width`` x ``height``
+    image is too small for optical flow (:data:`MIN_FLOW_WIDTH_PX` x :data:`MIN_FLOW_HEIGHT_PX`)."""
+    if width < MIN_FLOW_WIDTH_PX or height < MIN_FLOW_HEIGHT_PX:
+        raise InputError(where, f"images of {width}x{height} px are too small for optical flow; at least "
+                                f"{MIN_FLOW_WIDTH_PX}x{MIN_FLOW_HEIGHT_PX} px")
 
 
 @dataclasses.dataclass(frozen=True)

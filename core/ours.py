@@ -26,6 +26,7 @@ looks complete; ``OursWriter(resume=True)`` skips frames whose record exists.
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -126,6 +127,24 @@ class OursWriter:
         atomic.write_json(self.root / "sequence.json", self.header)
 
 
+def _check_frame_count(root: Path, json_path: Path, n: int) -> None:
+    """InputError naming the header when ``num_frames`` is not a count the folder backs: below 1, or more
+    frames than ``rgb/`` holds images (counted up to ``n``, so a header claiming 10^9 frames costs a
+    directory listing, not 10^9 names)."""
+    if n < 1:
+        raise InputError(json_path, f"num_frames must be >= 1, got {n}")
+    held = 0
+    try:
+        with os.scandir(root / "rgb") as it:
+            for entry in it:
+                held += entry.name.endswith(".png")
+                if held >= n:
+                    return
+    except OSError:
+        raise InputError(root / "rgb", "no rgb/ folder of frames") from None
+    raise InputError(json_path, f"num_frames is {n} but rgb/ holds {held} frame images")
+
+
 def read_ours(root: str | Path) -> Sequence:
     root = Path(root)
     json_path = root / "sequence.json"
@@ -139,6 +158,7 @@ def read_ours(root: str | Path) -> Sequence:
         camera = PinholeCamera.from_dict(header["camera"])
     except (KeyError, TypeError, ValueError) as e:
         raise InputError(json_path, f"bad header field ({e})") from None
+    _check_frame_count(root, json_path, n)
     has = header.get("has", {})
     names = [_name(i) for i in range(n)]
     poses = _read_kitti_poses(root / "poses.txt", n)

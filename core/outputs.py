@@ -82,6 +82,37 @@ def check_output_not_input(out: str | Path | None, inputs: Named, what: str = "-
                                   f"choose another {what}")
 
 
+NAME_MAX_BYTES = 255
+"""Longest file name most file systems take (bytes of one path component)."""
+SIDE_SUFFIX_BYTES = 32
+"""Room left in an output's name for the suffixes of the files written beside it (``.metrics.json``,
+``.motions.csv``, and a temporary file's ``.`` prefix and ``.XXXXXXXX.tmp`` infix)."""
+
+
+def check_writable(out: str | Path | None, what: str = "--out") -> None:
+    """InputError naming ``out`` before any work when it could not be written where it is asked for: a
+    component of its path longer than :data:`NAME_MAX_BYTES` (its own name: minus
+    :data:`SIDE_SUFFIX_BYTES`), or its nearest existing folder not a folder or not writable (checked with
+    ``os.access``: a read-only file system, a folder without write permission). A folder the command
+    will create below an existing one passes; the command creates it."""
+    if out is None or str(out) == "":
+        return
+    path = Path(out).expanduser()
+    for i, part in enumerate(path.parts):
+        n = len(os.fsencode(part))
+        room = NAME_MAX_BYTES - (SIDE_SUFFIX_BYTES if i == len(path.parts) - 1 else 0)
+        if n > room:
+            raise InputError(out, f"{what}: the name {part[:40]!r}... is {n} bytes long; at most {room} "
+                                  "(file systems take 255 bytes a name, and the files written beside it add a suffix)")
+    parent = path.absolute().parent
+    while not os.path.lexists(parent) and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise InputError(out, f"{what}: {parent} is not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(out, f"{what}: cannot write into {parent} (no permission, or a read-only file system)")
+
+
 def check_distinct_outputs(outputs: Named) -> None:
     """InputError when two of a run's outputs are the same file (resolved)."""
     seen: dict[Path, str] = {}

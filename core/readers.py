@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from deepslam.core.camera import check_flow_size
 from deepslam.core.errors import InputError
 from deepslam.core.euroc import read_euroc
 from deepslam.core.kitti import read_kitti
@@ -36,3 +37,12 @@ def open_sequence(path: str | Path) -> Sequence:
         return read_tum(path)
     raise InputError(path, "not a KITTI sequence (image_0/, calib.txt), EuRoC folder (mav0/), TUM RGB-D "
                      "folder (rgb.txt, depth.txt) or deepslam sequence (sequence.json)")
+
+
+def open_sequence_for_flow(path: str | Path) -> Sequence:
+    """:func:`open_sequence`, refusing (InputError naming the folder) a sequence whose images are too small
+    for optical flow (:func:`core.camera.check_flow_size`): the commands that estimate flow between its
+    frames (``vo``, ``slam``, ``tune-slam``, ``adapt``, ``validate-flow``) stop before any work."""
+    seq = open_sequence(path)
+    check_flow_size(seq.camera.width, seq.camera.height, path)
+    return seq

@@ -23,9 +23,62 @@ def _discover():
     return mods
 
 
+EXTRA_OF_MODULE = {"mujoco": "sim", "pyrender": "sim", "OpenGL": "sim", "trimesh": "sim", "ray": "ray",
+                   "rerun": "viz", "tensorboard": "train"}
+"""Top-level module -> the optional extra of pyproject.toml that installs it."""
+
+
+def missing_extra(e: ModuleNotFoundError) -> str | None:
+    """The one-line message for a module of an optional extra that is not installed, or None when the
+    missing module belongs to no extra (then it is a broken installation, not a choice)."""
+    top = (e.name or "").split(".")[0]
+    extra = EXTRA_OF_MODULE.get(top)
+    if extra is None:
+        return None
+    return f"this needs the optional module {top!r} of the [{extra}] extra: pip install 'deepslam[{extra}]'"
+
+
 _ENVIRONMENT_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EPERM, errno.EROFS, errno.EIO, errno.EISDIR,
                        errno.ENOTDIR, errno.ENOENT, errno.ENAMETOOLONG, errno.EMFILE}
 """errno values that mean the file system refused, not that deepslam is broken."""
+
+
+OUTPUT_OPTIONS = {"out": "--out", "plot": "--plot", "tensorboard": "--tensorboard", "save": "--save",
+                  "preview": "--preview", "save_vocabulary": "--save-vocabulary"}
+"""Options (argparse dest -> flag) that name something a command writes, in any command."""
+INPUT_OPTIONS = {"sequence": "--sequence", "sequences": "--sequences", "source": "--source", "model": "--model",
+                 "models": "MODEL", "model_cons": "--model-cons", "model_loops": "--model-loops", "params": "--params",
+                 "motion": "--motion", "poses": "--poses", "config": "--config", "real": "--real", "shards": "--shards",
+                 "init": "--init", "gt": "--gt", "est": "--est", "vocabulary": "--vocabulary", "path": "PATH",
+                 "scene": "--scene", "trajectory": "--trajectory"}
+"""Options (argparse dest -> flag) that name something a command reads."""
+
+
+def _paths(value) -> list[str]:
+    """The paths an option's value names: a list's items; ``FILE:loops@W`` motion specs cut to FILE."""
+    items = value if isinstance(value, (list, tuple)) else [value]
+    out = []
+    for v in items:
+        if isinstance(v, (str, os.PathLike)) and str(v):
+            out.append(str(v).split("@")[0].removesuffix(":loops") if isinstance(v, str) else str(v))
+    return out
+
+
+def check_paths(args: argparse.Namespace) -> None:
+    """Before any work, for every output-like option of ``args`` (:data:`OUTPUT_OPTIONS`): it is not and does
+    not lie inside an input (:data:`INPUT_OPTIONS`), no two outputs coincide, and it can be created where
+    it is asked for (:func:`core.outputs.check_writable`: names of at most 255 bytes with room for the side
+    files' suffixes, an existing folder to put it in that is writable). InputError naming the option."""
+    # deferred: core.outputs imports numpy, which `deepslam --help` and a usage error need not load
+    from deepslam.core.outputs import check_distinct_outputs, check_output_not_input, check_writable
+
+    given = vars(args)
+    inputs = [(flag, p) for dest, flag in INPUT_OPTIONS.items() for p in _paths(given.get(dest))]
+    outputs = [(flag, p) for dest, flag in OUTPUT_OPTIONS.items() for p in _paths(given.get(dest))]
+    for flag, p in outputs:
+        check_output_not_input(p, inputs, flag)
+        check_writable(p, flag)
+    check_distinct_outputs(outputs)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -52,11 +105,18 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
     args = build_parser().parse_args(argv)
     try:
+        check_paths(args)  # every output-like option, before any work
         rc = int(args._run(args) or 0)
         sys.stdout.flush()  # a reader gone away shows here, not in Python's own flush at exit
         return rc
     except InputError as e:
         print(f"deepslam {args.command}: error: {e.message()}", file=sys.stderr)
+        return 2
+    except ModuleNotFoundError as e:
+        line = missing_extra(e)
+        if line is None:
+            raise
+        print(f"deepslam {args.command}: error: {line}", file=sys.stderr)
         return 2
     except BrokenPipeError:
         # the reader of stdout went away (`deepslam vo ... | head -1`): stop quietly, as a shell tool does;

@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 
 from deepslam.core import se3
-from deepslam.core.camera import PinholeCamera
+from deepslam.core.camera import PinholeCamera, check_flow_size
 from deepslam.core.errors import InputError
 from deepslam.core.trajectory import Trajectory
 from deepslam.scenes import SceneConfig, build_scene
@@ -141,6 +141,7 @@ class Simulator:
         self.scene = separate_movers(follow_camera(base, motion), motion, duration, np.random.default_rng([tseed, 2]))
         rcfg = config.render
         self.camera = camera_for(self.scene.camera, rcfg.width, rcfg.height, rcfg.focal_px)
+        check_flow_size(self.camera.width, self.camera.height)  # a render the odometry could not read
         b = self.scene.stereo_baseline_m if rcfg.stereo_baseline_m is None else rcfg.stereo_baseline_m
         self.baseline_m = float(b) if b else None
         self.backend_name = rcfg.backend

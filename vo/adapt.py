@@ -17,7 +17,6 @@ slower machine (the models are then written from the best epoch reached). A kill
 from __future__ import annotations
 
 import dataclasses
-import json
 import shutil
 import time
 from pathlib import Path
@@ -25,11 +24,14 @@ from pathlib import Path
 from deepslam.core import atomic
 from deepslam.core.errors import InputError
 from deepslam.core.integrity import sha256_file
+from deepslam.core.lock import output_lock
 from deepslam.core.kinds import kind_for_sequence
 from deepslam.core.outputs import check_output_not_input
-from deepslam.core.readers import open_sequence
+from deepslam.core.readers import open_sequence_for_flow
+from deepslam.core.textio import read_json_object
 from deepslam.models import models_dir
 from deepslam.vo import modeltree
+from deepslam.vo.modelio import load_model
 from deepslam.vo.recipe import SyntheticData, synthetic_sources
 from deepslam.vo.train import train
 from deepslam.vo.trainconfig import TrainConfig
@@ -183,14 +185,15 @@ def _stage(which: str, recipe: Recipe, start: Path, frames: str, cfg: AdaptConfi
 def _run(seq_dir: Path, out: Path, cfg: AdaptConfig, resume: bool, progress: bool,
          tensorboard: Path | None) -> tuple[dict, str, int]:
     """The stages of :func:`adapt` into ``out``: (results per stage, camera kind, frames)."""
+    open_sequence_for_flow(seq_dir)  # faults named in the user's folder, not in the view below
     view = frames_view(seq_dir, out / "frames_view")
-    seq = open_sequence(view)
+    seq = open_sequence_for_flow(view)
     kind = kind_for_sequence(seq)
     if kind not in RECIPES:
         raise InputError(seq_dir, f"no adaptation recipe for camera kind {kind!r}")
     settings = {"sequence": str(seq_dir.resolve()), "kind": kind, "config": dataclasses.asdict(cfg)}
     if (out / "settings.json").is_file():
-        if json.loads((out / "settings.json").read_text()) != settings:
+        if read_json_object(out / "settings.json", "adapt settings") != settings:
             raise InputError(out / "settings.json", "cannot resume: another sequence or other settings")
     else:
         atomic.write_json(out / "settings.json", settings)
@@ -229,6 +232,10 @@ def adapt(seq_dir: str | Path, out: str | Path, cfg: AdaptConfig = AdaptConfig()
     """
     seq_dir, out = Path(seq_dir), Path(out)
     check_output_not_input(out, [("--sequence", seq_dir), ("--model", cfg.model), ("--motion", cfg.motion)])
+    if not 0 <= cfg.seed < 2**32:
+        raise InputError(None, f"--seed must be in 0..{2**32 - 1}, got {cfg.seed}")
+    if cfg.model:
+        load_model(cfg.model)  # the kind of file checked before any work: a pickle, a flow model, an ensemble
     t0 = time.perf_counter()
     record_path = out / "adapt.json"
     if out.exists() and any(out.iterdir()) and not resume:
@@ -236,18 +243,19 @@ def adapt(seq_dir: str | Path, out: str | Path, cfg: AdaptConfig = AdaptConfig()
     if resume and out.exists() and any(out.iterdir()) and not (out / "settings.json").is_file():
         raise InputError(out, "holds no adapt run to resume (no settings.json)")
     created = not out.exists()
-    out.mkdir(parents=True, exist_ok=True)
-    try:
-        results, kind, n_frames = _run(seq_dir, out, cfg, resume, progress,
-                                       None if tensorboard is None else Path(tensorboard))
-    except InputError:
-        # bad input found before any training: the folder this run created goes (an interrupted run keeps its
-        # checkpoints for --resume)
-        if created and not any((out / w / f).is_file() for w in ("cons", "loops")
-                               for f in ("checkpoint.safetensors", "model.safetensors")):
-            shutil.rmtree(out, ignore_errors=True)
-        raise
-    record = {"sequence": str(seq_dir.resolve()), "kind": kind, "frames": n_frames, "poses_opened": False,
-              "config": dataclasses.asdict(cfg), "stages": results, "seconds": round(time.perf_counter() - t0, 1)}
-    atomic.write_json(record_path, record)
+    # one run a folder: a second adapt into it is refused at once, naming the first
+    with output_lock(out):
+        try:
+            results, kind, n_frames = _run(seq_dir, out, cfg, resume, progress,
+                                           None if tensorboard is None else Path(tensorboard))
+        except InputError:
+            # bad input found before any training: the folder this run created goes (an interrupted run keeps
+            # its checkpoints for --resume)
+            if created and not any((out / w / f).is_file() for w in ("cons", "loops")
+                                   for f in ("checkpoint.safetensors", "model.safetensors")):
+                shutil.rmtree(out, ignore_errors=True)
+            raise
+        record = {"sequence": str(seq_dir.resolve()), "kind": kind, "frames": n_frames, "poses_opened": False,
+                  "config": dataclasses.asdict(cfg), "stages": results, "seconds": round(time.perf_counter() - t0, 1)}
+        atomic.write_json(record_path, record)
     return record

@@ -129,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace) -> int:
     from deepslam.core import metrics, plots
     from deepslam.core.outputs import write_side_files
-    from deepslam.core.readers import open_sequence
+    from deepslam.core.readers import open_sequence_for_flow
     from deepslam.core.trajio import default_format, write_trajectory
     from deepslam.slam import plugins
     from deepslam.slam.pipeline import PipelineConfig, SlamParams, run_slam
@@ -142,7 +142,7 @@ def _run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.is_dir():
         raise InputError(out, "--out is a folder, expected a file name")
-    seq = open_sequence(args.sequence)
+    seq = open_sequence_for_flow(args.sequence)
     fmt = args.format or default_format(seq.kind, seq.timestamps_s is not None)
     if fmt != "kitti" and seq.timestamps_s is None:
         raise InputError(args.sequence, f"the {fmt} format needs timestamps and the sequence has none")

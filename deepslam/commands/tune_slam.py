@@ -88,7 +88,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from deepslam.core.readers import open_sequence
+    from deepslam.core.readers import open_sequence_for_flow
     from deepslam.slam.plugins import odometry_from_args
     from deepslam.slam.pipeline import PipelineConfig, prepare
     from deepslam.slam.posegraph import PoseGraphConfig
@@ -110,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
                             seed=args.seed)
     problems = []
     for path in args.sequence:
-        seq = open_sequence(path)
+        seq = open_sequence_for_flow(path)
         if seq.gt is None:
             raise InputError(path, "a validation sequence needs ground truth")
         odo_cons, odo_loops = odometry_from_args(args, seq)

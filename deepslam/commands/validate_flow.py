@@ -51,10 +51,10 @@ def _frames(args: argparse.Namespace, n: int) -> range | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from deepslam.core.readers import open_sequence
+    from deepslam.core.readers import open_sequence_for_flow
     from deepslam.gen.validate import validate_sequence
 
-    seq = open_sequence(args.sequence)
+    seq = open_sequence_for_flow(args.sequence)
     report = validate_sequence(seq, _frames(args, len(seq)), progress=False if (args.quiet or args.json) else None)
     if args.json:
         print(json.dumps(report))

@@ -125,12 +125,12 @@ def _run(args: argparse.Namespace) -> int:
 
     from deepslam.core import atomic, trajio
     from deepslam.core.outputs import write_side_files
-    from deepslam.core.readers import open_sequence
+    from deepslam.core.readers import open_sequence_for_flow
     from deepslam.core.trajectory import Trajectory
     from deepslam.slam import plugins
     from deepslam.vo import models
 
-    seq = open_sequence(args.sequence)
+    seq = open_sequence_for_flow(args.sequence)
     if args.stride < 1:
         raise InputError(None, f"--stride must be >= 1, got {args.stride}")
     if not 1 <= args.batch <= 4096:
