@@ -7,6 +7,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from deepslam.core import se3
+from deepslam.core.errors import InputError
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -82,6 +83,16 @@ class Trajectory:
         rot = Slerp(self.timestamps_s, Rotation.from_matrix(self.world_from_cam[:, :3, :3]))(t).as_matrix()
         pos = np.stack([np.interp(t, self.timestamps_s, self.positions[:, k]) for k in range(3)], axis=-1)
         return Trajectory(se3.from_rt(rot, pos), t)
+
+
+def check_finite_poses(world_from_cam: np.ndarray, source: str) -> None:
+    """InputError naming ``source`` (the odometry, the pose graph) when a chained or optimised trajectory
+    (N, 4, 4) float64 holds a non-finite pose: checked before the trajectory is written, so that no file
+    holds NaN or inf whatever produced it."""
+    bad = ~np.isfinite(np.asarray(world_from_cam, dtype=np.float64)).reshape(len(world_from_cam), -1).all(axis=1)
+    if bad.any():
+        raise InputError(None, f"{source} gave a trajectory that is not finite from pose {int(np.flatnonzero(bad)[0])} "
+                               "on (overflowing or NaN motions); nothing was written")
 
 
 def associate(a: Trajectory, b: Trajectory, max_diff_s: float = 0.01) -> tuple[np.ndarray, np.ndarray]:

@@ -71,6 +71,11 @@ class VerifiedOdometry(Odometry, Protocol):
         ...
 
 
+MAX_TRANSLATION_M = 1e6
+"""Largest translation an odometry may answer for one pair, metres: beyond it the chained trajectory, its
+metrics and its plot overflow (1e200 m squared is infinite), and no camera moves 1000 km between frames."""
+
+
 def check_prediction(odometry_name: str, pairs: SequenceT[tuple[int, int]], mean6, std6) -> tuple[np.ndarray, np.ndarray]:
     """Validate an odometry answer; returns (mean6, std6) as float64 (P, 6).
 
@@ -89,6 +94,11 @@ def check_prediction(odometry_name: str, pairs: SequenceT[tuple[int, int]], mean
     if (std6 <= 0).any():
         bad = int(np.flatnonzero((std6 <= 0).any(axis=1))[0])
         raise ValueError(f"odometry {odometry_name!r}: std6 must be > 0, got {std6[bad]} for pair {tuple(pairs[bad])}")
+    far = np.abs(mean6[:, 3:]).max(axis=1) > MAX_TRANSLATION_M if p else np.zeros(0, bool)
+    if far.any():
+        bad = int(np.flatnonzero(far)[0])
+        raise ValueError(f"odometry {odometry_name!r}: a translation of {np.abs(mean6[bad, 3:]).max():.3g} m for pair "
+                         f"{tuple(pairs[bad])}; at most {MAX_TRANSLATION_M:g} m between two frames")
     return mean6, std6
 
 

@@ -19,9 +19,12 @@ attribute, an exception, wrong shapes, NaN, a std <= 0) into an InputError namin
 """
 from __future__ import annotations
 
+import multiprocessing
+import os
 import re
 import shlex
 import subprocess
+import sys
 import tempfile
 from pathlib import Path
 from typing import Sequence as SequenceT
@@ -75,17 +78,77 @@ def _short(text: str, n: int = 120) -> str:
     return r if len(r) <= n else r[:n - 3] + "..."
 
 
-class CheckedOdometry:
-    """Wraps a plugin odometry: every answer is validated, every failure an InputError naming it."""
+def call_isolated(fn, label: str, timeout_s: float):
+    """``fn()`` run in a forked child process, its answer sent back through a pipe: a Python plug-in's
+    ``sys.exit``, ``os._exit``, crash or endless loop cannot end or hang the run, and what it prints goes to
+    stderr (the child's stdout is its stderr), never into a command's ``--json`` output.
 
-    def __init__(self, inner, label: str):
+    Raises:
+        InputError: naming ``label`` when ``fn`` raises (SystemExit included), the child exits without an
+            answer (``os._exit``, a signal), or no answer comes within ``timeout_s`` seconds (the child is
+            killed).
+    """
+    ctx = multiprocessing.get_context("fork")
+    recv, send = ctx.Pipe(duplex=False)
+
+    def child() -> None:
+        os.dup2(2, 1)  # the plug-in's prints go to stderr
+        try:
+            answer = ("ok", fn())
+        except InputError as e:
+            answer = ("error", e.message())
+        except SystemExit as e:
+            answer = ("error", f"it called sys.exit({e.code!r})")
+        except BaseException as e:  # noqa: BLE001 - a user's plugin: report it, one line
+            answer = ("error", f"predict failed ({type(e).__name__}: {e})")
+        try:
+            send.send(answer)
+        except Exception as e:  # noqa: BLE001 - an answer that cannot be pickled
+            send.send(("error", f"its answer cannot be sent back ({type(e).__name__}: {e})"))
+        sys.stdout.flush()
+        os._exit(0)
+
+    proc = ctx.Process(target=child, daemon=True)
+    proc.start()
+    send.close()
+    try:
+        if not recv.poll(timeout_s):
+            raise InputError(None, f"odometry plugin {label}: no answer within {timeout_s:g} s (--command-timeout)")
+        try:
+            status, value = recv.recv()
+        except EOFError:
+            proc.join(5)
+            raise InputError(None, f"odometry plugin {label}: its process ended without an answer (exit status "
+                                   f"{proc.exitcode}: os._exit, a crash or a signal)") from None
+    finally:
+        recv.close()
+        if proc.is_alive():
+            proc.kill()
+        proc.join()
+    if status != "ok":
+        raise InputError(None, f"odometry plugin {label}: {value}")
+    return value
+
+
+class CheckedOdometry:
+    """Wraps a plugin odometry: every answer is validated, every failure an InputError naming it.
+
+    ``timeout_s``: a Python plug-in's ``predict`` runs in a forked child (:func:`call_isolated`) with this
+    many seconds to answer; None runs it in this process (an external command, already a process of its
+    own with its own timeout)."""
+
+    def __init__(self, inner, label: str, timeout_s: float | None = None):
         self.inner = inner
         self.label = label
         self.name = str(getattr(inner, "name", label))
+        self.timeout_s = timeout_s
 
     def predict(self, seq, pairs: SequenceT[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
         try:
-            mean6, std6 = self.inner.predict(seq, pairs)
+            if self.timeout_s is not None:
+                mean6, std6 = call_isolated(lambda: self.inner.predict(seq, pairs), self.label, self.timeout_s)
+            else:
+                mean6, std6 = self.inner.predict(seq, pairs)
         except InputError:
             raise
         except Exception as e:  # noqa: BLE001 - a user's plugin: report it, one line
@@ -98,22 +161,25 @@ class CheckedOdometry:
             raise InputError(None, f"odometry plugin {self.label}: {what}") from None
 
 
-def checked(odometry, label: str) -> CheckedOdometry:
+def checked(odometry, label: str, timeout_s: float | None = None) -> CheckedOdometry:
     """``odometry`` wrapped by :class:`CheckedOdometry`, after checking it has ``name`` and ``predict``."""
     if not callable(getattr(odometry, "predict", None)):
         raise InputError(None, f"odometry plugin {label}: the factory returned {type(odometry).__name__}, "
                                "which has no predict(seq, pairs) method")
-    return CheckedOdometry(odometry, label)
+    return CheckedOdometry(odometry, label, timeout_s)
 
 
-def load_odometry(spec: str) -> CheckedOdometry:
-    """An odometry from ``MODULE:FACTORY`` or an entry-point NAME (the factory is called with no arguments)."""
+def load_odometry(spec: str, timeout_s: float = DEFAULT_COMMAND_TIMEOUT_S) -> CheckedOdometry:
+    """An odometry from ``MODULE:FACTORY`` or an entry-point NAME (the factory is called with no arguments);
+    its ``predict`` runs isolated with ``timeout_s`` seconds to answer (:func:`call_isolated`)."""
     factory = load_factory(spec, ENTRY_POINT_GROUP)
     try:
         odo = factory()
+    except SystemExit as e:
+        raise InputError(None, f"odometry plugin {spec}: the factory called sys.exit({e.code!r})") from None
     except Exception as e:  # noqa: BLE001
         raise InputError(None, f"odometry plugin {spec}: the factory failed ({type(e).__name__}: {e})") from None
-    return checked(odo, spec)
+    return checked(odo, spec, timeout_s)
 
 
 class CommandOdometry:
@@ -217,7 +283,7 @@ def from_options(odometry: str | None, command: str | None,
     if command:
         return command_odometry(command, timeout_s=timeout_s)
     if odometry:
-        return load_odometry(odometry)
+        return load_odometry(odometry, timeout_s)
     return None
 
 
@@ -257,7 +323,7 @@ def odometry_from_args(args, seq):
         cons = from_options(None if command else args.odometry, command,
                             getattr(args, "command_timeout", DEFAULT_COMMAND_TIMEOUT_S))
         loops_spec = getattr(args, "odometry_loops", None)
-        loops = load_odometry(loops_spec) if loops_spec else cons
+        loops = load_odometry(loops_spec, getattr(args, "command_timeout", DEFAULT_COMMAND_TIMEOUT_S)) if loops_spec else cons
         return cons, loops
     # deferred: both import torch; plug-in and gt-noisy odometries (and vo/slam --help) stay torch-free
     from deepslam.gen.device import resolve_device

@@ -130,6 +130,7 @@ def _run(args: argparse.Namespace) -> int:
     from deepslam.core import metrics, plots
     from deepslam.core.outputs import write_side_files
     from deepslam.core.readers import open_sequence_for_flow
+    from deepslam.core.trajectory import check_finite_poses
     from deepslam.core.trajio import default_format, write_trajectory
     from deepslam.slam import plugins
     from deepslam.slam.pipeline import PipelineConfig, SlamParams, run_slam
@@ -143,6 +144,8 @@ def _run(args: argparse.Namespace) -> int:
     if out.is_dir():
         raise InputError(out, "--out is a folder, expected a file name")
     seq = open_sequence_for_flow(args.sequence)
+    if len(seq) < 3:
+        raise InputError(args.sequence, f"holds {len(seq)} frames; SLAM needs at least 3 (and its metrics align 3 poses)")
     fmt = args.format or default_format(seq.kind, seq.timestamps_s is not None)
     if fmt != "kitti" and seq.timestamps_s is None:
         raise InputError(args.sequence, f"the {fmt} format needs timestamps and the sequence has none")
@@ -155,9 +158,10 @@ def _run(args: argparse.Namespace) -> int:
                             loops=not args.no_loops, loop_check=not args.no_loop_check, seed=args.seed)
     res = run_slam(seq, odo_cons, odo_loops, params, config, vocabulary=vocab, show_progress=not (args.json or args.quiet))
 
+    check_finite_poses(res.vo.world_from_cam, f"the odometry {odo_cons.name}")
+    check_finite_poses(res.slam.world_from_cam, "the pose graph")
     side = side_files(out)
     vo_path, record_path = side["vo"], side["record"]
-    write_trajectory(out, res.slam, fmt)
     in_cycles = loop_coverage(len(seq), res.loops.pairs)    # the frames loop edges constrain
     record = {
         "sequence": str(args.sequence), "frames": len(seq), "trajectory": str(out), "trajectory_vo": str(vo_path),
@@ -191,6 +195,7 @@ def _run(args: argparse.Namespace) -> int:
         perfect = perfect_loops_record(seq, res.cons, res.params.t_loop, graph, args.align)
         if perfect is not None:
             record["metrics_perfect_loops"] = perfect
+    write_trajectory(out, res.slam, fmt)  # after the metrics, which can refuse: nothing half-written
     if args.plot:
         series = {}
         if seq.gt is not None:

@@ -126,7 +126,7 @@ def _run(args: argparse.Namespace) -> int:
     from deepslam.core import atomic, trajio
     from deepslam.core.outputs import write_side_files
     from deepslam.core.readers import open_sequence_for_flow
-    from deepslam.core.trajectory import Trajectory
+    from deepslam.core.trajectory import Trajectory, check_finite_poses
     from deepslam.slam import plugins
     from deepslam.vo import models
 
@@ -194,11 +194,11 @@ def _run(args: argparse.Namespace) -> int:
     from deepslam.vo.infer import chain_euler6
 
     world_from_cam = chain_euler6(mean6)
+    check_finite_poses(world_from_cam, f"the odometry {name}")
     est = Trajectory(world_from_cam, seq.timestamps_s[frames])
 
     out = Path(args.out)
     side = side_files(out)
-    trajio.write_trajectory(out, est, fmt)
     stem = out.with_suffix("")
     header = "i,j,t_i_s,t_j_s,ex_rad,ey_rad,ez_rad,tx_m,ty_m,tz_m,std_ex_rad,std_ey_rad,std_ez_rad,std_tx_m,std_ty_m,std_tz_m"
     lines = [header]
@@ -222,9 +222,12 @@ def _run(args: argparse.Namespace) -> int:
                               road_scale_sources=road[0].counts(), road_pitch_deg=road[0].pitch_deg)
     say = (lambda *a, **k: None) if args.json else print
 
-    if seq.gt is None:
+    if seq.gt is None or len(frames) < 3:
+        trajio.write_trajectory(out, est, fmt)
         write_side_files(side["config"], config, COMMAND, writers)
         say(f"wrote {out} ({len(frames)} poses, {fmt}) and {stem}.motions.csv")
+        if seq.gt is not None:
+            say("not scored: the metrics align the trajectory to the ground truth, which needs at least 3 poses")
     else:
         from deepslam.core import metrics, plots
 
@@ -241,6 +244,7 @@ def _run(args: argparse.Namespace) -> int:
                     (side["plot"], lambda p: plots.plot_trajectories_topdown(
                         p, {"ground truth": gt.positions, name: est_scored.positions},
                         title=f"{seq.name}: {name}" + (f" ({', '.join(how)})" if how else "")))]
+        trajio.write_trajectory(out, est, fmt)  # after the metrics, which can refuse: nothing half-written
         write_side_files(side["config"], config, COMMAND, writers)
         say(f"wrote {out} ({len(frames)} poses, {fmt}) and {stem}.motions.csv")
         line = (f"ATE {res['ate_m']:.3f} m (se3-aligned; {res_none['ate_m']:.3f} m unaligned), "
@@ -254,5 +258,5 @@ def _run(args: argparse.Namespace) -> int:
         say(f"wrote {stem}.metrics.json and {stem}.png")
     if args.json:
         print(json.dumps({"out": str(out), "poses": int(len(frames)), "format": fmt, "model_name": name,
-                          "metrics": report if seq.gt is not None else None}))
+                          "metrics": report if seq.gt is not None and len(frames) >= 3 else None}))
     return 0
