@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import cv2
 import numpy as np
 
 from deepslam.core.errors import InputError
@@ -39,6 +40,54 @@ def check_flow_size(width: int, height: int, where=None) -> None:
     if width < MIN_FLOW_WIDTH_PX or height < MIN_FLOW_HEIGHT_PX:
         raise InputError(where, f"images of {width}x{height} px are too small for optical flow; at least "
                                 f"{MIN_FLOW_WIDTH_PX}x{MIN_FLOW_HEIGHT_PX} px")
+
+
+PLAUSIBLE_MEDIAN_DEPTH_M = (0.05, 500.0)
+"""Range of the median depth of a frame (metres) that a depth sensor, stereo or a render gives; outside it
+the depth is in other units (whole metres in a millimetre format, millimetres read as metres)."""
+
+
+def check_depth_units(depth_m: np.ndarray, where, scale_note: str = "") -> None:
+    """InputError naming ``where`` when the median of the known depths of ``depth_m`` (H, W) float metres
+    (0, NaN or inf: unknown) lies outside :data:`PLAUSIBLE_MEDIAN_DEPTH_M`, or no pixel has a depth: the
+    depth is plausibly stored in other units than the reader assumes (``scale_note`` says how it read them)."""
+    d = np.asarray(depth_m, dtype=np.float64)
+    known = d[np.isfinite(d) & (d > 0)]
+    how = f" (read with {scale_note})" if scale_note else ""
+    if known.size == 0:
+        raise InputError(where, f"no pixel has a depth{how}")
+    lo, hi = PLAUSIBLE_MEDIAN_DEPTH_M
+    med = float(np.median(known))
+    if not lo <= med <= hi:
+        raise InputError(where, f"the median depth is {med:.3g} m{how}, outside the plausible {lo:g}-{hi:g} m: the "
+                                "depth is in other units (whole metres, millimetres?); fix the files or the scale")
+
+
+MIN_IMAGE_KEPT_BY_UNDISTORTION = 0.5
+"""Least share of an undistorted image whose pixels come from inside the recorded frame."""
+
+
+def check_distortion(k: np.ndarray, dist, width: int, height: int, where=None) -> None:
+    """InputError naming ``where`` (the calibration file) when radial-tangential coefficients ``dist``
+    (k1, k2, p1, p2[, k3]) with the intrinsics ``k`` (3, 3) px would leave most of the undistorted
+    ``width`` x ``height`` image without a source pixel (every image would read black): each pixel of a
+    16 x 12 grid of the pinhole image is distorted (:func:`cv2.projectPoints`) and must land inside the
+    recorded frame for at least :data:`MIN_IMAGE_KEPT_BY_UNDISTORTION` of the grid."""
+    dist = np.asarray(dist, dtype=np.float64).ravel()
+    if not np.any(dist):
+        return
+    k = np.asarray(k, dtype=np.float64)
+    u, v = np.meshgrid(np.linspace(0, width - 1, 16), np.linspace(0, height - 1, 12))
+    rays = np.stack([(u.ravel() - k[0, 2]) / k[0, 0], (v.ravel() - k[1, 2]) / k[1, 1], np.ones(u.size)], axis=1)
+    with np.errstate(all="ignore"):
+        uv, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), k, dist)
+    uv = uv.reshape(-1, 2)
+    inside = np.isfinite(uv).all(axis=1) & (uv[:, 0] >= -0.5) & (uv[:, 0] <= width - 0.5) \
+        & (uv[:, 1] >= -0.5) & (uv[:, 1] <= height - 0.5)
+    if inside.mean() < MIN_IMAGE_KEPT_BY_UNDISTORTION:
+        raise InputError(where, f"distortion coefficients {[float(f'{x:.3g}') for x in dist]} map "
+                                f"{100 * (1 - inside.mean()):.0f} % of the undistorted image outside the recorded "
+                                "frame (every image would read mostly black); check their values and order")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from deepslam.core import se3
-from deepslam.core.camera import PinholeCamera
+from deepslam.core.camera import PinholeCamera, check_distortion
 from deepslam.core.errors import InputError
 from deepslam.core.textio import loads_yaml, read_text, short
 from deepslam.core.sequence import Sequence, dataset_file, ground_truth_files
@@ -80,6 +80,7 @@ def read_sensor_yaml(path: Path) -> dict:
     except (TypeError, ValueError):
         raise InputError(path, f"resolution must be two integers and rate_hz a number, got {short(res)} and "
                                f"{short(y.get('rate_hz'))}") from None
+    check_distortion(k, dist, width, height, path)
     return {"body_from_cam": body_from_cam, "k": k, "dist": dist, "width": width, "height": height,
             "rate_hz": rate_hz, "k_undistorted": k_und}
 

@@ -27,7 +27,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from deepslam.core.camera import PinholeCamera
+from deepslam.core.camera import PinholeCamera, check_depth_units, check_distortion
 from deepslam.core.errors import InputError
 from deepslam.core.sequence import Sequence, dataset_file, ground_truth_files, read_image
 from deepslam.core.textio import read_text
@@ -159,6 +159,7 @@ def read_tum(root: str | Path, max_diff_s: float = MAX_DIFF_S) -> Sequence:
     maps = None
     if any(dist):
         k = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1]], np.float64)
+        check_distortion(k, dist, width, height, root / "intrinsics.txt")
         maps = cv2.initUndistortRectifyMap(k, np.array(dist, np.float64), None, k, (width, height), cv2.CV_32FC1)
 
     def postprocess(img: np.ndarray, side: str) -> np.ndarray:
@@ -173,6 +174,9 @@ def read_tum(root: str | Path, max_diff_s: float = MAX_DIFF_S) -> Sequence:
         if maps is not None:
             raw = cv2.remap(raw, maps[0], maps[1], cv2.INTER_NEAREST)
         return raw.astype(np.float32) / np.float32(scale)
+
+    if depth_paths:
+        check_depth_units(read_depth(depth_paths[0]), depth_paths[0], f"depth_scale {scale:g} units per metre")
 
     gt, gt_frames = None, None
     gt_path = root / "groundtruth.txt"
