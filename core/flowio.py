@@ -66,18 +66,21 @@ def read_flo(path: str | Path) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "flow file is missing")
-    data = path.read_bytes()
-    if len(data) < 12:
-        raise InputError(path, f"not a .flo file (only {len(data)} bytes)")
-    magic = float(np.frombuffer(data[:4], "<f4")[0])
-    if magic != FLO_MAGIC:
-        raise InputError(path, f"not a .flo file (magic {magic!r}, expected {FLO_MAGIC})")
-    w, h = (int(x) for x in np.frombuffer(data[4:12], "<i4"))
-    if w < 1 or h < 1 or w > 100_000 or h > 100_000:
-        raise InputError(path, f"bad .flo size {w}x{h}")
-    need = 12 + 8 * w * h
-    if len(data) != need:
-        raise InputError(path, f".flo of {w}x{h} needs {need} bytes, the file has {len(data)}")
+    size = path.stat().st_size
+    with open(path, "rb") as f:  # the header first: its size is checked against the file before the rest is read
+        head = f.read(12)
+        if len(head) < 12:
+            raise InputError(path, f"not a .flo file (only {len(head)} bytes)")
+        magic = float(np.frombuffer(head[:4], "<f4")[0])
+        if magic != FLO_MAGIC:
+            raise InputError(path, f"not a .flo file (magic {magic!r}, expected {FLO_MAGIC})")
+        w, h = (int(x) for x in np.frombuffer(head[4:12], "<i4"))
+        if w < 1 or h < 1 or w > 100_000 or h > 100_000:
+            raise InputError(path, f"bad .flo size {w}x{h}")
+        need = 12 + 8 * w * h
+        if size != need:
+            raise InputError(path, f".flo of {w}x{h} needs {need} bytes, the file has {size}")
+        data = head + f.read()
     flow = np.frombuffer(data, "<f4", count=2 * w * h, offset=12).reshape(h, w, 2).astype(np.float32)
     unknown = ~(np.abs(flow) <= FLO_UNKNOWN_THRESH).all(axis=2)
     flow[unknown] = np.nan

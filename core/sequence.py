@@ -259,8 +259,9 @@ class Sequence:
 
     def check(self, i: int) -> None:
         """Decode everything of frame i a later command would read and check it against the camera:
-        image size, depth (H, W) finite and >= 0, flow (H, W, 2) finite, mask (H, W). InputError
-        naming the file otherwise."""
+        image size, depth (H, W) finite and >= 0, flow (H, W, 2) finite, mask (H, W), backward flow,
+        occlusion mask, rolling-shutter row poses, exact depth, and the flow's .flo / KITTI .png copies
+        (headers and sizes). InputError naming the file otherwise."""
         h, w = self.camera.height, self.camera.width
         items = [(self.image_paths[i], self.image(i))]
         if self.right_paths is not None:
@@ -283,6 +284,26 @@ class Sequence:
         m = self.mask(i)
         if m is not None and m.shape[:2] != (h, w):
             raise InputError(self.mask_paths[i], f"mask is {m.shape}, expected ({h}, {w})")
+        fb = self.flow_backward(i)  # sized by the reader
+        if fb is not None and not np.isfinite(fb).all():
+            raise InputError(self.flow_backward_paths[i], "backward flow has NaN or infinite values")
+        self.occlusion(i)
+        self.row_poses(i)
+        if self.depth_exact_paths is not None:
+            de = self.depth_exact(i)
+            if not np.isfinite(de).all() or (de < 0).any():
+                raise InputError(self.depth_exact_paths[i], "exact depth has NaN, infinite or negative values")
+        # the flow in the other formats a render writes beside the .npy (Middlebury .flo, KITTI 2015 .png);
+        # deferred: core.flowio imports read_image from this module
+        from deepslam.core import flowio
+
+        for paths in (self.flow_paths, self.flow_backward_paths):
+            if paths is None or paths[i] is None:
+                continue
+            for other, read in ((paths[i].with_suffix(".flo"), flowio.read_flo),
+                                (paths[i].with_suffix(".png"), flowio.read_kitti_flow_png)):
+                if other.is_file() and read(other).shape != (h, w, 2):
+                    raise InputError(other, f"flow is {read(other).shape}, expected ({h}, {w}, 2)")
 
     def check_timestamps(self) -> None:
         """InputError unless the frame times are finite and strictly increasing."""
