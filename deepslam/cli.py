@@ -64,6 +64,19 @@ def _paths(value) -> list[str]:
     return out
 
 
+SEED_RANGE = (0, 2**32 - 1)
+"""Seeds every command takes (numpy's and torch's generators take these)."""
+
+
+def check_before_work(args: argparse.Namespace) -> None:
+    """What every command checks before any work: ``--seed`` within :data:`SEED_RANGE`, and its paths
+    (:func:`check_paths`). InputError naming the option."""
+    seed = getattr(args, "seed", None)
+    if isinstance(seed, int) and not SEED_RANGE[0] <= seed <= SEED_RANGE[1]:
+        raise InputError(None, f"--seed must be in {SEED_RANGE[0]}..{SEED_RANGE[1]}, got {seed}")
+    check_paths(args)
+
+
 def check_paths(args: argparse.Namespace) -> None:
     """Before any work, for every output-like option of ``args`` (:data:`OUTPUT_OPTIONS`): it is not and does
     not lie inside an input (:data:`INPUT_OPTIONS`), no two outputs coincide, and it can be created where
@@ -105,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
     args = build_parser().parse_args(argv)
     try:
-        check_paths(args)  # every output-like option, before any work
+        check_before_work(args)  # every output-like option and the seed, before any work
         rc = int(args._run(args) or 0)
         sys.stdout.flush()  # a reader gone away shows here, not in Python's own flush at exit
         return rc
@@ -129,7 +142,9 @@ def main(argv: list[str] | None = None) -> int:
         # every output is written atomically, so nothing half-written is left behind.
         if e.errno not in _ENVIRONMENT_ERRNOS:
             raise
-        where = f"{e.filename}: " if e.filename else ""
+        # an error without a file name (a full disk while a library writes) names the run's output instead
+        named = e.filename or next((getattr(args, d) for d in OUTPUT_OPTIONS if getattr(args, d, None)), None)
+        where = f"{named}: " if named else ""
         print(f"deepslam {args.command}: error: {where}{e.strerror or e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -121,6 +121,29 @@ def _matched(gt, est) -> tuple[np.ndarray, np.ndarray]:
     return g, e
 
 
+STILL_RATIO = 1e-3
+"""A sim3 alignment is refused when the ground truth's positions spread less than this share of the
+estimate's: the fitted scale would shrink the estimate onto the ground truth's point."""
+
+
+def _check_alignable(g: np.ndarray, e: np.ndarray, align: str) -> None:
+    """AssertionError when ``align`` cannot be fitted meaningfully to the matched poses ``g``, ``e``
+    (N, 4, 4): fewer than 3 poses for se3 / sim3, or (sim3) a ground truth that stands still against the
+    estimate's motion, where the scale collapses towards 0 and any estimate would pass."""
+    if align == "none":
+        return
+    if len(g) < 3:
+        raise AssertionError(f"a {align} alignment needs at least 3 matched poses, got {len(g)}")
+    if align == "sim3":
+        def spread(p: np.ndarray) -> float:  # RMS distance of the positions (N, 3) m from their centroid
+            return float(np.sqrt(((p - p.mean(axis=0)) ** 2).sum(axis=1).mean()))
+
+        sg, se = spread(g[:, :3, 3]), spread(e[:, :3, 3])
+        if sg <= STILL_RATIO * se or sg == 0.0:
+            raise AssertionError(f"the ground truth stands still ({sg:.3g} m RMS spread) while the estimate spans "
+                                 f"{se:.3g} m: a sim3 alignment would shrink the estimate onto it; use se3 or none")
+
+
 def assert_trajectory_close(gt, est, ate_m: float, align: str = "se3", max_m: float | None = None) -> dict:
     """Assert the absolute trajectory error of ``est`` against ``gt`` after ``align``, over every frame of ``gt``.
 
@@ -141,6 +164,7 @@ def assert_trajectory_close(gt, est, ate_m: float, align: str = "se3", max_m: fl
     _check_tolerance("ate_m", ate_m)
     _check_tolerance("max_m", max_m, allow_none=True)
     g, e = _matched(gt, est)
+    _check_alignable(g, e, align)
     res = metrics.ate(g, e, align)
     err = res["errors_m"]
     worst = int(np.argmax(err))

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import shutil
 import sys
 from pathlib import Path
 
@@ -132,7 +133,9 @@ class ViewResult:
 
 def _rerun():
     """The rerun module; InputError naming the extra to install where it is missing."""
-    # rerun-sdk is an optional dependency (the `viz` extra), imported only when a recording is made
+    # rerun-sdk is an optional dependency (the `viz` extra), imported only when a recording is made; its own
+    # log lines (a failed file write is also an exception here, reported in one line) are off unless asked for
+    os.environ.setdefault("RUST_LOG", "off")
     try:
         import rerun
     except ImportError:
@@ -511,7 +514,12 @@ def view(path: str | Path, save: str | Path | None = None, config: ViewConfig = 
         try:
             result = log()
         finally:
-            rec.flush()
-            rec.disconnect()  # closes the file (with its footer) before it is renamed into place
+            try:
+                rec.flush()
+                rec.disconnect()  # closes the file (with its footer) before it is renamed into place
+            except RuntimeError as e:  # rerun's file writer stopped: the disk is full or refused the write
+                free = shutil.disk_usage(tmp.parent).free
+                why = "no space left on the device" if free < 1 << 20 else f"the write failed ({e})"
+                raise InputError(save, f"cannot write the recording: {why}; nothing was written") from None
     result.saved = Path(save)
     return result

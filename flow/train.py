@@ -270,8 +270,9 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
         atomic.write_json(out / "config.json", {"train": cfg.to_dict(), "meta": meta or {}, "pairs": len(pairs)})
 
         def tree(kind: str) -> dict:
+            # the model file holds no wall time (same seed, same bytes); a checkpoint keeps it in its state
             t = {"net": cfg.net.to_dict(), "state_dict": model.state_dict(), "meta": {**(meta or {}), "train": cfg.to_dict(),
-                 "steps": state["step"], "train_seconds": state["seconds"]}}
+                 "steps": state["step"]}}
             if kind == CHECKPOINT_FORMAT:
                 t.update(config=cfg.to_dict(), optimizer=opt.state_dict(), scheduler=sched.state_dict(), state=state)
             return t

@@ -19,6 +19,7 @@ attribute, an exception, wrong shapes, NaN, a std <= 0) into an InputError namin
 """
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 import re
@@ -174,7 +175,8 @@ def load_odometry(spec: str, timeout_s: float = DEFAULT_COMMAND_TIMEOUT_S) -> Ch
     its ``predict`` runs isolated with ``timeout_s`` seconds to answer (:func:`call_isolated`)."""
     factory = load_factory(spec, ENTRY_POINT_GROUP)
     try:
-        odo = factory()
+        with contextlib.redirect_stdout(sys.stderr):  # what the factory prints never reaches --json output
+            odo = factory()
     except SystemExit as e:
         raise InputError(None, f"odometry plugin {spec}: the factory called sys.exit({e.code!r})") from None
     except Exception as e:  # noqa: BLE001

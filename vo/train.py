@@ -472,7 +472,8 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, run: 
     summary = {"stop_reason": state["stop_reason"], "epochs": state["epoch"], "nll_epochs": state["nll_epoch"],
                "best_val_loss": state["best_val"], "holdout": final, "lr_halvings": state["halvings"],
                "train_seconds": run.elapsed(), "train_samples": state["samples"]}
-    meta_out = {**meta, "train": cfg.to_dict(), "summary": summary}
+    # the model file holds no wall time: same seed, same bytes (the time is in summary.json beside it)
+    meta_out = {**meta, "train": cfg.to_dict(), "summary": {k: v for k, v in summary.items() if k != "train_seconds"}}
     model_path = out_dir / MODEL
     if run.writer:
         save_model(model_path, model, meta_out, half=half_weights)

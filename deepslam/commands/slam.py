@@ -164,7 +164,7 @@ def _run(args: argparse.Namespace) -> int:
     vo_path, record_path = side["vo"], side["record"]
     in_cycles = loop_coverage(len(seq), res.loops.pairs)    # the frames loop edges constrain
     record = {
-        "sequence": str(args.sequence), "frames": len(seq), "trajectory": str(out), "trajectory_vo": str(vo_path),
+        "sequence": str(Path(args.sequence).resolve()), "frames": len(seq), "trajectory": str(out), "trajectory_vo": str(vo_path),
         "format": fmt, "odometry_cons": odo_cons.name, "odometry_loops": getattr(odo_loops, "name", None),
         "params": res.params.to_dict(),
         "config": {**config.to_dict(), "reloc": dataclasses.asdict(res.reloc) if res.reloc else None},

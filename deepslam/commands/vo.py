@@ -207,12 +207,13 @@ def _run(args: argparse.Namespace) -> int:
                                *(repr(float(x)) for x in m), *(repr(float(x)) for x in s)]))
     motions_text = "\n".join(lines) + "\n"
     writers = [(side["motions"], lambda p: atomic.write_text(p, motions_text))]
-    config = {"sequence": str(seq.root), "sequence_kind": seq.kind, "frames": [int(frames[0]), int(frames[-1])],
+    config = {"sequence": str(Path(seq.root).resolve()), "sequence_kind": seq.kind, "frames": [int(frames[0]), int(frames[-1])],
               "stride": args.stride, "format": fmt, "out": str(out)}
     if predictor is None:
         config.update(odometry=args.odometry, odometry_command=args.odometry_command, model_name=name)
     else:
-        config.update(model=args.model or f"shipped:{models.kind_for_sequence(seq)}_cons", model_name=name,
+        config.update(model=str(model_path.resolve()) if args.model else f"shipped:{models.kind_for_sequence(seq)}_cons",
+                      model_name=name,
                       model_net=predictor.model.cfg.to_dict(), flow=getattr(estimator, "name", args.flow),
                       bf16=predictor.bf16, batch=args.batch, device=str(predictor.device), pose=pose)
         if epi is not None:
