@@ -4,6 +4,7 @@ from __future__ import annotations
 import argparse
 import errno
 import importlib
+import importlib.util
 import os
 import pkgutil
 import sys
@@ -68,9 +69,24 @@ SEED_RANGE = (0, 2**32 - 1)
 """Seeds every command takes (numpy's and torch's generators take these)."""
 
 
+def check_extras(args: argparse.Namespace) -> None:
+    """InputError naming the extra when a module the command always needs (its module's ``NEEDS``, a
+    callable of the parsed arguments returning module names) is not installed: found before any work, so
+    that nothing is created first. A module needed only on some paths is reported where it is imported
+    (:func:`missing_extra`)."""
+    for name in args._needs(args):
+        try:
+            missing = importlib.util.find_spec(name) is None
+        except (ImportError, ValueError):  # a parent package missing, or a module blocked as None
+            missing = True
+        if missing:
+            raise InputError(None, missing_extra(ModuleNotFoundError(name=name)) or f"needs the module {name!r}")
+
+
 def check_before_work(args: argparse.Namespace) -> None:
-    """What every command checks before any work: ``--seed`` within :data:`SEED_RANGE`, and its paths
-    (:func:`check_paths`). InputError naming the option."""
+    """What every command checks before any work: the optional modules it needs (:func:`check_extras`),
+    ``--seed`` within :data:`SEED_RANGE`, and its paths (:func:`check_paths`). InputError naming the option."""
+    check_extras(args)
     seed = getattr(args, "seed", None)
     if isinstance(seed, int) and not SEED_RANGE[0] <= seed <= SEED_RANGE[1]:
         raise InputError(None, f"--seed must be in {SEED_RANGE[0]}..{SEED_RANGE[1]}, got {seed}")
@@ -102,7 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
     for mod in _discover():
         p = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.HELP)
         mod.add_arguments(p)
-        p.set_defaults(_run=mod.run)
+        p.set_defaults(_run=mod.run, _needs=getattr(mod, "NEEDS", lambda args: ()))
     return parser
 
 

@@ -35,9 +35,10 @@ out because their flow fits no rigid motion) and ``metrics`` (a text panel: ATE,
 from __future__ import annotations
 
 import dataclasses
+import errno
 import os
-import shutil
 import sys
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -129,6 +130,33 @@ class ViewResult:
     """What could not be shown and why (a run's sequence is gone, no ground truth, ...), one line each."""
     saved: Path | None = None
     """The .rrd written (``save``), or None (the viewer was spawned)."""
+
+
+class _StreamDrain:
+    """Copies a rerun binary stream into an open file from a background thread every ``period_s`` seconds,
+    so that the recording is never held in memory whole. The first write error stops the copying (later
+    bytes are read and dropped) and is kept in ``error`` for the caller to report."""
+
+    def __init__(self, stream, file, period_s: float = 0.25):
+        self.stream, self.file, self.error = stream, file, None
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._run, args=(period_s,), daemon=True)
+        self._thread.start()
+
+    def _run(self, period_s: float) -> None:
+        while not self._done.wait(period_s):
+            self.write(self.stream.read(flush=False))
+
+    def write(self, data: bytes | None) -> None:
+        if data and self.error is None:
+            try:
+                self.file.write(data)
+            except OSError as e:
+                self.error = e
+
+    def stop(self) -> None:
+        self._done.set()
+        self._thread.join()
 
 
 def _rerun():
@@ -509,17 +537,22 @@ def view(path: str | Path, save: str | Path | None = None, config: ViewConfig = 
         result = log()
         rec.flush()
         return result
-    with atomic_path(save) as tmp:
-        rec.save(tmp)
+    # the recording's bytes are written here, not by rerun's file sink: a full disk is an OSError naming the
+    # file (rerun's writer can stop silently, and its flush then waits forever)
+    stream = rec.binary_stream()
+    with atomic_path(save) as tmp, open(tmp, "wb") as f:
+        drain = _StreamDrain(stream, f)
         try:
             result = log()
-        finally:
-            try:
-                rec.flush()
-                rec.disconnect()  # closes the file (with its footer) before it is renamed into place
-            except RuntimeError as e:  # rerun's file writer stopped: the disk is full or refused the write
-                free = shutil.disk_usage(tmp.parent).free
-                why = "no space left on the device" if free < 1 << 20 else f"the write failed ({e})"
-                raise InputError(save, f"cannot write the recording: {why}; nothing was written") from None
+        finally:  # also when logging fails: a recording left connected would wait on its stream when collected
+            drain.stop()
+            rec.flush()
+            drain.write(stream.read(flush=True))
+            rec.disconnect()  # the end of the stream (its footer)
+            drain.write(stream.read(flush=False))
+        if drain.error is not None:
+            e = drain.error
+            why = "no space left on the device" if e.errno in (errno.ENOSPC, errno.EDQUOT) else (e.strerror or str(e))
+            raise InputError(save, f"cannot write the recording: {why}; nothing was written") from None
     result.saved = Path(save)
     return result

@@ -93,7 +93,8 @@ def call_isolated(fn, label: str, timeout_s: float):
     recv, send = ctx.Pipe(duplex=False)
 
     def child() -> None:
-        os.dup2(2, 1)  # the plug-in's prints go to stderr
+        os.dup2(2, 1)  # the plug-in's prints go to stderr, whatever writes them
+        sys.stdout = sys.stderr
         try:
             answer = ("ok", fn())
         except InputError as e:
@@ -106,7 +107,7 @@ def call_isolated(fn, label: str, timeout_s: float):
             send.send(answer)
         except Exception as e:  # noqa: BLE001 - an answer that cannot be pickled
             send.send(("error", f"its answer cannot be sent back ({type(e).__name__}: {e})"))
-        sys.stdout.flush()
+        sys.stderr.flush()
         os._exit(0)
 
     proc = ctx.Process(target=child, daemon=True)

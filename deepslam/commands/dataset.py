@@ -35,6 +35,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="print one JSON object (out, sequences, frames, sha256) instead of a line")
 
 
+
+def NEEDS(args: argparse.Namespace) -> tuple[str, ...]:
+    """Optional modules this run needs (checked before any work by the command line): [sim], and [ray] for
+    the ray executor."""
+    return ("mujoco",) + (("ray",) if args.backend == "ray" else ())
+
 def run(args: argparse.Namespace) -> int:
     from deepslam.core.textio import read_json_object
     from deepslam.sim.dataset import DatasetConfig, build

@@ -90,6 +90,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(mean and max share of the image on dynamic surfaces, from dynamic_fraction.txt), preview")
 
 
+
+def NEEDS(args: argparse.Namespace) -> tuple[str, ...]:
+    """Optional modules this run needs (checked before any work by the command line): the [sim] extra."""
+    return ("mujoco",) + (("pyrender",) if args.backend == "pyrender" else ())
+
 def _distortion(text: str | None):
     from deepslam.core.errors import InputError
 

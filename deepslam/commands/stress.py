@@ -76,6 +76,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--keep-sequences", action="store_true", help="keep the rendered sequences under DIR/sequences")
 
 
+
+def NEEDS(args: argparse.Namespace) -> tuple[str, ...]:
+    """Optional modules this run needs (checked before any work by the command line): the [sim] extra."""
+    return ("mujoco",) + (("pyrender",) if args.backend == "pyrender" else ())
+
 def parse_list(text: str, kind, what: str) -> tuple:
     """Comma-separated numbers -> tuple; InputError on an empty list or a bad number."""
     items = [t.strip() for t in str(text).split(",")]
