@@ -13,7 +13,7 @@ D=${1:-out/tum_models}
 DS=.venv/bin/deepslam
 TEDDY=../shared/data/tum/rgbd_dataset_freiburg3_teddy
 mkdir -p $D
-[ -f $D/euroc_cam_30hz/.done ] || { .venv/bin/python models/euroc_camera_poses.py --out $D/euroc_cam_30hz --rate 30 && touch $D/euroc_cam_30hz/.done; }
+[ -f $D/euroc_cam_30hz/.done ] || { .venv/bin/python scripts/euroc_camera_poses.py --out $D/euroc_cam_30hz --rate 30 && touch $D/euroc_cam_30hz/.done; }
 [ -f models/motion/euroc_s1_30hz.json ] || $DS fit-motion --poses $D/euroc_cam_30hz/*.txt --stride 1 --loops \
     --loop-gap 150 --loop-radius 1.0 --loop-max-angle 30 --out models/motion/euroc_s1_30hz.json
 for s in 1 2 3; do

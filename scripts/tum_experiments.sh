@@ -18,7 +18,7 @@ DS=.venv/bin/deepslam
 TEDDY=../shared/data/tum/rgbd_dataset_freiburg3_teddy
 [ -f $R/room_s3/poses.txt ] || bash scripts/train_tum_models.sh $R
 mkdir -p $D
-[ -f $D/euroc_cam_10hz/.done ] || { .venv/bin/python models/euroc_camera_poses.py --out $D/euroc_cam_10hz --rate 10 && touch $D/euroc_cam_10hz/.done; }
+[ -f $D/euroc_cam_10hz/.done ] || { .venv/bin/python scripts/euroc_camera_poses.py --out $D/euroc_cam_10hz --rate 10 && touch $D/euroc_cam_10hz/.done; }
 [ -f $D/euroc_10hz.json ] || $DS fit-motion --poses $D/euroc_cam_10hz/*.txt --stride 1 --out $D/euroc_10hz.json
 ROOMS="$R/room_s1 $R/room_s2 $R/room_s3"
 COMMON="--mode synthetic --frame-step 3 --net cpu --height 96 --width 128 --flow-scale 30 --samples-per-epoch 10000

@@ -1,5 +1,5 @@
-"""DESIGN.md's layering and "no import circle" as contracts (import-linter, ``[tool.importlinter]`` in
-pyproject.toml), checked over the installed names: the folders sit at the repository root and packaging maps
+"""The layering of docs/api.md ("Package layout") and "no import circle" as contracts (import-linter,
+``[tool.importlinter]`` in pyproject.toml), checked over the installed names: the folders sit at the repository root and packaging maps
 them to ``deepslam.*``, so the check runs on a mirror of the installed tree (the ``.py`` files copied by the
 same mapping), where import-linter sees every import, those inside functions too."""
 from __future__ import annotations

@@ -3,7 +3,7 @@ rate (world_from_cam0 = world_from_body @ body_from_cam0, resampled at 20 Hz), w
 so that ``deepslam fit-motion`` fits the motion of the camera (what the network predicts) rather
 than of the IMU.
 
-    .venv/bin/python models/euroc_camera_poses.py --out out/vo_data/euroc_cam_poses
+    .venv/bin/python scripts/euroc_camera_poses.py --out out/vo_data/euroc_cam_poses
 """
 from __future__ import annotations
 
