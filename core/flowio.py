@@ -24,7 +24,7 @@ import numpy as np
 
 from deepslam.core import atomic
 from deepslam.core.errors import InputError
-from deepslam.core.sequence import read_image
+from deepslam.core.imageio import read_image
 
 FLO_MAGIC = 202021.25
 """The float32 tag that opens a Middlebury .flo file."""

@@ -9,50 +9,13 @@ import dataclasses
 from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import Callable, Iterator
 
-import cv2
 import numpy as np
 
+from deepslam.core import flowio
 from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
+from deepslam.core.imageio import read_image, read_npy  # noqa: F401 - read_image stays importable from here
 from deepslam.core.trajectory import Trajectory
-
-
-def read_image(path: str | Path) -> np.ndarray:
-    """Read a PNG/JPEG as uint8 (H, W) grey or (H, W, 3) RGB, or uint16 (H, W) for 16-bit PNGs.
-
-    Raises InputError for a missing, empty or truncated file (a decoder that stops early is an error,
-    not a partly grey image).
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "image file is missing")
-    data = path.read_bytes()
-    if not data:
-        raise InputError(path, "image file is empty")
-    if data[:8] == b"\x89PNG\r\n\x1a\n" and b"IEND" not in data[-64:]:
-        raise InputError(path, "PNG is truncated (no IEND chunk)")
-    if data[:2] == b"\xff\xd8" and data.rstrip(b"\0")[-2:] != b"\xff\xd9":
-        raise InputError(path, "JPEG is truncated (no end-of-image marker)")
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise InputError(path, "cannot decode image")
-    if img.ndim == 3:
-        img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB if img.shape[2] == 4 else cv2.COLOR_BGR2RGB)
-    return img
-
-
-def read_npy(path: str | Path, dtype: np.dtype, ndim: int) -> np.ndarray:
-    """Read a .npy written by this project, checking dtype and rank; InputError when it is bad."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "file is missing")
-    try:
-        arr = np.load(path, allow_pickle=False)
-    except Exception as e:  # numpy raises ValueError/OSError/EOFError for truncated files
-        raise InputError(path, f"cannot read .npy ({type(e).__name__}: {e})") from None
-    if arr.ndim != ndim:
-        raise InputError(path, f"expected a {ndim}-D array, got shape {arr.shape}")
-    return arr.astype(dtype, copy=False)
 
 
 def dataset_file(folder: Path, name: str, listing: Path, line: int | None = None) -> Path:
@@ -293,10 +256,7 @@ class Sequence:
             de = self.depth_exact(i)
             if not np.isfinite(de).all() or (de < 0).any():
                 raise InputError(self.depth_exact_paths[i], "exact depth has NaN, infinite or negative values")
-        # the flow in the other formats a render writes beside the .npy (Middlebury .flo, KITTI 2015 .png);
-        # deferred: core.flowio imports read_image from this module
-        from deepslam.core import flowio
-
+        # the flow in the other formats a render writes beside the .npy (Middlebury .flo, KITTI 2015 .png)
         for paths in (self.flow_paths, self.flow_backward_paths):
             if paths is None or paths[i] is None:
                 continue
