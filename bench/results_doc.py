@@ -31,6 +31,11 @@ SECTIONS = (
      "ATE of the odometry alone and of the SLAM pose graph on simulated streets and rooms."),
     ("vo", "Training on single frames against supervised training", "python -m bench.results_vo",
      "The paper's synthetic training (single frames, no poses) against training on ground-truth poses, over seeds."),
+    ("repro", "The paper's recipe at scale: single frames against supervised, the network's own pose",
+     "bash scripts/train_paper_recipe.sh bench/paper_recipe  # hours; then python -m bench.results_repro",
+     "NN_cons trained by the paper's recipe for 2 M samples, synthetic from single frames and supervised on the same "
+     "renders, scored with their own pose on a held-out street (exact and DIS flow) and on KITTI 07, beside the "
+     "geometry default; learning curves."),
     ("speed", "Distance read at several speeds", "python -m bench.results_speed",
      "Path-length ratio of the shipped odometry on simulated streets and real frames at several frame strides."),
     ("road", "Road geometry", "python -m bench.results_road",

@@ -470,3 +470,28 @@ def test_results_doc_keeps_the_previous_table_of_a_run_not_on_disk(tmp_path):
     assert "*Measured 2026-01-01, commit `abc`, on M.*" in turn and "## Commands\n\n```\nx\n```" in turn
     assert "old preamble" not in text and "Some heading no run writes" in text   # inside the kept section
     assert results_doc.build(tmp_path / "out", {}, "").count("## ") == 1
+
+
+def test_repro_learning_curve_fits_a_power_law_and_the_table_reads_it(tmp_path):
+    import json
+
+    from bench import results_repro
+
+    samples = 20000
+    rows = [{"stage": 1, "epoch": e + 1, "samples": samples, "lr_max": 1e-3,
+             "val_rmse6": [0, 0.02 * (e + 1) ** -0.5, 0, 0, 0, 0.5 * (e + 1) ** -0.5]} for e in range(20)]
+    rows.append({"stage": 2, "epoch": 1, "holdout_nll": -3.0})
+    (tmp_path / "history.json").write_text(json.dumps(rows))
+    curve = results_repro.learning_curve(tmp_path / "history.json")
+    assert curve["samples"][-1] == 20 * samples
+    fit = curve["t_z_m_fit"]
+    assert fit["exponent"] == pytest.approx(-0.5, abs=1e-9)  # exactly a power law of the samples
+    assert fit["at_2x"] == pytest.approx(fit["last"] / 2 ** 0.5, rel=1e-9)
+    figures = {"ate_m": 1.0, "rpe_t_m": 0.1, "rpe_r_deg": 0.1, "kitti_t_err_pct": None, "kitti_r_err_deg_per_100m": None,
+               "endpoint_drift_pct": 3.0, "path_length_ratio": 1.0}
+    report = {"models": {"synthetic s0": {"file": "x", "samples": 400000}}, "cases": ["street_exact"],
+              "rows": {"synthetic": [{"seed": 0, "street_exact": figures}],
+                       "supervised": [{"seed": 0, "street_exact": {**figures, "endpoint_drift_pct": 1.5}}]},
+              "default": {}, "curves": {"synthetic s0": curve}, "ratio_synthetic_over_supervised": {"street_exact": 2.0}}
+    md = results_repro.markdown(report)
+    assert "| synthetic (n=1) | 1 |" in md and "x2.00" in md and "at 2x" in md
