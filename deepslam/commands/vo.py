@@ -15,9 +15,7 @@ for the run, and a second ``vo`` or ``slam`` into it exits 2 naming the first.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
-import math
 from pathlib import Path
 
 from deepslam.commands import _dis_flags
@@ -121,81 +119,25 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    import numpy as np
-
     from deepslam.core import atomic, trajio
     from deepslam.core.outputs import write_side_files
     from deepslam.core.readers import open_sequence_for_flow
-    from deepslam.core.trajectory import Trajectory, check_finite_poses
+    from deepslam.core.trajectory import Trajectory
+    from deepslam.flow.registry import given_estimator_options
     from deepslam.slam import plugins
-    from deepslam.vo import models
+    from deepslam.vo.pipeline import VOConfig, run_vo
 
     seq = open_sequence_for_flow(args.sequence)
-    if args.stride < 1:
-        raise InputError(None, f"--stride must be >= 1, got {args.stride}")
-    if not 1 <= args.batch <= 4096:
-        raise InputError(None, f"--batch must be in 1..4096, got {args.batch}")
-    end = len(seq) if args.end is None else min(args.end, len(seq))
-    if not 0 <= args.start < end:
-        raise InputError(None, f"empty frame range [{args.start}, {end}) of a {len(seq)}-frame sequence")
-    frames = np.arange(args.start, end, args.stride)
-    if len(frames) < 2:
-        raise InputError(args.sequence, f"needs at least two frames at stride {args.stride} in [{args.start}, {end})")
+    cfg = VOConfig(model=args.model, flow=args.flow, flow_options=tuple(given_estimator_options(args.flow, args).items()),
+                   pose=args.pose, scale=args.scale, camera_height_m=args.camera_height, stride=args.stride,
+                   start=args.start, end=args.end, batch=args.batch, device=args.device,
+                   bf16=None if args.bf16 == "auto" else args.bf16 == "on", progress=not (args.quiet or args.json))
+    frames = cfg.frames(len(seq))  # the range checked before a plug-in loads
     fmt = args.format or trajio.default_format(seq.kind, seq.timestamps_s is not None)
-    pairs = np.stack([frames[:-1], frames[1:]], axis=1)
     plugin = plugins.from_options(args.odometry, args.odometry_command, args.command_timeout)
-    if plugin is not None:
-        if args.model is not None:
-            raise InputError(None, "--model and --odometry/--odometry-command exclude each other")
-        for flag, on in (("--pose epipolar", args.pose == "epipolar"), (f"--scale {args.scale}", args.scale in ("road", "road-flow"))):
-            if on:
-                raise InputError(None, f"{flag} needs the network odometry (not --odometry/--odometry-command)")
-        mean6, std6 = plugin.predict(seq, pairs)
-        name, estimator, predictor = plugin.name, None, None
-    else:
-        from deepslam.flow.registry import given_estimator_options
-
-        model_path, shipped = models.locate(args.model, seq, flow=args.flow)
-        given = given_estimator_options(args.flow, args)
-        estimator = models.flow_for_model(args.flow, model_path, **given)  # DIS set up as the model was trained
-        bf16 = None if args.bf16 == "auto" else args.bf16 == "on"
-        from deepslam.vo.prefetch import PairInputs, model_input
-
-        # the flows start before torch and the model load (seconds of start-up they overlap)
-        spec = model_input(model_path)
-        pose = args.pose or models.recorded_pose(model_path)
-        if not 0.1 <= args.camera_height <= 100.0:
-            raise InputError(None, f"--camera-height must be in [0.1, 100] m, got {args.camera_height}")
-        epi = models.epipolar_config(model_path, pose, args.scale, args.camera_height)
-        if args.scale in ("road", "road-flow") and epi is None:
-            raise InputError(None, f"--scale {args.scale} needs --pose epipolar (the road fit uses its rotation and "
-                                   "direction)")
-        fitter = None
-        if epi is not None:
-            from deepslam.vo.epipolar import EpipolarFitter
-
-            fitter = EpipolarFitter(epi)
-        inputs = None if spec is None else PairInputs(seq, pairs, estimator, spec[1], spec[0], unknown=spec[2],
-                                                      full_flow_fn=fitter)
-        from deepslam.gen.device import resolve_device
-
-        try:
-            predictor = models.load(model_path, shipped, batch_size=args.batch, bf16=bf16,
-                                    device=resolve_device(args.device))
-        except BaseException:
-            if inputs is not None:
-                inputs.close()
-            raise
-        fits: list = []
-        road: list = []
-        mean6, std6 = predictor.predict_pairs(seq, pairs, estimator, progress=not (args.quiet or args.json),
-                                              inputs=inputs, epipolar=epi, fits_out=fits, road_out=road)
-        name = predictor.name
-    from deepslam.vo.infer import chain_euler6
-
-    world_from_cam = chain_euler6(mean6)
-    check_finite_poses(world_from_cam, f"the odometry {name}")
-    est = Trajectory(world_from_cam, seq.timestamps_s[frames])
+    res = run_vo(seq, cfg, plugin)
+    pairs, mean6, std6, name = res.pairs, res.mean6, res.std6, res.name
+    est = Trajectory(res.world_from_cam, seq.timestamps_s[frames])
 
     out = Path(args.out)
     side = side_files(out)
@@ -209,18 +151,9 @@ def _run(args: argparse.Namespace) -> int:
     writers = [(side["motions"], lambda p: atomic.write_text(p, motions_text))]
     config = {"sequence": str(Path(seq.root).resolve()), "sequence_kind": seq.kind, "frames": [int(frames[0]), int(frames[-1])],
               "stride": args.stride, "format": fmt, "out": str(out)}
-    if predictor is None:
-        config.update(odometry=args.odometry, odometry_command=args.odometry_command, model_name=name)
-    else:
-        config.update(model=str(model_path.resolve()) if args.model else f"shipped:{models.kind_for_sequence(seq)}_cons",
-                      model_name=name,
-                      model_net=predictor.model.cfg.to_dict(), flow=getattr(estimator, "name", args.flow),
-                      bf16=predictor.bf16, batch=args.batch, device=str(predictor.device), pose=pose)
-        if epi is not None:
-            config.update(epipolar=dataclasses.asdict(epi), epipolar_pairs_used=sum(u for _, u in fits))
-            if epi.road_height_m is not None and road:
-                config.update(road_scale_pairs_used=int(sum(math.isfinite(d) for d in road[0].distances_m)),
-                              road_scale_sources=road[0].counts(), road_pitch_deg=road[0].pitch_deg)
+    if plugin is not None:
+        config.update(odometry=args.odometry, odometry_command=args.odometry_command)
+    config.update(res.record)
     say = (lambda *a, **k: None) if args.json else print
 
     if seq.gt is None or len(frames) < 3:
@@ -232,10 +165,10 @@ def _run(args: argparse.Namespace) -> int:
     else:
         from deepslam.core import metrics, plots
 
-        gt, est_scored = metrics.on_covered_frames(seq, world_from_cam, frames)
-        res = metrics.evaluate(gt, est_scored, align="se3")
+        gt, est_scored = metrics.on_covered_frames(seq, res.world_from_cam, frames)
+        ev = metrics.evaluate(gt, est_scored, align="se3")
         res_none = metrics.evaluate(gt, est_scored, align="none")
-        report = {k: v for k, v in res.items() if not k.startswith("_")}
+        report = {k: v for k, v in ev.items() if not k.startswith("_")}
         report["ate_unaligned_m"] = res_none["ate_m"]
         report["frames_scored"], report["frames"] = len(gt), int(len(frames))
         how = [config["flow"]] if "flow" in config else []
@@ -248,11 +181,11 @@ def _run(args: argparse.Namespace) -> int:
         trajio.write_trajectory(out, est, fmt)  # after the metrics, which can refuse: nothing half-written
         write_side_files(side["config"], config, COMMAND, writers)
         say(f"wrote {out} ({len(frames)} poses, {fmt}) and {stem}.motions.csv")
-        line = (f"ATE {res['ate_m']:.3f} m (se3-aligned; {res_none['ate_m']:.3f} m unaligned), "
-                f"RPE {res['rpe_t_m']:.3f} m / {res['rpe_r_deg']:.3f} deg per {args.stride} frame(s)")
-        if "kitti_t_err_pct" in res:
-            line += f", KITTI t_err {res['kitti_t_err_pct']:.2f} %, r_err {res['kitti_r_err_deg_per_100m']:.2f} deg/100 m"
-        line += f"; path x{res['path_length_ratio']:.3f}, end-point drift {res['endpoint_drift_pct']:.1f} % of the path"
+        line = (f"ATE {ev['ate_m']:.3f} m (se3-aligned; {res_none['ate_m']:.3f} m unaligned), "
+                f"RPE {ev['rpe_t_m']:.3f} m / {ev['rpe_r_deg']:.3f} deg per {args.stride} frame(s)")
+        if "kitti_t_err_pct" in ev:
+            line += f", KITTI t_err {ev['kitti_t_err_pct']:.2f} %, r_err {ev['kitti_r_err_deg_per_100m']:.2f} deg/100 m"
+        line += f"; path x{ev['path_length_ratio']:.3f}, end-point drift {ev['endpoint_drift_pct']:.1f} % of the path"
         if len(gt) < len(frames):
             line += f" (scored on the {len(gt)} of {len(frames)} frames the ground truth covers)"
         say(line)

@@ -175,3 +175,20 @@ def test_vo_takes_an_ensemble_file(plane_sequence, street_model, tmp_path):
     np.testing.assert_allclose(two[:, 4:], one[:, 4:], rtol=1e-5, atol=1e-7)
     cfg = json.loads((tmp_path / "two.config.json").read_text())
     assert cfg["model_name"] == "ens"
+
+
+def test_run_vo_is_what_the_command_writes(plane_sequence, tmp_path):
+    """The library entry gives the command's trajectory, and its range checks come before any flow."""
+    from deepslam.cli import main
+    from deepslam.core.errors import InputError
+    from deepslam.vo.pipeline import VOConfig, run_vo
+
+    seq = open_sequence(plane_sequence)
+    res = run_vo(seq, VOConfig(flow="gt", pose="net", progress=False, stride=2))
+    assert res.world_from_cam.shape == (len(res.frames), 4, 4) and res.pairs.shape == (len(res.frames) - 1, 2)
+    assert main(["vo", "--sequence", str(plane_sequence), "--flow", "gt", "--pose", "net", "--stride", "2", "--quiet",
+                 "--out", str(tmp_path / "t.txt")]) == 0
+    written = trajio.read_trajectory(tmp_path / "t.txt")
+    np.testing.assert_allclose(written.world_from_cam, res.world_from_cam, atol=1e-6)
+    with pytest.raises(InputError, match="at least two frames"):
+        run_vo(seq, VOConfig(start=len(seq) - 1))
