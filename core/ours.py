@@ -142,7 +142,10 @@ def _check_frame_count(root: Path, json_path: Path, n: int) -> None:
                     return
     except OSError:
         raise InputError(root / "rgb", "no rgb/ folder of frames") from None
-    raise InputError(json_path, f"num_frames is {n} but rgb/ holds {held} frame images")
+    present = {e.name for e in os.scandir(root / "rgb")}
+    first_missing = next(i for i in range(held + 1) if f"{_name(i)}.png" not in present)  # within held + 1 names
+    raise InputError(root / "rgb" / f"{_name(first_missing)}.png",
+                     f"frame image is missing: {json_path.name} says num_frames {n}, rgb/ holds {held} frame images")
 
 
 def read_ours(root: str | Path) -> Sequence:

@@ -108,7 +108,7 @@ def check_writable(out: str | Path | None, what: str = "--out") -> None:
     while not os.path.lexists(parent) and parent != parent.parent:
         parent = parent.parent
     if not parent.is_dir():
-        raise InputError(out, f"{what}: {parent} is not a folder")
+        raise InputError(out, f"{what}: cannot create it: {parent} is not a folder")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise InputError(out, f"{what}: cannot write into {parent} (no permission, or a read-only file system)")
 

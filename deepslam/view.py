@@ -38,13 +38,11 @@ import dataclasses
 import errno
 import os
 import sys
-import threading
 from pathlib import Path
 
 import numpy as np
 
-from deepslam.core import se3
-from deepslam.core.atomic import atomic_path
+from deepslam.core import atomic, se3
 from deepslam.core.colorize import flow_to_rgb
 from deepslam.core.errors import InputError
 from deepslam.core.metrics import ALIGN_MODES, Alignment, evaluate
@@ -130,33 +128,6 @@ class ViewResult:
     """What could not be shown and why (a run's sequence is gone, no ground truth, ...), one line each."""
     saved: Path | None = None
     """The .rrd written (``save``), or None (the viewer was spawned)."""
-
-
-class _StreamDrain:
-    """Copies a rerun binary stream into an open file from a background thread every ``period_s`` seconds,
-    so that the recording is never held in memory whole. The first write error stops the copying (later
-    bytes are read and dropped) and is kept in ``error`` for the caller to report."""
-
-    def __init__(self, stream, file, period_s: float = 0.25):
-        self.stream, self.file, self.error = stream, file, None
-        self._done = threading.Event()
-        self._thread = threading.Thread(target=self._run, args=(period_s,), daemon=True)
-        self._thread.start()
-
-    def _run(self, period_s: float) -> None:
-        while not self._done.wait(period_s):
-            self.write(self.stream.read(flush=False))
-
-    def write(self, data: bytes | None) -> None:
-        if data and self.error is None:
-            try:
-                self.file.write(data)
-            except OSError as e:
-                self.error = e
-
-    def stop(self) -> None:
-        self._done.set()
-        self._thread.join()
 
 
 def _rerun():
@@ -538,21 +509,21 @@ def view(path: str | Path, save: str | Path | None = None, config: ViewConfig = 
         rec.flush()
         return result
     # the recording's bytes are written here, not by rerun's file sink: a full disk is an OSError naming the
-    # file (rerun's writer can stop silently, and its flush then waits forever)
+    # file (rerun's writer can stop silently, and its flush then waits forever). The stream is read once, at
+    # the end: reading it while rerun still encodes gave files whose checksums fail. The recording is held in
+    # memory until then (its encoded size: a few hundred MB for thousands of frames).
     stream = rec.binary_stream()
-    with atomic_path(save) as tmp, open(tmp, "wb") as f:
-        drain = _StreamDrain(stream, f)
-        try:
-            result = log()
-        finally:  # also when logging fails: a recording left connected would wait on its stream when collected
-            drain.stop()
-            rec.flush()
-            drain.write(stream.read(flush=True))
-            rec.disconnect()  # the end of the stream (its footer)
-            drain.write(stream.read(flush=False))
-        if drain.error is not None:
-            e = drain.error
-            why = "no space left on the device" if e.errno in (errno.ENOSPC, errno.EDQUOT) else (e.strerror or str(e))
-            raise InputError(save, f"cannot write the recording: {why}; nothing was written") from None
+    try:
+        result = log()
+    finally:  # also when logging fails: a recording left connected would wait on its stream when collected
+        rec.flush()
+        data = stream.read(flush=True) or b""
+        rec.disconnect()  # the end of the stream (its footer)
+        data += stream.read(flush=False) or b""
+    try:
+        atomic.write_bytes(save, data)
+    except OSError as e:
+        why = "no space left on the device" if e.errno in (errno.ENOSPC, errno.EDQUOT) else (e.strerror or str(e))
+        raise InputError(save, f"cannot write the recording: {why}; nothing was written") from None
     result.saved = Path(save)
     return result

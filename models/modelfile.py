@@ -99,7 +99,20 @@ def to_bytes(kind: str, tree: dict) -> bytes:
     bools and None), tagged with the file ``kind``."""
     tensors: dict[str, torch.Tensor] = {}
     doc = _encode(tree, tensors, "")
-    return safetensors_save(tensors, metadata={"deepslam": kind, "tree": json.dumps(doc, separators=(",", ":"))})
+    return canonical_header(safetensors_save(tensors, metadata={"deepslam": kind,
+                                                                "tree": json.dumps(doc, separators=(",", ":"))}))
+
+
+def canonical_header(data: bytes) -> bytes:
+    """``data`` (safetensors bytes) with its JSON header's keys in sorted order, same length (padded with
+    spaces as safetensors pads it): the library writes the header's maps in an order that changes from
+    process to process, and a file must be the same bytes for the same content (same seed, same bytes).
+    The tensors' offsets are relative to the data that follows the header, so they stay valid."""
+    n = int.from_bytes(data[:8], "little")
+    text = json.dumps(json.loads(data[8:8 + n]), sort_keys=True, separators=(",", ":"), ensure_ascii=False).encode()
+    if len(text) > n:  # another escaping than the library's; leave the file as written
+        return data
+    return data[:8] + text + b" " * (n - len(text)) + data[8 + n:]
 
 
 def save(path: str | Path, kind: str, tree: dict) -> None:

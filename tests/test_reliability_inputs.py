@@ -163,7 +163,7 @@ def test_header_claiming_a_billion_frames_is_refused_against_the_files(command, 
     (seq / "sequence.json").write_text(json.dumps(header))
     argv = [command, seq] if command == "info" else [command, "--sequence", seq, "--out", tmp_path / "t.txt"]
     rc, err, _ = _bounded_cli(argv, timeout_s=60, memory_gib=3.0)
-    assert rc == 2 and len(err) == 1 and "num_frames is 1000000000" in err[0], err
+    assert rc == 2 and len(err) == 1 and "num_frames 1000000000" in err[0] and "000012.png" in err[0], err
 
 
 def test_render_too_small_for_flow_is_refused_and_writes_nothing(tmp_path, capsys):

@@ -22,12 +22,13 @@ import time
 from pathlib import Path
 
 from deepslam.core import atomic
+from deepslam.core.camera import check_flow_size
 from deepslam.core.errors import InputError
 from deepslam.core.integrity import sha256_file
-from deepslam.core.lock import output_lock
 from deepslam.core.kinds import kind_for_sequence
+from deepslam.core.lock import output_lock
 from deepslam.core.outputs import check_output_not_input
-from deepslam.core.readers import open_sequence_for_flow
+from deepslam.core.readers import open_sequence
 from deepslam.core.textio import read_json_object
 from deepslam.models import models_dir
 from deepslam.vo import modeltree
@@ -185,9 +186,9 @@ def _stage(which: str, recipe: Recipe, start: Path, frames: str, cfg: AdaptConfi
 def _run(seq_dir: Path, out: Path, cfg: AdaptConfig, resume: bool, progress: bool,
          tensorboard: Path | None) -> tuple[dict, str, int]:
     """The stages of :func:`adapt` into ``out``: (results per stage, camera kind, frames)."""
-    open_sequence_for_flow(seq_dir)  # faults named in the user's folder, not in the view below
-    view = frames_view(seq_dir, out / "frames_view")
-    seq = open_sequence_for_flow(view)
+    view = frames_view(seq_dir, out / "frames_view")  # the frames without the pose files
+    seq = open_sequence(view)
+    check_flow_size(seq.camera.width, seq.camera.height, seq_dir)  # named in the user's folder, not the view
     kind = kind_for_sequence(seq)
     if kind not in RECIPES:
         raise InputError(seq_dir, f"no adaptation recipe for camera kind {kind!r}")
