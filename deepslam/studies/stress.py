@@ -343,12 +343,15 @@ def _main_odometries(config: StressConfig) -> OdometrySet:
 
             # shipped models follow the flow they are given (a DIS-trained variant where one is shipped)
             dev = resolve_device(config.device)
-            cons, cons_flows = {}, dict(flows)
+            cons, cons_flows, cons_epi = {}, dict(flows), {}
             for f, est in flows.items():
                 path, shipped = models.locate(config.model_cons or kind, None, "cons", est)
                 if f == "dis":  # DIS set up as this model was trained (its texture threshold), at the study's preset
                     cons_flows[f] = models.flow_for_model("dis", path, preset=config.dis_preset)
                 cons[f] = models.load(path, shipped, device=dev)
+                # the pose mode and distance source the file records, as `deepslam vo` runs it (the epipolar
+                # pose and the road scale for the street default; the network's own pose where it records none)
+                cons_epi[f] = models.epipolar_config(path)
             path, shipped = models.locate(config.model_loops or f"{kind}:loops", None, "loops", flows["dis"])
             loops_flow = models.flow_for_model("dis", path, preset=config.dis_preset)
             loops = models.load(path, shipped, device=dev)
@@ -363,10 +366,13 @@ def _main_odometries(config: StressConfig) -> OdometrySet:
             note = (f"learned odometry unavailable (vo cannot be imported: {e}); fell back to the rigid "
                     "least-squares fit of flow + depth over all pixels")
         else:
-            names = ", ".join(f"{cons[f].name} on {f} flow" for f in flows)
-            return OdometrySet("model", {f: cons[f].as_odometry(est, progress=False) for f, est in cons_flows.items()},
+            names = ", ".join(f"{cons[f].name} on {f} flow" + (" (epipolar pose" + (", road scale)" if
+                              cons_epi[f].road_height_m is not None else ")") if cons_epi[f] else " (its own pose)")
+                              for f in flows)
+            return OdometrySet("model", {f: cons[f].as_odometry(est, progress=False, epipolar=cons_epi[f])
+                                         for f, est in cons_flows.items()},
                                loops.as_odometry(loops_flow, progress=False),
-                               f"learned, NN_cons {names}, and NN_loops {loops.name} (on DIS flow)")
+                               f"deepslam vo's default: NN_cons {names}, and NN_loops {loops.name} (on DIS flow)")
     return OdometrySet("rigid-fit", {f: RigidFitOdometry(est) for f, est in flows.items()}, RigidFitOdometry(flows["dis"]),
                        "rigid least-squares fit of flow + depth over all pixels (solvePnP, no outlier rejection); "
                        "loop pairs on DIS flow", note)

@@ -118,7 +118,8 @@ def _conclusion_text(c: dict) -> str:
 def odometry_columns(odometries) -> dict:
     """{column key: label} of every odometry the study measured: the main one on each flow source and
     each plug-in."""
-    main = "learned" if odometries.kind == "model" else odometries.kind
+    # the learned odometry runs as `deepslam vo --flow F` does by default (each model with its recorded pose)
+    main = "deepslam vo (default)" if odometries.kind == "model" else odometries.kind
     cols = {f: f"{main} on {'ground-truth' if f == 'gt' else 'DIS'} flow" for f in odometries.cons}
     cols.update({k: f"{o.name} (plug-in)" for k, o in odometries.plugins.items()})
     return cols
