@@ -133,7 +133,7 @@ def _odometry(seq, flow: str):
 
     cons, loops = _shipped_paths(seq, flow)
     # as deepslam slam runs them: NN_cons in the mode its file records, NN_loops in the epipolar mode with its own
-    # distance (slam.plugins.odometry_from_args)
+    # distance (slam.plugins.odometries)
     return models.odometry(cons, flow, True), models.odometry(loops, flow, True, pose="epipolar", scale="network")
 
 

@@ -20,6 +20,7 @@ attribute, an exception, wrong shapes, NaN, a std <= 0) into an InputError namin
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import multiprocessing
 import os
 import re
@@ -296,61 +297,91 @@ def command_odometry(template: str, **kwargs) -> CheckedOdometry:
     return checked(odo, f"command {odo.name}")
 
 
-def odometry_from_args(args, seq):
-    """(odo_cons, odo_loops) from the command-line options of ``slam`` and ``tune-slam``: ``odometry``
-    (model, gt-noisy or a plug-in spec), ``odometry_loops``, ``odometry_command``, ``model_cons``,
-    ``model_loops``, ``flow``, ``no_loops``, ``gt_noise``, ``gt_drift``, ``seed``, ``sequence``, and ``pose``
-    (``epipolar``: the consecutive-frame network's rotation and direction from the essential matrix of the
-    flow, :mod:`vo.epipolar`; absent or None: the mode the NN_cons file records, :func:`vo.models.recorded_pose`).
-    NN_loops runs in the epipolar mode with its own distance: the loop pair's fit also tells where its flow
-    broke (:attr:`slam.pipeline.PipelineConfig.loop_check`)."""
-    pose = getattr(args, "pose", None)
-    if pose == "epipolar" and (args.odometry != "model" or getattr(args, "odometry_command", None)):
-        raise InputError(None, f"--pose {pose} needs the network odometry (not a plug-in or gt-noisy)")
-    if args.odometry == "gt-noisy":
-        if seq.gt is None:
-            raise InputError(args.sequence, "--odometry gt-noisy needs a sequence with ground truth")
-        try:
-            rot, trans = (float(x) for x in args.gt_noise.split(","))
-        except ValueError:
-            raise InputError(None, f"--gt-noise must be 'ROT_STD,T_STD', got {args.gt_noise!r}") from None
-        std = (rot, rot, rot, trans, trans, trans)
-        cons = GroundTruthOdometry(NoiseConfig(std6=std, bias6=(0, args.gt_drift, 0, 0, 0, 0), seed=args.seed),
-                                   name="gt-noisy-cons")
-        loops = GroundTruthOdometry(NoiseConfig(std6=std, seed=args.seed + 1), name="gt-noisy-loops")
-        return cons, loops
-    command = getattr(args, "odometry_command", None)
-    if command or args.odometry != "model":
-        if getattr(args, "model_cons", None) or getattr(args, "model_loops", None):
-            raise InputError(None, "--model-cons/--model-loops and a plug-in odometry exclude each other")
-        cons = from_options(None if command else args.odometry, command,
-                            getattr(args, "command_timeout", DEFAULT_COMMAND_TIMEOUT_S))
-        loops_spec = getattr(args, "odometry_loops", None)
-        loops = load_odometry(loops_spec, getattr(args, "command_timeout", DEFAULT_COMMAND_TIMEOUT_S)) if loops_spec else cons
-        return cons, loops
-    # deferred: both import torch; plug-in and gt-noisy odometries (and vo/slam --help) stay torch-free
-    from deepslam.gen.device import resolve_device
-    from deepslam.flow.registry import given_estimator_options
+@dataclasses.dataclass(frozen=True)
+class OdometryOptions:
+    """Which odometries :func:`odometries` builds for SLAM (the options of ``slam`` and ``tune-slam``)."""
 
-    device = resolve_device(getattr(args, "device", "cpu"))
-    given = given_estimator_options(args.flow, args)
+    odometry: str = "model"
+    """``model`` (the network), ``gt-noisy`` (ground truth with noise: tests, benches) or a plug-in spec."""
+    odometry_loops: str | None = None
+    """Loop-pair plug-in spec; None: the consecutive plug-in, or NN_loops with the network."""
+    odometry_command: str | None = None
+    """An external program's template (``'CMD {sequence} {out}'``) instead of ``odometry``."""
+    command_timeout_s: float = DEFAULT_COMMAND_TIMEOUT_S
+    """Seconds a command or a Python plug-in's predict may run on a sequence."""
+    model_cons: str | None = None
+    """NN_cons model file or shipped name; None: the shipped one of the sequence's camera kind."""
+    model_loops: str | None = None
+    """NN_loops model file or shipped name; None: the shipped one."""
+    flow: str = "dis"
+    """Flow estimator of the networks."""
+    flow_options: tuple[tuple[str, object], ...] = ()
+    """Estimator options given (name, value), overriding each model file's record."""
+    no_loops: bool = False
+    """No loop-pair odometry (odometry only)."""
+    pose: str | None = None
+    """NN_cons's pose mode (``net``, ``epipolar``); None: the mode its file records."""
+    device: str = "cpu"
+    """Torch device of the networks (``auto``, ``cpu``, ``cuda[:N]``)."""
+    gt_noise: str = "0.002,0.02"
+    """``gt-noisy``: 'ROT_STD,T_STD' (rad, m) of the noise per pair."""
+    gt_drift: float = 0.002
+    """``gt-noisy``: constant yaw bias per pair (rad)."""
+    seed: int = 0
+    """``gt-noisy``: seed of the noise."""
+    progress: bool = False
+    """Progress bars of the networks."""
+
+
+def odometries(opts: OdometryOptions, seq):
+    """(odo_cons, odo_loops) for SLAM on ``seq`` by ``opts``: noisy ground truth, plug-ins (Python, entry points,
+    external commands), or the networks (each model with the flow it was trained on, the options given
+    overriding it; NN_cons in its recorded pose mode unless ``pose``). NN_loops runs in the epipolar mode with its
+    own distance: the loop pair's fit also tells where its flow broke (:attr:`slam.pipeline.PipelineConfig.loop_check`).
+    ``odo_loops`` is None with ``no_loops`` and the network."""
+    pose = opts.pose
+    if pose == "epipolar" and (opts.odometry != "model" or opts.odometry_command):
+        raise InputError(None, f"--pose {pose} needs the network odometry (not a plug-in or gt-noisy)")
+    if opts.odometry == "gt-noisy":
+        if seq.gt is None:
+            raise InputError(seq.root, "--odometry gt-noisy needs a sequence with ground truth")
+        try:
+            rot, trans = (float(x) for x in opts.gt_noise.split(","))
+        except ValueError:
+            raise InputError(None, f"--gt-noise must be 'ROT_STD,T_STD', got {opts.gt_noise!r}") from None
+        std = (rot, rot, rot, trans, trans, trans)
+        cons = GroundTruthOdometry(NoiseConfig(std6=std, bias6=(0, opts.gt_drift, 0, 0, 0, 0), seed=opts.seed),
+                                   name="gt-noisy-cons")
+        loops = GroundTruthOdometry(NoiseConfig(std6=std, seed=opts.seed + 1), name="gt-noisy-loops")
+        return cons, loops
+    if opts.odometry_command or opts.odometry != "model":
+        if opts.model_cons or opts.model_loops:
+            raise InputError(None, "--model-cons/--model-loops and a plug-in odometry exclude each other")
+        cons = from_options(None if opts.odometry_command else opts.odometry, opts.odometry_command,
+                            opts.command_timeout_s)
+        loops = load_odometry(opts.odometry_loops, opts.command_timeout_s) if opts.odometry_loops else cons
+        return cons, loops
+    # deferred: it imports torch; plug-in and gt-noisy odometries (and vo/slam --help) stay torch-free
+    from deepslam.gen.device import resolve_device
+
+    device = resolve_device(opts.device)
+    given = dict(opts.flow_options)
     estimators: dict[tuple, object] = {}  # one estimator per set-up: cons and loops share it where they agree
-    show_progress = not (getattr(args, "quiet", False) or getattr(args, "json", False))
 
     def odometry(spec, which, pose=None, scale=None):
         # each model gets the flow as it was trained on it (DIS's preset and texture threshold may differ),
         # with the options given on the command line for both
-        path, shipped = models.locate(spec, seq, which, args.flow)
-        recorded = models.recorded_flow_options(path, args.flow)
+        path, shipped = models.locate(spec, seq, which, opts.flow)
+        recorded = models.recorded_flow_options(path, opts.flow)
         key = tuple(sorted({**recorded, **given}.items()))
         if key not in estimators:
-            estimators[key] = models.flow_for_model(args.flow, path, recorded, **given)
+            estimators[key] = models.flow_for_model(opts.flow, path, recorded, **given)
         flow = estimators[key]
-        return models.load(path, shipped, device=device).as_odometry(flow, progress=show_progress,
+        return models.load(path, shipped, device=device).as_odometry(flow, progress=opts.progress,
                                                                     epipolar=models.epipolar_config(path, pose, scale))
 
-    cons = odometry(args.model_cons, "cons", pose)
+    cons = odometry(opts.model_cons, "cons", pose)
     # loop pairs: the rotation and direction of the loop pair's flow where its fit serves, NN_loops' distance (a
     # loop pair is no step along a road), and the fit tells where the flow broke (PipelineConfig.loop_check)
-    loops = None if args.no_loops else odometry(args.model_loops, "loops", "epipolar", "network")
+    loops = None if opts.no_loops else odometry(opts.model_loops, "loops", "epipolar", "network")
     return cons, loops

@@ -23,7 +23,7 @@ import json
 import sys
 from pathlib import Path
 
-from deepslam.commands import _dis_flags
+from deepslam.commands import _dis_flags, _odometry_flags
 from deepslam.core.errors import InputError
 from deepslam.core.lock import output_lock
 
@@ -68,25 +68,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="alignment before ATE/RPE (default: se3)")
     p.add_argument("--json", action="store_true", help="print the record as one JSON object (no progress bar)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    # hidden: ground-truth odometry with noise, for tests and benchmarks
-    p.add_argument("--odometry", default="model", metavar="MODULE:FACTORY|NAME",
-                   help="consecutive-frame odometry: model (the network, default) or a plug-in: a factory returning "
-                        "an object with name and predict(seq, pairs) -> (mean6, std6), or an entry-point name of group "
-                        "deepslam.odometry")
-    p.add_argument("--device", default="auto", help="where the network runs: auto (CUDA when torch sees one, else "
-                   "the CPU), cpu, cuda or cuda:N")
-    p.add_argument("--odometry-loops", default=None, metavar="MODULE:FACTORY|NAME",
-                   help="loop-pair odometry plug-in (default: the --odometry plug-in, or NN_loops with the network)")
-    p.add_argument("--odometry-command", default=None, metavar="'CMD {sequence} {out}'",
-                   help="an external program that reads the sequence folder and writes a KITTI or TUM trajectory to "
-                        "{out}; used for consecutive and loop pairs")
-    p.add_argument("--command-timeout", type=float, default=3600.0, metavar="S",
-                   help="seconds the --odometry-command may run on the sequence (3600); it runs without a shell: "
-                        "the template is split into arguments once and {sequence}/{out} replaced inside them "
-                        "({{ and }} for literal braces)")
-    p.add_argument("--gt-noise", default="0.002,0.02", help=argparse.SUPPRESS)
-    p.add_argument("--gt-drift", type=float, default=0.002, help=argparse.SUPPRESS)
-    p.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
+    _odometry_flags.add_arguments(p)
 
 
 COMMAND = "deepslam slam"
@@ -151,7 +133,7 @@ def _run(args: argparse.Namespace) -> int:
         raise InputError(args.sequence, f"the {fmt} format needs timestamps and the sequence has none")
     params = SlamParams.load(args.params) if args.params else SlamParams()
     vocab = Vocabulary.load(args.vocabulary) if args.vocabulary else None
-    odo_cons, odo_loops = plugins.odometry_from_args(args, seq)
+    odo_cons, odo_loops = plugins.odometries(_odometry_flags.options(args), seq)
     if args.no_loops:
         odo_loops = None
     config = PipelineConfig(graph=PoseGraphConfig(robust=args.robust), keyframe_stride=args.keyframe_stride,

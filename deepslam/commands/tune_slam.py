@@ -11,6 +11,7 @@ import argparse
 import json
 import sys
 
+from deepslam.commands import _odometry_flags
 from deepslam.core.errors import InputError
 
 # Library imports sit in the functions: building the parser of every command (deepslam --help) must
@@ -71,25 +72,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object: c_s, c_r, t_loop, score, best_score, "
                    "evaluations, method, vo_ate_m (per sequence), out (no progress bar)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--odometry", default="model", metavar="MODULE:FACTORY|NAME",
-                   help="consecutive-frame odometry: model (default) or a plug-in (see deepslam slam --help)")
-    p.add_argument("--device", default="auto", help="where the network runs: auto (CUDA when torch sees one, else "
-                   "the CPU), cpu, cuda or cuda:N")
-    p.add_argument("--odometry-loops", default=None, metavar="MODULE:FACTORY|NAME", help="loop-pair odometry plug-in")
-    p.add_argument("--odometry-command", default=None, metavar="'CMD {sequence} {out}'",
-                   help="an external program writing a trajectory to {out} (see deepslam slam --help)")
-    p.add_argument("--command-timeout", type=float, default=3600.0, metavar="S",
-                   help="seconds the --odometry-command may run on the sequence (3600); it runs without a shell: "
-                        "the template is split into arguments once and {sequence}/{out} replaced inside them "
-                        "({{ and }} for literal braces)")
-    p.add_argument("--gt-noise", default="0.002,0.02", help=argparse.SUPPRESS)
-    p.add_argument("--gt-drift", type=float, default=0.002, help=argparse.SUPPRESS)
-    p.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
+    _odometry_flags.add_arguments(p)
 
 
 def run(args: argparse.Namespace) -> int:
     from deepslam.core.readers import open_sequence_for_flow
-    from deepslam.slam.plugins import odometry_from_args
+    from deepslam.slam.plugins import odometries
     from deepslam.slam.pipeline import PipelineConfig, prepare
     from deepslam.slam.posegraph import PoseGraphConfig
     from deepslam.slam.reloc import Vocabulary
@@ -113,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
         seq = open_sequence_for_flow(path)
         if seq.gt is None:
             raise InputError(path, "a validation sequence needs ground truth")
-        odo_cons, odo_loops = odometry_from_args(args, seq)
+        odo_cons, odo_loops = odometries(_odometry_flags.options(args), seq)
         prep = prepare(seq, odo_cons, odo_loops, config, vocab)
         problems.append(problem_from_prepared(prep, graph, name=str(path)))
     res = tune(problems, space, args.method, args.score, show_progress=not (args.json or args.quiet))

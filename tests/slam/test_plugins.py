@@ -232,12 +232,22 @@ def test_flow_plugin_in_vo(plugin_dir, seq_dir, tmp_path, capsys):
 
 
 
+def _slam_odometries(seq_dir, argv: list, overrides: dict):
+    """The odometries ``deepslam slam`` builds from its command line (``overrides``: dest -> value of --dis-* flags)."""
+    from deepslam.cli import build_parser
+    from deepslam.commands import _odometry_flags
+    from deepslam.slam.plugins import odometries
+
+    flags = [x for dest, v in overrides.items() for x in (f"--{dest.replace('_', '-')}", str(v))]
+    args = build_parser().parse_args(["slam", "--sequence", str(seq_dir), "--out", "unused.txt", "--device", "cpu",
+                                      *map(str, argv), *flags])
+    return odometries(_odometry_flags.options(args), open_sequence(seq_dir))
+
+
 def test_slam_gives_each_model_the_flow_it_was_trained_on(seq_dir, tmp_path):
     """NN_cons trained on DIS with textureless pixels left out, NN_loops on plain DIS: slam sets DIS up
     per model (two estimators); models that agree share one estimator."""
-    import argparse
-
-    from deepslam.slam.plugins import odometry_from_args
+    from deepslam.slam.plugins import OdometryOptions, odometries
     from deepslam.vo.net import FlowPoseNet, NetConfig
     from deepslam.vo.modelio import save_model
 
@@ -246,14 +256,9 @@ def test_slam_gives_each_model_the_flow_it_was_trained_on(seq_dir, tmp_path):
     save_model(tex, net, {"flow": {"estimator": "dis", "options": {"preset": "fast", "min_texture": 0.5}}})
     save_model(plain, net, {"flow": {"estimator": "dis", "options": {"preset": "medium", "min_texture": 0.0}}})
     seq = open_sequence(seq_dir)
-
-    def args(cons, loops):
-        return argparse.Namespace(odometry="model", odometry_command=None, model_cons=str(cons),
-                                  model_loops=str(loops), flow="dis", no_loops=False, device="cpu", sequence=seq_dir)
-
-    cons, loops = odometry_from_args(args(tex, plain), seq)
+    cons, loops = odometries(OdometryOptions(model_cons=str(tex), model_loops=str(plain)), seq)
     assert cons.flow_estimator.name == "dis-fast-tex0.5" and loops.flow_estimator.name == "dis-medium"
-    cons, loops = odometry_from_args(args(tex, tex), seq)
+    cons, loops = odometries(OdometryOptions(model_cons=str(tex), model_loops=str(tex)), seq)
     assert cons.flow_estimator is loops.flow_estimator
 
 
@@ -265,9 +270,6 @@ def test_slam_gives_each_model_the_flow_it_was_trained_on(seq_dir, tmp_path):
 def test_slam_dis_flags_override_both_models_records(seq_dir, tmp_path, overrides, cons_name, loops_name, shared):
     """``slam --dis-*`` (as ``vo --dis-*``): a flag given sets DIS up so for NN_cons and NN_loops alike, the
     options not given stay each model's recorded ones; models whose set-ups then agree share one estimator."""
-    import argparse
-
-    from deepslam.slam.plugins import odometry_from_args
     from deepslam.vo.net import FlowPoseNet, NetConfig
     from deepslam.vo.modelio import save_model
 
@@ -275,9 +277,7 @@ def test_slam_dis_flags_override_both_models_records(seq_dir, tmp_path, override
     tex, plain = tmp_path / "tex.safetensors", tmp_path / "plain.safetensors"
     save_model(tex, net, {"flow": {"estimator": "dis", "options": {"preset": "fast", "min_texture": 0.5}}})
     save_model(plain, net, {"flow": {"estimator": "dis", "options": {"preset": "medium", "min_texture": 0.0}}})
-    args = argparse.Namespace(odometry="model", odometry_command=None, model_cons=str(tex), model_loops=str(plain),
-                              flow="dis", no_loops=False, device="cpu", sequence=seq_dir, **overrides)
-    cons, loops = odometry_from_args(args, open_sequence(seq_dir))
+    cons, loops = _slam_odometries(seq_dir, ["--model-cons", tex, "--model-loops", plain], overrides)
     assert (cons.flow_estimator.name, loops.flow_estimator.name) == (cons_name, loops_name)
     assert (cons.flow_estimator is loops.flow_estimator) == shared
 
@@ -287,20 +287,15 @@ def test_slam_dis_flags_override_both_models_records(seq_dir, tmp_path, override
     ("learned", {"dis_patch_stride": 4}, "--dis-patch-stride applies to DIS flow only"),
 ])
 def test_slam_dis_flags_refuse_what_dis_cannot_take(seq_dir, tmp_path, flow, overrides, message):
-    import argparse
-
     from deepslam.core.errors import InputError
-    from deepslam.slam.plugins import odometry_from_args
     from deepslam.vo.net import FlowPoseNet, NetConfig
     from deepslam.vo.modelio import save_model
 
     model = tmp_path / "m.safetensors"
     save_model(model, FlowPoseNet(NetConfig(input_height=24, input_width=80, filters=8, hidden_units=16)),
                {"flow": {"estimator": "dis", "options": {"preset": "medium", "min_texture": 0.0}}})
-    args = argparse.Namespace(odometry="model", odometry_command=None, model_cons=str(model), model_loops=str(model),
-                              flow=flow, no_loops=False, device="cpu", sequence=seq_dir, **overrides)
     with pytest.raises(InputError, match=message):
-        odometry_from_args(args, open_sequence(seq_dir))
+        _slam_odometries(seq_dir, ["--model-cons", model, "--model-loops", model, "--flow", flow], overrides)
 
 
 def test_model_odometry_takes_flow_options_over_the_record(tmp_path):

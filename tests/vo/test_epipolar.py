@@ -318,23 +318,18 @@ def torch_equal(a, b) -> bool:
 def test_slam_takes_the_recorded_mode_for_consecutive_pairs_only(street_sequence, street_model, tmp_path):
     """A marked file as NN_cons: epipolar with the recorded distance; as NN_loops: epipolar with the network's
     distance whatever the file records (a loop pair is no step along a road), and without a mark too."""
-    from types import SimpleNamespace
-
     from deepslam.core.readers import open_sequence
-    from deepslam.slam.plugins import odometry_from_args
+    from deepslam.slam.plugins import OdometryOptions, odometries
     from deepslam.vo import models
 
     root, _ = street_sequence
     marked = tmp_path / "marked.safetensors"
     models.write_with_pose(street_model, marked, "epipolar")
     models.write_with_pose(street_model, tmp_path / "road.safetensors", "epipolar", "road")
-    args = SimpleNamespace(odometry="model", odometry_command=None, model_cons=str(marked),
-                           model_loops=str(tmp_path / "road.safetensors"), flow="gt", no_loops=False,
-                           sequence=str(root), device="cpu", pose=None)
-    cons, loops = odometry_from_args(args, open_sequence(root))
+    opts = OdometryOptions(model_cons=str(marked), model_loops=str(tmp_path / "road.safetensors"), flow="gt")
+    cons, loops = odometries(opts, open_sequence(root))
     assert cons.epipolar is not None and loops.epipolar is not None and loops.epipolar.road_height_m is None
-    cons, loops = odometry_from_args(SimpleNamespace(**{**vars(args), "pose": "net", "model_loops": str(street_model)}),
-                                     open_sequence(root))
+    cons, loops = odometries(dataclasses.replace(opts, pose="net", model_loops=str(street_model)), open_sequence(root))
     assert cons.epipolar is None and loops.epipolar is not None and loops.epipolar.road_height_m is None
     with pytest.raises(ValueError, match="pose must be"):
         models.epipolar_config(marked, "epi")

@@ -1,0 +1,45 @@
+"""The command-line flags that choose the odometry of ``slam`` and ``tune-slam`` (the network, a plug-in, an
+external program, or noisy ground truth for tests), defined once, and their reading into the library's typed
+:class:`slam.plugins.OdometryOptions`. Not a subcommand (no ``NAME``): the CLI's discovery skips it.
+"""
+from __future__ import annotations
+
+import argparse
+
+COMMAND_TIMEOUT_HELP = ("seconds the --odometry-command (or a Python plug-in's predict) may run on the sequence "
+                        "(3600); a command runs without a shell: the template is split into arguments once and "
+                        "{sequence}/{out} replaced inside them ({{ and }} for literal braces)")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """``--odometry``, ``--device``, ``--odometry-loops``, ``--odometry-command``, ``--command-timeout`` and the
+    hidden ``--gt-noise``, ``--gt-drift``, ``--seed`` (ground-truth odometry with noise, for tests and benches)."""
+    p.add_argument("--odometry", default="model", metavar="MODULE:FACTORY|NAME",
+                   help="consecutive-frame odometry: model (the network, default) or a plug-in: a factory returning "
+                        "an object with name and predict(seq, pairs) -> (mean6, std6), or an entry-point name of group "
+                        "deepslam.odometry")
+    p.add_argument("--device", default="auto", help="where the network runs: auto (CUDA when torch sees one, else "
+                   "the CPU), cpu, cuda or cuda:N")
+    p.add_argument("--odometry-loops", default=None, metavar="MODULE:FACTORY|NAME",
+                   help="loop-pair odometry plug-in (default: the --odometry plug-in, or NN_loops with the network)")
+    p.add_argument("--odometry-command", default=None, metavar="'CMD {sequence} {out}'",
+                   help="an external program that reads the sequence folder and writes a KITTI or TUM trajectory to "
+                        "{out}; used for consecutive and loop pairs")
+    p.add_argument("--command-timeout", type=float, default=3600.0, metavar="S", help=COMMAND_TIMEOUT_HELP)
+    p.add_argument("--gt-noise", default="0.002,0.02", help=argparse.SUPPRESS)
+    p.add_argument("--gt-drift", type=float, default=0.002, help=argparse.SUPPRESS)
+    p.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
+
+
+def options(args: argparse.Namespace):
+    """The :class:`slam.plugins.OdometryOptions` of parsed ``slam`` / ``tune-slam`` arguments."""
+    # deferred: building the parser of every command (deepslam --help) must not import numpy
+    from deepslam.flow.registry import given_estimator_options
+    from deepslam.slam.plugins import OdometryOptions
+
+    return OdometryOptions(
+        odometry=args.odometry, odometry_loops=args.odometry_loops, odometry_command=args.odometry_command,
+        command_timeout_s=args.command_timeout, model_cons=args.model_cons, model_loops=args.model_loops,
+        flow=args.flow, flow_options=tuple(given_estimator_options(args.flow, args).items()),
+        no_loops=bool(getattr(args, "no_loops", False)), pose=args.pose, device=args.device, gt_noise=args.gt_noise,
+        gt_drift=args.gt_drift, seed=args.seed, progress=not (args.quiet or args.json))
