@@ -118,6 +118,10 @@ class PinholeCamera:
         if not (math.isfinite(self.cx) and math.isfinite(self.cy)):
             raise ValueError(f"principal point must be finite, got cx={self.cx}, cy={self.cy}")
 
+    def intrinsics(self, dtype=np.float64) -> np.ndarray:
+        """(4,) ``dtype`` vector (fx, fy, cx, cy) in pixels: the networks' and the flow synthesis' intrinsics."""
+        return np.array([self.fx, self.fy, self.cx, self.cy], dtype=dtype)
+
     @classmethod
     def from_k(cls, k: np.ndarray, width: int, height: int) -> "PinholeCamera":
         k = np.asarray(k, dtype=np.float64)

@@ -86,7 +86,7 @@ class SequencePairs(Dataset):
                                  ("intrinsics", True)) if present)
         """The keys of every item, in order."""
         cam = seq.camera
-        self._intrinsics = np.array([cam.fx, cam.fy, cam.cx, cam.cy], np.float32)
+        self._intrinsics = cam.intrinsics(np.float32)
 
     @property
     def sequence(self) -> Sequence:

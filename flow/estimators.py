@@ -322,7 +322,7 @@ def exact_pair_flow(seq, i: int, j: int) -> np.ndarray:
                                @ world_from_cam[i])
                 static[on] = np.nan  # not part of the static scene (and no point at infinity either)
         depths[0] = static
-    k4 = np.tile(np.array([cam.fx, cam.fy, cam.cx, cam.cy], np.float64), (len(depths), 1))
+    k4 = np.tile(cam.intrinsics(), (len(depths), 1))
     flow, _ = synthesize_flow(torch.from_numpy(np.stack(depths).astype(np.float32)), k4, np.stack(motions),
                               missing_depth="infinity")
     # the static scene (NaN on the movers), plus each mover's own synthesis where its depth is
@@ -431,7 +431,7 @@ def to_network_input(flow: np.ndarray, camera, width: int, height: int,
     small = resize_flow(flow, width, height, unknown)
     cam = camera.scaled(width, height)
     return (np.ascontiguousarray(small.transpose(2, 0, 1)),
-            np.array([cam.fx, cam.fy, cam.cx, cam.cy], dtype=np.float32))
+            cam.intrinsics(np.float32))
 
 
 def endpoint_error(pred: np.ndarray, gt: np.ndarray) -> dict:

@@ -279,7 +279,7 @@ class SyntheticFlowDataset(torch.utils.data.Dataset):
     def intrinsics(self) -> np.ndarray:
         """(4,) float32 fx, fy, cx, cy at the output resolution."""
         c = self.camera
-        return np.array([c.fx, c.fy, c.cx, c.cy], dtype=np.float32)
+        return c.intrinsics(np.float32)
 
     def _draw(self, index: int) -> tuple[int, np.ndarray, bool]:
         if not 0 <= index < self.num_samples:

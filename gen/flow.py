@@ -71,7 +71,7 @@ def intrinsics_array(camera: Any, batch: int, width: int, height: int) -> np.nda
         if (camera.width, camera.height) != (width, height):
             raise ValueError(f"camera is {camera.width}x{camera.height} but the depth maps are {width}x{height}; "
                              "use camera.scaled(width, height)")
-        k = np.array([[camera.fx, camera.fy, camera.cx, camera.cy]], dtype=np.float64)
+        k = camera.intrinsics()[None]
     else:
         if isinstance(camera, torch.Tensor):
             camera = camera.detach().cpu().double().numpy()

@@ -103,8 +103,8 @@ class SyntheticSource(_OnTheFlySource):
         hs, ws = frames.depth_z.shape[1:]
         if hs % self.synth_factor or ws % self.synth_factor:
             raise ValueError(f"frames {hs}x{ws} are not a multiple of synth_factor {self.synth_factor}")
-        self._k_synth = np.array([[c.fx, c.fy, c.cx, c.cy] for c in frames.cameras], np.float64)
-        self._k_out = np.array([[c.fx, c.fy, c.cx, c.cy] for c in
+        self._k_synth = np.array([c.intrinsics() for c in frames.cameras])
+        self._k_out = np.array([c.intrinsics() for c in
                                 (c.scaled(ws // self.synth_factor, hs // self.synth_factor) for c in frames.cameras)], np.float32)
 
     def __len__(self) -> int:

@@ -90,5 +90,5 @@ def toy_plane_samples(n: int, camera: PinholeCamera, rng: np.random.Generator,
         f, v = flow_from_depth_np(camera, depth, motions[i])
         flows[i] = f.transpose(2, 0, 1)
         valid[i] = v
-    k = np.array([camera.fx, camera.fy, camera.cx, camera.cy], np.float32)
+    k = camera.intrinsics(np.float32)
     return {"flow": flows, "valid": valid, "intrinsics": np.tile(k, (n, 1)), "target": vec6.astype(np.float32)}
