@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.results_common import write_report
 from bench.results_vo import _agg, _cached, metric_subset
 
 MODES = ("synthetic", "supervised")
@@ -106,7 +107,6 @@ def plot_curves(curves: dict, path: Path) -> None:
 
 
 def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
-    from deepslam.core import atomic
     from deepslam.studies.demo import render_once
 
     models_dir = Path(cfg.models) if Path(cfg.models).is_absolute() else REPO / cfg.models
@@ -149,7 +149,7 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
         u = _agg([r[name]["kitti_t_err_pct"] or r[name]["endpoint_drift_pct"] for r in rows["supervised"]])
         ratio[name] = s["mean"] / u["mean"] if s["mean"] is not None and u["mean"] else None
     report["ratio_synthetic_over_supervised"] = ratio
-    atomic.write_json(out / "results.json", report)
+    write_report(out, report, markdown)
     return report
 
 
