@@ -83,7 +83,8 @@ def _short(text: str, n: int = 120) -> str:
 def call_isolated(fn, label: str, timeout_s: float):
     """``fn()`` run in a forked child process, its answer sent back through a pipe: a Python plug-in's
     ``sys.exit``, ``os._exit``, crash or endless loop cannot end or hang the run, and what it prints goes to
-    stderr (the child's stdout is its stderr), never into a command's ``--json`` output.
+    stderr (the child's stdout is its stderr), never into a command's ``--json`` output. torch runs on one
+    thread in the child (a forked child that uses the thread pool its parent started hangs).
 
     Raises:
         InputError: naming ``label`` when ``fn`` raises (SystemExit included), the child exits without an
@@ -96,6 +97,8 @@ def call_isolated(fn, label: str, timeout_s: float):
     def child() -> None:
         os.dup2(2, 1)  # the plug-in's prints go to stderr, whatever writes them
         sys.stdout = sys.stderr
+        if "torch" in sys.modules:  # a forked child that uses torch's inherited thread pool hangs: one thread
+            sys.modules["torch"].set_num_threads(1)
         try:
             answer = ("ok", fn())
         except InputError as e:

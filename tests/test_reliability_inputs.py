@@ -242,6 +242,20 @@ def test_plugin_prints_never_reach_json_output(command, faulty_plugin, seq, tmp_
     json.loads(out)  # stdout is the one JSON object
 
 
+def test_an_isolated_plugin_may_use_torch_after_the_parent_did():
+    """A forked child that uses the thread pool its parent started hangs; the plug-in's child runs torch on one
+    thread (the stress study runs the network, then the plug-ins)."""
+    import torch
+
+    from deepslam.slam.plugins import call_isolated
+
+    torch.randn(256, 256) @ torch.randn(256, 256)  # the parent's pool is started
+    conv = torch.nn.Conv2d(3, 8, 3)
+    conv(torch.randn(4, 3, 32, 32))
+    out = call_isolated(lambda: float(conv(torch.randn(4, 3, 32, 32)).sum()) * 0 + 1.0, "torch-plug-in", 60)
+    assert out == 1.0
+
+
 def test_chained_trajectory_must_be_finite():
     from deepslam.core.errors import InputError
     from deepslam.core.trajectory import check_finite_poses
