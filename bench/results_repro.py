@@ -67,7 +67,23 @@ def vo_scores(seq_dir: Path, out_txt: Path, *options: str) -> dict:
         raise RuntimeError(f"{' '.join(argv[2:])} failed: {p.stderr.strip()[-500:]}")
     m = json.loads(p.stdout.strip().splitlines()[-1])["metrics"]
     return {**metric_subset(m), "path_length_ratio": m.get("path_length_ratio"),
-            "endpoint_drift_pct": m.get("endpoint_drift_pct")}
+            "endpoint_drift_pct": m.get("endpoint_drift_pct"),
+            "within_1_sigma": within_one_sigma(seq_dir, out_txt.with_suffix(".motions.csv"))}
+
+
+def within_one_sigma(seq_dir: Path, motions_csv: Path) -> list[float]:
+    """Per DoF (euler x, y, z, t x, y, z), the share of pairs whose error against the ground truth's
+    ``cam_j_from_cam_i`` is within the predicted 1-sigma (a calibrated Gaussian gives 0.68)."""
+    from deepslam.core import se3
+    from deepslam.core.readers import open_sequence
+
+    seq = open_sequence(seq_dir)
+    rows = np.loadtxt(motions_csv, delimiter=",", skiprows=1, ndmin=2)
+    i, j = rows[:, 0].astype(int), rows[:, 1].astype(int)
+    gt = seq.gt.world_from_cam
+    true6 = se3.to_euler6(se3.relative(gt[j], gt[i])).reshape(-1, 6)
+    err = np.abs(rows[:, 4:10] - true6)
+    return [float(x) for x in (err <= rows[:, 10:16]).mean(axis=0)]
 
 
 def learning_curve(history: Path) -> dict:
@@ -185,6 +201,13 @@ def markdown(report: dict) -> str:
         r = report["ratio_synthetic_over_supervised"].get(case)
         if r is not None:
             md.append(f"\nsynthetic / supervised (t_err, or drift where the route is under 100 m): x{r:.2f}")
+    cal = [(mode, r["seed"], case, r[case].get("within_1_sigma")) for mode in MODES for r in report["rows"][mode]
+           for case in report["cases"] if r[case].get("within_1_sigma")]
+    if cal:
+        md += ["", "Uncertainty: share of pairs whose error is within the predicted 1-sigma, per DoF (euler x, y, z, "
+               "t x, y, z; a calibrated Gaussian gives 0.68):", ""]
+        md += [f"- {mode} s{seed}, {CASE_TITLES.get(case, case)}: " + ", ".join(f"{x:.2f}" for x in c)
+               for mode, seed, case, c in cal]
     fits = [(k, c[f"{n}_fit"]) for k, c in report["curves"].items() for n in ("t_z_m",) if f"{n}_fit" in c]
     if fits:
         md += ["", "Learning curves (`learning_curve.png`): held-out RMSE of the forward translation, last epoch and "
