@@ -30,7 +30,12 @@ import numpy as np
 from bench.results_common import write_report
 from bench.results_vo import _agg, _cached, metric_subset
 
-MODES = ("synthetic", "supervised")
+MODES = ("synthetic", "supervised", "supervised_samepatience")
+"""Training folders ``{mode}_cons_s{seed}``: synthetic, supervised by the recipe (its patience in epochs of its
+~1,100 pairs), and supervised with the patience in samples matched to the synthetic run's (186 epochs = 10 x
+20,000 samples), which lets it train for the same budget."""
+MODE_LABELS = {"synthetic": "synthetic", "supervised": "supervised",
+               "supervised_samepatience": "supervised, patience matched in samples"}
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -144,8 +149,10 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
                 continue
             if (folder / "history.json").is_file():
                 curves[f"{mode} s{seed}"] = learning_curve(folder / "history.json")
+            summary = json.loads((folder / "summary.json").read_text()) if (folder / "summary.json").is_file() else {}
             trained[f"{mode} s{seed}"] = {"file": str(model.relative_to(models_dir)),
-                                          "samples": int(curves.get(f"{mode} s{seed}", {}).get("samples", [0])[-1])}
+                                          "samples": int(curves.get(f"{mode} s{seed}", {}).get("samples", [0])[-1]),
+                                          "stop": summary.get("stop_reason", "still training")}
             rec = {"seed": seed}
             for name, seq, flow in cases:
                 print(f"score {mode} seed {seed}: {name}", flush=True)
@@ -159,12 +166,13 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
         plot_curves(curves, out / "learning_curve.png")
     report = {"config": dataclasses.asdict(cfg), "models": trained, "rows": rows, "default": default,
               "curves": curves, "cases": [c[0] for c in cases], "minutes": (time.perf_counter() - t0) / 60}
-    ratio = {}
-    for name in report["cases"]:
-        s = _agg([r[name]["kitti_t_err_pct"] or r[name]["endpoint_drift_pct"] for r in rows["synthetic"]])
-        u = _agg([r[name]["kitti_t_err_pct"] or r[name]["endpoint_drift_pct"] for r in rows["supervised"]])
-        ratio[name] = s["mean"] / u["mean"] if s["mean"] is not None and u["mean"] else None
-    report["ratio_synthetic_over_supervised"] = ratio
+    def err(mode: str, name: str) -> dict:
+        return _agg([r[name]["kitti_t_err_pct"] or r[name]["endpoint_drift_pct"] for r in rows[mode]])
+
+    report["ratio_synthetic_over_supervised"] = {
+        other: {name: (err("synthetic", name)["mean"] / err(other, name)["mean"]
+                       if err("synthetic", name)["mean"] is not None and err(other, name)["mean"] else None)
+                for name in report["cases"]} for other in MODES[1:]}
     write_report(out, report, markdown)
     return report
 
@@ -185,22 +193,24 @@ def markdown(report: dict) -> str:
 
     md = ["The paper's recipe at scale (NN_cons, cpu preset; `scripts/train_paper_recipe.sh`), scored with the "
           "network's own pose (`--pose net`) on data no model saw. Models:"]
-    md += [f"- {k}: `{v['file']}`, {v['samples']:,} samples" for k, v in report["models"].items()] or ["- none found"]
+    md += [f"- {MODE_LABELS.get(k.rsplit(' ', 1)[0], k)} ({k.rsplit(' ', 1)[1]}): `{v['file']}`, {v['samples']:,} samples, "
+           f"stopped: {v.get('stop', 'n/a')}" for k, v in report["models"].items()] or ["- none found"]
     for case in report["cases"]:
         md += ["", f"**{CASE_TITLES.get(case, case)}**", "",
                "| | " + " | ".join(t for t, _, _ in FIGURES) + " |", "|---" * (len(FIGURES) + 1) + "|"]
         for mode in MODES:
             recs = report["rows"][mode]
             if recs:
-                md.append(f"| {mode} (n={len(recs)}) | " + " | ".join(
+                md.append(f"| {MODE_LABELS[mode]} (n={len(recs)}) | " + " | ".join(
                     pm(_agg([r[case][k] for r in recs]), f) for _, k, f in FIGURES) + " |")
         if case in report["default"]:
             d = report["default"][case]
             md.append("| geometry default (`deepslam vo`) | " + " | ".join(
                 "n/a" if d.get(k) is None else f"{d[k]:{f}}" for _, k, f in FIGURES) + " |")
-        r = report["ratio_synthetic_over_supervised"].get(case)
-        if r is not None:
-            md.append(f"\nsynthetic / supervised (t_err, or drift where the route is under 100 m): x{r:.2f}")
+        for other, by_case in report["ratio_synthetic_over_supervised"].items():
+            r = by_case.get(case)
+            if r is not None:
+                md.append(f"\nsynthetic / {MODE_LABELS[other]} (t_err, or drift where the route is under 100 m): x{r:.2f}")
     cal = [(mode, r["seed"], case, r[case].get("within_1_sigma")) for mode in MODES for r in report["rows"][mode]
            for case in report["cases"] if r[case].get("within_1_sigma")]
     if cal:

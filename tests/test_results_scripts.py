@@ -489,9 +489,12 @@ def test_repro_learning_curve_fits_a_power_law_and_the_table_reads_it(tmp_path):
     assert fit["at_2x"] == pytest.approx(fit["last"] / 2 ** 0.5, rel=1e-9)
     figures = {"ate_m": 1.0, "rpe_t_m": 0.1, "rpe_r_deg": 0.1, "kitti_t_err_pct": None, "kitti_r_err_deg_per_100m": None,
                "endpoint_drift_pct": 3.0, "path_length_ratio": 1.0}
-    report = {"models": {"synthetic s0": {"file": "x", "samples": 400000}}, "cases": ["street_exact"],
+    report = {"models": {"synthetic s0": {"file": "x", "samples": 400000, "stop": "max_samples"}}, "cases": ["street_exact"],
               "rows": {"synthetic": [{"seed": 0, "street_exact": figures}],
-                       "supervised": [{"seed": 0, "street_exact": {**figures, "endpoint_drift_pct": 1.5}}]},
-              "default": {}, "curves": {"synthetic s0": curve}, "ratio_synthetic_over_supervised": {"street_exact": 2.0}}
+                       "supervised": [{"seed": 0, "street_exact": {**figures, "endpoint_drift_pct": 1.5}}],
+                       "supervised_samepatience": []},
+              "default": {}, "curves": {"synthetic s0": curve},
+              "ratio_synthetic_over_supervised": {"supervised": {"street_exact": 2.0},
+                                                  "supervised_samepatience": {"street_exact": None}}}
     md = results_repro.markdown(report)
     assert "| synthetic (n=1) | 1 |" in md and "x2.00" in md and "at 2x" in md
