@@ -219,9 +219,12 @@ def markdown(report: dict) -> str:
         md += [f"- {mode} s{seed}, {CASE_TITLES.get(case, case)}: " + ", ".join(f"{x:.2f}" for x in c)
                for mode, seed, case, c in cal]
     fits = [(k, c[f"{n}_fit"]) for k, c in report["curves"].items() for n in ("t_z_m",) if f"{n}_fit" in c]
+    if report["curves"]:
+        md += ["", "![learning curves](learning_curve.png)"]
     if fits:
-        md += ["", "Learning curves (`learning_curve.png`): held-out RMSE of the forward translation, last epoch and "
-               "a power law over the second half extrapolated to twice the samples:", ""]
+        md += ["", "Learning curves: held-out RMSE of the forward translation, last epoch and a power law over the "
+               "second half extrapolated to twice the samples (it follows the learning-rate halvings too, so it "
+               "overstates what more samples at one rate give):", ""]
         md += [f"- {k}: {f['last']:.4f} m now, exponent {f['exponent']:.2f}, {f['at_2x']:.4f} m at 2x" for k, f in fits]
     md += ["", "The paper: synthetic / supervised x2.7 on KITTI (estimated flow), about x1 on EuRoC (rigid scenes).",
            "", f"Run time: {report.get('minutes', 0):.1f} min."]
