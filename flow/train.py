@@ -8,7 +8,7 @@ multi-scale end-point-error loss against the exact flow (robust: Charbonnier). C
 ``checkpoint_steps`` (safetensors, :mod:`models.modelfile`), ``--resume``, step and time caps.
 
 The output folder, caps, clock, checkpoint and history files, resume checks, divergence check, progress
-and loggers (``tensorboard``) are the shared training runner's (:mod:`deepslam.gen.training`, also behind
+and loggers (``tensorboard``) are the shared training runner's (:mod:`deepslam.runtime.training`, also behind
 :mod:`deepslam.vo.train`); this module keeps the network's data, augmentation, losses and loop.
 """
 from __future__ import annotations
@@ -28,7 +28,7 @@ from deepslam.flow.augment import crop_pair, photometric_pair
 from deepslam.flow.estimators import to_grey
 from deepslam.flow.net import CHECKPOINT_FORMAT, MODEL_FORMAT, FlowNet, FlowNetConfig, load_flow_model
 from deepslam.flow.unsup import unsupervised_loss
-from deepslam.gen.training import Caps, check_finite, open_run
+from deepslam.runtime.training import Caps, check_finite, open_run
 from deepslam.models import modelfile
 
 CHECKPOINT = "checkpoint.safetensors"

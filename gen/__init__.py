@@ -13,6 +13,6 @@ Modules (import the one you need; nothing heavy is imported here):
 - :mod:`gen.validate`: synthesized flow vs. a simulator's true flow (end-to-end geometry check).
 - :mod:`gen.novel_view`: the image a moved camera would see, rendered from one frame + depth (so a flow
   estimator can run on a synthetic pair: training on the flow the network will really be given).
-- :mod:`gen.training`: the training runner shared by ``vo.train`` and ``flow.train`` (caps, checkpoints,
-  resume, divergence checks, TensorBoard).
+
+The torch device choice and the training runner live in :mod:`deepslam.runtime`.
 """

@@ -365,7 +365,7 @@ def odometries(opts: OdometryOptions, seq):
         loops = load_odometry(opts.odometry_loops, opts.command_timeout_s) if opts.odometry_loops else cons
         return cons, loops
     # deferred: it imports torch; plug-in and gt-noisy odometries (and vo/slam --help) stay torch-free
-    from deepslam.gen.device import resolve_device
+    from deepslam.runtime.device import resolve_device
 
     device = resolve_device(opts.device)
     given = dict(opts.flow_options)

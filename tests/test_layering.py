@@ -45,8 +45,9 @@ def test_the_package_keeps_its_layers_and_has_no_import_circle(tmp_path):
 
 @pytest.mark.parametrize("module,line,broken", [
     ("core/se3.py", "from deepslam.vo import net", "core imports no other layer"),
-    ("flow/estimators.py", "from deepslam.vo import train", "the learning stack: core <- gen <- flow <- vo <- slam"),
+    ("flow/estimators.py", "from deepslam.vo import train", "the learning stack: core <- runtime <- gen <- flow <- vo <- slam"),
     ("gen/motion.py", "from deepslam.gen import dataset", "no import circle between modules"),
+    ("runtime/device.py", "from deepslam.gen import flow", "the learning stack: core <- runtime <- gen <- flow <- vo <- slam"),
 ])
 def test_a_broken_rule_is_reported(tmp_path, module, line, broken):
     """Each kind of contract fails when the rule is broken (an upward import, a circle)."""

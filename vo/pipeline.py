@@ -122,7 +122,7 @@ def run_vo(seq, cfg: VOConfig = VOConfig(), odometry=None) -> VOResult:
 def _network(seq, pairs: np.ndarray, cfg: VOConfig) -> tuple[np.ndarray, np.ndarray, str, dict]:
     """(mean6, std6, name, record) of the network odometry over ``pairs``."""
     # deferred: torch and the flow workers load only when a network runs (a plug-in run stays torch-free)
-    from deepslam.gen.device import resolve_device
+    from deepslam.runtime.device import resolve_device
     from deepslam.vo.prefetch import PairInputs, model_input
 
     model_path, shipped = models.locate(cfg.model, seq, flow=cfg.flow)

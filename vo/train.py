@@ -24,7 +24,7 @@ the weights of an uninterrupted run (same threads, same machine). A non-finite l
 :class:`TrainingDiverged` and leaves the last good checkpoint in place.
 
 The output folder, caps, clock, checkpoint and history files, resume checks, divergence check, progress
-and loggers (``tensorboard``) are the shared training runner's (:mod:`deepslam.gen.training`, also
+and loggers (``tensorboard``) are the shared training runner's (:mod:`deepslam.runtime.training`, also
 behind :mod:`deepslam.flow.train`); this module keeps the network, losses, data and stages.
 """
 from __future__ import annotations
@@ -42,8 +42,8 @@ import torch.distributed as dist
 from deepslam.core import atomic
 from deepslam.core.errors import InputError
 from deepslam.core.plots import new_figure, save_figure
-from deepslam.gen.training import CAPS, Caps, Runner, check_finite, open_run
-from deepslam.gen.training import TrainingDiverged  # noqa: F401 - part of this module's API
+from deepslam.runtime.training import CAPS, Caps, Runner, check_finite, open_run
+from deepslam.runtime.training import TrainingDiverged  # noqa: F401 - part of this module's API
 from deepslam.vo.samples import epoch_seed
 from deepslam.vo.distributed import agree, world
 from deepslam.vo.modelio import load_checkpoint, load_model, make_net, save_checkpoint, save_model

@@ -278,7 +278,7 @@ def run(args: argparse.Namespace) -> int:
 
     check_output_not_input(args.out, [("--source", d) for d in args.source] + [("--sequence", d) for d in args.sequence]
                            + [("--shards", args.shards)])  # never write into the training data
-    from deepslam.gen.device import resolve_device
+    from deepslam.runtime.device import resolve_device
 
     from deepslam.vo.distributed import finish, init_from_env, world
 

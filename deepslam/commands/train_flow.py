@@ -70,9 +70,9 @@ def run(args: argparse.Namespace) -> int:
 
     from deepslam.core.errors import InputError
     from deepslam.core.readers import open_sequence
-    from deepslam.gen.device import resolve_device
+    from deepslam.runtime.device import resolve_device
     from deepslam.flow.train import FlowPairs, FlowTrainConfig, train_flow
-    from deepslam.gen.training import TrainingDiverged
+    from deepslam.runtime.training import TrainingDiverged
 
     t0 = time.perf_counter()
     try:

@@ -61,7 +61,7 @@ from deepslam.core.progress import progress as progress_bar
 from deepslam.core.readers import open_sequence
 from deepslam.core.trajectory import Trajectory
 from deepslam.flow.estimators import DISFlow, GroundTruthFlow
-from deepslam.gen.device import resolve_device
+from deepslam.runtime.device import resolve_device
 from deepslam.gen.validate import validate_sequence
 from deepslam.sim import RenderConfig, SceneConfig, SimConfig, Simulator, TrajectoryConfig
 from deepslam.sim.scaled_movers import scaled_movers, scene_with_scaled_movers

@@ -242,7 +242,7 @@ def test_cached_stage_two_figures_match_a_full_forward(trained, toy):
 def test_device_flag_resolves_and_refuses_what_is_not_here(capsys):
     from deepslam.cli import main
     from deepslam.core.errors import InputError
-    from deepslam.gen.device import resolve_device
+    from deepslam.runtime.device import resolve_device
 
     assert resolve_device("cpu").type == "cpu"
     assert resolve_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")

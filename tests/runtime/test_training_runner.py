@@ -1,4 +1,4 @@
-"""The training runner both trainings share (deepslam.gen.training): caps, folder refusals, resume checks,
+"""The training runner both trainings share (deepslam.runtime.training): caps, folder refusals, resume checks,
 divergence that keeps the last good checkpoint, a killed run resumed equal to an uninterrupted one, and the
 TensorBoard logger (scalars read back, trained bytes unchanged), through vo.train and flow.train."""
 from __future__ import annotations
@@ -16,7 +16,7 @@ from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
 from deepslam.flow.net import FlowNetConfig
 from deepslam.flow.train import FlowTrainConfig, train_flow
-from deepslam.gen.training import Caps, TrainingDiverged, check_finite, open_run, settings_differ
+from deepslam.runtime.training import Caps, TrainingDiverged, check_finite, open_run, settings_differ
 from deepslam.vo.modelio import load_checkpoint
 from deepslam.vo.net import NetConfig
 from deepslam.vo.samples import TensorSamples
