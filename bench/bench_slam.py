@@ -238,7 +238,7 @@ def vo_end_to_end_fps(quick: bool) -> list[dict]:
 
     from deepslam.core.paths import base_dir, shared_data_dir
     from deepslam.core.readers import open_sequence
-    from deepslam.flow import estimators as flow_estimators
+    from deepslam.flow import images as flow_images
     from deepslam.vo import models
     from deepslam.vo.prefetch import WORKERS_ENV, default_workers
 
@@ -266,7 +266,7 @@ def vo_end_to_end_fps(quick: bool) -> list[dict]:
                 times[name].append(t)
     wall = {k: float(np.median(v)) for k, v in times.items()}
     fps = {k: n / v for k, v in wall.items()}
-    greys = [flow_estimators.to_grey(seq.image(i)) for i in range(n)]
+    greys = [flow_images.to_grey(seq.image(i)) for i in range(n)]
     dis_s, _ = _median_time(lambda: [dis.estimate(greys[i], greys[i + 1]) for i in range(n - 1)], 1)
     size = f"{seq.camera.width}x{seq.camera.height}"
     workers = default_workers()

@@ -93,7 +93,8 @@ def _dis_epe(seq_dir: Path, stride: int, pairs: int = 8) -> float:
     the pixels whose exact flow lands inside the second image (as KITTI's flow benchmark labels: a point
     that leaves the view, a parked car beside the camera at speed, has no flow to find)."""
     from deepslam.core.readers import open_sequence
-    from deepslam.flow.estimators import DISFlow, endpoint_error, exact_pair_flow
+    from deepslam.flow.estimators import DISFlow, exact_pair_flow
+    from deepslam.flow.metrics import endpoint_error
 
     seq = open_sequence(seq_dir)
     dis = DISFlow("medium")

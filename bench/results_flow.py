@@ -62,8 +62,9 @@ def main(argv: list[str] | None = None) -> int:
     from deepslam.core import atomic
     from deepslam.core.paths import out_dir, shared_data_dir
     from deepslam.core.readers import open_sequence
-    from deepslam.flow.estimators import DISFlow, resize_flow, to_grey
-    from deepslam.flow.estimators import endpoint_error
+    from deepslam.flow.estimators import DISFlow, resize_flow
+    from deepslam.flow.images import to_grey
+    from deepslam.flow.metrics import endpoint_error
     from deepslam.flow.net import LearnedDISFlow, LearnedFlow
 
     ap = argparse.ArgumentParser(prog="python -m bench.results_flow")

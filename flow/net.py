@@ -22,7 +22,8 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from deepslam.core.errors import InputError
-from deepslam.flow.estimators import DISFlow, GreyCache, resize_flow, to_grey
+from deepslam.flow.estimators import DISFlow, resize_flow
+from deepslam.flow.images import GreyCache, to_grey
 from deepslam.models import modelfile, models_dir
 
 MODEL_FORMAT = "deepslam-flow-model"

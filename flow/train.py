@@ -25,7 +25,7 @@ from tqdm import tqdm
 from deepslam.core import atomic
 from deepslam.core.errors import InputError
 from deepslam.flow.augment import crop_pair, photometric_pair
-from deepslam.flow.estimators import to_grey
+from deepslam.flow.images import to_grey
 from deepslam.flow.net import CHECKPOINT_FORMAT, MODEL_FORMAT, FlowNet, FlowNetConfig, load_flow_model
 from deepslam.flow.unsup import unsupervised_loss
 from deepslam.runtime.training import Caps, check_finite, open_run

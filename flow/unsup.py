@@ -36,7 +36,7 @@ from tqdm import tqdm
 
 from deepslam.core.errors import InputError
 from deepslam.flow.augment import crop_pair, photometric_pair
-from deepslam.flow.estimators import to_grey
+from deepslam.flow.images import to_grey
 from deepslam.flow.net import resize_to_width, upsample_flow, warp
 
 CENSUS_PATCH = 7

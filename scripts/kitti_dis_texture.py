@@ -5,7 +5,7 @@ On KITTI 06 (its stereo depth, as ``deepslam train --source`` computes it, and i
 consecutive pair: DIS medium's end-point error against the flow synthesized from the depth and the
 motion, on the real pair and on the view rendered from frame i with that motion (6 grey levels of
 noise, as ``train --appearance-noise 6``), by quartile of frame i's texture
-(:func:`flow.estimators.texture_strength`), on pixels with a stereo depth under 80 m. About 1 minute:
+(:func:`flow.images.texture_strength`), on pixels with a stereo depth under 80 m. About 1 minute:
 
     .venv/bin/python scripts/kitti_dis_texture.py [KITTI_06_DIR]
 """

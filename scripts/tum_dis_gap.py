@@ -7,7 +7,7 @@ with the sensor depth; no ground-truth pose is used). Printed: the median end-po
 and the same motion (what ``train --synthetic-flow dis`` makes), with 0-24 grey levels of Gaussian
 noise on that view (``--appearance-noise``); and of the learned flow (``models/flow_learned.safetensors``)
 on the real pair and the noise-free view. Then, over all these pixels pooled, DIS's error on the real
-pairs by quartile of the first image's texture (:func:`flow.estimators.texture_strength`) and what
+pairs by quartile of the first image's texture (:func:`flow.images.texture_strength`) and what
 each ``--dis-min-texture`` threshold keeps (how 0.5 was chosen: no pose and no odometry score is
 used). Pixels with sensor depth only. About 2 minutes:
 
@@ -26,7 +26,7 @@ def main(argv: list[str]) -> int:
     from deepslam.gen.flow import synthesize
     from deepslam.gen.novel_view import render_novel_view
     from deepslam.slam.classical import make_pnp
-    from deepslam.flow import estimators as flow_estimators, registry as flow_registry
+    from deepslam.flow import estimators as flow_estimators, images as flow_images, registry as flow_registry
 
     root = argv[0] if argv else "../shared/data/tum/rgbd_dataset_freiburg3_teddy"
     seq = open_sequence(root)
@@ -42,16 +42,16 @@ def main(argv: list[str]) -> int:
         motion = se3.from_euler6(v[None])[0]
         ref, valid = synthesize(depth, seq.camera, motion)
         ref, valid = ref.numpy(), valid.numpy() & (depth > 0)
-        grey0 = flow_estimators.to_grey(seq.image(i))
+        grey0 = flow_images.to_grey(seq.image(i))
 
         def epe(flow: np.ndarray) -> float:
             return float(np.median(np.linalg.norm(flow[valid] - ref[valid], axis=1)))
 
-        grey1 = flow_estimators.to_grey(seq.image(j))
+        grey1 = flow_images.to_grey(seq.image(j))
         real = dis.estimate(grey0, grey1)
         errors.setdefault("real pair", []).append(epe(real))
         pixel_errors.append(np.linalg.norm(real[valid] - ref[valid], axis=1))
-        pixel_texture.append(flow_estimators.texture_strength(grey0)[valid])
+        pixel_texture.append(flow_images.texture_strength(grey0)[valid])
         errors.setdefault("real pair, learned flow", []).append(epe(learned.estimate(grey0, grey1)))
         view, _ = render_novel_view(grey0, depth, seq.camera, motion)
         errors.setdefault("synthetic view, learned flow", []).append(epe(learned.estimate(grey0, view)))

@@ -14,7 +14,7 @@ from tqdm import tqdm
 
 from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
-from deepslam.flow.estimators import to_grey
+from deepslam.flow.images import to_grey
 from deepslam.gen import stereo
 from deepslam.vo.net import inverse_depth_input
 from deepslam.vo.samples import holdout_mask

@@ -14,7 +14,8 @@ import torch
 from tqdm import tqdm
 
 from deepslam.core import se3
-from deepslam.flow.estimators import to_grey, to_network_input
+from deepslam.flow.estimators import to_network_input
+from deepslam.flow.images import to_grey
 from deepslam.vo.epipolar import EpipolarFitter, fuse_all
 from deepslam.vo.frames import frame_inverse_depth
 from deepslam.vo.modelio import load_model

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from deepslam.core.errors import InputError
-from deepslam.flow.estimators import endpoint_error
+from deepslam.flow.metrics import endpoint_error
 from deepslam.flow.net import FlowNet, FlowNetConfig, LearnedFlow, correlation, load_flow_model, warp
 from deepslam.flow.train import FlowTrainConfig, multiscale_loss, train_flow
 from tests.textures import shifted_texture_batch

@@ -109,7 +109,7 @@ def street_pair(tmp_path_factory):
 
 def test_novel_view_matches_the_simulators_next_frame(street_pair):
     from deepslam.core.readers import open_sequence
-    from deepslam.flow.estimators import to_grey
+    from deepslam.flow.images import to_grey
 
     seq = open_sequence(street_pair)
     w = seq.gt.world_from_cam

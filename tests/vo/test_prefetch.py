@@ -12,7 +12,7 @@ import pytest
 
 from deepslam.core.errors import InputError
 from deepslam.core.readers import open_sequence
-from deepslam.flow import estimators as flow_estimators, registry as flow_registry
+from deepslam.flow import estimators as flow_estimators, images as flow_images, registry as flow_registry
 from deepslam.flow.estimators import to_network_input
 from deepslam.vo.prefetch import PairInputs, model_input
 
@@ -131,7 +131,7 @@ def test_a_failed_decode_is_not_cached(plane_sequence, tmp_path):
     seq = open_sequence(root)
     saved = seq.image_paths[2].read_bytes()
     seq.image_paths[2].unlink()
-    cache = flow_estimators.GreyCache()
+    cache = flow_images.GreyCache()
     with pytest.raises(InputError):
         cache(seq, 2)
     seq.image_paths[2].write_bytes(saved)
@@ -176,7 +176,7 @@ def test_the_grey_cache_decodes_each_frame_once_across_threads(plane_sequence, m
     decoded = []
     real = seq.image
     monkeypatch.setattr(seq, "image", lambda i: decoded.append(i) or real(i))
-    cache = flow_estimators.GreyCache()
+    cache = flow_images.GreyCache()
     barrier = threading.Barrier(2)
 
     def run(frames):
