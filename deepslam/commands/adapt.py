@@ -3,6 +3,9 @@ from __future__ import annotations
 
 import argparse
 
+# Library imports sit in the functions: building the parser of every command (deepslam --help) must
+# not import numpy, torch or the simulator.
+
 NAME = "adapt"
 HELP = "adapt NN_cons / NN_loops to a camera from a sequence's single frames with depth (no poses; the paper's method)"
 

@@ -3,6 +3,9 @@ from __future__ import annotations
 
 import argparse
 
+# Library imports sit in the functions: building the parser of every command (deepslam --help) must
+# not import numpy, torch or the simulator.
+
 NAME = "render"
 HELP = "render a simulated sequence (street/room, car/drone) with exact depth, flow, poses and masks"
 

@@ -15,6 +15,9 @@ import argparse
 
 from deepslam.commands import _dis_flags
 
+# Library imports sit in the functions: building the parser of every command (deepslam --help) must
+# not import numpy, torch or the simulator.
+
 NAME = "train"
 HELP = "train the flow->6DoF network: --mode synthetic (single frames + depth + motion model) or supervised"
 

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 
+# Library imports sit in the functions: building the parser of every command (deepslam --help) must
+# not import numpy, torch or the simulator.
+
 NAME = "train-flow"
 HELP = "train the learned optical-flow estimator (--flow learned) on rendered sequences with exact flow"
 
