@@ -12,11 +12,13 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import cv2
 import numpy as np
 
+from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
 from deepslam.core.trajectory import check_finite_poses
-from deepslam.vo import models
+from deepslam.vo import models, modeltree
 from deepslam.vo.infer import chain_euler6
 
 POSES = ("net", "epipolar")
@@ -56,6 +58,10 @@ class VOConfig:
     """bfloat16 inference; None: where the CPU computes bf16 natively."""
     progress: bool = True
     """Show a progress bar."""
+    read_width_px: int = 0
+    """Frames narrower than this are read upsampled to it (bicubic, the camera scaled likewise; a monocular
+    network on estimated flow only); 0: read as recorded. At 320 px DIS and the road scale over-read the
+    distance (docs/experiments/2026-12-06_read_width.md)."""
 
     def frames(self, n_frames: int) -> np.ndarray:
         """(N,) int64 indices of the frames a run over an ``n_frames``-frame sequence reads. InputError for an
@@ -101,6 +107,8 @@ def run_vo(seq, cfg: VOConfig = VOConfig(), odometry=None) -> VOResult:
     """
     if not 1 <= cfg.batch <= 4096:
         raise InputError(None, f"--batch must be in 1..4096, got {cfg.batch}")
+    if not 0 <= cfg.read_width_px <= 8192:
+        raise InputError(None, f"--read-width must be in 0..8192 px, got {cfg.read_width_px}")
     frames = cfg.frames(len(seq))
     pairs = np.stack([frames[:-1], frames[1:]], axis=1)
     if odometry is not None:
@@ -119,6 +127,43 @@ def run_vo(seq, cfg: VOConfig = VOConfig(), odometry=None) -> VOResult:
     return VOResult(frames, pairs, mean6, std6, world_from_cam, name, record)
 
 
+def _reads_depth(model_path) -> bool:
+    """Whether the VO model file's network reads the frame's depth (its header only); True when unreadable
+    (the loader then says what is wrong)."""
+    try:
+        return bool(modeltree.net_config(modeltree.read_header_tree(model_path)).get("depth_channel"))
+    except Exception:  # noqa: BLE001 - any unreadable file: not upsampled, the loader reports it
+        return True
+
+
+class UpsampledView:
+    """A sequence read at a larger size: its images (and right images) upsampled bicubically to ``width`` px wide
+    (the height in proportion), its camera scaled likewise (pixel centres kept: ``c' = s (c + 0.5) - 0.5``);
+    everything else is the sequence's own. For estimated flow on the images only: depth and stored flow stay at
+    the recorded size, so a network that reads them, or ``--flow gt``, does not take this view."""
+
+    def __init__(self, seq, width: int):
+        self._seq = seq
+        cam = seq.camera
+        s = width / cam.width
+        self.size = (int(width), int(round(cam.height * s)))
+        sx, sy = self.size[0] / cam.width, self.size[1] / cam.height
+        self.camera = PinholeCamera(self.size[0], self.size[1], cam.fx * sx, cam.fy * sy,
+                                    sx * (cam.cx + 0.5) - 0.5, sy * (cam.cy + 0.5) - 0.5)
+
+    def __len__(self) -> int:
+        return len(self._seq)
+
+    def __getattr__(self, name):
+        return getattr(self._seq, name)
+
+    def image(self, i: int) -> np.ndarray:
+        return cv2.resize(self._seq.image(i), self.size, interpolation=cv2.INTER_CUBIC)
+
+    def image_right(self, i: int) -> np.ndarray:
+        return cv2.resize(self._seq.image_right(i), self.size, interpolation=cv2.INTER_CUBIC)
+
+
 def _network(seq, pairs: np.ndarray, cfg: VOConfig) -> tuple[np.ndarray, np.ndarray, str, dict]:
     """(mean6, std6, name, record) of the network odometry over ``pairs``."""
     # deferred: torch and the flow workers load only when a network runs (a plug-in run stays torch-free)
@@ -126,6 +171,9 @@ def _network(seq, pairs: np.ndarray, cfg: VOConfig) -> tuple[np.ndarray, np.ndar
     from deepslam.vo.prefetch import PairInputs, model_input
 
     model_path, shipped = models.locate(cfg.model, seq, flow=cfg.flow)
+    recorded_seq = seq
+    if cfg.read_width_px > seq.camera.width and cfg.flow != "gt" and not _reads_depth(model_path):
+        seq = UpsampledView(seq, cfg.read_width_px)
     estimator = models.flow_for_model(cfg.flow, model_path, **dict(cfg.flow_options))  # DIS set up as trained
     # the flows start before torch and the model load (seconds of start-up they overlap)
     spec = model_input(model_path)
@@ -158,6 +206,8 @@ def _network(seq, pairs: np.ndarray, cfg: VOConfig) -> tuple[np.ndarray, np.ndar
               "model_name": predictor.name, "model_net": predictor.model.cfg.to_dict(),
               "flow": getattr(estimator, "name", cfg.flow), "bf16": predictor.bf16, "batch": cfg.batch,
               "device": str(predictor.device), "pose": pose}
+    if seq is not recorded_seq:
+        record["read_at_px"] = [seq.camera.width, seq.camera.height]
     if epi is not None:
         record.update(epipolar=dataclasses.asdict(epi), epipolar_pairs_used=sum(u for _, u in fits))
         if epi.road_height_m is not None and road:

@@ -59,6 +59,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--camera-height", type=float, default=1.65, metavar="M",
                    help="camera height above the road for --scale road, metres (default 1.65: KITTI and the "
                         "simulated street)")
+    p.add_argument("--read-width", type=int, default=0, metavar="PX",
+                   help="read frames narrower than PX upsampled to PX wide (bicubic, camera scaled), for the network "
+                        "on estimated flow: at 320 px DIS and the road scale over-read the distance, read at 640 they "
+                        "do not (0 = as recorded, the default)")
     p.add_argument("--stride", type=int, default=1, help="frame gap k: predict cam_{t+k}_from_cam_t for t = 0, k, 2k, ...")
     p.add_argument("--start", type=int, default=0, help="first frame")
     p.add_argument("--end", type=int, default=None, help="one past the last frame (default: all)")
@@ -131,7 +135,8 @@ def _run(args: argparse.Namespace) -> int:
     cfg = VOConfig(model=args.model, flow=args.flow, flow_options=tuple(given_estimator_options(args.flow, args).items()),
                    pose=args.pose, scale=args.scale, camera_height_m=args.camera_height, stride=args.stride,
                    start=args.start, end=args.end, batch=args.batch, device=args.device,
-                   bf16=None if args.bf16 == "auto" else args.bf16 == "on", progress=not (args.quiet or args.json))
+                   bf16=None if args.bf16 == "auto" else args.bf16 == "on", progress=not (args.quiet or args.json),
+                   read_width_px=args.read_width)
     frames = cfg.frames(len(seq))  # the range checked before a plug-in loads
     fmt = args.format or trajio.default_format(seq.kind, seq.timestamps_s is not None)
     plugin = plugins.from_options(args.odometry, args.odometry_command, args.command_timeout)

@@ -192,3 +192,19 @@ def test_run_vo_is_what_the_command_writes(plane_sequence, tmp_path):
     np.testing.assert_allclose(written.world_from_cam, res.world_from_cam, atol=1e-6)
     with pytest.raises(InputError, match="at least two frames"):
         run_vo(seq, VOConfig(start=len(seq) - 1))
+
+
+def test_read_width_reads_small_frames_upsampled_with_the_camera_scaled(plane_sequence):
+    from deepslam.vo.pipeline import UpsampledView, VOConfig, run_vo
+
+    seq = open_sequence(plane_sequence)
+    view = UpsampledView(seq, 2 * seq.camera.width)
+    cam, big = seq.camera, view.camera
+    assert view.image(0).shape[:2] == (big.height, big.width) == (2 * cam.height, 2 * cam.width)
+    # the same ray through the same point of the image: pixel centres kept
+    assert (big.fx, big.cx) == pytest.approx((2 * cam.fx, 2 * cam.cx + 0.5))
+    assert len(view) == len(seq) and view.gt is seq.gt
+    res = run_vo(seq, VOConfig(read_width_px=2 * seq.camera.width, progress=False, stride=3))
+    assert res.record["read_at_px"] == [big.width, big.height] and np.isfinite(res.world_from_cam).all()
+    exact = run_vo(seq, VOConfig(flow="gt", read_width_px=2 * seq.camera.width, progress=False, stride=3))
+    assert "read_at_px" not in exact.record  # the stored flow is at the recorded size
