@@ -133,16 +133,17 @@ def _check_frame_count(root: Path, json_path: Path, n: int) -> None:
     directory listing, not 10^9 names)."""
     if n < 1:
         raise InputError(json_path, f"num_frames must be >= 1, got {n}")
-    held = 0
+    present: set[str] = set()
     try:
         with os.scandir(root / "rgb") as it:
             for entry in it:
-                held += entry.name.endswith(".png")
-                if held >= n:
-                    return
+                if entry.name.endswith(".png"):
+                    present.add(entry.name)
+                    if len(present) >= n:
+                        return
     except OSError:
         raise InputError(root / "rgb", "no rgb/ folder of frames") from None
-    present = {e.name for e in os.scandir(root / "rgb")}
+    held = len(present)
     first_missing = next(i for i in range(held + 1) if f"{_name(i)}.png" not in present)  # within held + 1 names
     raise InputError(root / "rgb" / f"{_name(first_missing)}.png",
                      f"frame image is missing: {json_path.name} says num_frames {n}, rgb/ holds {held} frame images")

@@ -262,8 +262,9 @@ class Sequence:
                 continue
             for other, read in ((paths[i].with_suffix(".flo"), flowio.read_flo),
                                 (paths[i].with_suffix(".png"), flowio.read_kitti_flow_png)):
-                if other.is_file() and read(other).shape != (h, w, 2):
-                    raise InputError(other, f"flow is {read(other).shape}, expected ({h}, {w}, 2)")
+                shape = read(other).shape if other.is_file() else (h, w, 2)
+                if shape != (h, w, 2):
+                    raise InputError(other, f"flow is {shape}, expected ({h}, {w}, 2)")
 
     def check_timestamps(self) -> None:
         """InputError unless the frame times are finite and strictly increasing."""

@@ -88,18 +88,12 @@ def _decompress_bounded(raw: bytes, kind: str, path: Path, limit: int) -> bytear
     data = raw
     while data:
         d = lzma.LZMADecompressor() if kind == "xz" else zlib.decompressobj(16 + zlib.MAX_WBITS)
-        chunk = d.decompress(data, limit + 1 - len(out))
-        out += chunk
+        out += d.decompress(data, limit + 1 - len(out))
         if len(out) > limit:
             raise InputError(path, f"decompresses to more than {limit // 2**20} MiB; not a trajectory file")
-        if kind == "xz":
-            if not d.eof:
-                raise InputError(path, "broken compressed file (truncated xz stream)")
-            data = d.unused_data
-        else:
-            if not d.eof:
-                raise InputError(path, "broken compressed file (truncated gzip stream)")
-            data = d.unused_data
+        if not d.eof:
+            raise InputError(path, f"broken compressed file (truncated {'xz' if kind == 'xz' else 'gzip'} stream)")
+        data = d.unused_data
     return out
 
 

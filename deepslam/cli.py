@@ -55,14 +55,14 @@ INPUT_OPTIONS = {"sequence": "--sequence", "sequences": "--sequences", "source":
 """Options (argparse dest -> flag) that name something a command reads."""
 
 
-def _paths(value) -> list[str]:
-    """The paths an option's value names: a list's items; ``FILE:loops@W`` motion specs cut to FILE."""
+def _paths(dest: str, value) -> list[str]:
+    """The paths option ``dest``'s value names: a list's items as they are, and for ``motion`` each
+    ``FILE[:loops][@WEIGHT]`` spec cut to FILE (no other option's path is cut at an ``@`` or ``:``)."""
     items = value if isinstance(value, (list, tuple)) else [value]
-    out = []
-    for v in items:
-        if isinstance(v, (str, os.PathLike)) and str(v):
-            out.append(str(v).split("@")[0].removesuffix(":loops") if isinstance(v, str) else str(v))
-    return out
+    paths = [str(v) for v in items if isinstance(v, (str, os.PathLike)) and str(v)]
+    if dest == "motion":
+        paths = [p.rsplit("@", 1)[0].removesuffix(":loops") for p in paths]
+    return paths
 
 
 SEED_RANGE = (0, 2**32 - 1)
@@ -102,8 +102,8 @@ def check_paths(args: argparse.Namespace) -> None:
     from deepslam.core.outputs import check_distinct_outputs, check_output_not_input, check_writable
 
     given = vars(args)
-    inputs = [(flag, p) for dest, flag in INPUT_OPTIONS.items() for p in _paths(given.get(dest))]
-    outputs = [(flag, p) for dest, flag in OUTPUT_OPTIONS.items() for p in _paths(given.get(dest))]
+    inputs = [(flag, p) for dest, flag in INPUT_OPTIONS.items() for p in _paths(dest, given.get(dest))]
+    outputs = [(flag, p) for dest, flag in OUTPUT_OPTIONS.items() for p in _paths(dest, given.get(dest))]
     for flag, p in outputs:
         check_output_not_input(p, inputs, flag)
         check_writable(p, flag)

@@ -357,3 +357,11 @@ def test_view_save_on_a_full_disk_is_one_line_and_leaves_nothing(seq, tmp_path, 
         assert list(small.iterdir()) == []
     finally:
         subprocess.run(["umount", str(small)], capture_output=True)
+
+
+def test_only_motion_specs_are_cut_to_their_file():
+    from deepslam.cli import _paths
+
+    assert _paths("motion", ["m.json:loops@2", "n.json@0.5", "o.json"]) == ["m.json", "n.json", "o.json"]
+    assert _paths("out", "runs@2/t:loops.txt") == ["runs@2/t:loops.txt"]  # a path with @ or : is a path
+    assert _paths("source", ["a", Path("b"), None, ""]) == ["a", "b"]

@@ -15,7 +15,6 @@ import math
 import cv2
 import numpy as np
 
-from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
 from deepslam.core.trajectory import check_finite_poses
 from deepslam.vo import models, modeltree
@@ -145,11 +144,8 @@ class UpsampledView:
     def __init__(self, seq, width: int):
         self._seq = seq
         cam = seq.camera
-        s = width / cam.width
-        self.size = (int(width), int(round(cam.height * s)))
-        sx, sy = self.size[0] / cam.width, self.size[1] / cam.height
-        self.camera = PinholeCamera(self.size[0], self.size[1], cam.fx * sx, cam.fy * sy,
-                                    sx * (cam.cx + 0.5) - 0.5, sy * (cam.cy + 0.5) - 0.5)
+        self.size = (int(width), int(round(cam.height * width / cam.width)))
+        self.camera = cam.scaled(*self.size)
 
     def __len__(self) -> int:
         return len(self._seq)

@@ -137,11 +137,11 @@ def _run(args: argparse.Namespace) -> int:
                    start=args.start, end=args.end, batch=args.batch, device=args.device,
                    bf16=None if args.bf16 == "auto" else args.bf16 == "on", progress=not (args.quiet or args.json),
                    read_width_px=args.read_width)
-    frames = cfg.frames(len(seq))  # the range checked before a plug-in loads
+    cfg.frames(len(seq))  # the range checked before a plug-in loads
     fmt = args.format or trajio.default_format(seq.kind, seq.timestamps_s is not None)
     plugin = plugins.from_options(args.odometry, args.odometry_command, args.command_timeout)
     res = run_vo(seq, cfg, plugin)
-    pairs, mean6, std6, name = res.pairs, res.mean6, res.std6, res.name
+    frames, pairs, mean6, std6, name = res.frames, res.pairs, res.mean6, res.std6, res.name
     est = Trajectory(res.world_from_cam, seq.timestamps_s[frames])
 
     out = Path(args.out)

@@ -61,8 +61,8 @@ from deepslam.core.progress import progress as progress_bar
 from deepslam.core.readers import open_sequence
 from deepslam.core.trajectory import Trajectory
 from deepslam.flow.estimators import DISFlow, GroundTruthFlow
-from deepslam.runtime.device import resolve_device
 from deepslam.gen.validate import validate_sequence
+from deepslam.runtime.device import resolve_device
 from deepslam.sim import RenderConfig, SceneConfig, SimConfig, Simulator, TrajectoryConfig
 from deepslam.sim.scaled_movers import scaled_movers, scene_with_scaled_movers
 from deepslam.sim.writers import render_sequence
@@ -332,6 +332,14 @@ def make_odometries(config: StressConfig) -> OdometrySet:
     return odo
 
 
+def _pose_label(epipolar) -> str:
+    """How a model's pose is read, for the report: the network's own, or the essential matrix's (with the
+    road scale where its :class:`vo.epipolar.EpipolarConfig` reads one)."""
+    if epipolar is None:
+        return "its own pose"
+    return "epipolar pose, road scale" if epipolar.road_height_m is not None else "epipolar pose"
+
+
 def _main_odometries(config: StressConfig) -> OdometrySet:
     flows = {"gt": GroundTruthFlow(), "dis": DISFlow(config.dis_preset)}
     note = None
@@ -366,9 +374,7 @@ def _main_odometries(config: StressConfig) -> OdometrySet:
             note = (f"learned odometry unavailable (vo cannot be imported: {e}); fell back to the rigid "
                     "least-squares fit of flow + depth over all pixels")
         else:
-            names = ", ".join(f"{cons[f].name} on {f} flow" + (" (epipolar pose" + (", road scale)" if
-                              cons_epi[f].road_height_m is not None else ")") if cons_epi[f] else " (its own pose)")
-                              for f in flows)
+            names = ", ".join(f"{cons[f].name} on {f} flow ({_pose_label(cons_epi[f])})" for f in flows)
             return OdometrySet("model", {f: cons[f].as_odometry(est, progress=False, epipolar=cons_epi[f])
                                          for f, est in cons_flows.items()},
                                loops.as_odometry(loops_flow, progress=False),
