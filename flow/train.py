@@ -227,12 +227,12 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
     adds ``cfg.real_weight`` times the unsupervised census + smoothness loss of that many real pairs
     (drawn from their own random stream, so the supervised batches are those of a run without them).
 
-    ``tensorboard``: a folder for TensorBoard scalars (:class:`gen.training.TensorBoardLogger`): per step
+    ``tensorboard``: a folder for TensorBoard scalars (:class:`runtime.training.TensorBoardLogger`): per step
     ``flow/step/loss`` and ``flow/step/lr`` (and ``flow/step/real_census`` with real pairs), per history row
     (every ``checkpoint_steps``) ``flow/loss`` (and ``flow/real_census``); x: the step. None: none.
 
     Raises:
-        gen.training.TrainingDiverged: a non-finite loss (the last checkpoint is kept).
+        runtime.training.TrainingDiverged: a non-finite loss (the last checkpoint is kept).
         core.errors.InputError: a crop larger than the frames, a folder holding another run, ``resume``
             with other settings.
     """

@@ -262,7 +262,7 @@ def train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_di
         resume: continue from ``out_dir/checkpoint.safetensors`` (whose config must equal ``cfg``).
         meta: JSON-able description of the data, stored in config.json and the model file.
         half_weights: store the model file's weights as float16.
-        tensorboard: a folder for TensorBoard scalars (:class:`gen.training.TensorBoardLogger`): per
+        tensorboard: a folder for TensorBoard scalars (:class:`runtime.training.TensorBoardLogger`): per
             stage-1 step ``stage1/step/loss`` and ``stage1/step/lr`` (x: training samples), per epoch every
             number of the history row as ``stage1/<field>`` and ``stage2/<field>`` (x: epoch). None: none.
 
