@@ -15,7 +15,7 @@ Rows (each against a baseline measured in the same run):
   network's pose and with the flows on one worker; skipped without the slice;
 - :func:`pipeline_fps`: frames per second of the whole pipeline on KITTI-size frames (target >= 10), and at
   keyframe stride 1 with the flows on one worker (``DEEPSLAM_FLOW_WORKERS=1``) right after.
-  It uses the shipped VO models with DIS flow when ``vo.models`` can load them, otherwise the
+  It uses the shipped VO models with DIS flow when ``vo.modelfiles.models`` can load them, otherwise the
   ground-truth odometry (the row's name says which), so until the models exist it measures
   relocalization + pose graph only.
 """
@@ -150,16 +150,17 @@ def bench_robustness(quick: bool) -> list[dict]:
 
 
 # ---------------------------------------------------------------------------------------------------
-# PIPELINE FPS (KITTI-size frames). Uses the shipped VO models when vo.models can load them.
+# PIPELINE FPS (KITTI-size frames). Uses the shipped VO models when vo.modelfiles.models can load them.
 
 def _odometry_for_fps(seq, **flow_options):
     """(cons, loops, label): the shipped KITTI models with DIS flow if loadable, else ground truth;
     ``flow_options``: DIS options over the files' records (``patch_stride=4``)."""
     try:
-        from deepslam.vo import models
+        from deepslam.vo.modelfiles import models
+        from deepslam.vo.odometry import model_odometry
 
         # each shipped model on DIS as its file records
-        cons, loops = (models.odometry(models.shipped_path("kitti", which, "dis"), "dis", True, pose=pose,
+        cons, loops = (model_odometry(models.shipped_path("kitti", which, "dis"), "dis", True, pose=pose,
                                        flow_options=flow_options)
                        for which, pose in (("cons", None), ("loops", "net")))
         return cons, loops, "shipped VO models + DIS flow"
@@ -179,7 +180,7 @@ def pipeline_fps(quick: bool) -> list[dict]:
     from deepslam.slam.pipeline import PipelineConfig, SlamParams, run_slam
     from deepslam.slam.reloc import FeatureExtractor, RelocConfig, train_vocabulary
     from deepslam.slam.synthetic import write_loop_sequence
-    from deepslam.vo.prefetch import WORKERS_ENV, default_workers
+    from deepslam.vo.data.prefetch import WORKERS_ENV, default_workers
 
     n = 40 if quick else 120
     reloc = RelocConfig()
@@ -239,8 +240,8 @@ def vo_end_to_end_fps(quick: bool) -> list[dict]:
     from deepslam.core.paths import base_dir, shared_data_dir
     from deepslam.core.readers import open_sequence
     from deepslam.flow import images as flow_images
-    from deepslam.vo import models
-    from deepslam.vo.prefetch import WORKERS_ENV, default_workers
+    from deepslam.vo.data.prefetch import WORKERS_ENV, default_workers
+    from deepslam.vo.modelfiles import models
 
     root = shared_data_dir() / "kitti" / "sequences" / "07"
     if not (root / "calib.txt").is_file():

@@ -86,11 +86,11 @@ def inference_fps(cfg: NetConfig, batched: bool, frames: int) -> float:
 
 
 def synthetic_data_throughput(samples: int) -> float:
-    """Samples/s of vo.synthetic.SyntheticSource at 96 x 320 (synthesis at 192 x 640, pooled), batch 128."""
+    """Samples/s of vo.data.synthetic.SyntheticSource at 96 x 320 (synthesis at 192 x 640, pooled), batch 128."""
     from deepslam.core.camera import PinholeCamera
-    from deepslam.vo.frames import Frames
-    from deepslam.vo.synthetic import SyntheticSource
-    from deepslam.vo.toy import plane_depth, toy_motion_sampler
+    from deepslam.vo.data.frames import Frames
+    from deepslam.vo.data.synthetic import SyntheticSource
+    from deepslam.vo.data.toy import plane_depth, toy_motion_sampler
 
     cam = PinholeCamera(1241, 376, 718.856, 718.856, 607.1928, 185.2157).scaled(640, 192)
     depth = plane_depth(cam, np.array([0.0, 1.0, 0.0]), 1.65)
@@ -100,7 +100,7 @@ def synthetic_data_throughput(samples: int) -> float:
 
 
 def _source_throughput(src) -> float:
-    """Samples/s of one epoch of a vo.synthetic source in batches of 128, after one warm-up batch."""
+    """Samples/s of one epoch of a vo.data.synthetic source in batches of 128, after one warm-up batch."""
     next(src.batches(99, 128))
     t0 = time.perf_counter()
     n = sum(len(b["target"]) for b in src.batches(0, 128))
@@ -108,15 +108,15 @@ def _source_throughput(src) -> float:
 
 
 def estimated_flow_throughput(samples: int) -> tuple[float, float]:
-    """Samples/s of vo.synthetic.EstimatedFlowSource (a second view rendered from a 640 x 192 frame, DIS
+    """Samples/s of vo.data.synthetic.EstimatedFlowSource (a second view rendered from a 640 x 192 frame, DIS
     medium on the pair, resized to 48 x 160; 2 threads) and of SyntheticSource on the same frames
     (exact flow synthesized at 96 x 320, pooled), batch 128."""
     import cv2
 
     from deepslam.core.camera import PinholeCamera
-    from deepslam.vo.frames import Frames, ImageFrames, resize_depth
-    from deepslam.vo.synthetic import EstimatedFlowSource, SyntheticSource
-    from deepslam.vo.toy import plane_depth, toy_motion_sampler
+    from deepslam.vo.data.frames import Frames, ImageFrames, resize_depth
+    from deepslam.vo.data.synthetic import EstimatedFlowSource, SyntheticSource
+    from deepslam.vo.data.toy import plane_depth, toy_motion_sampler
 
     cam = PinholeCamera(1241, 376, 718.856, 718.856, 607.1928, 185.2157).scaled(640, 192)
     depth = plane_depth(cam, np.array([0.0, 1.0, 0.0]), 1.65)
@@ -139,7 +139,7 @@ def readme_train_throughput(samples: int) -> float:
     import tempfile
     from pathlib import Path
 
-    from deepslam.vo.models import models_dir
+    from deepslam.vo.modelfiles.models import models_dir
 
     with tempfile.TemporaryDirectory() as tmp:
         street, out = Path(tmp) / "street", Path(tmp) / "nn_cons"

@@ -33,7 +33,7 @@ class Candidate:
     name: str
     """Row label."""
     model: str
-    """Model file, or a shipped spec such as ``kitti`` (see deepslam.vo.models.resolve)."""
+    """Model file, or a shipped spec such as ``kitti`` (see deepslam.vo.odometry.resolve_predictor)."""
     flow: str = "dis"
     """Flow estimator: one of :data:`FLOWS` (a name of :func:`deepslam.vo.flow_registry.make`)."""
     pose: str = "net"
@@ -61,11 +61,12 @@ def score(cand: Candidate, seq) -> dict:
     """``deepslam vo`` on the whole slice with ``cand``; the drift and ATE figures (core.metrics)."""
     from deepslam.core import metrics
     from deepslam.core.trajectory import Trajectory
-    from deepslam.vo import models
     from deepslam.vo.infer import chain_euler6
+    from deepslam.vo.modelfiles import models
+    from deepslam.vo.odometry import load_predictor
 
     path, shipped = models.locate(cand.model, seq, flow=cand.flow)
-    est, pred = models.flow_for_model(cand.flow, path), models.load(path, shipped)
+    est, pred = models.flow_for_model(cand.flow, path), load_predictor(path, shipped)
     pairs = np.stack([np.arange(len(seq) - 1), np.arange(1, len(seq))], axis=1)
     mean6, _ = pred.predict_pairs(seq, pairs, est, progress=False, epipolar=models.epipolar_config(path, cand.pose, "network"))
     traj = Trajectory(chain_euler6(mean6), seq.timestamps_s)
@@ -125,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
 
     def work() -> dict:
         from deepslam.core.errors import InputError
-        from deepslam.vo.models import POSES
+        from deepslam.vo.modelfiles.models import POSES
 
         if not poses or any(p not in POSES for p in poses):
             raise InputError(None, f"--pose {args.pose!r}: expected a comma-separated list of {', '.join(POSES)}")

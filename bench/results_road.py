@@ -1,6 +1,6 @@
 """Which flow shows the road's motion? The camera height each flow estimator implies for the road.
 
-For consecutive frame pairs that move at least 0.3 m, :func:`deepslam.vo.road_scale.implied_road_height`
+For consecutive frame pairs that move at least 0.3 m, :func:`deepslam.vo.geometry.road_height.implied_road_height`
 fits the road plane in front of the car to the flow with the TRUE motion: an estimator that moves the
 road as far as it really moves gives the camera's height (1.65 m, in the simulated street and on
 KITTI); one that under-moves it a larger height. Sets: a held-out simulated street (seed 7, never
@@ -73,7 +73,7 @@ def measure(seq, flows: dict, cfg: ResultsRoadConfig, heights: bool = True, road
     Returns ``(heights per flow, roadside)``: {name: {pairs, median_m, q25_m, q75_m, heights_m}} (empty
     without ``heights``) and {pairs, left_px_per_m, right_px_per_m} (None without ``roadside_from``)."""
     from deepslam.core import se3
-    from deepslam.vo.road_scale import implied_road_height
+    from deepslam.vo.geometry.road_height import implied_road_height
 
     cam = seq.camera
     v0, v1 = int(cam.cy - 0.12 * cam.fy), int(cam.cy + 0.06 * cam.fy) + 1
@@ -112,8 +112,8 @@ def roadside_flow(seq, flow_of, cfg: ResultsRoadConfig) -> dict:
 
 def run(cfg: ResultsRoadConfig, out: Path, data_dir: Path) -> dict:
     from deepslam.core.readers import open_sequence
-    from deepslam.studies.demo import render_once
     from deepslam.flow import registry as flow_registry
+    from deepslam.studies.demo import render_once
 
     out.mkdir(parents=True, exist_ok=True)
     ests = {n: flow_registry.make(n, **({"preset": "medium"} if n == "dis" else {})) for n in cfg.estimators}

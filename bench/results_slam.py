@@ -107,7 +107,7 @@ def _models_used(seq, flow: str) -> dict[str, str]:
 
 def _shipped_paths(seq, flow: str) -> list[Path]:
     """[NN_cons, NN_loops] shipped files for ``seq``'s camera kind and the flow estimator named ``flow``."""
-    from deepslam.vo import models
+    from deepslam.vo.modelfiles import models
 
     kind = models.kind_for_sequence(seq)
     return [models.shipped_path(kind, which, flow) for which in ("cons", "loops")]
@@ -128,13 +128,13 @@ def cached_case(path: Path, models_sha256: dict[str, str], commit: str) -> dict 
 
 def _odometry(seq, flow: str):
     """The shipped (NN_cons, NN_loops) for ``seq``'s camera kind and ``flow``, each on the flow set up as
-    its file records (:func:`vo.models.flow_for_model`)."""
-    from deepslam.vo import models
+    its file records (:func:`vo.modelfiles.models.flow_for_model`)."""
+    from deepslam.vo.odometry import model_odometry
 
     cons, loops = _shipped_paths(seq, flow)
     # as deepslam slam runs them: NN_cons in the mode its file records, NN_loops in the epipolar mode with its own
     # distance (slam.plugins.odometries)
-    return models.odometry(cons, flow, True), models.odometry(loops, flow, True, pose="epipolar", scale="network")
+    return model_odometry(cons, flow, True), model_odometry(loops, flow, True, pose="epipolar", scale="network")
 
 
 def _loop_record(seq, loops, res) -> dict | None:

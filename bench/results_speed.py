@@ -51,12 +51,14 @@ def _sweep(name: str, model: str, flow: str, seq, kind: str, cfg: ResultsSpeedCo
     """One model's sweep on one sequence's frames (``kind``: ``rendered`` or ``stereo`` depth). ``loaded``
     keeps that sequence's frames for the next candidate (stereo depth of 06 is seconds a load): the images at
     their size for every estimator, the depth at twice a model's input size for the exact flow."""
-    from deepslam.vo import models, scale_sweep
-    from deepslam.vo.frames import load_frames, load_image_frames
-    from deepslam.vo.synthetic import EstimatedFlowSource, SyntheticSource
+    from deepslam.studies import scale_sweep
+    from deepslam.vo.data.frames import load_frames, load_image_frames
+    from deepslam.vo.data.synthetic import EstimatedFlowSource, SyntheticSource
+    from deepslam.vo.modelfiles import models
+    from deepslam.vo.odometry import load_predictor
 
     path, shipped = models.locate(model, None, flow=None if flow == "exact" else flow)
-    pred = models.load(path, shipped)
+    pred = load_predictor(path, shipped)
     h, w = pred.input_size
     unknown = pred.model.cfg.unknown_flow
 

@@ -4,11 +4,11 @@ Rows: (a) ``tum_cons`` (the default for TUM: simulated rooms only, never a frame
 rendered views, the solve pose head), (b) ``tum_cons_teddy`` (the paper's unsupervised adaptation: the
 same rooms plus teddy's single frames, no poses; trained on DIS flow of rendered views with DIS's
 textureless pixels left out, ``--dis-min-texture``; the solve pose head,
-:mod:`vo.posesolve`, which also reads each frame's sensor depth), each as VO and as SLAM (with ``tum_loops``), each
-on DIS set up as its model was trained (:func:`vo.models.flow_for_model`); baselines measured in the
+:mod:`vo.geometry.posesolve`, which also reads each frame's sensor depth), each as VO and as SLAM (with ``tum_loops``), each
+on DIS set up as its model was trained (:func:`vo.modelfiles.models.flow_for_model`); baselines measured in the
 same run: standing still (every pose the first), the classical plug-in ``pnp`` (SIFT + PnP-RANSAC
 with the sensor depth) and the dense fit of DIS's flow with the sensor depth (the solve head with every
-weight 1), by least squares and Cauchy-reweighted (:func:`vo.posesolve.solve_pose`). ATE after se3 and sim3 alignment (evo's definition), RPE per frame, on the
+weight 1), by least squares and Cauchy-reweighted (:func:`vo.geometry.posesolve.solve_pose`). ATE after se3 and sim3 alignment (evo's definition), RPE per frame, on the
 frames the ground truth covers. Targets: VO ATE <= 0.05 m, SLAM no worse than VO. Writes
 results.json, results.md and trajectories.png into ``out/results/tum`` (``python -m bench.results_tum``,
 about 2.5 minutes).
@@ -57,9 +57,10 @@ def run(cfg: ResultsTumConfig, out: Path, data: Path) -> dict:
     from deepslam.core.readers import open_sequence
     from deepslam.slam.pipeline import PipelineConfig, SlamParams, run_slam
     from deepslam.slam.plugins import load_odometry
-    from deepslam.vo import models
+    from deepslam.vo.geometry.posesolve import unit_weight_net
     from deepslam.vo.infer import VOPredictor, chain_euler6
-    from deepslam.vo.posesolve import unit_weight_net
+    from deepslam.vo.modelfiles import models
+    from deepslam.vo.odometry import model_odometry
 
     seq = open_sequence(data / TEDDY)
     n = len(seq) if cfg.end <= 0 else min(cfg.end, len(seq))
@@ -78,7 +79,7 @@ def run(cfg: ResultsTumConfig, out: Path, data: Path) -> dict:
     add("pnp (SIFT + PnP with sensor depth)", "-", chain_euler6(pnp.predict(seq, pairs)[0]), "VO")
     sub = seq if n == len(seq) else _head(seq, n)
     loops_path = models.models_dir() / "tum_loops.safetensors"
-    loops = models.odometry(loops_path, cfg.flow, pose="epipolar", scale="network")  # as deepslam slam runs NN_loops
+    loops = model_odometry(loops_path, cfg.flow, pose="epipolar", scale="network")  # as deepslam slam runs NN_loops
     shipped = {}
     for name, seen in (("tum_cons", "none"), ("tum_cons_teddy", "single frames, no poses")):
         path = models.models_dir() / f"{name}.safetensors"

@@ -1,7 +1,7 @@
 """Does a KITTI model read a turning camera's sideways slide as more yaw, or a straight street's layout as a turn?
 
 A car's camera that turns also slides sideways (KITTI 00-05, 08-10: t_x = 0.88 x yaw x forward metres,
-:data:`deepslam.vo.scale_sweep.SLIDE_PER_YAW_PER_M`). Single frames of a held-out simulated street
+:data:`deepslam.studies.scale_sweep.SLIDE_PER_YAW_PER_M`). Single frames of a held-out simulated street
 (seed 7, never trained on) and of the real KITTI 06 slice (stereo depth; its single frames were in the
 shipped models' training, without poses) are turned by +-0.04 rad at 0.5 and 1.0 m forward, without and
 with that slide, and driven straight 1 m a frame as they are and mirrored left-right, by single-frame
@@ -28,12 +28,14 @@ STRAIGHT_M = 1.0
 
 
 def _reads(name: str, model: str, flow: str, frames) -> dict:
-    from deepslam.vo import models, scale_sweep
-    from deepslam.vo.frames import with_mirrored
-    from deepslam.vo.synthetic import EstimatedFlowSource
+    from deepslam.studies import scale_sweep
+    from deepslam.vo.data.frames import with_mirrored
+    from deepslam.vo.data.synthetic import EstimatedFlowSource
+    from deepslam.vo.modelfiles import models
+    from deepslam.vo.odometry import load_predictor
 
     path, shipped = models.locate(model, None, flow=flow)
-    pred = models.load(path, shipped)
+    pred = load_predictor(path, shipped)
     h, w = pred.input_size
     options = {"preset": "medium", **models.recorded_flow_options(path, "dis")} if flow == "dis" else {}
 
@@ -55,9 +57,9 @@ def run(candidates: list[tuple[str, str, str]], out: Path, data_dir: Path) -> di
     from bench.results_common import write_report
     from deepslam.core.errors import InputError
     from deepslam.core.readers import open_sequence
+    from deepslam.studies import scale_sweep
     from deepslam.studies.demo import render_once
-    from deepslam.vo import scale_sweep
-    from deepslam.vo.frames import load_image_frames
+    from deepslam.vo.data.frames import load_image_frames
 
     out.mkdir(parents=True, exist_ok=True)
     scene, traj, n, width, seed = HELDOUT

@@ -82,7 +82,7 @@ def _train(run_command, log, out: Path, mode: str, which: str, seed: int, cfg: R
     args = ["train", "--mode", mode, "--net", cfg.net, "--nll-epochs", str(cfg.nll_epochs), "--seed", str(seed),
             "--out", str(out), "--quiet"]
     if mode == "synthetic":
-        from deepslam.vo.models import models_dir
+        from deepslam.vo.modelfiles.models import models_dir
 
         args += ["--source", *train_dirs, *extra_frames, "--motion",
                  str(models_dir() / "motion" / cfg.motion) + (":loops" if which == "loops" else ""), "--samples-per-epoch", str(cfg.samples_per_epoch),
@@ -100,14 +100,14 @@ def _train(run_command, log, out: Path, mode: str, which: str, seed: int, cfg: R
 def _supervised_pairs(train_dirs: list[str], which: str) -> int:
     """How many pairs ``deepslam train --mode supervised`` makes of the training renders (its defaults)."""
     from deepslam.core.readers import open_sequence
-    from deepslam.vo.supervised import PairSpec, frame_pairs
+    from deepslam.vo.data.supervised import PairSpec, frame_pairs
 
     spec = PairSpec(kind="consecutive" if which == "cons" else "loops")
     return sum(len(frame_pairs(open_sequence(d).gt.world_from_cam, spec)) for d in train_dirs)
 
 
 def _loop_pairs(seq, cfg: ResultsVOConfig) -> np.ndarray:
-    from deepslam.vo.supervised import PairSpec, frame_pairs
+    from deepslam.vo.data.supervised import PairSpec, frame_pairs
 
     return frame_pairs(seq.gt.world_from_cam, PairSpec(kind="loops", loop_min_gap_frames=cfg.loop_min_gap_frames,
                                                        loop_max_distance_m=cfg.loop_max_distance_m,
@@ -137,8 +137,8 @@ def evaluate_street(seq, cons: Path, loops: Path, flow: str, cfg: ResultsVOConfi
     """VO, loop-pair and SLAM figures of one (NN_cons, NN_loops) on the held-out street."""
     from deepslam.core import metrics
     from deepslam.slam.pipeline import run_slam
-    from deepslam.vo import models
     from deepslam.vo.infer import VOPredictor
+    from deepslam.vo.modelfiles import models
 
     # each model on the flow its file records (DIS's defaults where it records none)
     est_cons, est_loops = models.flow_for_model(flow, cons), models.flow_for_model(flow, loops)
@@ -160,8 +160,8 @@ def evaluate_vo(seq, cons: Path, flow: str, pose: str = "net") -> dict:
     from deepslam.core import metrics
     from deepslam.core.trajectory import Trajectory
     from deepslam.slam.pipeline import consecutive_pairs
-    from deepslam.vo import models
     from deepslam.vo.infer import VOPredictor, chain_euler6
+    from deepslam.vo.modelfiles import models
 
     p = VOPredictor.from_file(cons)
     mean6, _ = p.predict_pairs(seq, consecutive_pairs(len(seq)), models.flow_for_model(flow, cons), progress=False,
@@ -223,7 +223,7 @@ def run(cfg: ResultsVOConfig, out: Path, data: Path) -> dict:
     import hashlib
 
     from bench.results_common import reuse_only_with_same_settings
-    from deepslam.vo.models import models_dir
+    from deepslam.vo.modelfiles.models import models_dir
 
     motion = models_dir() / "motion" / cfg.motion
     reuse_only_with_same_settings(out, {"config": dataclasses.asdict(cfg), "motion_sha256": hashlib.sha256(

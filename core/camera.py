@@ -201,3 +201,8 @@ class PinholeCamera:
     @classmethod
     def from_dict(cls, d: dict) -> "PinholeCamera":
         return cls(int(d["width"]), int(d["height"]), float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]))
+
+
+KITTI_00_CAMERA = PinholeCamera(1241, 376, 718.856, 718.856, 607.1928, 185.2157)
+"""The left grey camera of KITTI odometry sequences 00-02 (``P0`` of their calib.txt): 1241 x 376 px; the
+camera of ``deepslam train --toy`` samples, of tests and of benchmarks that need a street camera's shape."""

@@ -24,7 +24,7 @@ Estimators are made by name from a registry (:func:`deepslam.flow.registry.make`
 A learned estimator (RAFT, PWC-Net...) is added by registering a factory that returns an object with
 ``name``, ``estimate(img0, img1)`` and, if it can do better than reading the two images,
 ``pair_flow(seq, i, j)``. One that offers ``replica()`` (an estimator with the same settings, giving
-the same flows, that another thread may use while this one runs) lets :class:`vo.prefetch.PairInputs`
+the same flows, that another thread may use while this one runs) lets :class:`vo.data.prefetch.PairInputs`
 compute several pairs at once (DIS does: each replica single-threaded, one per core).
 """
 from __future__ import annotations
@@ -227,7 +227,7 @@ def exact_pair_flow(seq, i: int, j: int) -> np.ndarray:
     moved with the static scene (their own motion between distant frames is not recorded).
     """
     # deferred: torch (and gen.flow, which imports it) take seconds to load, and the header-only readers
-    # (vo.prefetch) import this module before torch is needed
+    # (vo.data.prefetch) import this module before torch is needed
     import torch
 
     from deepslam.gen.flow import synthesize_flow
@@ -287,7 +287,7 @@ covers no known pixel at all (what a :attr:`vo.net.NetConfig.valid_channel` netw
 
 def unknown_flow(valid_channel: bool) -> str:
     """How a network reads unknown flow (:data:`UNKNOWN_FLOW`): ``nan`` with a validity channel, else
-    ``zero`` (:attr:`vo.net.NetConfig.unknown_flow`; the header-only reader in :mod:`vo.prefetch`)."""
+    ``zero`` (:attr:`vo.net.NetConfig.unknown_flow`; the header-only reader in :mod:`vo.data.prefetch`)."""
     return "nan" if valid_channel else "zero"
 
 

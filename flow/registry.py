@@ -82,15 +82,7 @@ def estimator_options(name: str, dis_preset: str | None = "medium", dis_min_text
 
 DIS_FLAGS = ("dis_preset", "dis_min_texture", "dis_fb_check", "dis_max_width", "dis_patch_stride")
 """The command line's DIS flags as namespace attributes (``--dis-preset`` -> ``dis_preset``), in
-:func:`estimator_options`' order; ``deepslam.commands._dis_flags`` defines them."""
-
-
-def given_estimator_options(name: str, args) -> dict:
-    """:func:`estimator_options` for ``name`` from the :data:`DIS_FLAGS` attributes of a parsed command line
-    ``args`` (an attribute absent or None: not given), with the options not given left out: what overrides a
-    model file's record (:func:`vo.models.flow_for_model`). InputError as :func:`estimator_options`."""
-    options = estimator_options(name, *(getattr(args, flag, None) for flag in DIS_FLAGS))
-    return {k: v for k, v in options.items() if v is not None}
+:func:`estimator_options`' order; ``deepslam.commands._dis_flags`` defines them and reads them (:func:`deepslam.commands._dis_flags.given_options`)."""
 
 
 def names() -> list[str]:

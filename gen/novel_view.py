@@ -5,7 +5,7 @@ time the network sees the flow of an estimator (here OpenCV DIS), whose errors a
 it under-reads the large flow near the camera, and the network, which reads metric scale mostly from
 there, under-reads translation (see models/README.md). Rendering the second view from the same single
 frame lets the estimator run on the synthetic pair, so a network can be trained on the flow it will
-really be given (:class:`vo.synthetic.EstimatedFlowSource`) -- still from single frames, still without any
+really be given (:class:`vo.data.synthetic.EstimatedFlowSource`) -- still from single frames, still without any
 ground-truth pose.
 
 How (:func:`render_novel_view`), for frame 0 (image, depth_z) and ``cam1_from_cam0``:

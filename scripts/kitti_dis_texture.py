@@ -18,10 +18,10 @@ import numpy as np
 
 def main(argv: list[str]) -> int:
     from deepslam.core.readers import open_sequence
+    from deepslam.flow import estimators as fe, registry
     from deepslam.gen.flow import synthesize
     from deepslam.gen.novel_view import render_novel_view
-    from deepslam.flow import estimators as fe, registry
-    from deepslam.vo.frames import _depth_source, _frame_depth
+    from deepslam.vo.data.frames import _depth_source, _frame_depth
 
     seq = open_sequence(argv[0] if argv else "../shared/data/kitti/sequences/06")
     how = _depth_source(seq, "auto")

@@ -1,5 +1,5 @@
 """The solve pose head with every weight 1: an untrained model file whose pose is the plain Gauss-Newton
-least-squares fit of the flow with the frame's depth (:mod:`vo.posesolve`; the weight network's last
+least-squares fit of the flow with the frame's depth (:mod:`vo.geometry.posesolve`; the weight network's last
 layer starts at 0). A classical dense flow + depth baseline that runs through the same `deepslam vo`
 path as the learned models; the network shape and the DIS record (``meta.flow``) are copied from
 REFERENCE, so it reads the same flow at the same resolution:
@@ -18,8 +18,8 @@ def main(argv: list[str]) -> int:
     p.add_argument("out")
     args = p.parse_args(argv)
 
-    from deepslam.vo.posesolve import unit_weight_net
-    from deepslam.vo.modelio import load_model, save_model
+    from deepslam.vo.geometry.posesolve import unit_weight_net
+    from deepslam.vo.modelfiles.modelio import load_model, save_model
 
     ref, meta = load_model(args.reference)
     out_meta = {"untrained": "solve head, every weight 1"}

@@ -36,7 +36,7 @@ DISCOMMON="--synthetic-flow dis --dis-preset medium --dis-min-texture 0.5 --appe
 train $D/tum_cons_teddy_dis --source $ROOMS $TEDDY --motion models/motion/euroc_s1_30hz.json $DISCOMMON
 # the solve pose head (about 35 minutes on 2 cores without
 # AVX-512): the same data, the network weighs each pixel and the pose is the weighted Gauss-Newton fit of the flow
-# with the frame's depth (vo/posesolve.py); 10 epochs; float32 (--bf16 off: as it was trained, on any machine)
+# with the frame's depth (vo/geometry/posesolve.py); 10 epochs; float32 (--bf16 off: as it was trained, on any machine)
 SOLVE="--depth-channel --valid-channel --pose-head solve --bf16 off"
 train $D/tum_cons_teddy_solve --source $ROOMS $TEDDY --motion models/motion/euroc_s1_30hz.json $DISCOMMON $SOLVE --max-epochs 10
 # and on the rooms alone (the default for TUM, tum_cons, with the Cauchy kernel set below)
@@ -46,7 +46,7 @@ train $D/tum_cons_solve --source $ROOMS --motion models/motion/euroc_s1_30hz.jso
 # 0.5 px (occlusions, wrong matches), in training and, from the file's record, in vo/slam
 train $D/tum_cons_teddy_fb --source $ROOMS $TEDDY --motion models/motion/euroc_s1_30hz.json $DISCOMMON $SOLVE --max-epochs 10 \
     --dis-fb-check 0.5
-# the Cauchy kernel in the solve (vo/posesolve.py): reweighted from the
+# the Cauchy kernel in the solve (vo/geometry/posesolve.py): reweighted from the
 # second Gauss-Newton step on, 6 steps. The shipped files are the models above with the kernel set at test time
 # (deepslam set-solve: the same weights); retrained with the kernel in the loop, on the rooms alone (not shipped: it
 # read teddy's motion x1.056 of the pnp one) and on rooms + teddy (about 20 minutes each on 2 cores with AVX-512)

@@ -59,7 +59,7 @@ $DS vo --sequence $TEDDY --model $D/10hz18/model.safetensors --stride 3 --out $D
 # loss against teddy_tex30's. Trained on a machine without AVX-512/AMX, so in float32 (bf16 autocast: auto = off there).
 train $D/teddy_tex30_valid $M30 $TEX --source $ROOMS $TEDDY --max-epochs 30 --valid-channel
 $DS vo --sequence $TEDDY --model $D/teddy_tex30_valid/model.safetensors --out $D/teddy_tex30_valid/teddy.txt --quiet
-# 2026-12-02: the solve pose head (--pose-head solve, vo/posesolve.py: the network weighs each pixel
+# 2026-12-02: the solve pose head (--pose-head solve, vo/geometry/posesolve.py: the network weighs each pixel
 # and the pose is the weighted Gauss-Newton fit of the flow with the frame's depth; it needs both channels). The shipped
 # recipe's data at 10 epochs; criterion fixed before training: the held-out synthetic loss against tum_cons_teddy's
 # (0.000343). Trained in float32 (a machine without AVX-512/AMX).

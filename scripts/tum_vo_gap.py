@@ -4,7 +4,7 @@ For every 2nd consecutive pair of the slice, the motion the classical ``pnp`` pl
 PnP-RANSAC with the sensor depth; no ground-truth pose is used) is the reference. Each model reads
 three flows of the pair: the exact flow synthesized from frame i's sensor depth and that motion, DIS
 on the view rendered from frame i with that motion (what ``train --synthetic-flow dis`` trains on),
-and DIS on the real pair. DIS is set up as the model was trained (:func:`vo.models.flow_for_model`),
+and DIS on the real pair. DIS is set up as the model was trained (:func:`vo.modelfiles.models.flow_for_model`),
 and where that leaves textureless pixels out the exact flow leaves out the same pixels. Printed per
 model and flow: the median ratio of the translation read to the reference's, and the median
 translation (cm) and rotation (deg) errors. The exact row is the network's own error; the step to
@@ -31,13 +31,13 @@ def main(argv: list[str]) -> int:
 
     from deepslam.core import se3
     from deepslam.core.readers import open_sequence
+    from deepslam.flow import estimators as fe
     from deepslam.gen.flow import synthesize
     from deepslam.gen.novel_view import render_novel_view
     from deepslam.slam.classical import make_pnp
-    from deepslam.flow import estimators as fe
-    from deepslam.vo import models
-    from deepslam.vo.frames import frame_inverse_depth
+    from deepslam.vo.data.frames import frame_inverse_depth
     from deepslam.vo.infer import VOPredictor
+    from deepslam.vo.modelfiles import models
 
     seq = open_sequence(args.sequence)
     pairs = [(i, i + 1) for i in range(0, len(seq) - 1, 2)]

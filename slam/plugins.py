@@ -38,7 +38,7 @@ from deepslam.core.errors import InputError
 from deepslam.core.plugins import ENTRY_POINT_GROUPS, load_factory
 from deepslam.core.trajio import read_trajectory_and_format
 from deepslam.slam.odometry import GroundTruthOdometry, NoiseConfig, check_prediction
-from deepslam.vo import models
+from deepslam.vo.modelfiles import models
 
 ENTRY_POINT_GROUP = ENTRY_POINT_GROUPS["odometry"]
 """Entry-point group of odometry plugins (``NAME = "module:factory"``)."""
@@ -366,6 +366,7 @@ def odometries(opts: OdometryOptions, seq):
         return cons, loops
     # deferred: it imports torch; plug-in and gt-noisy odometries (and vo/slam --help) stay torch-free
     from deepslam.runtime.device import resolve_device
+    from deepslam.vo.odometry import model_odometry
 
     device = resolve_device(opts.device)
     given = dict(opts.flow_options)
@@ -380,8 +381,8 @@ def odometries(opts: OdometryOptions, seq):
         if key not in estimators:
             estimators[key] = models.flow_for_model(opts.flow, path, recorded, **given)
         flow = estimators[key]
-        return models.load(path, shipped, device=device).as_odometry(flow, progress=opts.progress,
-                                                                    epipolar=models.epipolar_config(path, pose, scale))
+        return model_odometry(path, opts.flow, shipped, opts.progress, pose, scale=scale, estimator=flow,
+                              device=device)
 
     cons = odometry(opts.model_cons, "cons", pose)
     # loop pairs: the rotation and direction of the loop pair's flow where its fit serves, NN_loops' distance (a

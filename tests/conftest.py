@@ -75,7 +75,7 @@ def drive(n: int, speed_m: float = 0.8, yaw_rate_rad: float = 0.02) -> np.ndarra
 
 
 def write_plane_sequence(root: Path, n: int = 12, width: int = 256, height: int = 80, seed: int = 0) -> Path:
-    from deepslam.vo.toy import flow_from_depth_np
+    from deepslam.vo.data.toy import flow_from_depth_np
 
     camera = PinholeCamera(width, height, 0.58 * width, 0.58 * width, (width - 1) / 2, (height - 1) / 2 - 0.15 * height)
     tex = ground_texture(np.random.default_rng(seed))
@@ -127,9 +127,9 @@ def motion_json(tmp_path_factory) -> Path:
 def street_model(plane_sequence, tmp_path_factory) -> Path:
     """A tiny model trained on ground-plane flows seen by the test sequence's camera."""
     from deepslam.core.readers import open_sequence
+    from deepslam.vo.data.samples import TensorSamples
+    from deepslam.vo.data.toy import toy_motion_sampler, toy_plane_samples
     from deepslam.vo.net import NetConfig
-    from deepslam.vo.samples import TensorSamples
-    from deepslam.vo.toy import toy_motion_sampler, toy_plane_samples
     from deepslam.vo.train import TrainConfig, train
 
     seq = open_sequence(plane_sequence)

@@ -56,7 +56,7 @@ def test_one_top_level_name_and_models_as_package_data(installed):
     for generic in ("core", "sim", "gen", "vo", "slam", "scenes", "bench", "tests"):
         r = _run(installed, "-c", f"import {generic}")
         assert r.returncode != 0, f"a top-level package {generic!r} is importable from the install"
-    r = _run(installed, "-c", "import deepslam.core.se3 as m, deepslam.vo.models as vm; print(m.__file__); "
+    r = _run(installed, "-c", "import deepslam.core.se3 as m, deepslam.vo.modelfiles.models as vm; print(m.__file__); "
                               "print(vm.models_dir()); print(vm.shipped_path('kitti'))")
     assert r.returncode == 0, r.stderr
     se3_file, models, kitti = r.stdout.split()

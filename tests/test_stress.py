@@ -9,11 +9,11 @@ import cv2
 import numpy as np
 import pytest
 
+from deepslam.cli import main
 from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
-from deepslam.core.errors import InputError
-from deepslam.cli import main
 from deepslam.core.dynamic import dynamic_fraction
+from deepslam.core.errors import InputError
 from deepslam.slam.compare import plugin_key
 from deepslam.slam.rigid_fit import RigidFitOdometry
 from deepslam.studies.stress import Setting, StressConfig, run_stress, setting_scene
@@ -171,7 +171,7 @@ def test_rigid_fit_recovers_motion_and_is_pulled_by_a_mover():
 
 def test_falls_back_to_rigid_fit_with_a_note_when_no_model_is_shipped(tmp_path, monkeypatch):
     from deepslam.studies.stress import make_odometries
-    from deepslam.vo import models
+    from deepslam.vo.modelfiles import models
 
     monkeypatch.setattr(models, "models_dir", lambda: tmp_path)  # an empty models/ folder
     odo = make_odometries(StressConfig())

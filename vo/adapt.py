@@ -31,12 +31,12 @@ from deepslam.core.outputs import check_output_not_input
 from deepslam.core.readers import open_sequence
 from deepslam.core.textio import read_json_object
 from deepslam.models import models_dir
-from deepslam.vo import modeltree
-from deepslam.vo.modelio import load_model
-from deepslam.vo.recipe import SyntheticData, synthetic_sources
+from deepslam.vo.data.recipe import SyntheticData, synthetic_sources
+from deepslam.vo.modelfiles import modeltree
+from deepslam.vo.modelfiles.modelio import load_model
+from deepslam.vo.net import NetConfig
 from deepslam.vo.train import train
 from deepslam.vo.trainconfig import TrainConfig
-from deepslam.vo.net import NetConfig
 
 
 @dataclasses.dataclass(frozen=True)

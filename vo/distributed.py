@@ -7,7 +7,7 @@ on a GPU machine). Then, in :func:`vo.train.train`:
 
 - every rank builds the same model (same seed) and DDP averages the gradients, so all ranks hold the
   same weights after every step;
-- every batch of ``--batch`` samples is split across the ranks (:meth:`vo.samples.TensorSamples.batches`
+- every batch of ``--batch`` samples is split across the ranks (:meth:`vo.data.samples.TensorSamples.batches`
   ``rank::world``; on-the-fly sources make only their rank's share, from the rank's own seed stream):
   no sample is drawn twice, and with K ranks one step sees the same samples as one process would;
 - the sample and time caps are agreed on by all ranks every step (the counts are summed, a stop on

@@ -16,11 +16,11 @@ from tqdm import tqdm
 from deepslam.core import se3
 from deepslam.flow.estimators import to_network_input
 from deepslam.flow.images import to_grey
-from deepslam.vo.epipolar import EpipolarFitter, fuse_all
-from deepslam.vo.frames import frame_inverse_depth
-from deepslam.vo.modelio import load_model
-from deepslam.vo.prefetch import PairInputs
-from deepslam.vo.road_scale import road_image
+from deepslam.vo.data.frames import frame_inverse_depth
+from deepslam.vo.data.prefetch import PairInputs
+from deepslam.vo.geometry.epipolar import EpipolarFitter, fuse_all
+from deepslam.vo.geometry.road_image import road_image
+from deepslam.vo.modelfiles.modelio import load_model
 
 
 @functools.lru_cache(maxsize=1)
@@ -117,20 +117,20 @@ class VOPredictor:
                       chunk: int = 64, inputs=None, epipolar=None,
                       fits_out: list | None = None, road_out: list | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Flow for every pair (i, j) of ``seq`` by ``flow_estimator`` (and, for a depth-channel
-        network, frame i's depth: :func:`vo.frames.frame_inverse_depth`), then 6DoF of cam_j_from_cam_i.
+        network, frame i's depth: :func:`vo.data.frames.frame_inverse_depth`), then 6DoF of cam_j_from_cam_i.
 
-        The flows are computed in a background thread (:class:`vo.prefetch.PairInputs`) while the
-        network runs on the previous chunk. ``inputs``: a :class:`vo.prefetch.PairInputs` the caller
+        The flows are computed in a background thread (:class:`vo.data.prefetch.PairInputs`) while the
+        network runs on the previous chunk. ``inputs``: a :class:`vo.data.prefetch.PairInputs` the caller
         started earlier for the same pairs (``deepslam vo`` starts it before loading torch); one made
         for another input size, or without the epipolar fit asked for, is closed and replaced.
 
-        ``epipolar``: a :class:`vo.epipolar.EpipolarConfig` to take each pair's rotation and direction of
+        ``epipolar``: a :class:`vo.geometry.epipolar.EpipolarConfig` to take each pair's rotation and direction of
         travel from the essential matrix of its full-resolution flow and only the distance from the
         network (``deepslam vo --pose epipolar``; pairs the fit cannot serve keep the network's motion);
         ``(fit, used)`` of each pair, in the order of the pairs, is appended to ``fits_out`` when given
-        (``used``: :func:`vo.epipolar.fuse` took the fit), and the sequence's
-        :class:`vo.epipolar.RoadDistances` to ``road_out`` (with a road height in ``epipolar``: the images of
-        pairs whose flow shows no usable road are read again for :func:`vo.road_scale.image_road_q`). The
+        (``used``: :func:`vo.geometry.epipolar.fuse` took the fit), and the sequence's
+        :class:`vo.geometry.epipolar.RoadDistances` to ``road_out`` (with a road height in ``epipolar``: the images of
+        pairs whose flow shows no usable road are read again for :func:`vo.geometry.road_image.image_road_q`). The
         std stays the network's.
 
         Returns (mean6, std6): float64 (P, 6) in the order of ``pairs``.
@@ -200,7 +200,7 @@ class PredictorOdometry:
                                             epipolar=self.epipolar)
 
     def predict_verified(self, seq, pairs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:meth:`predict` and, per pair, whether its flow fits one rigid motion (:attr:`vo.epipolar.EpipolarFit.rigid`):
+        """:meth:`predict` and, per pair, whether its flow fits one rigid motion (:attr:`vo.geometry.epipolar.EpipolarFit.rigid`):
         ((P, 6), (P, 6) float64, (P,) bool). Without an epipolar fit nothing is checked (all True)."""
         if self.epipolar is None:
             mean6, std6 = self.predict(seq, pairs)

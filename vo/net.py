@@ -35,6 +35,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from deepslam.core.errors import InputError
 from deepslam.flow.estimators import unknown_flow
 
 
@@ -78,7 +79,7 @@ class NetConfig:
     (:func:`flow.estimators.resize_flow` with ``unknown="nan"``). False: unknown flow reads as 0."""
     pose_head: str = "regress"
     """How the pose is read: ``regress`` (the paper: convolutions, fully connected branches, a linear
-    output) or ``solve`` (:mod:`vo.posesolve`: a convolutional network weighs each pixel and the pose is
+    output) or ``solve`` (:mod:`vo.geometry.posesolve`: a convolutional network weighs each pixel and the pose is
     the weighted Gauss-Newton fit of the flow with the first frame's depth; needs ``depth_channel`` and
     ``valid_channel``; ``kernels``, ``strides`` and the hidden sizes are then unused)."""
     solve_iterations: int = 3
@@ -86,7 +87,7 @@ class NetConfig:
     solve_robust: str = "none"
     """Kernel of the ``solve`` head's residuals: ``none`` (weighted least squares) or ``cauchy``
     (iteratively reweighted from the second step on, scale from the residuals' median: see
-    :func:`vo.posesolve.solve_pose`). A model file without this field reads as ``none``."""
+    :func:`vo.geometry.posesolve.solve_pose`). A model file without this field reads as ``none``."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "kernels", tuple(int(k) for k in self.kernels))
@@ -149,6 +150,25 @@ PAPER = NetConfig()
 """The paper's configuration (96 x 320 input, 64 filters, 500 hidden units)."""
 
 
+NET_PRESETS = {
+    "paper": {},
+    "cpu": {"input_height": 48, "input_width": 160, "filters": 32, "hidden_units": 256, "flow_scale": 10.0},
+    "tiny": {"input_height": 24, "input_width": 80, "filters": 16, "hidden_units": 64, "flow_scale": 10.0},
+}
+"""Network presets (``deepslam train --net``): ``paper`` = the paper's (96 x 320, 64 filters, 500 units); ``cpu``
+trains in minutes on two cores; ``tiny`` is for tests and smoke runs."""
+
+
+def preset_config(preset: str, **overrides) -> NetConfig:
+    """:class:`NetConfig` of preset ``preset`` (:data:`NET_PRESETS`) with each override that is not None
+    (``NetConfig`` field names). InputError for settings the network cannot take."""
+    d = {**NET_PRESETS[preset], **{k: v for k, v in overrides.items() if v is not None}}
+    try:
+        return NetConfig(**d)
+    except ValueError as e:
+        raise InputError(None, f"bad network settings: {e}") from None
+
+
 def _branch(n_in: int, cfg: NetConfig) -> nn.Sequential:
     layers: list[nn.Module] = []
     for _ in range(cfg.hidden_layers):
@@ -158,7 +178,7 @@ def _branch(n_in: int, cfg: NetConfig) -> nn.Sequential:
 
 
 class PoseNet(nn.Module):
-    """What both pose heads share (:class:`FlowPoseNet`, :class:`vo.posesolve.FlowSolvePoseNet`): the
+    """What both pose heads share (:class:`FlowPoseNet`, :class:`vo.geometry.posesolve.FlowSolvePoseNet`): the
     input tensor (:func:`network_input`), the split of the parameters between the two training stages
     (the log-std heads ``rot_log_std`` and ``trans_log_std`` against the rest), the memory format, and
     ``forward = (mean_head, log_std_head) of trunk``."""
@@ -256,7 +276,7 @@ def register_input_buffers(net: nn.Module, cfg: NetConfig) -> None:
     resolution (buffers, not saved), and ``channels_last`` (False).
 
     The buffers are made on the CPU under any device context (``.to`` moves them with the network): under
-    ``torch.device("meta")``, where :func:`vo.modelio.load_model` checks a file's shapes, these few ops would run
+    ``torch.device("meta")``, where :func:`vo.modelfiles.modelio.load_model` checks a file's shapes, these few ops would run
     through torch's Python meta kernels, whose first use imports ``torch._dynamo`` (seconds a process)."""
     cpu = torch.device("cpu")
     size = torch.tensor([cfg.input_width, cfg.input_height], dtype=torch.float32, device=cpu).view(1, 2, 1, 1)

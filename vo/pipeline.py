@@ -17,8 +17,9 @@ import numpy as np
 
 from deepslam.core.errors import InputError
 from deepslam.core.trajectory import check_finite_poses
-from deepslam.vo import models, modeltree
 from deepslam.vo.infer import chain_euler6
+from deepslam.vo.modelfiles import models, modeltree
+from deepslam.vo.odometry import load_predictor
 
 POSES = ("net", "epipolar")
 """Pose modes: the network's 6DoF, or rotation and direction from the essential matrix of the flow."""
@@ -164,7 +165,7 @@ def _network(seq, pairs: np.ndarray, cfg: VOConfig) -> tuple[np.ndarray, np.ndar
     """(mean6, std6, name, record) of the network odometry over ``pairs``."""
     # deferred: torch and the flow workers load only when a network runs (a plug-in run stays torch-free)
     from deepslam.runtime.device import resolve_device
-    from deepslam.vo.prefetch import PairInputs, model_input
+    from deepslam.vo.data.prefetch import PairInputs, model_input
 
     model_path, shipped = models.locate(cfg.model, seq, flow=cfg.flow)
     recorded_seq = seq
@@ -182,13 +183,13 @@ def _network(seq, pairs: np.ndarray, cfg: VOConfig) -> tuple[np.ndarray, np.ndar
                                "direction)")
     fitter = None
     if epi is not None:
-        from deepslam.vo.epipolar import EpipolarFitter  # deferred with the flow workers above
+        from deepslam.vo.geometry.epipolar import EpipolarFitter  # deferred with the flow workers above
 
         fitter = EpipolarFitter(epi)
     inputs = None if spec is None else PairInputs(seq, pairs, estimator, spec[1], spec[0], unknown=spec[2],
                                                   full_flow_fn=fitter)
     try:
-        predictor = models.load(model_path, shipped, batch_size=cfg.batch, bf16=cfg.bf16,
+        predictor = load_predictor(model_path, shipped, batch_size=cfg.batch, bf16=cfg.bf16,
                                 device=resolve_device(cfg.device))
     except BaseException:
         if inputs is not None:

@@ -19,7 +19,7 @@ heads: the stage costs one forward pass over the held-out set, not ``nll_epochs`
 
 Every epoch ends with an atomic checkpoint (``checkpoint.safetensors``: model, optimizer, scheduler, best
 weights, epoch, stage, history, RNG states, config). Data batches are a function of (seed, epoch)
-(:mod:`vo.samples`), so a run killed at any moment and resumed from its checkpoint ends with exactly
+(:mod:`vo.data.samples`), so a run killed at any moment and resumed from its checkpoint ends with exactly
 the weights of an uninterrupted run (same threads, same machine). A non-finite loss raises
 :class:`TrainingDiverged` and leaves the last good checkpoint in place.
 
@@ -44,9 +44,9 @@ from deepslam.core.errors import InputError
 from deepslam.core.plots import new_figure, save_figure
 from deepslam.runtime.training import CAPS, Caps, Runner, check_finite, open_run
 from deepslam.runtime.training import TrainingDiverged  # noqa: F401 - part of this module's API
-from deepslam.vo.samples import epoch_seed
+from deepslam.vo.data.samples import epoch_seed
 from deepslam.vo.distributed import agree, world
-from deepslam.vo.modelio import load_checkpoint, load_model, make_net, save_checkpoint, save_model
+from deepslam.vo.modelfiles.modelio import load_checkpoint, load_model, make_net, save_checkpoint, save_model
 from deepslam.vo.net import PoseNet, gaussian_nll, pose_loss
 from deepslam.vo.trainconfig import TrainConfig
 
@@ -60,7 +60,7 @@ HISTORY = "history.json"
 
 
 class Source(Protocol):
-    """A deterministic supplier of batches (see :mod:`vo.samples`, :mod:`vo.synthetic`)."""
+    """A deterministic supplier of batches (see :mod:`vo.data.samples`, :mod:`vo.data.synthetic`)."""
 
     def __len__(self) -> int: ...
 
@@ -150,7 +150,7 @@ class HeadInputs:
     without running the convolutions again (they cannot change while frozen).
 
     hr, ht: (N, hidden_units) float32 features of the rotation and translation branches (for a solve-head
-        network, :class:`vo.posesolve.FlowSolvePoseNet`: (N, 6) the solved pose and its log-std feature).
+        network, :class:`vo.geometry.posesolve.FlowSolvePoseNet`: (N, 6) the solved pose and its log-std feature).
     mean: (N, 6) float32 predicted paper vectors; target: (N, 6) float32 labels.
     """
 
@@ -255,7 +255,7 @@ def train(cfg: TrainConfig, train_source: Source, holdout_source: Source, out_di
 
     Args:
         cfg: the training configuration.
-        train_source, holdout_source: deterministic batch sources (:mod:`vo.samples`, :mod:`vo.synthetic`);
+        train_source, holdout_source: deterministic batch sources (:mod:`vo.data.samples`, :mod:`vo.data.synthetic`);
             the holdout set is stage 1's validation set and stage 2's training set.
         out_dir: output folder (``config.json``, ``checkpoint.safetensors``, ``history.json``, ``model.safetensors``,
             ``loss.png``).
@@ -508,3 +508,27 @@ def _plot_history(path: Path, history: list[dict]) -> None:
     axes[1].set(title="stage 2: Gaussian NLL (held-out)", xlabel="epoch")
     fig.tight_layout()
     save_figure(fig, path, dpi=90)
+
+
+def speed_summary(cfg, preset: str, data_meta: dict, n_train: int, n_hold: int) -> str:
+    """The settings that decide training speed, as the run's first lines (network, input, threads,
+    bf16, layout, data source, caps)."""
+    net = cfg.net
+    threads = cfg.threads or torch.get_num_threads()
+    if "shards" in data_meta:
+        source = f"deepslam gen shards in {data_meta['shards']}"
+    elif "toy_samples" in data_meta:
+        source = f"{data_meta['toy_samples']} toy ground-plane samples"
+    elif "frames" in data_meta:
+        flow = data_meta.get("synthetic_flow") or f"exact synthetic flow at {data_meta.get('synth_factor')}x, pooled"
+        pool = f", a pool of {data_meta['sample_pool']} samples" if data_meta.get("sample_pool") else ", fresh every epoch"
+        source = f"{data_meta['n_train_frames']} single frames -> {flow}{pool}"
+    else:
+        source = f"{data_meta.get('n_pairs')} real frame pairs ({data_meta.get('flow')} flow)"
+    caps = [f"{cfg.max_epochs} epochs"] + ([f"{cfg.max_samples} samples"] if cfg.max_samples else []) \
+        + ([f"{cfg.max_minutes:g} min"] if cfg.max_minutes else [])
+    return (f"network: {preset} preset, input {net.input_height}x{net.input_width}, {net.filters} filters, "
+            f"{net.hidden_units} units; batch {cfg.batch_size}; device {cfg.device}; torch threads {threads}; "
+            f"bf16 {'on' if cfg.bf16 else 'off'}; channels-last {'on' if cfg.channels_last else 'off'}\n"
+            f"data: {source}; {n_train} training + {n_hold} held-out samples per epoch; "
+            f"stops at {' / '.join(caps)} (whichever first), or when the learning rate falls below {cfg.lr_stop:g}")

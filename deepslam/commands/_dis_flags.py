@@ -1,7 +1,7 @@
 """The command-line flags that set DIS up: in ``deepslam train`` (what the model is trained on, and records) and,
 overriding a model's record at inference, in ``deepslam vo`` and ``deepslam slam``. Not a subcommand (no
-``NAME``): the CLI's discovery skips it. They set the attributes ``vo.flow_registry.DIS_FLAGS`` names, which
-``vo.flow_registry.given_estimator_options`` reads.
+``NAME``): the CLI's discovery skips it. They set the attributes ``flow.registry.DIS_FLAGS`` names, which
+:func:`given_options` reads into the typed options the library takes.
 """
 from __future__ import annotations
 
@@ -40,3 +40,16 @@ def add_arguments(p: argparse.ArgumentParser, training: bool = False) -> None:
                    help=_HELP["dis_max_width"] + tail.format("0"))
     p.add_argument("--dis-patch-stride", type=int, default=None, metavar="PX",
                    help=_HELP["dis_patch_stride"] + tail.format("the preset's"))
+
+
+def given_options(name: str, args: argparse.Namespace) -> tuple[tuple[str, object], ...]:
+    """:func:`flow.registry.estimator_options` for estimator ``name`` from the DIS flags of a parsed command line
+    (an attribute absent or None: not given), the options not given left out, as the sorted-by-flag pairs the
+    library's configs take (``VOConfig.flow_options``, ``OdometryOptions.flow_options``,
+    ``SyntheticData.flow_options``): what overrides a model file's record. InputError for a flag ``name`` does
+    not read."""
+    # deferred: the registry imports torch (the learned estimators); building a parser must not
+    from deepslam.flow.registry import DIS_FLAGS, estimator_options
+
+    options = estimator_options(name, *(getattr(args, flag, None) for flag in DIS_FLAGS))
+    return tuple((k, v) for k, v in options.items() if v is not None)

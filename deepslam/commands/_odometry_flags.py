@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import argparse
 
+from deepslam.commands import _dis_flags
+
 COMMAND_TIMEOUT_HELP = ("seconds the --odometry-command (or a Python plug-in's predict) may run on the sequence "
                         "(3600); a command runs without a shell: the template is split into arguments once and "
                         "{sequence}/{out} replaced inside them ({{ and }} for literal braces)")
@@ -34,12 +36,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def options(args: argparse.Namespace):
     """The :class:`slam.plugins.OdometryOptions` of parsed ``slam`` / ``tune-slam`` arguments."""
     # deferred: building the parser of every command (deepslam --help) must not import numpy
-    from deepslam.flow.registry import given_estimator_options
     from deepslam.slam.plugins import OdometryOptions
 
     return OdometryOptions(
         odometry=args.odometry, odometry_loops=args.odometry_loops, odometry_command=args.odometry_command,
         command_timeout_s=args.command_timeout, model_cons=args.model_cons, model_loops=args.model_loops,
-        flow=args.flow, flow_options=tuple(given_estimator_options(args.flow, args).items()),
+        flow=args.flow, flow_options=_dis_flags.given_options(args.flow, args),
         no_loops=bool(getattr(args, "no_loops", False)), pose=args.pose, device=args.device, gt_noise=args.gt_noise,
         gt_drift=args.gt_drift, seed=args.seed, progress=not (args.quiet or args.json))

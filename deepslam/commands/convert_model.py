@@ -18,7 +18,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from deepslam.vo.convert import convert_legacy
+    from deepslam.vo.modelfiles.convert import convert_legacy
 
     src = Path(args.model)
     dst = Path(args.out) if args.out else src.with_suffix(".safetensors")

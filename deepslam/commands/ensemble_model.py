@@ -19,7 +19,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from deepslam.core.outputs import check_output_not_input
-    from deepslam.vo.modelio import write_ensemble
+    from deepslam.vo.modelfiles.modelio import write_ensemble
 
     check_output_not_input(args.out, [("model", m) for m in args.models])
     meta = write_ensemble(args.models, args.out)

@@ -23,7 +23,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from deepslam.vo.models import write_with_pose
+    from deepslam.vo.modelfiles.models import write_with_pose
 
     write_with_pose(args.model, args.out, args.pose, args.scale)
     print(f"wrote {args.out}: pose {args.pose}" + (f", scale {args.scale}" if args.scale else ""))

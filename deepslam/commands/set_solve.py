@@ -20,7 +20,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from deepslam.vo.modelio import write_with_solve_kernel
+    from deepslam.vo.modelfiles.modelio import write_with_solve_kernel
 
     now = write_with_solve_kernel(args.model, args.out, args.robust, args.iterations)["solve_changed"]
     print(f"wrote {args.out}: solve {now['now']['robust']}, {now['now']['iterations']} steps "

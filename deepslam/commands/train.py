@@ -21,14 +21,6 @@ from deepslam.commands import _dis_flags
 NAME = "train"
 HELP = "train the flow->6DoF network: --mode synthetic (single frames + depth + motion model) or supervised"
 
-NET_PRESETS = {
-    "paper": {},
-    "cpu": {"input_height": 48, "input_width": 160, "filters": 32, "hidden_units": 256, "flow_scale": 10.0},
-    "tiny": {"input_height": 24, "input_width": 80, "filters": 16, "hidden_units": 64, "flow_scale": 10.0},
-}
-"""Network presets: ``paper`` = the paper's (96 x 320, 64 filters, 500 units); ``cpu`` trains in
-minutes on two cores; ``tiny`` is for tests and smoke runs."""
-
 
 def _ints(text: str) -> tuple[int, ...]:
     try:
@@ -77,11 +69,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--rate-hz", type=float, default=10.0, help="frame rate of the motion model, for --speed-range")
     g.add_argument("--camera-tilt-deg", default=None, metavar="PMIN:PMAX[:ROLL]",
                    help="rotate each sample's camera by a pitch drawn uniformly in [PMIN, PMAX] degrees (positive: "
-                        "looking down) and a roll in [-ROLL, ROLL], exactly from the single frame (vo.motion.CameraTilt); "
+                        "looking down) and a roll in [-ROLL, ROLL], exactly from the single frame (vo.data.motion.CameraTilt); "
                         "the road then sits at other rows, as under another camera mounting (KITTI's looks ~1 deg down)")
     g.add_argument("--scene-scale", default=None, metavar="MIN:MAX",
                    help="scale each sample's depth (the whole scene) by a factor drawn log-uniformly in [MIN, MAX] "
-                        "(vo.motion.SceneScale): the same frames then stand for nearer or farther worlds, so the "
+                        "(vo.data.motion.SceneScale): the same frames then stand for nearer or farther worlds, so the "
                         "same motion makes more or less parallax")
     g.add_argument("--missing-depth", choices=("infinity", "invalid"), default=None,
                    help="pixels without depth: points at infinity (rotation-only flow; a render's sky) or left out "
@@ -124,7 +116,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--flow", default="dis", help="flow estimator: dis or gt")
     _dis_flags.add_arguments(g, training=True)
     g = p.add_argument_group("network")
-    g.add_argument("--net", choices=sorted(NET_PRESETS), default="paper", help="preset, refined by the options below")
+    g.add_argument("--net", choices=("cpu", "paper", "tiny"), default="paper", help="preset, refined by the options below")
     g.add_argument("--height", type=int, help="input rows")
     g.add_argument("--width", type=int, help="input columns")
     g.add_argument("--filters", type=int)
@@ -179,32 +171,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def net_config(args):
-    from deepslam.vo.net import NetConfig
+    """The network the flags ask for: the ``--net`` preset (:data:`vo.net.NET_PRESETS`) with each architecture
+    flag given taking precedence."""
+    from deepslam.vo.net import preset_config
 
-    d = dict(NET_PRESETS[args.net])
-    for arg, field in (("height", "input_height"), ("width", "input_width"), ("filters", "filters"),
-                       ("kernels", "kernels"), ("conv_strides", "strides"), ("hidden", "hidden_units"),
-                       ("hidden_layers", "hidden_layers"), ("flow_scale", "flow_scale"),
-                       ("solve_iterations", "solve_iterations")):
-        v = getattr(args, arg, None)
-        if v is not None:
-            d[field] = v
-    if args.coord_channels:
-        d["coord_channels"] = True
-    if args.depth_channel:
-        d["depth_channel"] = True
-    if args.valid_channel:
-        d["valid_channel"] = True
-    if args.pose_head != "regress":
-        d["pose_head"] = args.pose_head
-    if args.solve_robust != "none":
-        d["solve_robust"] = args.solve_robust
-    try:
-        return NetConfig(**d)
-    except ValueError as e:
-        from deepslam.core.errors import InputError
-
-        raise InputError(None, f"bad network settings: {e}") from None
+    overrides = {field: getattr(args, arg, None) for arg, field in (
+        ("height", "input_height"), ("width", "input_width"), ("filters", "filters"), ("kernels", "kernels"),
+        ("conv_strides", "strides"), ("hidden", "hidden_units"), ("hidden_layers", "hidden_layers"),
+        ("flow_scale", "flow_scale"), ("solve_iterations", "solve_iterations"))}
+    overrides.update(coord_channels=args.coord_channels or None, depth_channel=args.depth_channel or None,
+                     valid_channel=args.valid_channel or None,
+                     pose_head=None if args.pose_head == "regress" else args.pose_head,
+                     solve_robust=None if args.solve_robust == "none" else args.solve_robust)
+    return preset_config(args.net, **overrides)
 
 
 def _check_ranges(args) -> None:
@@ -235,45 +214,16 @@ def _check_ranges(args) -> None:
         raise InputError(None, f"--lr-min {args.lr_min} is above --lr-max {args.lr_max}")
 
 
-def speed_summary(cfg, preset: str, data_meta: dict, n_train: int, n_hold: int) -> str:
-    """The settings that decide training speed, as the run's first lines (network, input, threads,
-    bf16, layout, data source, caps)."""
-    import torch
-
-    net = cfg.net
-    threads = cfg.threads or torch.get_num_threads()
-    if "shards" in data_meta:
-        source = f"deepslam gen shards in {data_meta['shards']}"
-    elif "toy_samples" in data_meta:
-        source = f"{data_meta['toy_samples']} toy ground-plane samples"
-    elif "frames" in data_meta:
-        flow = data_meta.get("synthetic_flow") or f"exact synthetic flow at {data_meta.get('synth_factor')}x, pooled"
-        pool = f", a pool of {data_meta['sample_pool']} samples" if data_meta.get("sample_pool") else ", fresh every epoch"
-        source = f"{data_meta['n_train_frames']} single frames -> {flow}{pool}"
-    else:
-        source = f"{data_meta.get('n_pairs')} real frame pairs ({data_meta.get('flow')} flow)"
-    caps = [f"{cfg.max_epochs} epochs"] + ([f"{cfg.max_samples} samples"] if cfg.max_samples else []) \
-        + ([f"{cfg.max_minutes:g} min"] if cfg.max_minutes else [])
-    return (f"network: {preset} preset, input {net.input_height}x{net.input_width}, {net.filters} filters, "
-            f"{net.hidden_units} units; batch {cfg.batch_size}; device {cfg.device}; torch threads {threads}; "
-            f"bf16 {'on' if cfg.bf16 else 'off'}; channels-last {'on' if cfg.channels_last else 'off'}\n"
-            f"data: {source}; {n_train} training + {n_hold} held-out samples per epoch; "
-            f"stops at {' / '.join(caps)} (whichever first), or when the learning rate falls below {cfg.lr_stop:g}")
-
-
 def run(args: argparse.Namespace) -> int:
     import sys
     import time
 
-    import numpy as np
-
     from deepslam.core.errors import InputError
-    from deepslam.core.readers import open_sequence
-    from deepslam.flow import registry as flow_registry
-    from deepslam.vo import motion, samples, supervised, toy
+    from deepslam.vo.data import motion, sources
+    from deepslam.vo.data.recipe import SyntheticData, synthetic_sources
+    from deepslam.vo.data.supervised import PairSpec
     from deepslam.vo.infer import cpu_has_native_bf16
-    from deepslam.vo.recipe import SyntheticData, flow_options_for, synthetic_sources
-    from deepslam.vo.train import TrainConfig, TrainingDiverged, train
+    from deepslam.vo.train import TrainConfig, TrainingDiverged, speed_summary, train
 
     t0 = time.perf_counter()
     _check_ranges(args)
@@ -301,7 +251,6 @@ def run(args: argparse.Namespace) -> int:
     if not 0 < args.holdout < 1:
         raise InputError(None, f"--holdout must be in (0, 1), got {args.holdout}")
     progress = not (args.quiet or args.json) and rank == 0
-    h, w = net.input_height, net.input_width
     meta: dict = {"mode": args.mode}
     tilt = motion.CameraTilt.parse(args.camera_tilt_deg) if args.camera_tilt_deg else None
     scene_scale = motion.SceneScale.parse(args.scene_scale) if args.scene_scale else None
@@ -313,57 +262,30 @@ def run(args: argparse.Namespace) -> int:
             if given:
                 raise InputError(None, f"{flag} {what}: it needs --mode synthetic with --source "
                                        "(not --toy, --shards or supervised pairs)")
-    if args.mode == "synthetic":
-        if args.shards:
-            if net.valid_channel:  # shards hold flow resized with unknown = 0: nothing left to mark
-                raise InputError(None, "--valid-channel needs flows made for it: --source or supervised pairs, "
-                                       "not --shards")
-            train_src, hold_src = samples.shard_samples(args.shards, args.holdout, args.seed, h, w)
-            meta["data"] = {"shards": str(args.shards), "n_train": len(train_src), "n_holdout": len(hold_src)}
-        elif args.toy:
-            from deepslam.core.camera import PinholeCamera
-
-            cam = PinholeCamera(1241, 376, 718.856, 718.856, 607.1928, 185.2157).scaled(w, h)
-            s = toy.toy_plane_samples(args.toy, cam, np.random.default_rng(args.seed))
-            train_src, hold_src = samples.TensorSamples(s["flow"], s["intrinsics"], s["target"], seed=args.seed).split(args.holdout, args.seed)
-            meta["data"] = {"toy_samples": args.toy, "camera": cam.to_dict()}
-        else:
-            if not args.source:
-                raise InputError(None, "synthetic mode needs --source DIR... (or --toy N, or --shards DIR)")
-            spec = SyntheticData(
-                frames=tuple(args.source), motion=tuple(args.motion or ()), depth=args.depth,
-                frame_step=args.frame_step, max_frames=args.max_frames, samples_per_epoch=args.samples_per_epoch,
-                holdout=args.holdout, holdout_samples=args.holdout_samples, batch_size=args.batch,
-                synth_factor=args.synth_factor, synthetic_flow=args.synthetic_flow,
-                flow_options=flow_options_for(args.synthetic_flow, args), frame_scales=tuple(args.frame_scales),
-                appearance_noise=args.appearance_noise, data_threads=args.data_threads, sample_pool=args.sample_pool,
-                missing_depth=args.missing_depth, speed_range=args.speed_range, rate_hz=args.rate_hz,
-                camera_tilt_deg=args.camera_tilt_deg, scene_scale=args.scene_scale, mirror_frames=args.mirror_frames)
-            train_src, hold_src, data_meta = synthetic_sources(spec, net, args.seed, progress)
-            meta.update(data_meta)
+    if args.mode == "synthetic" and args.shards:
+        train_src, hold_src, data_meta = sources.shard_sources(args.shards, net, args.holdout, args.seed)
+    elif args.mode == "synthetic" and args.toy:
+        train_src, hold_src, data_meta = sources.toy_sources(args.toy, net, args.holdout, args.seed)
+    elif args.mode == "synthetic":
+        if not args.source:
+            raise InputError(None, "synthetic mode needs --source DIR... (or --toy N, or --shards DIR)")
+        spec = SyntheticData(
+            frames=tuple(args.source), motion=tuple(args.motion or ()), depth=args.depth,
+            frame_step=args.frame_step, max_frames=args.max_frames, samples_per_epoch=args.samples_per_epoch,
+            holdout=args.holdout, holdout_samples=args.holdout_samples, batch_size=args.batch,
+            synth_factor=args.synth_factor, synthetic_flow=args.synthetic_flow,
+            flow_options=_dis_flags.given_options(args.synthetic_flow, args), frame_scales=tuple(args.frame_scales),
+            appearance_noise=args.appearance_noise, data_threads=args.data_threads, sample_pool=args.sample_pool,
+            missing_depth=args.missing_depth, speed_range=args.speed_range, rate_hz=args.rate_hz,
+            camera_tilt_deg=args.camera_tilt_deg, scene_scale=args.scene_scale, mirror_frames=args.mirror_frames)
+        train_src, hold_src, data_meta = synthetic_sources(spec, net, args.seed, progress)
     else:
-        if not args.sequence:
-            raise InputError(None, "supervised mode needs --sequence DIR...")
-
-        opts = flow_registry.given_estimator_options(args.flow, args)
-        est = flow_registry.make(args.flow, **opts)
-        meta["flow"] = {"estimator": args.flow, "options": opts}
-        spec = supervised.PairSpec(strides=tuple(args.strides), kind=args.pairs, max_pairs=args.max_pairs)
-        parts, counts = [], {}
-        for d in args.sequence:
-            seq = open_sequence(d)
-            if seq.gt is None:
-                raise InputError(seq.root, "supervised training needs ground-truth poses; this sequence has none")
-            pairs = supervised.frame_pairs(seq.gt.world_from_cam, spec)
-            counts[str(seq.root)] = int(len(pairs))
-            if len(pairs):
-                parts.append(supervised.supervised_samples(seq, pairs, est, w, h, progress, unknown=net.unknown_flow))
-        if not parts:
-            raise InputError(None, "no frame pairs to train on (sequences too short for the strides, or no loops)")
-        s = samples.concat_samples(parts)
-        train_src, hold_src = samples.TensorSamples(s["flow"], s["intrinsics"], s["target"], seed=args.seed).split(args.holdout, args.seed)
-        meta["data"] = {"sequences": counts, "pairs": spec.kind, "strides": list(spec.strides), "flow": est.name,
-                        "n_pairs": int(sum(counts.values()))}
+        spec = sources.SupervisedData(
+            sequences=tuple(args.sequence), flow=args.flow, flow_options=_dis_flags.given_options(args.flow, args),
+            pairs=PairSpec(strides=tuple(args.strides), kind=args.pairs, max_pairs=args.max_pairs),
+            holdout=args.holdout)
+        train_src, hold_src, data_meta = sources.supervised_sources(spec, net, args.seed, progress)
+    meta.update(data_meta)
     meta["argv"] = sys.argv[1:]
     if progress:
         print(speed_summary(cfg, args.net, meta["data"], len(train_src), len(hold_src)), flush=True)

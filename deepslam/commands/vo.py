@@ -47,7 +47,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pose", choices=("net", "epipolar"), default=None,
                    help="net: the network's 6DoF (the paper); epipolar: the rotation and the direction of travel from "
                         "the essential matrix of the full-resolution flow (OpenCV USAC), the distance from the network "
-                        "(pairs without parallax keep the network's motion; see vo/epipolar.py). Default: the mode the "
+                        "(pairs without parallax keep the network's motion; see vo/geometry/epipolar.py). Default: the mode the "
                         "model file records (deepslam set-pose), net where it records none")
     p.add_argument("--scale", choices=("network", "road", "road-flow"), default=None,
                    help="with --pose epipolar, where the distance travelled comes from: network (the network's "
@@ -127,12 +127,11 @@ def _run(args: argparse.Namespace) -> int:
     from deepslam.core.outputs import write_side_files
     from deepslam.core.readers import open_sequence_for_flow
     from deepslam.core.trajectory import Trajectory
-    from deepslam.flow.registry import given_estimator_options
     from deepslam.slam import plugins
     from deepslam.vo.pipeline import VOConfig, run_vo
 
     seq = open_sequence_for_flow(args.sequence)
-    cfg = VOConfig(model=args.model, flow=args.flow, flow_options=tuple(given_estimator_options(args.flow, args).items()),
+    cfg = VOConfig(model=args.model, flow=args.flow, flow_options=_dis_flags.given_options(args.flow, args),
                    pose=args.pose, scale=args.scale, camera_height_m=args.camera_height, stride=args.stride,
                    start=args.start, end=args.end, batch=args.batch, device=args.device,
                    bf16=None if args.bf16 == "auto" else args.bf16 == "on", progress=not (args.quiet or args.json),

@@ -16,7 +16,7 @@ mono) and measures
 (c) the SLAM error on the same sequence for both flows: the stages of :func:`slam.pipeline.run_slam`
     (odometry, BoVW loop closure, gtsam pose graph), with NN_loops on DIS flow for the loop pairs.
 
-Odometry: the shipped NN_cons / NN_loops (:func:`vo.models.load_shipped`) or the given model files.
+Odometry: the shipped NN_cons / NN_loops (:func:`vo.odometry.load_shipped`) or the given model files.
 When no learned model is available (or with ``odometry="rigid-fit"``) the study falls back, with a
 note in every table, to :class:`slam.rigid_fit.RigidFitOdometry`: a least-squares rigid-motion fit
 (reprojection error, :func:`cv2.solvePnP`) of the flow + frame-i depth over ALL pixels with depth. That
@@ -334,7 +334,7 @@ def make_odometries(config: StressConfig) -> OdometrySet:
 
 def _pose_label(epipolar) -> str:
     """How a model's pose is read, for the report: the network's own, or the essential matrix's (with the
-    road scale where its :class:`vo.epipolar.EpipolarConfig` reads one)."""
+    road scale where its :class:`vo.geometry.epipolar.EpipolarConfig` reads one)."""
     if epipolar is None:
         return "its own pose"
     return "epipolar pose, road scale" if epipolar.road_height_m is not None else "epipolar pose"
@@ -347,7 +347,8 @@ def _main_odometries(config: StressConfig) -> OdometrySet:
         kind = camera_kind(config.scene)
         try:
             # deferred: a missing or broken learned stack (ImportError) falls back to the rigid fit
-            from deepslam.vo import models
+            from deepslam.vo.modelfiles import models
+            from deepslam.vo.odometry import load_predictor
 
             # shipped models follow the flow they are given (a DIS-trained variant where one is shipped)
             dev = resolve_device(config.device)
@@ -356,13 +357,13 @@ def _main_odometries(config: StressConfig) -> OdometrySet:
                 path, shipped = models.locate(config.model_cons or kind, None, "cons", est)
                 if f == "dis":  # DIS set up as this model was trained (its texture threshold), at the study's preset
                     cons_flows[f] = models.flow_for_model("dis", path, preset=config.dis_preset)
-                cons[f] = models.load(path, shipped, device=dev)
+                cons[f] = load_predictor(path, shipped, device=dev)
                 # the pose mode and distance source the file records, as `deepslam vo` runs it (the epipolar
                 # pose and the road scale for the street default; the network's own pose where it records none)
                 cons_epi[f] = models.epipolar_config(path)
             path, shipped = models.locate(config.model_loops or f"{kind}:loops", None, "loops", flows["dis"])
             loops_flow = models.flow_for_model("dis", path, preset=config.dis_preset)
-            loops = models.load(path, shipped, device=dev)
+            loops = load_predictor(path, shipped, device=dev)
         except InputError as e:
             if config.model_cons or config.model_loops:
                 raise  # a model the user named is missing or broken: bad input

@@ -133,7 +133,7 @@ def test_resized_flow_matches_flow_computed_at_the_small_resolution():
     """A smooth (planar) flow field computed at full size and resized equals the one computed with the
     scaled camera, so the network sees the same numbers whichever way the flow was made."""
     from deepslam.core.camera import PinholeCamera
-    from deepslam.vo.toy import flow_from_depth_np, plane_depth
+    from deepslam.vo.data.toy import flow_from_depth_np, plane_depth
 
     cam = PinholeCamera(320, 96, 250.0, 250.0, 159.5, 47.5)
     motion = se3.from_euler6(np.array([0.0, 0.01, 0.0, 0.05, 0.0, -0.3]))
@@ -168,7 +168,7 @@ def test_chain_flows_of_constant_fields_adds_them():
 
 
 def test_ground_truth_flow_reads_and_chains(plane_sequence):
-    from deepslam.vo.toy import flow_from_depth_np
+    from deepslam.vo.data.toy import flow_from_depth_np
 
     seq = open_sequence(plane_sequence)
     gt = registry.make("gt")
@@ -422,10 +422,12 @@ def test_dis_patch_stride_options():
     ({"dis_preset": "medium", "dis_min_texture": 0.0}, {"preset": "medium", "min_texture": 0.0}),  # train's defaults
     ({"dis_patch_stride": 4, "dis_max_width": None}, {"patch_stride": 4}),
 ])
-def test_given_estimator_options_reads_the_dis_flags(given, expected):
+def test_the_dis_flags_read_into_typed_options(given, expected):
     from types import SimpleNamespace
 
-    assert registry.given_estimator_options("dis", SimpleNamespace(**given)) == expected
-    assert registry.given_estimator_options("learned", SimpleNamespace()) == {}
+    from deepslam.commands import _dis_flags
+
+    assert dict(_dis_flags.given_options("dis", SimpleNamespace(**given))) == expected
+    assert _dis_flags.given_options("learned", SimpleNamespace()) == ()
     with pytest.raises(InputError, match="--dis-patch-stride applies to DIS flow only"):
-        registry.given_estimator_options("learned", SimpleNamespace(dis_patch_stride=4))
+        _dis_flags.given_options("learned", SimpleNamespace(dis_patch_stride=4))

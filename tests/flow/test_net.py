@@ -189,7 +189,7 @@ def test_learned_dis_starts_dis_from_the_learned_flow_and_refines_it():
 
 
 def test_learned_dis_is_read_by_the_dis_models():
-    from deepslam.vo import models
+    from deepslam.vo.modelfiles import models
 
     assert models.flow_variant("learned-dis") == "dis"
     assert models.shipped_path("kitti", "cons", "learned-dis").name == "kitti_cons_dis.safetensors"
@@ -202,7 +202,7 @@ def test_learned_estimators_run_on_several_workers_with_the_same_flows(plane_seq
     replicas the prefetch runs one worker a core and hands out what one thread computes."""
     from deepslam.core.readers import open_sequence
     from deepslam.flow import registry as flow_registry
-    from deepslam.vo.prefetch import PairInputs
+    from deepslam.vo.data.prefetch import PairInputs
 
     seq = open_sequence(plane_sequence)
     est = flow_registry.make(name)

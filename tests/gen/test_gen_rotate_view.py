@@ -6,10 +6,10 @@ from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
 from deepslam.gen.rotate_view import rotate_depth, rotate_image, rotate_motion, rotation_from_pitch_roll
-from deepslam.vo.frames import Frames
-from deepslam.vo.motion import CameraTilt
-from deepslam.vo.synthetic import SyntheticSource
-from deepslam.vo.toy import flow_from_depth_np, plane_depth
+from deepslam.vo.data.frames import Frames
+from deepslam.vo.data.motion import CameraTilt
+from deepslam.vo.data.synthetic import SyntheticSource
+from deepslam.vo.data.toy import flow_from_depth_np, plane_depth
 
 CAM = PinholeCamera(320, 96, 185.0, 185.0, 159.5, 47.5)
 

@@ -17,10 +17,10 @@ from deepslam.core.errors import InputError
 from deepslam.flow.net import FlowNetConfig
 from deepslam.flow.train import FlowTrainConfig, train_flow
 from deepslam.runtime.training import Caps, TrainingDiverged, check_finite, open_run, settings_differ
-from deepslam.vo.modelio import load_checkpoint
+from deepslam.vo.data.samples import TensorSamples
+from deepslam.vo.data.toy import toy_plane_samples
+from deepslam.vo.modelfiles.modelio import load_checkpoint
 from deepslam.vo.net import NetConfig
-from deepslam.vo.samples import TensorSamples
-from deepslam.vo.toy import toy_plane_samples
 from deepslam.vo.train import CHECKPOINT, TrainConfig, train
 from tests.textures import shifted_texture_batch
 

@@ -66,9 +66,9 @@ def test_render_writes_sensor_depth_and_keeps_the_exact_one(tmp_path):
 
     # training on an estimator's flow: the second view comes from the true surfaces, the network's depth
     # channel reads what the sensor reported (0 where it has no reading), as on a real RGB-D camera
-    from deepslam.vo.frames import load_image_frames
+    from deepslam.vo.data.frames import load_image_frames
+    from deepslam.vo.data.synthetic import EstimatedFlowSource
     from deepslam.vo.net import inverse_depth_input
-    from deepslam.vo.synthetic import EstimatedFlowSource
 
     frames = load_image_frames([seq], progress=False)
     assert np.array_equal(frames.depth_z[1], exact) and np.array_equal(frames.depth_sensor[1], sensor)
@@ -83,7 +83,7 @@ def test_render_writes_sensor_depth_and_keeps_the_exact_one(tmp_path):
 def test_a_render_without_a_sensor_model_has_one_depth(tmp_path):
     from deepslam.cli import main
     from deepslam.core.readers import open_sequence
-    from deepslam.vo.frames import load_image_frames
+    from deepslam.vo.data.frames import load_image_frames
 
     out = tmp_path / "room"
     assert main(["render", "--scene", "room", "--frames", "2", "--width", "64", "--height", "48",

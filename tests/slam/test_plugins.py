@@ -248,8 +248,8 @@ def test_slam_gives_each_model_the_flow_it_was_trained_on(seq_dir, tmp_path):
     """NN_cons trained on DIS with textureless pixels left out, NN_loops on plain DIS: slam sets DIS up
     per model (two estimators); models that agree share one estimator."""
     from deepslam.slam.plugins import OdometryOptions, odometries
+    from deepslam.vo.modelfiles.modelio import save_model
     from deepslam.vo.net import FlowPoseNet, NetConfig
-    from deepslam.vo.modelio import save_model
 
     net = FlowPoseNet(NetConfig(input_height=24, input_width=80, filters=8, hidden_units=16))
     tex, plain = tmp_path / "tex.safetensors", tmp_path / "plain.safetensors"
@@ -270,8 +270,8 @@ def test_slam_gives_each_model_the_flow_it_was_trained_on(seq_dir, tmp_path):
 def test_slam_dis_flags_override_both_models_records(seq_dir, tmp_path, overrides, cons_name, loops_name, shared):
     """``slam --dis-*`` (as ``vo --dis-*``): a flag given sets DIS up so for NN_cons and NN_loops alike, the
     options not given stay each model's recorded ones; models whose set-ups then agree share one estimator."""
+    from deepslam.vo.modelfiles.modelio import save_model
     from deepslam.vo.net import FlowPoseNet, NetConfig
-    from deepslam.vo.modelio import save_model
 
     net = FlowPoseNet(NetConfig(input_height=24, input_width=80, filters=8, hidden_units=16))
     tex, plain = tmp_path / "tex.safetensors", tmp_path / "plain.safetensors"
@@ -288,8 +288,8 @@ def test_slam_dis_flags_override_both_models_records(seq_dir, tmp_path, override
 ])
 def test_slam_dis_flags_refuse_what_dis_cannot_take(seq_dir, tmp_path, flow, overrides, message):
     from deepslam.core.errors import InputError
+    from deepslam.vo.modelfiles.modelio import save_model
     from deepslam.vo.net import FlowPoseNet, NetConfig
-    from deepslam.vo.modelio import save_model
 
     model = tmp_path / "m.safetensors"
     save_model(model, FlowPoseNet(NetConfig(input_height=24, input_width=80, filters=8, hidden_units=16)),
@@ -299,17 +299,17 @@ def test_slam_dis_flags_refuse_what_dis_cannot_take(seq_dir, tmp_path, flow, ove
 
 
 def test_model_odometry_takes_flow_options_over_the_record(tmp_path):
-    """``vo.models.odometry(..., flow_options=...)`` (the benches' stride-4 rows): the given options over the
+    """``vo.odometry.model_odometry(..., flow_options=...)`` (the benches' stride-4 rows): the given options over the
     file's record, the rest of the record kept; none given: the record alone."""
-    from deepslam.vo import models
+    from deepslam.vo.modelfiles.modelio import save_model
     from deepslam.vo.net import FlowPoseNet, NetConfig
-    from deepslam.vo.modelio import save_model
+    from deepslam.vo.odometry import model_odometry
 
     path = tmp_path / "m.safetensors"
     save_model(path, FlowPoseNet(NetConfig(input_height=24, input_width=80, filters=8, hidden_units=16)),
                {"flow": {"estimator": "dis", "options": {"preset": "fast", "min_texture": 0.5}}})
-    assert models.odometry(path, "dis").flow_estimator.name == "dis-fast-tex0.5"
-    assert models.odometry(path, "dis", flow_options={"patch_stride": 4}).flow_estimator.name == "dis-fast-tex0.5-s4"
+    assert model_odometry(path, "dis").flow_estimator.name == "dis-fast-tex0.5"
+    assert model_odometry(path, "dis", flow_options={"patch_stride": 4}).flow_estimator.name == "dis-fast-tex0.5-s4"
 
 
 @pytest.mark.parametrize("template,argv", [

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from deepslam.core.camera import PinholeCamera
-from deepslam.vo.frames import Frames
-from deepslam.vo.samples import TensorSamples
-from deepslam.vo.synthetic import SyntheticSource
-from deepslam.vo.toy import plane_depth
+from deepslam.vo.data.frames import Frames
+from deepslam.vo.data.samples import TensorSamples
+from deepslam.vo.data.synthetic import SyntheticSource
+from deepslam.vo.data.toy import plane_depth
 
 
 def _samples(n=70):

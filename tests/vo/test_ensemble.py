@@ -9,12 +9,12 @@ import torch
 
 from deepslam.core.errors import InputError
 from deepslam.models import modelfile
+from deepslam.vo.data.prefetch import model_input
 from deepslam.vo.ensemble import EnsemblePoseNet, mixture_moments
-from deepslam.vo.modelio import write_ensemble
 from deepslam.vo.infer import VOPredictor
+from deepslam.vo.modelfiles.modelio import write_ensemble
+from deepslam.vo.modelfiles.modelio import MODEL_FORMAT, load_model, save_model
 from deepslam.vo.net import FlowPoseNet, LOG_STD_MAX, LOG_STD_MIN, NetConfig
-from deepslam.vo.prefetch import model_input
-from deepslam.vo.modelio import MODEL_FORMAT, load_model, save_model
 
 SMALL = NetConfig(input_height=24, input_width=80, filters=8, hidden_units=16, flow_scale=10.0)
 
@@ -107,7 +107,7 @@ def test_members_seeing_different_frames_report_the_union(tmp_path):
 
 def test_the_members_flow_record_becomes_the_ensembles(tmp_path):
     """Members trained on one DIS set-up: the ensemble records it, so vo/slam set DIS up for it as for them."""
-    from deepslam.vo import models
+    from deepslam.vo.modelfiles import models
 
     flow = {"estimator": "dis", "options": {"preset": "medium", "min_texture": 0.5}}
     paths = []
@@ -124,7 +124,7 @@ def test_the_members_pose_mode_becomes_the_ensembles(tmp_path):
     """Members that record the epipolar pose (deepslam set-pose): so does their ensemble; members that disagree
     are refused, naming the first file; members that record none give an ensemble that records none."""
     from deepslam.core.errors import InputError
-    from deepslam.vo import models
+    from deepslam.vo.modelfiles import models
 
     paths = []
     for s in (0, 1):

@@ -1,4 +1,4 @@
-"""vo.epipolar: rotation and direction of travel from the essential matrix of an exact flow, the distance
+"""vo.geometry.epipolar: rotation and direction of travel from the essential matrix of an exact flow, the distance
 from the network; ``deepslam vo --pose epipolar`` end to end."""
 from __future__ import annotations
 
@@ -10,11 +10,11 @@ import pytest
 
 from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
-from deepslam.vo import epipolar
-from deepslam.vo.toy import flow_from_depth_np
+from deepslam.vo.data.toy import flow_from_depth_np
+from deepslam.vo.geometry import epipolar
 
 KITTI_LIKE = PinholeCamera(1242, 375, 718.9, 718.9, 607.2, 185.2)
-SLIDE_PER_YAW_PER_M = 0.88  # a turning car's sideways slide, as fitted on KITTI (vo.scale_sweep)
+SLIDE_PER_YAW_PER_M = 0.88  # a turning car's sideways slide, as fitted on KITTI (studies.scale_sweep)
 
 
 def street_depth(camera: PinholeCamera, half_width_m: tuple[float, float] = (4.0, 6.5), height_m: float = 1.65,
@@ -276,8 +276,8 @@ def test_the_fits_rotation_is_kept_where_the_network_reads_a_turn_short(fit_yaw_
 def test_set_pose_records_the_mode_vo_uses_without_a_flag(street_sequence, street_model, tmp_path, capsys):
     from deepslam.cli import main
     from deepslam.models import modelfile
-    from deepslam.vo import models
-    from deepslam.vo.modelio import MODEL_FORMAT
+    from deepslam.vo.modelfiles import models
+    from deepslam.vo.modelfiles.modelio import MODEL_FORMAT
     from tests.vo.test_vo_cli import _vo
 
     root, _ = street_sequence
@@ -320,7 +320,7 @@ def test_slam_takes_the_recorded_mode_for_consecutive_pairs_only(street_sequence
     distance whatever the file records (a loop pair is no step along a road), and without a mark too."""
     from deepslam.core.readers import open_sequence
     from deepslam.slam.plugins import OdometryOptions, odometries
-    from deepslam.vo import models
+    from deepslam.vo.modelfiles import models
 
     root, _ = street_sequence
     marked = tmp_path / "marked.safetensors"

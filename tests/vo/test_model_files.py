@@ -15,7 +15,7 @@ import torch
 
 from deepslam.core.errors import InputError
 from deepslam.models import modelfile
-from deepslam.vo.modelio import CHECKPOINT_FORMAT, MODEL_FORMAT, load_model
+from deepslam.vo.modelfiles.modelio import CHECKPOINT_FORMAT, MODEL_FORMAT, load_model
 from deepslam.vo.train import CHECKPOINT
 
 REPO = Path(__file__).resolve().parents[2]
@@ -145,7 +145,7 @@ def test_shipped_models_load_and_legacy_conversion_round_trips(tmp_path):
                 "meta": meta}, legacy)
     with pytest.raises(InputError, match="convert-model"):
         load_model(legacy)
-    from deepslam.vo.convert import convert_legacy
+    from deepslam.vo.modelfiles.convert import convert_legacy
 
     assert convert_legacy(legacy, tmp_path / "new.safetensors") == MODEL_FORMAT
     again, _ = load_model(tmp_path / "new.safetensors")

@@ -1,4 +1,4 @@
-"""The solve pose head (vo.posesolve): Gauss-Newton pose from flow and depth, its weights and gradient."""
+"""The solve pose head (vo.geometry.posesolve): Gauss-Newton pose from flow and depth, its weights and gradient."""
 from __future__ import annotations
 
 import dataclasses
@@ -9,9 +9,9 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from deepslam.core import se3
-from deepslam.vo.modelio import make_net
+from deepslam.vo.geometry.posesolve import FlowSolvePoseNet, euler6, so3_exp, solve_pose, unit_weight_net
+from deepslam.vo.modelfiles.modelio import make_net
 from deepslam.vo.net import NetConfig
-from deepslam.vo.posesolve import FlowSolvePoseNet, euler6, so3_exp, solve_pose, unit_weight_net
 
 H, W = 24, 32
 K = (30.0, 28.0, 15.5, 11.5)
@@ -204,7 +204,7 @@ def test_train_and_vo_with_the_solve_head(plane_sequence, motion_json, tmp_path,
     """`train --pose-head solve` trains a weight network (stage 1) and calibrates its uncertainty
     (stage 2); vo runs the model file with each frame's depth; without the channels it needs: one line, exit 2."""
     from deepslam.cli import main
-    from deepslam.vo.modelio import load_model
+    from deepslam.vo.modelfiles.modelio import load_model
 
     out = tmp_path / "solve"
     base = ["train", "--mode", "synthetic", "--source", str(plane_sequence), "--motion", str(motion_json),

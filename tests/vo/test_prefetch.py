@@ -1,4 +1,4 @@
-"""vo.prefetch: flows computed ahead in a thread are the serial flows, in order; failures reach the caller."""
+"""vo.data.prefetch: flows computed ahead in a thread are the serial flows, in order; failures reach the caller."""
 from __future__ import annotations
 
 import shutil
@@ -14,7 +14,7 @@ from deepslam.core.errors import InputError
 from deepslam.core.readers import open_sequence
 from deepslam.flow import estimators as flow_estimators, images as flow_images, registry as flow_registry
 from deepslam.flow.estimators import to_network_input
-from deepslam.vo.prefetch import PairInputs, model_input
+from deepslam.vo.data.prefetch import PairInputs, model_input
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -139,7 +139,7 @@ def test_a_failed_decode_is_not_cached(plane_sequence, tmp_path):
 
 
 def test_dis_uses_one_worker_a_core_by_default_and_others_one(plane_sequence, monkeypatch):
-    from deepslam.vo import prefetch
+    from deepslam.vo.data import prefetch
 
     seq = open_sequence(plane_sequence)
     pairs = [(k, k + 1) for k in range(6)]
@@ -222,7 +222,7 @@ def test_model_input_reads_only_the_header(tmp_path):
     assert model_input(tmp_path / "missing.safetensors") is None
     (tmp_path / "junk.safetensors").write_bytes(b"\x00" * 64)
     assert model_input(tmp_path / "junk.safetensors") is None
-    code = ("import sys; from deepslam.vo.prefetch import model_input; "
+    code = ("import sys; from deepslam.vo.data.prefetch import model_input; "
             f"print(model_input({str(REPO / 'models' / 'euroc_cons.safetensors')!r}), 'torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "(96, 160, 'zero') False"

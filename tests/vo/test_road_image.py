@@ -10,9 +10,10 @@ import pytest
 
 from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
-from deepslam.vo.epipolar import EpipolarConfig, EpipolarFit, fuse, sequence_road_distances
-from deepslam.vo.road_scale import (IMAGE_BANDS, ImageRoadConfig, RoadSequenceConfig, _band_box, _follow_path,
-                                    check_and_fill, image_road_q, road_image, road_rows_top, turn_curvature)
+from deepslam.vo.geometry.epipolar import EpipolarConfig, EpipolarFit, fuse, sequence_road_distances
+from deepslam.vo.geometry.road_flow import band_box
+from deepslam.vo.geometry.road_image import (IMAGE_BANDS, ImageRoadConfig, _follow_path, image_road_q, road_image, road_rows_top, turn_curvature)
+from deepslam.vo.geometry.road_sequence import RoadSequenceConfig, check_and_fill
 
 CAM = PinholeCamera(620, 188, 359.4, 359.4, 309.5, 93.5)
 HEIGHT_M = 1.65
@@ -194,7 +195,7 @@ def test_a_sharp_turn_is_told_by_its_yaw_over_a_distance_known_beforehand(distan
 
 @pytest.mark.parametrize("kappa_h", [0.14, -0.14, 0.05])
 def test_band_rows_follow_the_path_and_rows_beyond_its_radius_drop_out(kappa_h):
-    v0, v1, u0, u1 = _band_box(CAM, *IMAGE_BANDS[1])
+    v0, v1, u0, u1 = band_box(CAM, *IMAGE_BANDS[1])
     vv, uu = np.mgrid[v0:v1, u0:u1]
     u, v = _follow_path(uu.ravel(), vv.ravel(), CAM, np.radians(1.0), kappa_h)
     x0 = np.linalg.inv(CAM.k) @ np.stack([u, v, np.ones_like(u)]).astype(float)

@@ -7,8 +7,7 @@ import pytest
 
 from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
-from deepslam.vo.road_scale import (ROAD_BANDS, RoadScaleConfig, path_leaves_band, road_distances, road_parallel,
-                                    scan_road, travel_pitch_deg, yaw_rad)
+from deepslam.vo.geometry.road_flow import (ROAD_BANDS, RoadScaleConfig, path_leaves_band, road_distances, road_parallel, scan_road, travel_pitch_deg, yaw_rad)
 
 CAM = PinholeCamera(620, 188, 359.4, 359.4, 309.5, 93.5)
 
@@ -98,7 +97,7 @@ def test_a_road_flow_too_large_for_the_near_rows_is_read_on_farther_rows():
 def test_a_scan_at_a_pitch_is_its_tables_interpolated_and_fits_only_that_pitchs_neighbours(pitch_deg):
     """RoadScan fits a pitch when asked: at_pitch gives what the whole tables interpolated give (clipped to the
     scanned pitches), having fitted only the two pitches either side (of 21), each band."""
-    from deepslam.vo.road_scale import PITCHES_DEG
+    from deepslam.vo.geometry.road_flow import PITCHES_DEG
 
     flow, m = _road_flow(1.5, 1.0, 0.4)
     d = m[:3, 3] / np.linalg.norm(m[:3, 3])

@@ -12,8 +12,9 @@ import pytest
 
 from deepslam.core import se3, trajio
 from deepslam.core.readers import open_sequence
-from deepslam.vo import models
 from deepslam.vo.infer import VOPredictor, chain, chain_euler6
+from deepslam.vo.modelfiles import models
+from deepslam.vo.odometry import load_shipped, resolve_predictor
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -100,7 +101,7 @@ def test_shipped_model_names(monkeypatch, tmp_path, plane_sequence):
 
     monkeypatch.setattr(models, "models_dir", lambda: tmp_path)  # an empty models folder
     with pytest.raises(InputError, match="missing"):
-        models.load_shipped("euroc", "loops")
+        load_shipped("euroc", "loops")
     assert _vo("--sequence", plane_sequence, "--out", tmp_path / "t.txt", "--quiet") == 2
     seq = open_sequence(plane_sequence)
     assert models.kind_for_sequence(seq) == "kitti"  # scene "test-street-plane"
@@ -132,8 +133,8 @@ def test_shipped_models_follow_the_flow_estimator(monkeypatch, tmp_path, street_
     shutil.copy(street_model, tmp_path / "kitti_cons_learned.safetensors")
     assert models.shipped_path("kitti", "cons", "learned").name == "kitti_cons_learned.safetensors"
     assert models.shipped_path("kitti", "cons", "dis").name == "kitti_cons_dis.safetensors"
-    assert models.resolve("kitti", None, "cons", "dis").name == "kitti_cons_dis"
-    assert models.resolve(str(tmp_path / "kitti_cons.safetensors"), None, "cons", "dis").name != "kitti_cons_dis"
+    assert resolve_predictor("kitti", None, "cons", "dis").name == "kitti_cons_dis"
+    assert resolve_predictor(str(tmp_path / "kitti_cons.safetensors"), None, "cons", "dis").name != "kitti_cons_dis"
     assert models.shipped_path("kitti", "cons", "learned-dis").name == "kitti_cons_dis.safetensors"
 
 

@@ -13,13 +13,13 @@ from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
 from deepslam.core.readers import open_sequence
 from deepslam.gen import flow as gen_flow
-from deepslam.vo.frames import (Frames, fill_depth_holes, frame_inverse_depth, load_frames, load_image_frames,
+from deepslam.vo.data.frames import (Frames, fill_depth_holes, frame_inverse_depth, load_frames, load_image_frames,
                                 with_mirrored)
-from deepslam.vo.motion import MotionMixture, SceneScale
-from deepslam.vo.samples import epoch_seed
-from deepslam.vo.supervised import PairSpec, frame_pairs, supervised_samples
-from deepslam.vo.synthetic import EstimatedFlowSource, SyntheticSource
-from deepslam.vo.toy import flow_from_depth_np, plane_depth, toy_motion_sampler
+from deepslam.vo.data.motion import MotionMixture, SceneScale
+from deepslam.vo.data.samples import epoch_seed
+from deepslam.vo.data.supervised import PairSpec, frame_pairs, supervised_samples
+from deepslam.vo.data.synthetic import EstimatedFlowSource, SyntheticSource
+from deepslam.vo.data.toy import flow_from_depth_np, plane_depth, toy_motion_sampler
 
 CAM = PinholeCamera(160, 48, 120.0, 120.0, 79.5, 20.0)
 
@@ -222,7 +222,8 @@ def test_train_cli_synthetic_with_dis_flow_and_a_sample_pool(plane_sequence, mot
     recorded = {"preset": "fast", "min_texture": 0.5, "fb_max_px": 1.0, "max_width": 200, "patch_stride": 4}
     assert meta["flow"] == {"estimator": "dis", "options": recorded}
     # the model file records the flow it learned, and vo sets DIS up the same unless told otherwise
-    from deepslam.vo import models
+    from deepslam.vo.modelfiles import models
+    from deepslam.vo.odometry import model_odometry
 
     model = out / "model.safetensors"
     assert models.recorded_flow_options(model, "dis") == recorded
@@ -232,7 +233,7 @@ def test_train_cli_synthetic_with_dis_flow_and_a_sample_pool(plane_sequence, mot
     with pytest.raises(InputError, match="--dis-fb-check") as bad:  # a bad flag is the flag's fault, not the file's
         models.flow_for_model("dis", model, fb_max_px=-1.0)
     assert "malformed" not in str(bad.value)
-    odometry = models.odometry(model)  # as bench and SLAM take a model file: on the flow it records
+    odometry = model_odometry(model)  # as bench and SLAM take a model file: on the flow it records
     assert odometry.flow_estimator.name == "dis-fast-tex0.5-fb1-w200-s4" and not odometry.progress
     for flags, name in (([], "dis-fast-tex0.5-fb1-w200-s4"), (["--dis-min-texture", "0", "--dis-preset", "medium",
                                                             "--dis-fb-check", "0", "--dis-max-width", "0",
@@ -254,8 +255,8 @@ def test_train_cli_synthetic_with_dis_flow_and_a_sample_pool(plane_sequence, mot
 def test_a_malformed_flow_record_is_one_line_naming_the_model_file(options, plane_sequence, tmp_path, capsys):
     """A model file whose meta.flow options DIS cannot take: vo exits 2 with one line naming the file."""
     from deepslam.cli import main
+    from deepslam.vo.modelfiles.modelio import save_model
     from deepslam.vo.net import FlowPoseNet, NetConfig
-    from deepslam.vo.modelio import save_model
 
     model = tmp_path / "bad_record.safetensors"
     save_model(model, FlowPoseNet(NetConfig(input_height=24, input_width=80, filters=8, hidden_units=16)),
@@ -348,7 +349,7 @@ def test_appearance_noise_on_the_rendered_view_is_seeded_and_changes_only_the_fl
 
 
 def test_flat_speed_replaces_only_the_forward_motion_and_covers_the_range():
-    from deepslam.vo.motion import FlatSpeed
+    from deepslam.vo.data.motion import FlatSpeed
 
     base = lambda n, rng: np.tile(np.array([0.01, 0.02, 0.03, 0.1, 0.2, -0.9]), (n, 1))  # noqa: E731
     s = FlatSpeed(base, 0.0, 30.0, 10.0)
@@ -366,7 +367,7 @@ def test_flat_speed_replaces_only_the_forward_motion_and_covers_the_range():
 
 @pytest.mark.parametrize("fraction", [0.2, 0.5])
 def test_flat_speed_fraction_gives_a_flat_tail_beside_the_prior(fraction):
-    from deepslam.vo.motion import FlatSpeed
+    from deepslam.vo.data.motion import FlatSpeed
 
     base = lambda n, rng: np.tile(np.array([0.01, 0.02, 0.03, 0.1, 0.2, -0.9]), (n, 1))  # noqa: E731
     out = FlatSpeed(base, 0.0, 30.0, 10.0, fraction)(40000, np.random.default_rng(1))
@@ -383,7 +384,7 @@ def test_flat_speed_fraction_gives_a_flat_tail_beside_the_prior(fraction):
 @pytest.mark.parametrize("text, expect", [("0:30", (0.0, 30.0, 1.0)), ("0:30@0.2", (0.0, 30.0, 0.2)),
                                           ("5:25@1", (5.0, 25.0, 1.0))])
 def test_flat_speed_parses_the_flag(text, expect):
-    from deepslam.vo.motion import FlatSpeed
+    from deepslam.vo.data.motion import FlatSpeed
 
     s = FlatSpeed.parse(lambda n, rng: np.zeros((n, 6)), text, 10.0)
     assert (s.min_mps, s.max_mps, s.fraction) == expect
@@ -391,7 +392,7 @@ def test_flat_speed_parses_the_flag(text, expect):
 
 @pytest.mark.parametrize("text", ["0:30@0", "0:30@1.5", "0:30@x", "30", "0:30:5", "0:30@nan", "10:5@0.2"])
 def test_flat_speed_rejects_a_bad_flag_with_one_line(text):
-    from deepslam.vo.motion import FlatSpeed
+    from deepslam.vo.data.motion import FlatSpeed
 
     with pytest.raises(InputError):
         FlatSpeed.parse(lambda n, rng: np.zeros((n, 6)), text, 10.0)
@@ -418,7 +419,7 @@ def test_train_refuses_a_bad_speed_range_fraction_before_writing(tmp_path):
 def test_speed_sweep_of_a_perfect_reader_is_flat(plane_sequence):
     """A 'model' that reads forward motion exactly from the synthesized flow's intrinsics-free target
     gives read/true = 1 at every speed; the sweep plumbing (frames, motions, signs) is what is tested."""
-    from deepslam.vo import scale_sweep
+    from deepslam.studies import scale_sweep
 
     seq = open_sequence(plane_sequence)
     frames = load_frames([seq], 80, 24, progress=False)
@@ -574,7 +575,7 @@ def test_train_and_vo_with_a_validity_channel(plane_sequence, motion_json, tmp_p
     """`train --valid-channel` on DIS with a texture threshold: the model file says its input keeps
     unknown flow apart (read from the header), vo runs it; shards (flows resized with unknown = 0) are refused."""
     from deepslam.cli import main
-    from deepslam.vo.prefetch import model_input
+    from deepslam.vo.data.prefetch import model_input
 
     out = tmp_path / "valid"
     assert main(["train", "--mode", "synthetic", "--synthetic-flow", "dis", "--dis-preset", "fast", "--dis-min-texture",
@@ -600,7 +601,7 @@ def test_turn_reads_tell_a_slide_reader_from_a_yaw_reader(plane_sequence, reads_
     """Two 'models' on the sweep's plumbing: one returns the true motion (yaw gain 0, slide read 1); one
     ignores t_x and reads a tenth of the slide as extra yaw (what a network trained on the paper's
     independent prior does on KITTI's turns): yaw gain > 0, slide read 0."""
-    from deepslam.vo import scale_sweep
+    from deepslam.studies import scale_sweep
 
     seq = open_sequence(plane_sequence)
     frames = load_frames([seq], 80, 24, progress=False)

@@ -15,11 +15,11 @@ import pytest
 import torch
 
 from deepslam.core.camera import PinholeCamera
+from deepslam.vo.data.samples import TensorSamples
+from deepslam.vo.data.toy import toy_plane_samples
 from deepslam.vo.infer import VOPredictor
+from deepslam.vo.modelfiles.modelio import load_checkpoint, load_model
 from deepslam.vo.net import NetConfig
-from deepslam.vo.modelio import load_checkpoint, load_model
-from deepslam.vo.samples import TensorSamples
-from deepslam.vo.toy import toy_plane_samples
 from deepslam.vo.train import CHECKPOINT, TrainConfig, fit_uncertainty, train
 
 REPO = Path(__file__).resolve().parents[2]
@@ -88,7 +88,7 @@ def test_outputs_written(trained):
     cfg = json.loads((out / "config.json").read_text())
     assert cfg["train"]["rot_weight"] == 50.0 and cfg["train"]["net"]["filters"] == 16
     # the header alone gives the input size of the model and of the checkpoint (their trees differ)
-    from deepslam.vo.prefetch import model_input
+    from deepslam.vo.data.prefetch import model_input
 
     size = (cfg["train"]["net"]["input_height"], cfg["train"]["net"]["input_width"])
     assert model_input(out / "model.safetensors") == model_input(out / "checkpoint.safetensors") == (*size, "zero")

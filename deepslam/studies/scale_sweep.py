@@ -11,7 +11,7 @@ leans on its training motion prior pulls slow speeds up and fast ones down.
 car's camera makes in a turn, to see whether the model reads the slide or turns it into yaw.
 
 Nothing here uses poses of the frames: the same single-frame machinery as training
-(:class:`deepslam.vo.synthetic.SyntheticSource`, :class:`deepslam.vo.synthetic.EstimatedFlowSource`).
+(:class:`deepslam.vo.data.synthetic.SyntheticSource`, :class:`deepslam.vo.data.synthetic.EstimatedFlowSource`).
 """
 from __future__ import annotations
 

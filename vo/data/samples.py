@@ -8,9 +8,9 @@ same epoch gives the same batches (seeded from the source's seed and the epoch n
 never a global RNG), which is what makes ``--resume`` reproduce an uninterrupted run bit for bit.
 
 Here: :class:`TensorSamples` (samples held in memory: supervised pairs, a fixed validation set, shards of
-``deepslam gen`` via :func:`shard_samples`), shuffled per epoch. The other sources: :mod:`vo.synthetic`
-(flow made on the fly from single frames, :mod:`vo.frames`, and motions, :mod:`vo.motion`),
-:mod:`vo.supervised` (flow between real frames + ground-truth poses) and :mod:`vo.toy` (plane flows).
+``deepslam gen`` via :func:`shard_samples`), shuffled per epoch. The other sources: :mod:`vo.data.synthetic`
+(flow made on the fly from single frames, :mod:`vo.data.frames`, and motions, :mod:`vo.data.motion`),
+:mod:`vo.data.supervised` (flow between real frames + ground-truth poses) and :mod:`vo.data.toy` (plane flows).
 """
 from __future__ import annotations
 

@@ -30,9 +30,10 @@ import cv2
 import numpy as np
 
 from deepslam.core import se3
-from deepslam.vo.road_scale import (RoadScaleConfig, RoadScan, RoadSequenceConfig, check_and_fill, image_road_q,
-                                    road_distances, road_parallel, scan_road, travel_pitch_deg, turn_curvature,
-                                    yaw_rad)
+from deepslam.vo.geometry.road_flow import (RoadScaleConfig, RoadScan, road_distances, road_parallel, scan_road,
+                                           travel_pitch_deg, yaw_rad)
+from deepslam.vo.geometry.road_image import image_road_q, turn_curvature
+from deepslam.vo.geometry.road_sequence import RoadSequenceConfig, check_and_fill
 
 
 METHODS = ("usac_default", "usac_accurate", "usac_magsac", "usac_fast", "ransac")
@@ -75,16 +76,16 @@ class EpipolarConfig:
 
     road_height_m: float | None = None
     """Height of the camera above a road in front of it, metres (1.65 on KITTI and in the simulated street):
-    when set, the distance travelled is read from the road's motion in the flow (:mod:`vo.road_scale`: the
+    when set, the distance travelled is read from the road's motion in the flow (:mod:`vo.geometry.road_flow`: the
     road plane's homography with the fit's rotation and direction of travel, the camera's pitch chosen once
     per sequence) instead of from the network, in every pair whose road fits well enough. None: the
     network's distance."""
     road_fill: bool = True
     """With :attr:`road_height_m`: pairs whose flow shows no usable road are read from the images themselves
-    (:func:`vo.road_scale.image_road_q`: the fit's rotation and direction where used, else the network's, the
-    direction made parallel to the road by :func:`vo.road_scale.road_parallel`), a
+    (:func:`vo.geometry.road_image.image_road_q`: the fit's rotation and direction where used, else the network's, the
+    direction made parallel to the road by :func:`vo.geometry.road_flow.road_parallel`), a
     distance far from its neighbours' is dropped and short gaps are interpolated
-    (:func:`vo.road_scale.check_and_fill`); the rest keep the network's distance. False: the road's motion in
+    (:func:`vo.geometry.road_sequence.check_and_fill`); the rest keep the network's distance. False: the road's motion in
     the flow only (``deepslam vo --scale road-flow``)."""
 
     def __post_init__(self) -> None:
@@ -121,7 +122,7 @@ class EpipolarFit:
     reason: str = ""
     """Why the fit is not used ('' when ``ok``)."""
     road: RoadScan | None = None
-    """The road's fit per distance (:func:`vo.road_scale.scan_road`) when :attr:`EpipolarConfig.road_height_m`
+    """The road's fit per distance (:func:`vo.geometry.road_flow.scan_road`) when :attr:`EpipolarConfig.road_height_m`
     is set, else None."""
 
     @property
@@ -292,10 +293,10 @@ class RoadDistances:
     """(P,) float64 metres, NaN where the road cannot tell (the network's distance is kept)."""
     pitch_deg: float
     """The camera's pitch over the road, degrees, from the direction of travel of the usable fits
-    (:func:`vo.road_scale.travel_pitch_deg`); NaN when not asked."""
+    (:func:`vo.geometry.road_flow.travel_pitch_deg`); NaN when not asked."""
     source: tuple[str, ...]
     """Per pair: ``flow`` (the road's motion in the flow), ``images`` (the road bands aligned,
-    :func:`vo.road_scale.image_road_q`), ``filled`` (interpolated between neighbours) or ``""`` (none)."""
+    :func:`vo.geometry.road_image.image_road_q`), ``filled`` (interpolated between neighbours) or ``""`` (none)."""
 
     def counts(self) -> dict[str, int]:
         """Pairs per source (``network``: none read from the road)."""
@@ -313,17 +314,17 @@ def sequence_road_distances(fits, cfg: EpipolarConfig = EpipolarConfig(), mean6:
         mean6: (P, 6) float the network's motions (:func:`fuse`): which fits are used, and the rotation and
             direction for the image alignment where the fit is not; None: every fit that is ``ok`` counts.
         camera: :class:`core.camera.PinholeCamera` of the images; pair_greys: ``f(p) -> (grey0, grey1)``
-            (H, W) uint8 images of pair p at its size, or their :class:`vo.road_scale.RoadImage`: with
+            (H, W) uint8 images of pair p at its size, or their :class:`vo.geometry.road_image.RoadImage`: with
             ``cfg.road_fill`` the pairs the flow cannot read are read from them (either None: not). Called
             from two threads at once (each walking its half of the pairs in order): it must be thread-safe.
         chained: the pairs follow each other (pair p ends where pair p + 1 starts), as ``vo`` and ``slam``
             make them; only then are distances checked against their neighbours and gaps filled.
 
-    The flow's road (:func:`vo.road_scale.road_distances`) is read in the pairs whose fit is used; with
+    The flow's road (:func:`vo.geometry.road_flow.road_distances`) is read in the pairs whose fit is used; with
     ``cfg.road_fill`` the others are read from the images (the pair's rotation, the fit's where used else the
-    network's, and its direction made parallel to the road, :func:`vo.road_scale.road_parallel`; in a sharp turn
+    network's, and its direction made parallel to the road, :func:`vo.geometry.road_flow.road_parallel`; in a sharp turn
     the bands are moved onto the car's path, its curvature from the nearest pair the flow read,
-    :func:`vo.road_scale.turn_curvature`), then :func:`vo.road_scale.check_and_fill` drops distances far from
+    :func:`vo.geometry.road_image.turn_curvature`), then :func:`vo.geometry.road_sequence.check_and_fill` drops distances far from
     their neighbours' and interpolates short gaps.
     """
     fits = list(fits)
@@ -380,7 +381,7 @@ def sequence_road_distances(fits, cfg: EpipolarConfig = EpipolarConfig(), mean6:
 
 class EpipolarFitter:
     """:func:`fit_essential` with fixed settings as a ``f(flow, camera)`` callable (what
-    :class:`vo.prefetch.PairInputs` applies in its worker thread); equal when the settings are."""
+    :class:`vo.data.prefetch.PairInputs` applies in its worker thread); equal when the settings are."""
 
     def __init__(self, cfg: EpipolarConfig = EpipolarConfig()):
         self.cfg = cfg

@@ -4,7 +4,7 @@ network a file describes (:func:`make_net`).
 
 Kinds: ``deepslam-vo-model`` (:data:`MODEL_FORMAT`, version :data:`MODEL_VERSION`; an ensemble is a model
 file whose tree holds ``ensemble``, :mod:`vo.ensemble`) and ``deepslam-vo-checkpoint``
-(:data:`CHECKPOINT_FORMAT`, :mod:`vo.train`). Where things sit in the tree: :mod:`vo.modeltree`.
+(:data:`CHECKPOINT_FORMAT`, :mod:`vo.train`). Where things sit in the tree: :mod:`vo.modelfiles.modeltree`.
 """
 from __future__ import annotations
 
@@ -17,10 +17,10 @@ import torch
 
 from deepslam.core.errors import InputError
 from deepslam.models import modelfile
-from deepslam.vo import modeltree
 from deepslam.vo.ensemble import EnsemblePoseNet, input_key, same_input
+from deepslam.vo.geometry.posesolve import FlowSolvePoseNet
+from deepslam.vo.modelfiles import modeltree
 from deepslam.vo.net import FlowPoseNet, NetConfig, PAPER, PoseNet
-from deepslam.vo.posesolve import FlowSolvePoseNet
 from deepslam.vo.trainconfig import TrainConfig
 MODEL_FORMAT = "deepslam-vo-model"
 MODEL_VERSION = 2
@@ -167,7 +167,7 @@ def write_ensemble(paths: Sequence[str | Path], out: str | Path) -> dict:
         seqs = sorted({str(f) for d in datas for f in (d.get("sequences") or {})})
         meta["data"] = {"frames": frames, "sequences": {s: None for s in seqs}, "members_differ": True}
     if metas[0].get("flow") is not None:
-        meta["flow"] = metas[0]["flow"]  # what vo.models.flow_for_model reads
+        meta["flow"] = metas[0]["flow"]  # what vo.modelfiles.models.flow_for_model reads
     poses = {m.get("pose", "net") for m in metas}
     if poses != {"net"}:  # a pose mode the members record (deepslam set-pose) carries over when they agree
         if len(poses) > 1:
@@ -213,7 +213,7 @@ def write_with_solve_kernel(path, out, robust: str, iterations: int | None = Non
 
 def make_net(cfg: NetConfig = PAPER) -> PoseNet:
     """The network ``cfg`` describes: :class:`FlowPoseNet` (``pose_head="regress"``) or
-    :class:`vo.posesolve.FlowSolvePoseNet` (``"solve"``); both map ``(flow, intrinsics, inv_depth)`` to
+    :class:`vo.geometry.posesolve.FlowSolvePoseNet` (``"solve"``); both map ``(flow, intrinsics, inv_depth)`` to
     ``(mean6, log_std6)`` and train in :mod:`vo.train`'s two stages."""
     if cfg.pose_head == "solve":
         return FlowSolvePoseNet(cfg)

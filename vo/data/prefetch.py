@@ -26,7 +26,7 @@ import numpy as np
 
 from deepslam.core.errors import InputError
 from deepslam.flow.estimators import to_network_input, unknown_flow
-from deepslam.vo import modeltree
+from deepslam.vo.modelfiles import modeltree
 
 
 class _Failed:
@@ -93,7 +93,7 @@ class PairInputs:
         ahead: how many pairs the workers may run ahead of the reader (bounds memory: 256 KB a pair at
             96 x 320).
         full_flow_fn: optional ``f(flow, camera) -> object`` applied to each pair's full-resolution flow
-            (H, W, 2) px (the epipolar fit of :mod:`vo.epipolar`) in a thread of its own, beside the flow
+            (H, W, 2) px (the epipolar fit of :mod:`vo.geometry.epipolar`) in a thread of its own, beside the flow
             threads (OpenCV releases the GIL: on 2 cores the fit overlaps the next pair's DIS); its
             results, in the order of the pairs, are :attr:`side` once the iteration is done.
         workers: flow threads; None: :func:`default_workers` where the estimator offers ``replica()``
@@ -232,7 +232,7 @@ class PairInputs:
 def model_input(path: str | Path) -> tuple[int, int, str] | None:
     """(height, width, unknown) of the input the VO model file at ``path`` reads: its size in pixels and
     how its unknown flow is resized (:attr:`vo.net.NetConfig.unknown_flow`), from the file's header
-    alone (:mod:`vo.modeltree`: no torch, no tensors read); None when the file is missing or not a
+    alone (:mod:`vo.modelfiles.modeltree`: no torch, no tensors read); None when the file is missing or not a
     readable model file (the loader then says what is wrong)."""
     try:
         net = modeltree.net_config(modeltree.read_header_tree(path))

@@ -17,8 +17,8 @@ import deepslam.models
 from deepslam.core.errors import InputError
 from deepslam.core.kinds import KINDS, kind_for_sequence  # noqa: F401 - part of this module's API
 from deepslam.core.textio import short
-from deepslam.vo import modeltree
-from deepslam.vo.epipolar import EpipolarConfig
+from deepslam.vo.geometry.epipolar import EpipolarConfig
+from deepslam.vo.modelfiles import modeltree
 
 WHICH = ("cons", "loops")
 """NN_cons (consecutive frames) and NN_loops (loop pairs)."""
@@ -63,35 +63,6 @@ def shipped_path(kind: str, which: str = "cons", flow=None) -> Path:
     return models_dir() / f"{kind}_{which}.safetensors"
 
 
-def load_shipped(kind: str, which: str = "cons", flow=None, **kwargs):
-    """The shipped :class:`vo.infer.VOPredictor` for ``kind`` / ``which`` (and the flow estimator, see
-    :func:`shipped_path`); InputError when the file is missing."""
-    return load(shipped_path(kind, which, flow), True, **kwargs)
-
-
-def load(path: Path, shipped: bool = False, **kwargs):
-    """:class:`vo.infer.VOPredictor` of ``path``; a shipped model is named after its file and, when
-    missing, reported with a pointer to models/README.md."""
-    from deepslam.vo.infer import VOPredictor  # deferred: torch; the header readers here stay torch-free
-
-    if shipped:
-        if not path.is_file():
-            raise InputError(path, f"shipped model {path.stem} is missing (see models/README.md to train it)")
-        kwargs.setdefault("name", path.stem)
-    return VOPredictor.from_file(path, **kwargs)
-
-
-def odometry(path: str | Path, flow: str = "dis", shipped: bool = False, progress: bool = False, pose: str | None = None,
-             flow_options: dict | None = None, scale: str | None = None, **kwargs):
-    """The VO model file at ``path`` as a SLAM odometry (:meth:`vo.infer.VOPredictor.as_odometry`) on flow
-    estimator ``flow`` set up as the file records (:func:`flow_for_model`), each of ``flow_options`` (e.g.
-    ``{"patch_stride": 4}``) taking precedence, in pose mode ``pose`` (:data:`POSES`; None: the mode the file
-    records, :func:`recorded_pose`) with distance source ``scale`` (:data:`SCALES`; None: the file's,
-    :func:`recorded_scale`); ``kwargs`` go to :func:`load`."""
-    return load(Path(path), shipped, **kwargs).as_odometry(flow_for_model(flow, path, **(flow_options or {})),
-                                                            progress=progress, epipolar=epipolar_config(path, pose, scale))
-
-
 RECORDED_OPTIONS = {"dis": ("preset", "min_texture", "fb_max_px", "max_width", "patch_stride")}
 """The options a model file's flow record may set, per estimator (:class:`flow.estimators.DISFlow`'s)."""
 
@@ -125,7 +96,7 @@ def recorded_flow_options(path: str | Path, flow: str) -> dict:
 
 POSES = ("net", "epipolar")
 """How a VO model's motions are used: ``net``, the network's 6DoF (the paper); ``epipolar``, the rotation and
-direction of travel from the essential matrix of the flow and the distance from the network (:mod:`vo.epipolar`)."""
+direction of travel from the essential matrix of the flow and the distance from the network (:mod:`vo.geometry.epipolar`)."""
 
 
 def _recorded(path: str | Path, key: str, choices: tuple[str, ...], default: str) -> str:
@@ -149,7 +120,7 @@ def recorded_pose(path: str | Path) -> str:
 
 
 SCALES = ("network", "road", "road-flow")
-"""Where the epipolar pose's distance comes from: the network's translation, the road (:mod:`vo.road_scale`:
+"""Where the epipolar pose's distance comes from: the network's translation, the road (:mod:`vo.geometry.road_flow`:
 its motion in the flow, the images where the flow loses it, neighbours' distances across short gaps) or the
 road's motion in the flow only."""
 ROAD_HEIGHT_M = 1.65
@@ -164,7 +135,7 @@ def recorded_scale(path: str | Path) -> str:
 
 def epipolar_config(path: str | Path, pose: str | None = None, scale: str | None = None,
                     road_height_m: float = ROAD_HEIGHT_M):
-    """The :class:`vo.epipolar.EpipolarConfig` to run the VO model file at ``path`` with in pose mode ``pose``
+    """The :class:`vo.geometry.epipolar.EpipolarConfig` to run the VO model file at ``path`` with in pose mode ``pose``
     and distance source ``scale`` (None: the ones the file records, :func:`recorded_pose`,
     :func:`recorded_scale`; ``road`` / ``road-flow``: read with the camera ``road_height_m`` above the road);
     None in the ``net`` mode."""
@@ -186,7 +157,7 @@ def write_with_pose(path: str | Path, out: str | Path, pose: str, scale: str | N
     not a VO model file."""
     # deferred: both import torch; the header readers here stay torch-free (deepslam vo starts its flows first)
     from deepslam.models import modelfile
-    from deepslam.vo.modelio import MODEL_FORMAT
+    from deepslam.vo.modelfiles.modelio import MODEL_FORMAT
 
     if pose not in POSES:
         raise InputError(None, f"pose must be one of {', '.join(POSES)}, got {pose!r}")
@@ -243,10 +214,3 @@ def locate(spec: str | None, seq=None, which: str = "cons", flow=None) -> tuple[
     if kind in KINDS and not Path(spec).exists():
         return shipped_path(kind, w or which, flow), True
     return Path(spec), False
-
-
-def resolve(spec: str | None, seq=None, which: str = "cons", flow=None, **kwargs):
-    """A predictor from ``spec``: a model file path, ``kitti``/``euroc`` (shipped ``cons``),
-    ``kitti:loops``-style shipped names, or None (the shipped model for ``seq``'s camera kind). Shipped
-    models follow ``flow`` (the estimator's name or object, see :func:`shipped_path`); a file is taken as is."""
-    return load(*locate(spec, seq, which, flow), **kwargs)

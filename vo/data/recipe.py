@@ -13,12 +13,11 @@ from pathlib import Path
 from deepslam.core.errors import InputError
 from deepslam.core.integrity import sha256_file
 from deepslam.core.readers import open_sequence
-from deepslam.flow import registry as flow_registry
 from deepslam.gen.motion import MotionModel
-from deepslam.vo.frames import load_frames, load_image_frames, with_mirrored
-from deepslam.vo.motion import CameraTilt, FlatSpeed, MotionMixture, SceneScale, motion_sampler
+from deepslam.vo.data.frames import load_frames, load_image_frames, with_mirrored
+from deepslam.vo.data.motion import CameraTilt, FlatSpeed, MotionMixture, SceneScale, motion_sampler
+from deepslam.vo.data.synthetic import EstimatedFlowSource, SyntheticSource
 from deepslam.vo.net import NetConfig
-from deepslam.vo.synthetic import EstimatedFlowSource, SyntheticSource
 
 
 def load_motion(spec: str):
@@ -155,9 +154,3 @@ def synthetic_sources(spec: SyntheticData, net: NetConfig, seed: int, progress: 
         meta["data"].update(synth_factor=None, missing_depth=None, frame_scales=list(spec.frame_scales),
                             appearance_noise=spec.appearance_noise, synthetic_flow=estimator_name)
     return train_src, hold_src, meta
-
-
-def flow_options_for(name: str, args) -> tuple[tuple[str, object], ...]:
-    """:attr:`SyntheticData.flow_options` from a parsed command line's DIS flags (``exact`` takes none:
-    a DIS flag given for it is refused, as for any other estimator that does not read it)."""
-    return tuple(flow_registry.given_estimator_options(name, args).items())

@@ -1,6 +1,6 @@
 """Single training frames: depth (and grey image) of sequence frames at a chosen resolution, from the
 sequence's depth maps or its stereo pair (holes filled), optionally mirrored; the inputs of the synthetic
-sources (:mod:`vo.synthetic`) and the depth channel a network reads at test time (:func:`frame_inverse_depth`).
+sources (:mod:`vo.data.synthetic`) and the depth channel a network reads at test time (:func:`frame_inverse_depth`).
 """
 from __future__ import annotations
 
@@ -16,8 +16,8 @@ from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
 from deepslam.flow.images import to_grey
 from deepslam.gen import stereo
+from deepslam.vo.data.samples import holdout_mask
 from deepslam.vo.net import inverse_depth_input
-from deepslam.vo.samples import holdout_mask
 
 def resize_depth(depth_z: np.ndarray, width: int, height: int) -> np.ndarray:
     """depth_z (H, W) float32 -> (height, width) by nearest neighbour (no mixing of foreground and

@@ -5,7 +5,7 @@ from pathlib import Path
 
 from deepslam.core.errors import InputError
 from deepslam.models import modelfile
-from deepslam.vo.modelio import CHECKPOINT_FORMAT, MODEL_FORMAT, MODEL_VERSION
+from deepslam.vo.modelfiles.modelio import CHECKPOINT_FORMAT, MODEL_FORMAT, MODEL_VERSION
 
 
 def convert_legacy(src: str | Path, dst: str | Path) -> str:

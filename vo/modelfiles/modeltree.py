@@ -11,7 +11,7 @@ file's kind under ``deepslam``) holds one of three layouts:
 
 :func:`net_config` and :func:`meta` find the network's shape and the training record in any of them:
 :func:`vo.train.load_model` builds the network from the first, and ``deepslam vo`` reads both from the
-header before it imports torch (:func:`read_header_tree`; the flows start meanwhile: :mod:`vo.prefetch`).
+header before it imports torch (:func:`read_header_tree`; the flows start meanwhile: :mod:`vo.data.prefetch`).
 
 This module does not import torch.
 """

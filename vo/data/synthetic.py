@@ -5,7 +5,7 @@
 - :class:`EstimatedFlowSource`: the flow a real estimator gives between the frame and a second view
   rendered from it (:func:`gen.novel_view.render_novel_view`).
 
-Both yield the batches described in :mod:`vo.samples`; batch b of epoch e is a function of (seed, e, b) only.
+Both yield the batches described in :mod:`vo.data.samples`; batch b of epoch e is a function of (seed, e, b) only.
 """
 from __future__ import annotations
 
@@ -23,10 +23,10 @@ from deepslam.flow import estimators as flow_estimators, registry as flow_regist
 from deepslam.gen.flow import pool_flow, synthesize_flow
 from deepslam.gen.novel_view import render_novel_view
 from deepslam.gen.rotate_view import rotate_depth, rotate_image
-from deepslam.vo.frames import Frames, ImageFrames
-from deepslam.vo.motion import CameraTilt, SceneScale, tilted
+from deepslam.vo.data.frames import Frames, ImageFrames
+from deepslam.vo.data.motion import CameraTilt, SceneScale, tilted
+from deepslam.vo.data.samples import Batch, TensorSamples, epoch_seed
 from deepslam.vo.net import inverse_depth_input
-from deepslam.vo.samples import Batch, TensorSamples, epoch_seed
 
 class _OnTheFlySource:
     """Batches made on the fly by ``make_batch(rng, n)``; batch b of epoch e is seeded by (seed, e, b)."""

@@ -1,0 +1,52 @@
+"""A VO model file made ready to run: the one way the commands, SLAM, the studies and the benches build a
+predictor or an odometry from a model file or a shipped model's name.
+
+The file is located and its flow estimator set up as it was trained (:mod:`vo.modelfiles.models`, header only,
+no torch), then the network is loaded (:class:`vo.infer.VOPredictor`) and, for SLAM and the benches, wrapped as
+an odometry with the epipolar settings the file records (:func:`model_odometry`).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from deepslam.core.errors import InputError
+from deepslam.vo.infer import VOPredictor
+from deepslam.vo.modelfiles import models
+
+
+def load_shipped(kind: str, which: str = "cons", flow=None, **kwargs):
+    """The shipped :class:`vo.infer.VOPredictor` for ``kind`` / ``which`` (and the flow estimator, see
+    :func:`vo.modelfiles.models.shipped_path`); InputError when the file is missing."""
+    return load_predictor(models.shipped_path(kind, which, flow), True, **kwargs)
+
+
+def load_predictor(path: Path, shipped: bool = False, **kwargs):
+    """:class:`vo.infer.VOPredictor` of ``path``; a shipped model is named after its file and, when
+    missing, reported with a pointer to models/README.md."""
+    if shipped:
+        if not path.is_file():
+            raise InputError(path, f"shipped model {path.stem} is missing (see models/README.md to train it)")
+        kwargs.setdefault("name", path.stem)
+    return VOPredictor.from_file(path, **kwargs)
+
+
+def model_odometry(path: str | Path, flow: str = "dis", shipped: bool = False, progress: bool = False,
+                   pose: str | None = None, flow_options: dict | None = None, scale: str | None = None,
+                   estimator=None, **kwargs):
+    """The VO model file at ``path`` as a SLAM odometry (:meth:`vo.infer.VOPredictor.as_odometry`) on flow
+    estimator ``flow`` set up as the file records (:func:`vo.modelfiles.models.flow_for_model`), each of
+    ``flow_options`` (e.g. ``{"patch_stride": 4}``) taking precedence, or on ``estimator`` when given (one
+    estimator shared by several models), in pose mode ``pose`` (:data:`vo.modelfiles.models.POSES`; None: the
+    mode the file records) with distance source ``scale`` (:data:`vo.modelfiles.models.SCALES`; None: the
+    file's); ``kwargs`` go to :func:`load_predictor`."""
+    if estimator is None:
+        estimator = models.flow_for_model(flow, path, **(flow_options or {}))
+    return load_predictor(Path(path), shipped, **kwargs).as_odometry(
+        estimator, progress=progress, epipolar=models.epipolar_config(path, pose, scale))
+
+
+def resolve_predictor(spec: str | None, seq=None, which: str = "cons", flow=None, **kwargs):
+    """A predictor from ``spec``: a model file path, ``kitti``/``euroc`` (shipped ``cons``),
+    ``kitti:loops``-style shipped names, or None (the shipped model for ``seq``'s camera kind). Shipped
+    models follow ``flow`` (the estimator's name or object, see :func:`vo.modelfiles.models.shipped_path`); a file is taken as is."""
+    return load_predictor(*models.locate(spec, seq, which, flow), **kwargs)
