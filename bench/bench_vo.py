@@ -87,12 +87,12 @@ def inference_fps(cfg: NetConfig, batched: bool, frames: int) -> float:
 
 def synthetic_data_throughput(samples: int) -> float:
     """Samples/s of vo.data.synthetic.SyntheticSource at 96 x 320 (synthesis at 192 x 640, pooled), batch 128."""
-    from deepslam.core.camera import PinholeCamera
+    from deepslam.core.camera import KITTI_00_CAMERA
     from deepslam.vo.data.frames import Frames
     from deepslam.vo.data.synthetic import SyntheticSource
     from deepslam.vo.data.toy import plane_depth, toy_motion_sampler
 
-    cam = PinholeCamera(1241, 376, 718.856, 718.856, 607.1928, 185.2157).scaled(640, 192)
+    cam = KITTI_00_CAMERA.scaled(640, 192)
     depth = plane_depth(cam, np.array([0.0, 1.0, 0.0]), 1.65)
     depth[depth > 80] = 0
     frames = Frames(np.stack([depth] * 8), np.zeros(8, dtype=np.int64), [cam], ["ground"] * 8)
@@ -113,12 +113,12 @@ def estimated_flow_throughput(samples: int) -> tuple[float, float]:
     (exact flow synthesized at 96 x 320, pooled), batch 128."""
     import cv2
 
-    from deepslam.core.camera import PinholeCamera
+    from deepslam.core.camera import KITTI_00_CAMERA
     from deepslam.vo.data.frames import Frames, ImageFrames, resize_depth
     from deepslam.vo.data.synthetic import EstimatedFlowSource, SyntheticSource
     from deepslam.vo.data.toy import plane_depth, toy_motion_sampler
 
-    cam = PinholeCamera(1241, 376, 718.856, 718.856, 607.1928, 185.2157).scaled(640, 192)
+    cam = KITTI_00_CAMERA.scaled(640, 192)
     depth = plane_depth(cam, np.array([0.0, 1.0, 0.0]), 1.65)
     depth[depth > 80] = 0
     rng = np.random.default_rng(0)

@@ -558,3 +558,13 @@ def _render_locked(config: SimConfig, out: Path, created: bool, fmt: str, resume
     finally:
         if simulator is None:
             sim.close()
+
+
+def read_dynamic_fractions(path) -> list[float]:
+    """The per-frame dynamic fractions a render wrote into sequence folder ``path`` (share of the image on
+    dynamic surfaces, 0-1), one per frame; empty where it wrote none. EuRoC layout: beside cam0."""
+    path = Path(path)
+    for f in (path / DYNAMIC_FRACTION_FILE, path / "mav0" / "cam0" / DYNAMIC_FRACTION_FILE):
+        if f.is_file():
+            return [float(line) for line in f.read_text().split()]
+    return []

@@ -93,10 +93,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(mean and max share of the image on dynamic surfaces, from dynamic_fraction.txt), preview")
 
 
-
 def NEEDS(args: argparse.Namespace) -> tuple[str, ...]:
     """Optional modules this run needs (checked before any work by the command line): the [sim] extra."""
     return ("mujoco",) + (("pyrender",) if args.backend == "pyrender" else ())
+
 
 def _distortion(text: str | None):
     from deepslam.core.errors import InputError
@@ -124,14 +124,6 @@ def _kitti_sequence(args: argparse.Namespace) -> str:
     return args.kitti_sequence
 
 
-def _dynamic_fractions(path) -> list[float]:
-    """The per-frame dynamic fractions the render wrote, one per frame (empty where it wrote none)."""
-    from deepslam.sim.writers import DYNAMIC_FRACTION_FILE
-
-    for f in (path / DYNAMIC_FRACTION_FILE, path / "mav0" / "cam0" / DYNAMIC_FRACTION_FILE):  # EuRoC: beside cam0
-        if f.is_file():
-            return [float(line) for line in f.read_text().split()]
-    return []
 
 
 def run(args: argparse.Namespace) -> int:
@@ -141,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
     from deepslam.core.preview import check_sheet_path, write_contact_sheet
     from deepslam.scenes import SceneConfig
     from deepslam.sim.config import RenderConfig, SimConfig, TrajectoryConfig
-    from deepslam.sim.writers import render_sequence
+    from deepslam.sim.writers import read_dynamic_fractions, render_sequence
 
     scene_name, scene_file, seed = args.scene, None, args.seed
     from deepslam.scenes.custom import is_scene_file, load_scene_file
@@ -174,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
     seconds = time.perf_counter() - t0
     sheet = write_contact_sheet(path, args.preview) if args.preview else None
     if args.json:
-        dyn = _dynamic_fractions(path)
+        dyn = read_dynamic_fractions(path)
         print(json.dumps({"path": str(path), "format": args.format, "frames": len(dyn) or args.frames,
                           "seconds": round(seconds, 2),
                           "dynamic_fraction": {"mean": sum(dyn) / len(dyn), "max": max(dyn)} if dyn else None,

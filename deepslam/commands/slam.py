@@ -18,7 +18,6 @@ folder is locked for the run (:func:`core.lock.output_lock`): a second ``slam`` 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -109,16 +108,16 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from deepslam.core import metrics, plots
+    from deepslam.core import plots
     from deepslam.core.outputs import write_side_files
     from deepslam.core.readers import open_sequence_for_flow
     from deepslam.core.trajectory import check_finite_poses
     from deepslam.core.trajio import default_format, write_trajectory
     from deepslam.slam import plugins
     from deepslam.slam.pipeline import PipelineConfig, SlamParams, run_slam
-    from deepslam.slam.posegraph import PoseGraphConfig, loop_coverage
-    from deepslam.slam.reference import perfect_loops_record
+    from deepslam.slam.posegraph import PoseGraphConfig
     from deepslam.slam.reloc import Vocabulary
+    from deepslam.slam.report import format_report, plot_series, slam_record
 
     if args.keyframe_stride < 1:
         raise InputError(None, f"--keyframe-stride must be at least 1, got {args.keyframe_stride}")
@@ -144,52 +143,10 @@ def _run(args: argparse.Namespace) -> int:
     check_finite_poses(res.slam.world_from_cam, "the pose graph")
     side = side_files(out)
     vo_path, record_path = side["vo"], side["record"]
-    in_cycles = loop_coverage(len(seq), res.loops.pairs)    # the frames loop edges constrain
-    record = {
-        "sequence": str(Path(args.sequence).resolve()), "frames": len(seq), "trajectory": str(out), "trajectory_vo": str(vo_path),
-        "format": fmt, "odometry_cons": odo_cons.name, "odometry_loops": getattr(odo_loops, "name", None),
-        "params": res.params.to_dict(),
-        "config": {**config.to_dict(), "reloc": dataclasses.asdict(res.reloc) if res.reloc else None},
-        "loops": res.loops.pairs.tolist(), "n_loops": len(res.loops),
-        "loops_not_rigid": res.loops_not_rigid.tolist(),
-        "frames_in_closed_cycles": int(in_cycles.sum()),
-        "loops_kept_by_pose_graph": None if res.loop_inliers is None else res.loop_inliers.tolist(),
-        "flow_cons": getattr(getattr(odo_cons, "flow_estimator", None), "name", None),
-        "flow_loops": getattr(getattr(odo_loops, "flow_estimator", None), "name", None),
-        "n_candidates": len(res.candidates),
-        "n_verified_ok": int(sum(c.verification.accepted for c in res.candidates)),
-        "timings": res.timings, "graph_error": list(res.graph_error),
-    }
-    if seq.gt is not None:
-        for name, traj in (("vo", res.vo), ("slam", res.slam)):
-            ev = metrics.evaluate(seq.gt, traj, align=args.align)
-            record[f"metrics_{name}"] = {k: v for k, v in ev.items() if not k.startswith("_")}
-            # the same ATE over the frames inside a closed cycle (what loop edges constrain) and the others
-            inside, elsewhere = metrics.ate_parts(ev["_gt_poses"], ev["_est_aligned_poses"], in_cycles[ev["_est_index"]])
-            record[f"metrics_{name}"].update(ate_in_closed_cycles_m=inside, ate_elsewhere_m=elsewhere)
-            if name == "slam":
-                gt_aligned = ev["_gt_poses"]
-                slam_aligned = ev["_est_aligned_poses"]
-            else:
-                vo_aligned = ev["_est_aligned_poses"]
-        # the same graph with an exact loop edge on every revisit: what loop closure gives on this route
-        graph = dataclasses.replace(config.graph, c_s=res.params.c_s, c_r=res.params.c_r)
-        perfect = perfect_loops_record(seq, res.cons, res.params.t_loop, graph, args.align)
-        if perfect is not None:
-            record["metrics_perfect_loops"] = perfect
+    record, aligned = slam_record(seq, args.sequence, res, config, odo_cons, odo_loops, out, vo_path, fmt, args.align)
     write_trajectory(out, res.slam, fmt)  # after the metrics, which can refuse: nothing half-written
     if args.plot:
-        series = {}
-        if seq.gt is not None:
-            series["ground truth"] = gt_aligned[:, :3, 3]
-            series[f"VO ({args.align})"] = vo_aligned[:, :3, 3]
-            series[f"SLAM ({args.align})"] = slam_aligned[:, :3, 3]
-            title = (f"{seq.name}: ATE VO {record['metrics_vo']['ate_m']:.3f} m, "
-                     f"SLAM {record['metrics_slam']['ate_m']:.3f} m, {len(res.loops)} loops")
-        else:
-            series["SLAM"] = res.slam.positions
-            series["VO"] = res.vo.positions
-            title = f"{seq.name}: {len(res.loops)} loops"
+        series, title = plot_series(seq, record, aligned, res, args.align)
         try:
             plots.plot_trajectories_topdown(args.plot, series, title=title)
         except OSError as e:
@@ -218,39 +175,3 @@ def _clean(v):
     from deepslam.core.atomic import json_safe
 
     return json_safe(v)
-
-
-def format_report(r: dict) -> str:
-    t = r["timings"]
-    lines = [f"sequence      {r['sequence']} ({r['frames']} frames)",
-             f"odometry      cons {r['odometry_cons']}, loops {r['odometry_loops']}",
-             f"parameters    C_s {r['params']['c_s']:g}, C_r {r['params']['c_r']:g}, T_loop {r['params']['t_loop']}",
-             f"loops         {r['n_loops']} edges, {sum(r['loops_kept_by_pose_graph'] or [])} kept by the pose graph "
-             f"({r['n_verified_ok']} of {r['n_candidates']} candidates passed verification; "
-             f"{len(r['loops_not_rigid'])} left out, their flow fitting no rigid motion)",
-             f"closed cycles {r['frames_in_closed_cycles']} of {r['frames']} frames lie inside a cycle a loop edge closes "
-             "(the rest only the odometry places)",
-             f"speed         {t['fps']:.2f} frames/s ({t['total_s']:.2f} s; optimisation {t['optimize_s']:.3f} s)",
-             f"wrote         {r['trajectory']}, {r['trajectory_vo']}"]
-    if "metrics_slam" in r:
-        mv, ms = r["metrics_vo"], r["metrics_slam"]
-
-        def num(x, f=".4f"):
-            return "n/a" if x is None else format(x, f)
-        lines += ["", f"{'metric':<24}{'VO':>12}{'SLAM':>12}  unit",
-                  f"{'ATE rmse':<24}{num(mv['ate_m']):>12}{num(ms['ate_m']):>12}  m",
-                  f"{'  in closed cycles':<24}{num(mv.get('ate_in_closed_cycles_m')):>12}"
-                  f"{num(ms.get('ate_in_closed_cycles_m')):>12}  m",
-                  f"{'  elsewhere':<24}{num(mv.get('ate_elsewhere_m')):>12}{num(ms.get('ate_elsewhere_m')):>12}  m",
-                  *([f"{'  with perfect loops':<24}{'':>12}{num(r['metrics_perfect_loops']['ate_m']):>12}  m "
-                     f"(an exact loop edge on each of the route's {r['metrics_perfect_loops']['revisit_pairs']} "
-                     "revisiting frames)"] if r.get("metrics_perfect_loops") else []),
-                  f"{'RPE trans rmse (d=1)':<24}{num(mv['rpe_t_m']):>12}{num(ms['rpe_t_m']):>12}  m",
-                  f"{'RPE rot rmse (d=1)':<24}{num(mv['rpe_r_deg']):>12}{num(ms['rpe_r_deg']):>12}  deg"]
-        if "kitti_t_err_pct" in ms:
-            lines += [f"{'KITTI t_err':<24}{num(mv.get('kitti_t_err_pct')):>12}{num(ms['kitti_t_err_pct']):>12}  %",
-                      f"{'KITTI r_err':<24}{num(mv.get('kitti_r_err_deg_per_100m')):>12}"
-                      f"{num(ms['kitti_r_err_deg_per_100m']):>12}  deg/100 m"]
-    if r.get("plot"):
-        lines.append(f"plot          {r['plot']}")
-    return "\n".join(lines) + "\n"

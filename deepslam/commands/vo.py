@@ -128,6 +128,7 @@ def _run(args: argparse.Namespace) -> int:
     from deepslam.core.readers import open_sequence_for_flow
     from deepslam.core.trajectory import Trajectory
     from deepslam.slam import plugins
+    from deepslam.vo import report as report_io
     from deepslam.vo.pipeline import VOConfig, run_vo
 
     seq = open_sequence_for_flow(args.sequence)
@@ -140,61 +141,37 @@ def _run(args: argparse.Namespace) -> int:
     fmt = args.format or trajio.default_format(seq.kind, seq.timestamps_s is not None)
     plugin = plugins.from_options(args.odometry, args.odometry_command, args.command_timeout)
     res = run_vo(seq, cfg, plugin)
-    frames, pairs, mean6, std6, name = res.frames, res.pairs, res.mean6, res.std6, res.name
+    frames, name = res.frames, res.name
     est = Trajectory(res.world_from_cam, seq.timestamps_s[frames])
-
     out = Path(args.out)
     side = side_files(out)
     stem = out.with_suffix("")
-    header = "i,j,t_i_s,t_j_s,ex_rad,ey_rad,ez_rad,tx_m,ty_m,tz_m,std_ex_rad,std_ey_rad,std_ez_rad,std_tx_m,std_ty_m,std_tz_m"
-    lines = [header]
-    for (i, j), m, s in zip(pairs, mean6, std6):
-        lines.append(",".join([str(int(i)), str(int(j)), repr(float(seq.timestamps_s[i])), repr(float(seq.timestamps_s[j])),
-                               *(repr(float(x)) for x in m), *(repr(float(x)) for x in s)]))
-    motions_text = "\n".join(lines) + "\n"
+    motions_text = report_io.motions_csv(seq, res)
     writers = [(side["motions"], lambda p: atomic.write_text(p, motions_text))]
-    config = {"sequence": str(Path(seq.root).resolve()), "sequence_kind": seq.kind, "frames": [int(frames[0]), int(frames[-1])],
-              "stride": args.stride, "format": fmt, "out": str(out)}
+    config = {"sequence": str(Path(seq.root).resolve()), "sequence_kind": seq.kind,
+              "frames": [int(frames[0]), int(frames[-1])], "stride": args.stride, "format": fmt, "out": str(out)}
     if plugin is not None:
         config.update(odometry=args.odometry, odometry_command=args.odometry_command)
     config.update(res.record)
     say = (lambda *a, **k: None) if args.json else print
+    report = None
+    if seq.gt is not None and len(frames) >= 3:
+        from deepslam.core import plots
 
-    if seq.gt is None or len(frames) < 3:
-        trajio.write_trajectory(out, est, fmt)
-        write_side_files(side["config"], config, COMMAND, writers)
-        say(f"wrote {out} ({len(frames)} poses, {fmt}) and {stem}.motions.csv")
-        if seq.gt is not None:
-            say("not scored: the metrics align the trajectory to the ground truth, which needs at least 3 poses")
-    else:
-        from deepslam.core import metrics, plots
-
-        gt, est_scored = metrics.on_covered_frames(seq, res.world_from_cam, frames)
-        ev = metrics.evaluate(gt, est_scored, align="se3")
-        res_none = metrics.evaluate(gt, est_scored, align="none")
-        report = {k: v for k, v in ev.items() if not k.startswith("_")}
-        report["ate_unaligned_m"] = res_none["ate_m"]
-        report["frames_scored"], report["frames"] = len(gt), int(len(frames))
-        how = [config["flow"]] if "flow" in config else []
-        how += ["pose epipolar"] if config.get("pose") == "epipolar" else []
-        how += ["scale road"] if (config.get("epipolar") or {}).get("road_height_m") is not None else []
+        report, gt, est_scored = report_io.score(seq, res)
         writers += [(side["metrics"], lambda p: atomic.write_json(p, report)),
                     (side["plot"], lambda p: plots.plot_trajectories_topdown(
                         p, {"ground truth": gt.positions, name: est_scored.positions},
-                        title=f"{seq.name}: {name}" + (f" ({', '.join(how)})" if how else "")))]
-        trajio.write_trajectory(out, est, fmt)  # after the metrics, which can refuse: nothing half-written
-        write_side_files(side["config"], config, COMMAND, writers)
-        say(f"wrote {out} ({len(frames)} poses, {fmt}) and {stem}.motions.csv")
-        line = (f"ATE {ev['ate_m']:.3f} m (se3-aligned; {res_none['ate_m']:.3f} m unaligned), "
-                f"RPE {ev['rpe_t_m']:.3f} m / {ev['rpe_r_deg']:.3f} deg per {args.stride} frame(s)")
-        if "kitti_t_err_pct" in ev:
-            line += f", KITTI t_err {ev['kitti_t_err_pct']:.2f} %, r_err {ev['kitti_r_err_deg_per_100m']:.2f} deg/100 m"
-        line += f"; path x{ev['path_length_ratio']:.3f}, end-point drift {ev['endpoint_drift_pct']:.1f} % of the path"
-        if len(gt) < len(frames):
-            line += f" (scored on the {len(gt)} of {len(frames)} frames the ground truth covers)"
-        say(line)
+                        title=report_io.plot_title(seq, name, config)))]
+    trajio.write_trajectory(out, est, fmt)  # after the metrics, which can refuse: nothing half-written
+    write_side_files(side["config"], config, COMMAND, writers)
+    say(f"wrote {out} ({len(frames)} poses, {fmt}) and {stem}.motions.csv")
+    if report is not None:
+        say(report_io.summary_line(report, args.stride))
         say(f"wrote {stem}.metrics.json and {stem}.png")
+    elif seq.gt is not None:
+        say("not scored: the metrics align the trajectory to the ground truth, which needs at least 3 poses")
     if args.json:
         print(json.dumps({"out": str(out), "poses": int(len(frames)), "format": fmt, "model_name": name,
-                          "metrics": report if seq.gt is not None and len(frames) >= 3 else None}))
+                          "metrics": report}))
     return 0

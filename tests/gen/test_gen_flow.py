@@ -89,7 +89,7 @@ def test_per_sample_intrinsics_and_numpy_inputs(backend):
     depth = np.stack([box_scene(CAM)] * 3)
     motions = random_motions(rng, 3)
     cams = [CAM, PinholeCamera(64, 48, 40.0, 40.0, 32.0, 20.0), PinholeCamera(64, 48, 80.0, 70.0, 30.0, 25.0)]
-    k = np.array([[c.fx, c.fy, c.cx, c.cy] for c in cams])
+    k = np.stack([c.intrinsics() for c in cams])
     flow, valid = synthesize(depth, k, motions, backend=backend)
     for i, c in enumerate(cams):
         ref, ref_valid, _ = synthesize_reference(depth[i], c, motions[i])

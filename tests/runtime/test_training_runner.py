@@ -12,7 +12,7 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from deepslam.core.camera import PinholeCamera
+from deepslam.core.camera import KITTI_00_CAMERA
 from deepslam.core.errors import InputError
 from deepslam.flow.net import FlowNetConfig
 from deepslam.flow.train import FlowTrainConfig, train_flow
@@ -28,7 +28,7 @@ SMALL = FlowNetConfig(channels=(8, 12, 16), estimator_channels=(16,), finest_lev
 FLOW_CFG = FlowTrainConfig(net=SMALL, crop=(32, 64), batch_size=2, max_steps=10, level_weights=(1.0, 0.5, 0.25),
                            checkpoint_steps=3, threads=1)
 TINY = NetConfig(24, 80, filters=16, hidden_units=64, flow_scale=10.0)
-CAM = PinholeCamera(1241, 376, 718.856, 718.856, 607.1928, 185.2157).scaled(80, 24)
+CAM = KITTI_00_CAMERA.scaled(80, 24)
 
 
 class _Pairs:

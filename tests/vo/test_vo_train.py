@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 
-from deepslam.core.camera import PinholeCamera
+from deepslam.core.camera import KITTI_00_CAMERA
 from deepslam.vo.data.samples import TensorSamples
 from deepslam.vo.data.toy import toy_plane_samples
 from deepslam.vo.infer import VOPredictor
@@ -23,7 +23,7 @@ from deepslam.vo.net import NetConfig
 from deepslam.vo.train import CHECKPOINT, TrainConfig, fit_uncertainty, train
 
 REPO = Path(__file__).resolve().parents[2]
-CAM = PinholeCamera(1241, 376, 718.856, 718.856, 607.1928, 185.2157).scaled(80, 24)
+CAM = KITTI_00_CAMERA.scaled(80, 24)
 TINY = NetConfig(24, 80, filters=16, hidden_units=64, flow_scale=10.0)
 
 

@@ -16,7 +16,7 @@ from deepslam.flow import estimators as flow_estimators, images as flow_images, 
 from deepslam.flow.estimators import to_network_input
 from deepslam.vo.data.prefetch import PairInputs, model_input
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 
 
 class _Recording:

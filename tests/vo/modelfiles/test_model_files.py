@@ -18,7 +18,7 @@ from deepslam.models import modelfile
 from deepslam.vo.modelfiles.modelio import CHECKPOINT_FORMAT, MODEL_FORMAT, load_model
 from deepslam.vo.train import CHECKPOINT
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[3]
 
 
 class _Payload:

@@ -31,7 +31,7 @@ def _ground_depth(cam: PinholeCamera, height_m: float = 1.6) -> np.ndarray:
 
 
 def _k(cam, n):
-    return np.tile([cam.fx, cam.fy, cam.cx, cam.cy], (n, 1))
+    return np.tile(cam.intrinsics(), (n, 1))
 
 
 def test_synthesize_flow_matches_gen_and_the_numpy_reference():
@@ -308,7 +308,7 @@ def test_synthetic_flow_equals_the_simulators_true_flow_everywhere():
     c = f.camera
     motion = se3.relative(nxt.world_from_cam, f.world_from_cam)
     assert np.linalg.norm(motion[:3, 3]) > 0.3  # the car is moving
-    flow, valid = gen_flow.synthesize_flow(torch.from_numpy(f.depth_z[None]), np.array([[c.fx, c.fy, c.cx, c.cy]]), motion[None])
+    flow, valid = gen_flow.synthesize_flow(torch.from_numpy(f.depth_z[None]), c.intrinsics()[None], motion[None])
     flow = flow[0].permute(1, 2, 0).numpy()
     ok = np.isfinite(f.flow).all(-1) & (f.mask == 0)
     assert ok.mean() > 0.95 and (f.depth_z[ok] == 0).any()  # sky is in the comparison
