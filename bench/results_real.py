@@ -18,7 +18,6 @@ import dataclasses
 import sys
 from pathlib import Path
 
-import numpy as np
 
 SLICES = ("06", "07")
 """KITTI sequences with images in ../shared/data."""
@@ -58,21 +57,19 @@ def seen_frames(meta: dict, seq_root: Path) -> str:
 
 
 def score(cand: Candidate, seq) -> dict:
-    """``deepslam vo`` on the whole slice with ``cand``; the drift and ATE figures (core.metrics)."""
+    """``deepslam vo`` on the whole slice with ``cand`` (:func:`vo.pipeline.run_vo`, the distance from the
+    network); the drift and ATE figures (core.metrics)."""
     from deepslam.core import metrics
     from deepslam.core.trajectory import Trajectory
-    from deepslam.vo.infer import chain_euler6
-    from deepslam.vo.modelfiles import models
-    from deepslam.vo.odometry import load_predictor
+    from deepslam.vo.modelfiles import models, modeltree
+    from deepslam.vo.pipeline import VOConfig, run_vo
 
-    path, shipped = models.locate(cand.model, seq, flow=cand.flow)
-    est, pred = models.flow_for_model(cand.flow, path), load_predictor(path, shipped)
-    pairs = np.stack([np.arange(len(seq) - 1), np.arange(1, len(seq))], axis=1)
-    mean6, _ = pred.predict_pairs(seq, pairs, est, progress=False, epipolar=models.epipolar_config(path, cand.pose, "network"))
-    traj = Trajectory(chain_euler6(mean6), seq.timestamps_s)
-    res = metrics.evaluate(seq.gt, traj, align="se3")
-    return {"model": cand.name, "model_file": pred.name, "flow": est.name, "pose": cand.pose, "slice": seq.name, "frames": len(seq),
-            "seen_in_training": seen_frames(pred.meta, Path(seq.root)), "gt_length_m": res["gt_length_m"],
+    run = run_vo(seq, VOConfig(model=cand.model, flow=cand.flow, pose=cand.pose, scale="network", progress=False))
+    meta = modeltree.meta(modeltree.read_header_tree(models.locate(cand.model, seq, flow=cand.flow)[0]))
+    res = metrics.evaluate(seq.gt, Trajectory(run.world_from_cam, seq.timestamps_s), align="se3")
+    return {"model": cand.name, "model_file": run.name, "flow": run.record["flow"], "pose": cand.pose,
+            "slice": seq.name, "frames": len(seq),
+            "seen_in_training": seen_frames(meta, Path(seq.root)), "gt_length_m": res["gt_length_m"],
             "path_length_ratio": res["path_length_ratio"], "endpoint_drift_pct": res["endpoint_drift_pct"],
             "ate_se3_m": res["ate_m"],
             "met": bool(0.95 <= res["path_length_ratio"] <= 1.05 and res["endpoint_drift_pct"] <= 5.0)}

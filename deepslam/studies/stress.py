@@ -348,22 +348,22 @@ def _main_odometries(config: StressConfig) -> OdometrySet:
         try:
             # deferred: a missing or broken learned stack (ImportError) falls back to the rigid fit
             from deepslam.vo.modelfiles import models
-            from deepslam.vo.odometry import load_predictor
+            from deepslam.vo.odometry import model_odometry
 
-            # shipped models follow the flow they are given (a DIS-trained variant where one is shipped)
+            # shipped models follow the flow they are given (a DIS-trained variant where one is shipped), each in the
+            # pose mode and with the distance source its file records, as `deepslam vo` runs it (the epipolar pose
+            # and the road scale for the street default; the network's own pose where it records none)
             dev = resolve_device(config.device)
-            cons, cons_flows, cons_epi = {}, dict(flows), {}
+            cons, cons_epi = {}, {}
             for f, est in flows.items():
                 path, shipped = models.locate(config.model_cons or kind, None, "cons", est)
                 if f == "dis":  # DIS set up as this model was trained (its texture threshold), at the study's preset
-                    cons_flows[f] = models.flow_for_model("dis", path, preset=config.dis_preset)
-                cons[f] = load_predictor(path, shipped, device=dev)
-                # the pose mode and distance source the file records, as `deepslam vo` runs it (the epipolar
-                # pose and the road scale for the street default; the network's own pose where it records none)
+                    est = models.flow_for_model("dis", path, preset=config.dis_preset)
+                cons[f] = model_odometry(path, f, shipped, estimator=est, device=dev)
                 cons_epi[f] = models.epipolar_config(path)
             path, shipped = models.locate(config.model_loops or f"{kind}:loops", None, "loops", flows["dis"])
-            loops_flow = models.flow_for_model("dis", path, preset=config.dis_preset)
-            loops = load_predictor(path, shipped, device=dev)
+            loops = model_odometry(path, "dis", shipped, pose="net",
+                                   estimator=models.flow_for_model("dis", path, preset=config.dis_preset), device=dev)
         except InputError as e:
             if config.model_cons or config.model_loops:
                 raise  # a model the user named is missing or broken: bad input
@@ -375,11 +375,9 @@ def _main_odometries(config: StressConfig) -> OdometrySet:
             note = (f"learned odometry unavailable (vo cannot be imported: {e}); fell back to the rigid "
                     "least-squares fit of flow + depth over all pixels")
         else:
-            names = ", ".join(f"{cons[f].name} on {f} flow ({_pose_label(cons_epi[f])})" for f in flows)
-            return OdometrySet("model", {f: cons[f].as_odometry(est, progress=False, epipolar=cons_epi[f])
-                                         for f, est in cons_flows.items()},
-                               loops.as_odometry(loops_flow, progress=False),
-                               f"deepslam vo's default: NN_cons {names}, and NN_loops {loops.name} (on DIS flow)")
+            names = ", ".join(f"{cons[f].predictor.name} on {f} flow ({_pose_label(cons_epi[f])})" for f in flows)
+            return OdometrySet("model", cons, loops, f"deepslam vo's default: NN_cons {names}, and NN_loops "
+                                                     f"{loops.predictor.name} (on DIS flow)")
     return OdometrySet("rigid-fit", {f: RigidFitOdometry(est) for f, est in flows.items()}, RigidFitOdometry(flows["dis"]),
                        "rigid least-squares fit of flow + depth over all pixels (solvePnP, no outlier rejection); "
                        "loop pairs on DIS flow", note)
