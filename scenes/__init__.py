@@ -29,7 +29,7 @@ from deepslam.scenes.custom import add_user_meshes, load_scene_file
 from deepslam.scenes.lighting import Lighting
 from deepslam.scenes.room import build_room
 from deepslam.scenes.street import StreetLayout, build_street
-from deepslam.scenes.street_kitti import build_kitti_street
+from deepslam.scenes.street_kitti import ROUTES, build_kitti_street
 
 SCENE_NAMES = ("street", "room")
 STREET_STYLES = ("kitti", "town")
@@ -70,6 +70,10 @@ class SceneConfig:
     a third of the road's motion (half on KITTI's real roads). The rest of the scene is unchanged."""
     scene_file: str | None = None
     """A scene file adding your own meshes to this scene (:mod:`scenes.custom`), or None."""
+    route: str = "default"
+    """Street, KITTI look only: the ego car's route, one of :data:`scenes.street_kitti.ROUTES`: ``default`` (the
+    block once, then the avenue and back) or ``laps`` (the block's lap, then every road once each way: loop
+    closures in both directions, :func:`scenes.street_kitti.ego_route`). The town is the same for both."""
     random_lighting: bool = False
     """Draw the lighting from the seed (:meth:`scenes.lighting.Lighting.random`: sun direction,
     ambient share, brightness, colour temperature) instead of the scene's fixed one; the geometry and
@@ -99,6 +103,11 @@ class SceneConfig:
             raise InputError(None, f"{street_only[0]} is an option of the town street: add --street-style town")
         if self.varied_layout and self.narrow_layout:
             raise InputError(None, "choose one street layout: varied or narrow, not both")
+        if self.route not in ROUTES:
+            raise InputError(None, f"unknown route {self.route!r} (choose from {', '.join(ROUTES)})")
+        if self.route != "default" and not (self.name == "street" and self.street_style == "kitti"):
+            raise InputError(None, f"route {self.route!r} is a route of the street's KITTI look (scene street, "
+                                   "--street-style kitti)")
         if not isinstance(self.seed, int) or self.seed < 0:
             raise InputError(None, f"seed must be a non-negative integer, got {self.seed}")
         return self
@@ -118,7 +127,7 @@ def build_scene(config: SceneConfig):
         lighting = Lighting.random(config.seed)
     if config.name == "street" and config.street_style == "kitti":
         scene = build_kitti_street(config.seed, config.px_per_m, config.moving_objects, float(config.deform_amplitude_m),
-                                   rng, lighting)
+                                   rng, lighting, route_name=config.route)
     elif config.name == "street":
         layout = (StreetLayout.varied(config.seed) if config.varied_layout else
                   StreetLayout.narrow(config.seed) if config.narrow_layout else StreetLayout())

@@ -74,8 +74,10 @@ class KittiTown:
 
 
 def build_kitti_street(seed: int, px_per_m: float, moving_objects: int, deform_amplitude_m: float,
-                       rng: np.random.Generator, lighting: Lighting | None = None, town: KittiTown = KittiTown()) -> Scene:
-    """The KITTI-look street from ``rng`` (see the module docstring); returns a :class:`Scene`."""
+                       rng: np.random.Generator, lighting: Lighting | None = None, town: KittiTown = KittiTown(),
+                       route_name: str = "default") -> Scene:
+    """The KITTI-look street from ``rng`` (see the module docstring) with the ego route ``route_name`` (one of
+    :data:`ROUTES`, :func:`ego_route`); returns a :class:`Scene`. The town is the same for every route."""
     a = float(rng.uniform(*town.block_m))
     b = float(rng.uniform(*town.avenue_m))
     d = float(rng.uniform(*town.depth_m))
@@ -105,14 +107,13 @@ def build_kitti_street(seed: int, px_per_m: float, moving_objects: int, deform_a
     street_furniture(asm, segments, rng, np.array([p for p, _ in flag_sites]), (12.0, 20.0), 0.8, 0.9)
     flags_on_poles(asm, flag_sites, deform_amplitude_m, rng)
 
-    # ego route: from (0, 0) heading +x round the residential block, then the avenue and back
-    route = np.array([(0, 0), (a, 0), (a, d), (0, d), (0, 0), (a, 0), (a + b, 0), (a + b, d), (a, d), (0, d)], float)
+    route, fast_legs, stop_before = ego_route(route_name, a, b, d)
     lane = offset_polyline(route, LANE_OFFSET_M)
     lane_path = PeriodicPath.from_polyline(lane, EGO_CORNER_RADIUS_M)
     # the route's stretches (path parameter ranges) and speed limits, for the stop-and-go drive
     c_of = _arc_positions(lane_path, lane)
-    avenue = [(c_of[5], c_of[6]), (c_of[7], c_of[8])]
-    stops = [c_of[0] + EGO_CORNER_RADIUS_M, c_of[8] - 8.0, c_of[9] - 8.0]
+    avenue = [(c_of[i], c_of[j]) for i, j in fast_legs]
+    stops = [c_of[0] + EGO_CORNER_RADIUS_M] + [c_of[i] - 8.0 for i in stop_before]
 
     loops = [np.array([(0, 0), (0, d), (a + b, d), (a + b, 0)], float),
              np.array([(0, 0), (0, d), (a, d), (a, 0)], float)]
@@ -137,6 +138,36 @@ def build_kitti_street(seed: int, px_per_m: float, moving_objects: int, deform_a
                         road_segments=[(tuple(p), tuple(q), h) for p, q, h in segments],
                         stop_and_go={"stops_c": stops, "fast_c": avenue, "fast_mps": town.avenue_mps,
                                      "cruise_mps": town.residential_mps})
+
+
+ROUTES = ("default", "laps")
+"""The ego car's routes through the town (:func:`ego_route`)."""
+
+
+def ego_route(name: str, a: float, b: float, d: float) -> tuple[np.ndarray, list, list]:
+    """(route, fast legs, stop corners) of route ``name`` in the town of block length ``a``, avenue length
+    ``b`` and depth ``d`` (metres): ``route`` (N, 2) float64 the road centreline's corners in driving order
+    (closed: the last corner leads back to the first, the car starts at the first heading to the second),
+    ``fast legs`` (i, j) pairs of corner indices between which the avenue's speed applies, ``stop corners`` the
+    indices of the corners the car stops 8 m before (besides the start).
+
+    ``default``: round the residential block (its first stretch driven again after about 160 m, one loop
+    closure), then along the avenue and back.
+    ``laps``: a lap of the residential block, then every road of the town once in each direction: through the
+    two T-junctions from three sides, along each road the other way, the block's lap driven again the same
+    way. Same-direction revisits after about 180 m and after the whole route (about 4a + 4b + 6d + 2a + 2d,
+    1.75 km for the middle town), opposite-direction ones on every road; KITTI 00 and 05 revisit both ways.
+    """
+    if name == "default":
+        route = [(0, 0), (a, 0), (a, d), (0, d), (0, 0), (a, 0), (a + b, 0), (a + b, d), (a, d), (0, d)]
+        return np.array(route, float), [(5, 6), (7, 8)], [8, 9]
+    if name == "laps":
+        route = [(0, 0), (a, 0), (a, d), (0, d),                                   # the block, counter-clockwise
+                 (0, 0), (a, 0), (a, d), (a + b, d), (a + b, 0), (a, 0),           # up the middle road, the avenue
+                 (0, 0), (0, d), (a, d), (a, 0),                                   # the block, clockwise
+                 (a + b, 0), (a + b, d), (a, d), (0, d)]                           # the avenue the other way
+        return np.array(route, float), [(6, 9), (13, 16)], [9, 12, 16]
+    raise ValueError(f"unknown route {name!r} (one of {', '.join(ROUTES)})")
 
 
 # ----------------------------------------------------------------------------------------------

@@ -57,6 +57,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--varied-layout", action="store_true",
                    help="street: a narrow, crowded variant of the town from the seed (closer facades, more parked "
                         "cars and trees by the kerb), like KITTI's residential streets")
+    p.add_argument("--route", choices=("default", "laps"), default="default",
+                   help="street (KITTI look): the ego car's route; laps: a lap of the block, then every road of the "
+                        "town once in each direction (loop closures the same way and the opposite way; about "
+                        "1.75 km, about 1,600 frames at 10 Hz for one round)")
     p.add_argument("--narrow-layout", action="store_true",
                    help="street: a narrow residential street from the seed (8-10 m kerb to kerb, cars parked along "
                         "both kerbs, facades close behind them)")
@@ -147,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
                     deform_amplitude_m=args.deform, texture_px_per_m=args.texture_density,
                     varied_layout=args.varied_layout, narrow_layout=args.narrow_layout,
                     random_lighting=args.random_lighting, grainy_road=args.grainy_road,
-                    street_style=args.street_style),
+                    street_style=args.street_style, route=args.route),
         TrajectoryConfig(kind=args.trajectory, frames=args.frames, rate_hz=args.rate, camera_ahead_m=args.camera_ahead),
         RenderConfig(backend=args.backend, width=args.width, height=args.height,
                      stereo_baseline_m=args.stereo_baseline, focal_px=args.focal_px, flow=not args.no_flow,

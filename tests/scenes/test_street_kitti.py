@@ -109,10 +109,11 @@ def test_a_car_drives_ahead_in_view_in_every_short_render(seed):
     assert np.linalg.norm(car - ego, axis=1).min() > KittiTown().standstill_gap_m[0] - 2.5
 
 
-def test_same_seed_same_bytes_on_disk(tmp_path: Path):
+@pytest.mark.parametrize("route", ["default", "laps"])
+def test_same_seed_same_bytes_on_disk(tmp_path: Path, route):
     def render(out):
-        cfg = SimConfig(SceneConfig(name="street", seed=5, moving_objects=2, street_style="kitti", texture_px_per_m=4.0),
-                        TrajectoryConfig(frames=2), RenderConfig(width=96)).validate()
+        cfg = SimConfig(SceneConfig(name="street", seed=5, moving_objects=2, street_style="kitti", texture_px_per_m=4.0,
+                                    route=route), TrajectoryConfig(frames=2), RenderConfig(width=96)).validate()
         render_sequence(cfg, out, progress=False)
         return {p.relative_to(out).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
                 for p in sorted(out.rglob("*")) if p.is_file() and p.name != "sequence.json"}
@@ -133,3 +134,62 @@ def test_a_record_without_a_street_style_reads_as_the_town():
     d = SimConfig().to_dict()
     del d["scene"]["street_style"]
     assert SimConfig.from_dict(d).scene.street_style == "town"
+
+
+def _laps_drive(seed):
+    scene = build_kitti_street(seed, 3.0, 0, 0.0, np.random.default_rng(seed), route_name="laps")
+    motion = make_motion(scene, "car", np.random.default_rng([seed, 1]))
+    t = np.arange(0.0, motion.progress.period_s, 0.1)          # one round at 10 Hz
+    return scene, motion, motion.world_from_cam(t)
+
+
+def _revisits(poses, min_gap_frames=100, radius_m=4.5):
+    """(frame, earlier frame, cos of the angle between their optical axes) of the frames whose camera comes
+    within ``radius_m`` of a camera at least ``min_gap_frames`` earlier (the nearest such)."""
+    pos, axis = poses[:, :3, 3], poses[:, :3, 2]
+    out = []
+    for i in range(min_gap_frames, len(poses)):
+        d = np.linalg.norm(pos[:i - min_gap_frames + 1] - pos[i], axis=1)
+        j = int(np.argmin(d))
+        if d[j] < radius_m:
+            out.append((i, j, float(axis[i] @ axis[j])))
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 7])
+def test_the_laps_route_revisits_the_same_way_and_the_opposite_way(seed):
+    scene, motion, poses = _laps_drive(seed)
+    a, d = scene.layout["block_m"]
+    pos = poses[:, :3, 3]
+    length = float(np.linalg.norm(np.diff(pos, axis=0), axis=1).sum())
+    b = float(pos[:, 0].max()) - a - 1.75                     # the avenue's length, from the drive's east end
+    assert length == pytest.approx(6 * a + 4 * b + 8 * d, rel=0.05)   # the block's lap + every road each way
+    hits = _revisits(poses)
+    same = [(i, j) for i, j, c in hits if c > 0.9]
+    opposite = [(i, j) for i, j, c in hits if c < -0.9]
+    # the block's lap is driven again the same way within the first ~200 m; its first frames seen again
+    assert same and pos[same[0][0], 0] < a + 5 and np.linalg.norm(np.diff(pos[:same[0][0]], axis=0), axis=1).sum() < 230
+    # every road is driven both ways: opposite revisits on the avenue (y = 0 and y = d) and on the three cross roads
+    opp = pos[[i for i, _ in opposite]]
+    assert (opp[:, 0] > a + 50).any()                                          # the avenue
+    for x in (0.0, a):                                                           # the block's cross roads
+        assert (np.abs(opp[:, 0] - x) < 3.0).sum() >= 10
+    # the T-junctions are entered from three sides: headings at (a, 0) take three of the four directions
+    near = np.linalg.norm(pos[:, :2] - [a, 0.0], axis=1) < 12.0
+    heading = np.round(np.degrees(np.arctan2(poses[near, 1, 2], poses[near, 0, 2])) / 90.0) % 4
+    assert len(set(heading.astype(int))) >= 3
+    # the route closes: after one round the car is back where it started, heading the same way
+    end = motion.world_from_cam(np.array([motion.progress.period_s]))[0]
+    assert np.linalg.norm(end[:3, 3] - poses[0, :3, 3]) < 0.5 and end[:3, 2] @ poses[0, :3, 2] > 0.99
+
+
+def test_the_laps_route_keeps_the_default_town_and_its_speeds():
+    default, laps = _scene(4), build_kitti_street(4, 3.0, 0, 0.0, np.random.default_rng(4), route_name="laps")
+    assert np.array_equal(default.bodies[0].mesh.vertices, laps.bodies[0].mesh.vertices)   # the same town
+    _, motion, poses = _laps_drive(4)
+    v = np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1) / 0.1
+    assert v[0] < 1.0 and 27.0 <= v.max() <= 30.5 and (v[20:] < 0.3).any()             # stop-and-go, the avenue
+    with pytest.raises(InputError, match="route 'laps' is a route of the street's KITTI look"):
+        SceneConfig(name="street", street_style="town", route="laps").validate()
+    with pytest.raises(InputError, match="unknown route"):
+        SceneConfig(route="spiral").validate()
