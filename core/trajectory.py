@@ -127,7 +127,7 @@ def associate(a: Trajectory, b: Trajectory, max_diff_s: float = 0.01) -> tuple[n
 
 
 def revisit_pairs(world_from_cam: np.ndarray, min_gap_frames: int, max_distance_m: float,
-                  max_angle_deg: float, nearest_only: bool = False) -> np.ndarray:
+                  max_angle_deg: float, nearest_only: bool = False, min_angle_deg: float = 0.0) -> np.ndarray:
     """The frame pairs that see the same place again: (P, 2) int64 (i, j), i < j, ordered by i then j.
 
     Args:
@@ -137,6 +137,8 @@ def revisit_pairs(world_from_cam: np.ndarray, min_gap_frames: int, max_distance_
         max_angle_deg: relative rotation at most this, degrees.
         nearest_only: keep, for each later frame j, only the pair whose camera centres are nearest (at most one
             pair per j, then ordered by j): a camera standing still for n frames gives about n pairs, not n^2 / 2.
+        min_angle_deg: relative rotation at least this, degrees (e.g. 160 with ``max_angle_deg`` 180: the same
+            road driven the opposite way).
     """
     poses = np.asarray(world_from_cam, np.float64)
     pos = poses[:, :3, 3]
@@ -149,7 +151,8 @@ def revisit_pairs(world_from_cam: np.ndarray, min_gap_frames: int, max_distance_
         if not near.any():
             continue
         i, dist = i[near], dist[near]
-        ok = np.rad2deg(se3.rotation_angle(se3.relative(poses[j][None], poses[i]))) <= max_angle_deg
+        angle = np.rad2deg(se3.rotation_angle(se3.relative(poses[j][None], poses[i])))
+        ok = (angle <= max_angle_deg) & (angle >= min_angle_deg)
         if not ok.any():
             continue
         if nearest_only:

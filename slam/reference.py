@@ -29,6 +29,10 @@ class PerfectLoopsConfig:
     """Revisits: relative rotation at most this, degrees."""
     std6: tuple[float, ...] = (1e-3, 1e-3, 1e-3, 1e-2, 1e-2, 1e-2)
     """Std of the exact loop edges in the graph (rad x3, m x3): tight against any odometry's."""
+    opposite_max_distance_m: float = 6.0
+    """Revisits the opposite way: camera centres at most this far apart, metres (the other lane, 3.5 m over)."""
+    opposite_min_angle_deg: float = 160.0
+    """Revisits the opposite way: relative rotation at least this, degrees."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,7 +50,7 @@ class PerfectLoops:
 
 def perfect_loops(gt_world_from_cam: np.ndarray, cons: Edges, min_gap_frames: int,
                   graph: PoseGraphConfig = PoseGraphConfig(), config: PerfectLoopsConfig = PerfectLoopsConfig(),
-                  world_from_cam0: np.ndarray | None = None) -> PerfectLoops:
+                  world_from_cam0: np.ndarray | None = None, both_ways: bool = False) -> PerfectLoops:
     """The graph of ``cons`` with an exact loop edge on every revisit of the ground-truth route, each revisiting
     frame tied to its nearest earlier view (:func:`core.trajectory.revisit_pairs` with ``nearest_only``).
 
@@ -57,12 +61,16 @@ def perfect_loops(gt_world_from_cam: np.ndarray, cons: Edges, min_gap_frames: in
         graph: pose-graph settings (the SLAM's own, with its C_s and C_r).
         config: what counts as a revisit, and the exact edges' std.
         world_from_cam0: (4, 4) pose of the first node (None: the identity).
+        both_ways: also an exact edge on every revisit the opposite way (:func:`opposite_revisits`), which
+            appearance-based retrieval of the same view cannot find.
 
     Returns:
         :class:`PerfectLoops`; on a route with no revisit, the graph equals dead reckoning of ``cons``.
     """
     gt = np.asarray(gt_world_from_cam, np.float64)
     pairs = revisit_pairs(gt, min_gap_frames, config.max_distance_m, config.max_angle_deg, nearest_only=True)
+    if both_ways:
+        pairs = np.concatenate([pairs, opposite_revisits(gt, min_gap_frames, config)])
     loops = Edges.from_poses(gt, pairs, config.std6)
     return PerfectLoops(optimize(len(gt), cons, loops, graph, world_from_cam0).world_from_cam, pairs)
 
@@ -84,5 +92,32 @@ def perfect_loops_record(seq, cons: Edges, t_loop: int, graph: PoseGraphConfig, 
         return None
     got = perfect_loops(gt.world_from_cam, cons, t_loop, graph, config, gt.world_from_cam[0])
     ate = metrics.evaluate(gt, Trajectory(got.world_from_cam, gt.timestamps_s), align=align)["ate_m"]
-    return {"ate_m": ate, "revisit_pairs": int(len(got.pairs)), "max_distance_m": config.max_distance_m,
-            "max_angle_deg": config.max_angle_deg}
+    record = {"ate_m": ate, "revisit_pairs": int(len(got.pairs)), "max_distance_m": config.max_distance_m,
+              "max_angle_deg": config.max_angle_deg}
+    opposite = opposite_revisits(gt.world_from_cam, t_loop, config)
+    record["opposite_revisit_pairs"] = int(len(opposite))
+    if len(opposite):
+        both = perfect_loops(gt.world_from_cam, cons, t_loop, graph, config, gt.world_from_cam[0], both_ways=True)
+        record["ate_both_ways_m"] = metrics.evaluate(gt, Trajectory(both.world_from_cam, gt.timestamps_s),
+                                                     align=align)["ate_m"]
+    return record
+
+
+def opposite_revisits(gt_world_from_cam: np.ndarray, min_gap_frames: int,
+                      config: PerfectLoopsConfig = PerfectLoopsConfig()) -> np.ndarray:
+    """(P, 2) int64 frame pairs (i, j), i < j, where the camera passes again the opposite way (the other lane of
+    the same road): centres within ``config.opposite_max_distance_m``, optical axes at least
+    ``config.opposite_min_angle_deg`` apart, at least ``min_gap_frames`` apart; one pair a later frame."""
+    return revisit_pairs(gt_world_from_cam, min_gap_frames, config.opposite_max_distance_m, 180.0, nearest_only=True,
+                         min_angle_deg=config.opposite_min_angle_deg)
+
+
+def loops_by_direction(gt_world_from_cam: np.ndarray, pairs: np.ndarray) -> dict:
+    """How many loop pairs (P, 2) (i, j) join views the same way (ground-truth optical axes under 90 degrees
+    apart) and the opposite way: ``{"same": n, "opposite": n}``."""
+    gt = np.asarray(gt_world_from_cam, np.float64)
+    pairs = np.asarray(pairs, np.int64).reshape(-1, 2)
+    if not len(pairs):
+        return {"same": 0, "opposite": 0}
+    cos = np.einsum("ij,ij->i", gt[pairs[:, 0], :3, 2], gt[pairs[:, 1], :3, 2])
+    return {"same": int((cos >= 0).sum()), "opposite": int((cos < 0).sum())}

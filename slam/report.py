@@ -9,7 +9,7 @@ from pathlib import Path
 
 from deepslam.core import metrics
 from deepslam.slam.posegraph import loop_coverage
-from deepslam.slam.reference import perfect_loops_record
+from deepslam.slam.reference import loops_by_direction, perfect_loops_record
 
 
 def slam_record(seq, sequence, res, config, odo_cons, odo_loops, out, vo_path, fmt: str,
@@ -50,6 +50,7 @@ def slam_record(seq, sequence, res, config, odo_cons, odo_loops, out, vo_path, f
         perfect = perfect_loops_record(seq, res.cons, res.params.t_loop, graph, align)
         if perfect is not None:
             record["metrics_perfect_loops"] = perfect
+            record["loops_by_direction"] = loops_by_direction(seq.gt.world_from_cam, res.loops.pairs)
     return record, aligned
 
 
@@ -78,6 +79,9 @@ def format_report(r: dict) -> str:
              f"loops         {r['n_loops']} edges, {sum(r['loops_kept_by_pose_graph'] or [])} kept by the pose graph "
              f"({r['n_verified_ok']} of {r['n_candidates']} candidates passed verification; "
              f"{len(r['loops_not_rigid'])} left out, their flow fitting no rigid motion)",
+             *([f"              {r['loops_by_direction']['same']} join views the same way, "
+                f"{r['loops_by_direction']['opposite']} the opposite way (ground truth)"] if r.get("loops_by_direction")
+               else []),
              f"closed cycles {r['frames_in_closed_cycles']} of {r['frames']} frames lie inside a cycle a loop edge closes "
              "(the rest only the odometry places)",
              f"speed         {t['fps']:.2f} frames/s ({t['total_s']:.2f} s; optimisation {t['optimize_s']:.3f} s)",
@@ -95,6 +99,9 @@ def format_report(r: dict) -> str:
                   *([f"{'  with perfect loops':<24}{'':>12}{num(r['metrics_perfect_loops']['ate_m']):>12}  m "
                      f"(an exact loop edge on each of the route's {r['metrics_perfect_loops']['revisit_pairs']} "
                      "revisiting frames)"] if r.get("metrics_perfect_loops") else []),
+                  *([f"{'  ... and both ways':<24}{'':>12}{num(r['metrics_perfect_loops']['ate_both_ways_m']):>12}  m "
+                     f"(and on each of its {r['metrics_perfect_loops']['opposite_revisit_pairs']} frames passing "
+                     "again the opposite way)"] if "ate_both_ways_m" in (r.get("metrics_perfect_loops") or {}) else []),
                   f"{'RPE trans rmse (d=1)':<24}{num(mv['rpe_t_m']):>12}{num(ms['rpe_t_m']):>12}  m",
                   f"{'RPE rot rmse (d=1)':<24}{num(mv['rpe_r_deg']):>12}{num(ms['rpe_r_deg']):>12}  deg"]
         if "kitti_t_err_pct" in ms:
