@@ -58,7 +58,8 @@ def run(cfg: ResultsTumConfig, out: Path, data: Path) -> dict:
     from deepslam.slam.pipeline import PipelineConfig, SlamParams, run_slam
     from deepslam.slam.plugins import load_odometry
     from deepslam.vo.geometry.posesolve import unit_weight_net
-    from deepslam.vo.infer import VOPredictor, chain_euler6
+    from deepslam.core.se3 import chain_euler6
+    from deepslam.vo.infer import VOPredictor
     from deepslam.vo.modelfiles import models
     from deepslam.vo.odometry import model_odometry
 

@@ -160,7 +160,8 @@ def evaluate_vo(seq, cons: Path, flow: str, pose: str = "net") -> dict:
     from deepslam.core import metrics
     from deepslam.core.trajectory import Trajectory
     from deepslam.slam.pipeline import consecutive_pairs
-    from deepslam.vo.infer import VOPredictor, chain_euler6
+    from deepslam.core.se3 import chain_euler6
+    from deepslam.vo.infer import VOPredictor
     from deepslam.vo.modelfiles import models
 
     p = VOPredictor.from_file(cons)

@@ -122,3 +122,20 @@ def project_to_so3(rotation: np.ndarray) -> np.ndarray:
 def relative(world_from_a: np.ndarray, world_from_b: np.ndarray) -> np.ndarray:
     """``a_from_b = inverse(world_from_a) @ world_from_b`` (the motion from a to b seen in a)."""
     return inverse(world_from_a) @ np.asarray(world_from_b, dtype=np.float64)
+
+
+def chain(cam_next_from_cam: np.ndarray) -> np.ndarray:
+    """Poses ``world_from_cam`` (N + 1, 4, 4) float64 with world = the first camera, from N relative
+    motions ``cam_{k+1}_from_cam_k`` (N, 4, 4): ``world_from_cam_{k+1} = world_from_cam_k @ inv(cam_{k+1}_from_cam_k)``."""
+    rel = np.asarray(cam_next_from_cam, dtype=np.float64)
+    out = np.empty((len(rel) + 1, 4, 4))
+    out[0] = np.eye(4)
+    inv = inverse(rel)
+    for k in range(len(rel)):
+        out[k + 1] = out[k] @ inv[k]
+    return out
+
+
+def chain_euler6(mean6: np.ndarray) -> np.ndarray:
+    """:func:`chain` of paper vectors (N, 6) -> world_from_cam (N + 1, 4, 4)."""
+    return chain(from_euler6(np.asarray(mean6, dtype=np.float64).reshape(-1, 6)))

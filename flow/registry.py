@@ -13,7 +13,6 @@ from typing import Callable
 from deepslam.core.errors import InputError
 from deepslam.core.plugins import ENTRY_POINT_GROUPS, load_factory
 from deepslam.flow.estimators import DISFlow, FlowEstimator, GroundTruthFlow
-from deepslam.flow.net import LearnedDISFlow, LearnedFlow
 from deepslam.models import models_dir
 
 
@@ -40,12 +39,16 @@ def _learned_model_path(path=None):
 
 def _learned(path=None, threads: int = 0):
     """The shipped learned estimator (:class:`flow.net.LearnedFlow`), or the model file ``path``."""
+    from deepslam.flow.net import LearnedFlow  # deferred: torch, only when a learned estimator is made (DIS runs first)
+
     return LearnedFlow(_learned_model_path(path), threads=threads)
 
 
 def _learned_dis(path=None, threads: int = 0):
     """The learned flow as DIS's starting point (:class:`flow.net.LearnedDISFlow`), with the shipped learned
     model or the flow model file ``path``."""
+    from deepslam.flow.net import LearnedDISFlow  # deferred: torch, as in _learned
+
     return LearnedDISFlow(_learned_model_path(path), threads=threads)
 
 

@@ -13,7 +13,6 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from deepslam.core import se3
 from deepslam.flow.estimators import to_network_input
 from deepslam.flow.images import to_grey
 from deepslam.vo.data.frames import frame_inverse_depth
@@ -209,20 +208,3 @@ class PredictorOdometry:
         mean6, std6 = self.predictor.predict_pairs(seq, pairs, self.flow_estimator, progress=self.progress,
                                                    epipolar=self.epipolar, fits_out=fits)
         return mean6, std6, np.array([fit.rigid for fit, _ in fits], bool)
-
-
-def chain(cam_next_from_cam: np.ndarray) -> np.ndarray:
-    """Poses ``world_from_cam`` (N + 1, 4, 4) float64 with world = the first camera, from N relative
-    motions ``cam_{k+1}_from_cam_k`` (N, 4, 4): ``world_from_cam_{k+1} = world_from_cam_k @ inv(cam_{k+1}_from_cam_k)``."""
-    rel = np.asarray(cam_next_from_cam, dtype=np.float64)
-    out = np.empty((len(rel) + 1, 4, 4))
-    out[0] = np.eye(4)
-    inv = se3.inverse(rel)
-    for k in range(len(rel)):
-        out[k + 1] = out[k] @ inv[k]
-    return out
-
-
-def chain_euler6(mean6: np.ndarray) -> np.ndarray:
-    """:func:`chain` of paper vectors (N, 6) -> world_from_cam (N + 1, 4, 4)."""
-    return chain(se3.from_euler6(np.asarray(mean6, dtype=np.float64).reshape(-1, 6)))

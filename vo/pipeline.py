@@ -16,10 +16,9 @@ import cv2
 import numpy as np
 
 from deepslam.core.errors import InputError
+from deepslam.core.se3 import chain_euler6
 from deepslam.core.trajectory import check_finite_poses
-from deepslam.vo.infer import chain_euler6
 from deepslam.vo.modelfiles import models, modeltree
-from deepslam.vo.odometry import load_predictor
 
 POSES = ("net", "epipolar")
 """Pose modes: the network's 6DoF, or rotation and direction from the essential matrix of the flow."""
@@ -163,8 +162,7 @@ class UpsampledView:
 
 def _network(seq, pairs: np.ndarray, cfg: VOConfig) -> tuple[np.ndarray, np.ndarray, str, dict]:
     """(mean6, std6, name, record) of the network odometry over ``pairs``."""
-    # deferred: torch and the flow workers load only when a network runs (a plug-in run stays torch-free)
-    from deepslam.runtime.device import resolve_device
+    # deferred: the flow workers load only when a network runs (a plug-in run stays torch-free)
     from deepslam.vo.data.prefetch import PairInputs, model_input
 
     model_path, shipped = models.locate(cfg.model, seq, flow=cfg.flow)
@@ -189,8 +187,12 @@ def _network(seq, pairs: np.ndarray, cfg: VOConfig) -> tuple[np.ndarray, np.ndar
     inputs = None if spec is None else PairInputs(seq, pairs, estimator, spec[1], spec[0], unknown=spec[2],
                                                   full_flow_fn=fitter)
     try:
+        # deferred: torch (1.5 s to import) loads while the flow workers above already compute the first flows
+        from deepslam.runtime.device import resolve_device
+        from deepslam.vo.odometry import load_predictor
+
         predictor = load_predictor(model_path, shipped, batch_size=cfg.batch, bf16=cfg.bf16,
-                                device=resolve_device(cfg.device))
+                                   device=resolve_device(cfg.device))
     except BaseException:
         if inputs is not None:
             inputs.close()

@@ -139,7 +139,7 @@ def test_classical_pnp_baseline_with_depth_is_accurate(seq_dir):
     seq = open_sequence(seq_dir)
     pairs = [(i, i + 1) for i in range(len(seq) - 1)]
     mean6, std6 = PnPOdometry().predict(seq, pairs)
-    from deepslam.vo.infer import chain_euler6
+    from deepslam.core.se3 import chain_euler6
 
     gt = np.linalg.inv(seq.gt.world_from_cam[0]) @ seq.gt.world_from_cam
     assert_relative_motion_close(gt, chain_euler6(mean6), trans_m=0.05, rot_deg=0.3)

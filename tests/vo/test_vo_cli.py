@@ -12,7 +12,8 @@ import pytest
 
 from deepslam.core import se3, trajio
 from deepslam.core.readers import open_sequence
-from deepslam.vo.infer import VOPredictor, chain, chain_euler6
+from deepslam.core.se3 import chain, chain_euler6
+from deepslam.vo.infer import VOPredictor
 from deepslam.vo.modelfiles import models
 from deepslam.vo.odometry import load_shipped, resolve_predictor
 
