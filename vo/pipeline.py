@@ -135,6 +135,15 @@ def _reads_depth(model_path) -> bool:
         return True
 
 
+def read_view(seq, read_width_px: int, model_path, flow: str):
+    """``seq`` as the network of the VO model file ``model_path`` reads it on flow estimator ``flow``: an
+    :class:`UpsampledView` ``read_width_px`` wide where the frames are narrower, the flow is estimated (not ``gt``)
+    and the network does not read depth; else ``seq`` itself."""
+    if read_width_px > seq.camera.width and flow != "gt" and not _reads_depth(model_path):
+        return UpsampledView(seq, read_width_px)
+    return seq
+
+
 class UpsampledView:
     """A sequence read at a larger size: its images (and right images) upsampled bicubically to ``width`` px wide
     (the height in proportion), its camera scaled likewise (pixel centres kept: ``c' = s (c + 0.5) - 0.5``);
@@ -167,8 +176,7 @@ def _network(seq, pairs: np.ndarray, cfg: VOConfig) -> tuple[np.ndarray, np.ndar
 
     model_path, shipped = models.locate(cfg.model, seq, flow=cfg.flow)
     recorded_seq = seq
-    if cfg.read_width_px > seq.camera.width and cfg.flow != "gt" and not _reads_depth(model_path):
-        seq = UpsampledView(seq, cfg.read_width_px)
+    seq = read_view(seq, cfg.read_width_px, model_path, cfg.flow)
     estimator = models.flow_for_model(cfg.flow, model_path, **dict(cfg.flow_options))  # DIS set up as trained
     # the flows start before torch and the model load (seconds of start-up they overlap)
     spec = model_input(model_path)

@@ -8,6 +8,11 @@ import argparse
 
 from deepslam.commands import _dis_flags
 
+READ_WIDTH_PX = 0
+"""The default of ``--read-width`` (``vo``, ``slam``, ``tune-slam``): 0, frames read as recorded."""
+READ_WIDTH_HELP = ("the network reads frames narrower than PX upsampled to PX wide (bicubic, the camera scaled "
+                   "alike; a network on estimated flow that does not read depth; relocalization sees the same frames): "
+                   "at 320 px DIS and the road scale over-read the distance. 0: as recorded (default %(default)s)")
 COMMAND_TIMEOUT_HELP = ("seconds the --odometry-command (or a Python plug-in's predict) may run on the sequence "
                         "(3600); a command runs without a shell: the template is split into arguments once and "
                         "{sequence}/{out} replaced inside them ({{ and }} for literal braces)")
@@ -28,6 +33,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="an external program that reads the sequence folder and writes a KITTI or TUM trajectory to "
                         "{out}; used for consecutive and loop pairs")
     p.add_argument("--command-timeout", type=float, default=3600.0, metavar="S", help=COMMAND_TIMEOUT_HELP)
+    p.add_argument("--read-width", type=int, default=READ_WIDTH_PX, metavar="PX", help=READ_WIDTH_HELP)
     p.add_argument("--gt-noise", default="0.002,0.02", help=argparse.SUPPRESS)
     p.add_argument("--gt-drift", type=float, default=0.002, help=argparse.SUPPRESS)
     p.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
@@ -43,4 +49,4 @@ def options(args: argparse.Namespace):
         command_timeout_s=args.command_timeout, model_cons=args.model_cons, model_loops=args.model_loops,
         flow=args.flow, flow_options=_dis_flags.given_options(args.flow, args),
         no_loops=bool(getattr(args, "no_loops", False)), pose=args.pose, device=args.device, gt_noise=args.gt_noise,
-        gt_drift=args.gt_drift, seed=args.seed, progress=not (args.quiet or args.json))
+        gt_drift=args.gt_drift, seed=args.seed, progress=not (args.quiet or args.json), read_width_px=args.read_width)

@@ -132,7 +132,10 @@ def _run(args: argparse.Namespace) -> int:
         raise InputError(args.sequence, f"the {fmt} format needs timestamps and the sequence has none")
     params = SlamParams.load(args.params) if args.params else SlamParams()
     vocab = Vocabulary.load(args.vocabulary) if args.vocabulary else None
-    odo_cons, odo_loops = plugins.odometries(_odometry_flags.options(args), seq)
+    opts = _odometry_flags.options(args)
+    recorded = seq
+    seq = plugins.network_view(opts, seq)  # frames narrower than --read-width read upsampled
+    odo_cons, odo_loops = plugins.odometries(opts, seq)
     if args.no_loops:
         odo_loops = None
     config = PipelineConfig(graph=PoseGraphConfig(robust=args.robust), keyframe_stride=args.keyframe_stride,
@@ -144,6 +147,8 @@ def _run(args: argparse.Namespace) -> int:
     side = side_files(out)
     vo_path, record_path = side["vo"], side["record"]
     record, aligned = slam_record(seq, args.sequence, res, config, odo_cons, odo_loops, out, vo_path, fmt, args.align)
+    if seq is not recorded:
+        record["read_at_px"] = [seq.camera.width, seq.camera.height]
     write_trajectory(out, res.slam, fmt)  # after the metrics, which can refuse: nothing half-written
     if args.plot:
         series, title = plot_series(seq, record, aligned, res, args.align)

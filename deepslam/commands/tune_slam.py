@@ -77,7 +77,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from deepslam.core.readers import open_sequence_for_flow
-    from deepslam.slam.plugins import odometries
+    from deepslam.slam.plugins import network_view, odometries
     from deepslam.slam.pipeline import PipelineConfig, prepare
     from deepslam.slam.posegraph import PoseGraphConfig
     from deepslam.slam.reloc import Vocabulary
@@ -101,7 +101,9 @@ def run(args: argparse.Namespace) -> int:
         seq = open_sequence_for_flow(path)
         if seq.gt is None:
             raise InputError(path, "a validation sequence needs ground truth")
-        odo_cons, odo_loops = odometries(_odometry_flags.options(args), seq)
+        opts = _odometry_flags.options(args)
+        seq = network_view(opts, seq)  # frames narrower than --read-width read upsampled
+        odo_cons, odo_loops = odometries(opts, seq)
         prep = prepare(seq, odo_cons, odo_loops, config, vocab)
         problems.append(problem_from_prepared(prep, graph, name=str(path)))
     res = tune(problems, space, args.method, args.score, show_progress=not (args.json or args.quiet))

@@ -18,7 +18,7 @@ import argparse
 import json
 from pathlib import Path
 
-from deepslam.commands import _dis_flags
+from deepslam.commands import _dis_flags, _odometry_flags
 from deepslam.core.errors import InputError
 from deepslam.core.lock import output_lock
 
@@ -59,10 +59,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--camera-height", type=float, default=1.65, metavar="M",
                    help="camera height above the road for --scale road, metres (default 1.65: KITTI and the "
                         "simulated street)")
-    p.add_argument("--read-width", type=int, default=0, metavar="PX",
-                   help="read frames narrower than PX upsampled to PX wide (bicubic, camera scaled), for the network "
-                        "on estimated flow: at 320 px DIS and the road scale over-read the distance, read at 640 they "
-                        "do not (0 = as recorded, the default)")
+    p.add_argument("--read-width", type=int, default=_odometry_flags.READ_WIDTH_PX, metavar="PX",
+                   help=_odometry_flags.READ_WIDTH_HELP)
     p.add_argument("--stride", type=int, default=1, help="frame gap k: predict cam_{t+k}_from_cam_t for t = 0, k, 2k, ...")
     p.add_argument("--start", type=int, default=0, help="first frame")
     p.add_argument("--end", type=int, default=None, help="one past the last frame (default: all)")

@@ -10,7 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from deepslam import cli
 from deepslam.core import se3, trajio
+from deepslam.core.errors import InputError
 from deepslam.core.readers import open_sequence
 from deepslam.core.se3 import chain, chain_euler6
 from deepslam.vo.infer import VOPredictor
@@ -98,7 +100,6 @@ def test_bad_input_is_one_line_and_status_2(tmp_path, plane_sequence):
 
 
 def test_shipped_model_names(monkeypatch, tmp_path, plane_sequence):
-    from deepslam.core.errors import InputError
 
     monkeypatch.setattr(models, "models_dir", lambda: tmp_path)  # an empty models folder
     with pytest.raises(InputError, match="missing"):
@@ -182,7 +183,6 @@ def test_vo_takes_an_ensemble_file(plane_sequence, street_model, tmp_path):
 def test_run_vo_is_what_the_command_writes(plane_sequence, tmp_path):
     """The library entry gives the command's trajectory, and its range checks come before any flow."""
     from deepslam.cli import main
-    from deepslam.core.errors import InputError
     from deepslam.vo.pipeline import VOConfig, run_vo
 
     seq = open_sequence(plane_sequence)
@@ -210,3 +210,22 @@ def test_read_width_reads_small_frames_upsampled_with_the_camera_scaled(plane_se
     assert res.record["read_at_px"] == [big.width, big.height] and np.isfinite(res.world_from_cam).all()
     exact = run_vo(seq, VOConfig(flow="gt", read_width_px=2 * seq.camera.width, progress=False, stride=3))
     assert "read_at_px" not in exact.record  # the stored flow is at the recorded size
+
+
+def test_slam_reads_small_frames_as_the_network_does_and_plugins_as_recorded(plane_sequence, tmp_path):
+    from deepslam.slam.plugins import OdometryOptions, network_view
+    from deepslam.vo.pipeline import UpsampledView
+
+    seq = open_sequence(plane_sequence)
+    wide = 2 * seq.camera.width
+    view = network_view(OdometryOptions(read_width_px=wide), seq)
+    assert isinstance(view, UpsampledView) and view.camera.width == wide
+    assert network_view(OdometryOptions(), seq) is seq                                   # 0: as recorded
+    assert network_view(OdometryOptions(read_width_px=wide, odometry="pnp"), seq) is seq  # a plug-in: as recorded
+    assert network_view(OdometryOptions(read_width_px=wide, flow="gt"), seq) is seq      # stored flow: its own size
+    with pytest.raises(InputError, match="--read-width must be in"):
+        network_view(OdometryOptions(read_width_px=10 ** 6), seq)
+    out = tmp_path / "slam.txt"
+    assert cli.main(["slam", "--sequence", str(plane_sequence), "--out", str(out), "--no-loops", "--quiet",
+                     "--read-width", str(wide)]) == 0
+    assert json.loads((tmp_path / "slam.json").read_text())["read_at_px"] == [wide, 2 * seq.camera.height]
