@@ -340,6 +340,24 @@ class OdometryOptions:
     as ``deepslam vo --read-width``); 0: as recorded."""
 
 
+class UpsampledReading:
+    """An odometry (a network's, :meth:`vo.infer.VOPredictor.as_odometry`) that reads frames narrower than
+    ``width`` upsampled as the network of the VO model file ``model_path`` on flow ``flow`` reads them
+    (:func:`vo.pipeline.read_view`); the rest of it is the odometry's own (its name, estimator, predictor)."""
+
+    def __init__(self, odometry, width: int, model_path, flow: str):
+        self.odometry, self.width, self.model_path, self.flow = odometry, int(width), model_path, flow
+
+    def __getattr__(self, name):
+        return getattr(self.odometry, name)
+
+    def predict(self, seq, pairs):
+        return self.odometry.predict(read_view(seq, self.width, self.model_path, self.flow), pairs)
+
+    def predict_verified(self, seq, pairs):
+        return self.odometry.predict_verified(read_view(seq, self.width, self.model_path, self.flow), pairs)
+
+
 def network_view(opts: OdometryOptions, seq):
     """The sequence as SLAM reads it: with the network odometry, frames narrower than ``opts.read_width_px``
     upsampled as the NN_cons file's network reads them (:func:`vo.pipeline.read_view`; relocalization then sees

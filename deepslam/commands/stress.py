@@ -17,6 +17,7 @@ import sys
 import time
 from pathlib import Path
 
+from deepslam.commands import _odometry_flags
 from deepslam.core.errors import InputError
 
 # Library imports sit in the functions: building the parser of every command (deepslam --help) must
@@ -65,6 +66,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model-cons", default=None, metavar="M", help="NN_cons model file or shipped name (default: shipped)")
     p.add_argument("--model-loops", default=None, metavar="M", help="NN_loops model file or shipped name (default: shipped)")
     p.add_argument("--dis-preset", default="medium", help="DIS optical flow preset: ultrafast, fast, medium (default)")
+    p.add_argument("--read-width", type=int, default=_odometry_flags.READ_WIDTH_PX, metavar="PX",
+                   help=_odometry_flags.READ_WIDTH_HELP)
     p.add_argument("--params", default=None, metavar="JSON", help="SLAM C_s, C_r, T_loop from `deepslam tune-slam`")
     p.add_argument("--no-loops", action="store_true", help="SLAM without loop closure")
     p.add_argument("--quick", action="store_true", help="a small sweep (about a minute): 100 frames, 4 settings")
@@ -110,7 +113,8 @@ def config_from_args(args: argparse.Namespace):
         "scene": args.scene, "width": args.width, "seed": args.seed, "backend": args.backend,
         "odometry": main_odometry, "plugins": plugins, "commands": tuple(args.odometry_command or ()),
         "command_timeout_s": args.command_timeout, "model_cons": args.model_cons, "model_loops": args.model_loops,
-        "dis_preset": args.dis_preset, "slam_params": args.params, "loops": not args.no_loops,
+        "dis_preset": args.dis_preset, "read_width_px": args.read_width, "slam_params": args.params,
+        "loops": not args.no_loops,
         "keep_sequences": args.keep_sequences, "combined": args.combined and quick.get("combined", True), "threads": args.threads, "device": args.device,
         "size_objects": args.size_objects,
         "frames": args.frames if args.frames is not None else quick.get("frames", base.frames),

@@ -69,7 +69,7 @@ from deepslam.sim.writers import render_sequence
 from deepslam.slam.compare import load_plugins
 from deepslam.slam.odometry import check_prediction
 from deepslam.slam.pipeline import PipelineConfig, SlamParams, consecutive_pairs, prepare, solve
-from deepslam.slam.plugins import DEFAULT_COMMAND_TIMEOUT_S, command_argv
+from deepslam.slam.plugins import DEFAULT_COMMAND_TIMEOUT_S, UpsampledReading, command_argv
 from deepslam.slam.posegraph import Edges, PoseGraphConfig, chain
 from deepslam.slam.reloc import RelocConfig
 from deepslam.slam.rigid_fit import RigidFitOdometry
@@ -164,6 +164,9 @@ class StressConfig:
     """Every k-th frame is a relocalization keyframe in the SLAM stage."""
     sift_image_scale: float = 1.0
     """Resize factor of the images before SIFT (the study's images are already small)."""
+    read_width_px: int = 0
+    """The networks on DIS flow read frames narrower than this upsampled to it, as ``deepslam vo --read-width``
+    (:class:`slam.plugins.UpsampledReading`); 0: as rendered."""
     vocabulary_size: int = 200
     """Visual words of the BoW vocabulary trained on the first setting's keyframes (shared by all)."""
     device: str = "auto"
@@ -181,6 +184,8 @@ class StressConfig:
             raise InputError(None, f"frames must be an integer in 3..100000, got {self.frames}")
         if not isinstance(self.width, int) or not 16 <= self.width <= 4096:
             raise InputError(None, f"width must be an integer in 16..4096 px, got {self.width}")
+        if not isinstance(self.read_width_px, int) or not 0 <= self.read_width_px <= 8192:
+            raise InputError(None, f"--read-width must be an integer in 0..8192 px, got {self.read_width_px}")
         for name, values in (("objects", self.objects), ("object sizes", self.object_sizes),
                              ("deformation amplitudes", self.deform_amplitudes_m)):
             if len(values) == 0:
@@ -361,9 +366,13 @@ def _main_odometries(config: StressConfig) -> OdometrySet:
                     est = models.flow_for_model("dis", path, preset=config.dis_preset)
                 cons[f] = model_odometry(path, f, shipped, estimator=est, device=dev)
                 cons_epi[f] = models.epipolar_config(path)
+                if config.read_width_px and f == "dis":  # as `deepslam vo --read-width` reads the frames
+                    cons[f] = UpsampledReading(cons[f], config.read_width_px, path, f)
             path, shipped = models.locate(config.model_loops or f"{kind}:loops", None, "loops", flows["dis"])
             loops = model_odometry(path, "dis", shipped, pose="net",
                                    estimator=models.flow_for_model("dis", path, preset=config.dis_preset), device=dev)
+            if config.read_width_px:
+                loops = UpsampledReading(loops, config.read_width_px, path, "dis")
         except InputError as e:
             if config.model_cons or config.model_loops:
                 raise  # a model the user named is missing or broken: bad input
@@ -376,8 +385,9 @@ def _main_odometries(config: StressConfig) -> OdometrySet:
                     "least-squares fit of flow + depth over all pixels")
         else:
             names = ", ".join(f"{cons[f].predictor.name} on {f} flow ({_pose_label(cons_epi[f])})" for f in flows)
+            read = f"; DIS frames read at {config.read_width_px} px" if config.read_width_px > config.width else ""
             return OdometrySet("model", cons, loops, f"deepslam vo's default: NN_cons {names}, and NN_loops "
-                                                     f"{loops.predictor.name} (on DIS flow)")
+                                                     f"{loops.predictor.name} (on DIS flow){read}")
     return OdometrySet("rigid-fit", {f: RigidFitOdometry(est) for f, est in flows.items()}, RigidFitOdometry(flows["dis"]),
                        "rigid least-squares fit of flow + depth over all pixels (solvePnP, no outlier rejection); "
                        "loop pairs on DIS flow", note)
