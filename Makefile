@@ -41,8 +41,10 @@ bench-speed: $(STAMP)
 
 results: $(STAMP)
 	$(PY) -m bench.results_slam
+	$(PY) -m bench.results_width
 	$(PY) -m bench.results_vo
 	$(PY) -m bench.results_repro
+	$(PY) -m bench.results_extra
 	$(PY) -m bench.results_speed
 	$(PY) -m bench.results_road
 	$(PY) -m bench.results_real

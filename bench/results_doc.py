@@ -29,6 +29,9 @@ SECTIONS = (
      "strides 1-3, and the rank agreement of the two."),
     ("slam", "VO alone against SLAM", "python -m bench.results_slam",
      "ATE of the odometry alone and of the SLAM pose graph on simulated streets and rooms."),
+    ("width", "The default odometry at every width", "python -m bench.results_width",
+     "deepslam vo's default as recorded and read upsampled to 640 px on unseen streets rendered at 320-1241 px, "
+     "rooms, the README's 320 px streets beside pnp, and KITTI; the rule that decides the default read width."),
     ("vo", "Training on single frames against supervised training", "python -m bench.results_vo",
      "The paper's synthetic training (single frames, no poses) against training on ground-truth poses, over seeds."),
     ("repro", "The paper's recipe at scale: single frames against supervised, the network's own pose",
@@ -36,6 +39,9 @@ SECTIONS = (
      "NN_cons trained by the paper's recipe for 2 M samples, synthetic from single frames and supervised on the same "
      "renders, scored with their own pose on a held-out street (exact and DIS flow) and on KITTI 07, beside the "
      "geometry default; learning curves."),
+    ("extra", "Rendered frames as extra training data", "python -m bench.results_extra",
+     "One network and budget trained the paper's way on real single frames (KITTI 06), real plus rendered, and "
+     "rendered alone; scored on KITTI 07, which none of them saw."),
     ("speed", "Distance read at several speeds", "python -m bench.results_speed",
      "Path-length ratio of the shipped odometry on simulated streets and real frames at several frame strides."),
     ("road", "Road geometry", "python -m bench.results_road",

@@ -498,3 +498,54 @@ def test_repro_learning_curve_fits_a_power_law_and_the_table_reads_it(tmp_path):
                                                   "supervised_samepatience": {"street_exact": None}}}
     md = results_repro.markdown(report)
     assert "| synthetic (n=1) | 1 |" in md and "x2.00" in md and "at 2x" in md
+
+
+def test_the_loop_route_table_counts_loops_by_direction_and_marks_both_targets():
+    laps = {"vo": {"ate_m": 3.0, "ate_sim3_m": 1.9, "path_length_ratio": 0.986},
+            "slam": {"ate_m": 2.5, "ate_sim3_m": 1.0}, "ratio": 2.5 / 3.0, "vo_path_ratio": 0.986,
+            "slam_exact_revisits": {"ate_m": 2.4}, "ratio_exact_revisits": 0.8,
+            "slam_exact_both_ways": {"ate_m": 2.0}, "ratio_exact_both_ways": 2.0 / 3.0,
+            "loops_by_direction": {"same": 540, "opposite": 0}, "loop_edges_kept": 540, "revisit_pairs": 551,
+            "opposite_revisit_pairs": 1078}
+    md = results_slam.markdown({"config": dataclasses.asdict(results_slam.ResultsSlamConfig()), "minutes": 1.0,
+                                "commands": [], "cases": {}, "laps": {"7431": laps}})
+    row = [ln for ln in md.splitlines() if ln.startswith("| 7431")][0]
+    # SLAM/VO 0.83 misses the half; SLAM within 10 % of perfect same-way loops (2.5 / 2.4 = 1.04)
+    assert "| 0.83 | no | 2.4 (x0.80) | 1.04 | yes | 2 (x0.67) | 540 / 0 (540) | 551 / 1078 |" in row
+    assert row.endswith("| 1.9 / 1 (x0.53) |") and "opposite way" in md
+
+
+def test_the_read_width_rule_v2():
+    from bench import results_width
+
+    def row(label, w, rw, path, ate):
+        return {"sequence": label, "width": w, "read_width": rw, "model": "m", "path_length_ratio": path, "ate_m": ate,
+                "endpoint_drift_pct": 1.0}
+    good = [row("street 1", 320, 0, 1.07, 1.7), row("street 1", 320, 640, 1.001, 0.2),
+            row("street 1", 1241, 0, 1.002, 0.1), row("street 1", 1241, 640, 1.002, 0.1),
+            row("room 1", 376, 0, 0.9, 0.70), row("room 1", 376, 640, 0.9, 0.72),
+            row("README quickstart", 320, 0, 1.020, 0.137), row("README quickstart", 320, 640, 1.021, 0.190),
+            {**row("README quickstart", 320, None, 1.02, 0.135), "model": "pnp"}]
+    cfg = results_width.ResultsWidthConfig()
+    assert results_width.decide(good, cfg)["default_640"]       # 0.001 away from x1 is within the tolerance
+    worse_room = good[:5] + [row("room 1", 376, 640, 0.9, 0.80)] + good[6:]
+    assert not results_width.decide(worse_room, cfg)["default_640"]
+    changed_wide = good[:3] + [row("street 1", 1241, 640, 1.003, 0.1)] + good[4:]
+    assert "not narrower" in " ".join(results_width.decide(changed_wide, cfg)["why"])
+    far_from_pnp = good[:7] + [row("README quickstart", 320, 640, 1.021, 0.30)] + good[8:]
+    assert "2x pnp" in " ".join(results_width.decide(far_from_pnp, cfg)["why"])
+    assert "640 px" in results_width.markdown({"rows": good, "decision": results_width.decide(good, cfg),
+                                               "minutes": 1.0, "commands": []})
+
+
+def test_the_extra_data_table_compares_real_with_real_plus_rendered():
+    from bench import results_extra
+
+    def scores(drift):
+        m = {"endpoint_drift_pct": drift, "ate_m": 1.0, "path_length_ratio": 1.0}
+        return {"KITTI 07 (real), DIS flow": m, "held-out street (town 7), exact flow": m}
+    rows = [{"mix": "real", "seed": 0, "scores": scores(20.0)},
+            {"mix": "real + rendered", "seed": 0, "scores": scores(10.0)}]
+    md = results_extra.markdown({"config": dataclasses.asdict(results_extra.ResultsExtraConfig()), "rows": rows,
+                                 "minutes": 1.0, "commands": []})
+    assert "drift x0.50 (the renders help" in md and "| real + rendered | 10 / 1 / 1 |" in md
