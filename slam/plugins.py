@@ -335,7 +335,7 @@ class OdometryOptions:
     """``gt-noisy``: seed of the noise."""
     progress: bool = False
     """Progress bars of the networks."""
-    read_width_px: int = 0
+    read_width_px: int = 640
     """With the network odometry: frames narrower than this are read upsampled to it (:func:`network_view`,
     as ``deepslam vo --read-width``); 0: as recorded."""
 

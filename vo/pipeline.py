@@ -57,7 +57,7 @@ class VOConfig:
     """bfloat16 inference; None: where the CPU computes bf16 natively."""
     progress: bool = True
     """Show a progress bar."""
-    read_width_px: int = 0
+    read_width_px: int = 640
     """Frames narrower than this are read upsampled to it (bicubic, the camera scaled likewise; a monocular
     network on estimated flow only); 0: read as recorded. At 320 px DIS and the road scale over-read the
     distance (docs/experiments/2026-12-06_read_width.md)."""

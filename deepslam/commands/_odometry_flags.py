@@ -8,11 +8,13 @@ import argparse
 
 from deepslam.commands import _dis_flags
 
-READ_WIDTH_PX = 0
-"""The default of ``--read-width`` (``vo``, ``slam``, ``tune-slam``): 0, frames read as recorded."""
+READ_WIDTH_PX = 640
+"""The default of ``--read-width`` (``vo``, ``slam``, ``tune-slam``, ``stress``): frames narrower than 640 px are
+read upsampled to 640 (decided by rule v2 of docs/experiments/2026-12-06_read_width.md)."""
 READ_WIDTH_HELP = ("the network reads frames narrower than PX upsampled to PX wide (bicubic, the camera scaled "
                    "alike; a network on estimated flow that does not read depth; relocalization sees the same frames): "
-                   "at 320 px DIS and the road scale over-read the distance. 0: as recorded (default %(default)s)")
+                   "at 320 px DIS and the road scale over-read the distance. 0: as recorded (default %(default)s; wider frames, "
+                   "KITTI's, EuRoC's and TUM's, are read as recorded)")
 COMMAND_TIMEOUT_HELP = ("seconds the --odometry-command (or a Python plug-in's predict) may run on the sequence "
                         "(3600); a command runs without a shell: the template is split into arguments once and "
                         "{sequence}/{out} replaced inside them ({{ and }} for literal braces)")

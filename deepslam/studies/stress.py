@@ -164,7 +164,7 @@ class StressConfig:
     """Every k-th frame is a relocalization keyframe in the SLAM stage."""
     sift_image_scale: float = 1.0
     """Resize factor of the images before SIFT (the study's images are already small)."""
-    read_width_px: int = 0
+    read_width_px: int = 640
     """The networks on DIS flow read frames narrower than this upsampled to it, as ``deepslam vo --read-width``
     (:class:`slam.plugins.UpsampledReading`); 0: as rendered."""
     vocabulary_size: int = 200

@@ -220,7 +220,8 @@ def test_slam_reads_small_frames_as_the_network_does_and_plugins_as_recorded(pla
     wide = 2 * seq.camera.width
     view = network_view(OdometryOptions(read_width_px=wide), seq)
     assert isinstance(view, UpsampledView) and view.camera.width == wide
-    assert network_view(OdometryOptions(), seq) is seq                                   # 0: as recorded
+    assert network_view(OdometryOptions(read_width_px=0), seq) is seq                    # 0: as recorded
+    assert network_view(OdometryOptions(), seq).camera.width == 640                       # the default: 640 px
     assert network_view(OdometryOptions(read_width_px=wide, odometry="pnp"), seq) is seq  # a plug-in: as recorded
     assert network_view(OdometryOptions(read_width_px=wide, flow="gt"), seq) is seq      # stored flow: its own size
     with pytest.raises(InputError, match="--read-width must be in"):
