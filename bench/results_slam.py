@@ -178,13 +178,24 @@ def with_exact_revisits(prep, params, world_from_cam0: np.ndarray, both_ways: bo
     return got.world_from_cam, len(got.pairs)
 
 
+def as_slam_reads(seq, flow: str):
+    """``seq`` as ``deepslam slam`` reads it with the network odometry on ``flow`` and its default read width
+    (:func:`slam.plugins.network_view`: frames under 640 px upsampled, relocalization's too)."""
+    from deepslam.slam.plugins import OdometryOptions, network_view
+
+    return network_view(OdometryOptions(flow=flow), seq)
+
+
 def evaluate_case(val_seqs: list, test_seq, flow: str, plot: Path) -> dict:
-    """Tune on ``val_seqs``, then VO / SLAM (default and tuned) on ``test_seq`` with one flow estimator."""
+    """Tune on ``val_seqs``, then VO / SLAM (default and tuned) on ``test_seq`` with one flow estimator, each
+    read as ``deepslam slam`` reads it (:func:`as_slam_reads`)."""
     from deepslam.core import plots
     from deepslam.slam.pipeline import PipelineConfig, SlamParams, prepare, solve
     from deepslam.slam.posegraph import chain
     from deepslam.slam.tune import problem_from_prepared, tune
 
+    val_seqs = [as_slam_reads(v, flow) for v in val_seqs]
+    test_seq = as_slam_reads(test_seq, flow)
     t0 = time.perf_counter()
     tuned = tune([problem_from_prepared(prepare(v, *_odometry(v, flow), PipelineConfig(), show_progress=False))
                   for v in val_seqs])
@@ -215,11 +226,13 @@ def evaluate_unseen(seq, both_ways: bool = False) -> dict:
     """VO and SLAM with ``deepslam slam``'s defaults (``SlamParams()``, DIS flow) on ``seq``, its loop edges
     scored against the ground truth, and the graph of :func:`with_exact_revisits`. ``both_ways`` (a route that
     revisits both ways, ``render --route laps``): also the loop edges counted by direction (ground truth), the
-    opposite-way revisits, and perfect loops both ways (an exact edge on every revisit, either way)."""
+    opposite-way revisits, and perfect loops both ways (an exact edge on every revisit, either way). ``seq`` is
+    read as ``deepslam slam`` reads it (:func:`as_slam_reads`)."""
     from bench.results_vo import pair_errors
     from deepslam.slam.pipeline import PipelineConfig, SlamParams, prepare, solve
     from deepslam.slam.posegraph import chain, loop_coverage
 
+    seq = as_slam_reads(seq, "dis")
     t0 = time.perf_counter()
     prep = prepare(seq, *_odometry(seq, "dis"), PipelineConfig(), show_progress=False)
     first = seq.gt.world_from_cam[0]
