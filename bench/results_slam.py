@@ -367,10 +367,36 @@ def markdown(report: dict) -> str:
     return "\n".join(md) + "\n"
 
 
-def run(cfg: ResultsSlamConfig, out: Path) -> dict:
+def _street_defaults(seeds, frames: int, tag: str, render_flags: tuple[str, ...], cfg: ResultsSlamConfig, out: Path,
+                     log: list[str], commit: str) -> dict:
+    """{seed: :func:`evaluate_unseen` record} of the streets ``seeds`` rendered with ``render_flags`` into
+    ``out/street_{tag}_s{seed}`` (``laps``: also by direction, ``both_ways``); records cached under ``out/cases``."""
     from deepslam.core import atomic
     from deepslam.core.readers import open_sequence
     from deepslam.studies.demo import render_once
+
+    got = {}
+    for seed in seeds:
+        root = render_once("street", "car", frames, cfg.street_width, seed, out / f"street_{tag}_s{seed}", log,
+                           (*render_flags, "--quiet"))
+        seq = open_sequence(root)
+        path = out / "cases" / f"street_{tag}_s{seed}.json"
+        used = _models_used(seq, "dis")
+        rec = cached_case(path, used, commit)
+        if rec is None:
+            print(f"street {seed} ({tag}), deepslam slam defaults", flush=True)
+            rec = {**evaluate_unseen(seq, both_ways=tag == "laps"), "models_sha256": used, "commit": commit}
+            atomic.write_json(path, rec)
+            print(f"  VO ATE {rec['vo']['ate_m']:.3f} m, SLAM {rec['slam']['ate_m']:.3f} m "
+                  f"(ratio {rec['ratio']:.2f})", flush=True)
+        got[str(seed)] = rec
+    return got
+
+
+def run(cfg: ResultsSlamConfig, out: Path) -> dict:
+    from deepslam.core import atomic
+    from deepslam.core.readers import open_sequence
+
     out.mkdir(parents=True, exist_ok=True)
     atomic.write_json(out / "config.json", dataclasses.asdict(cfg))
     log: list[str] = []
@@ -394,38 +420,10 @@ def run(cfg: ResultsSlamConfig, out: Path) -> dict:
             cases[f"{scene}/{flow}"] = rec
             print(f"  VO ATE {rec['vo']['ate_m']:.3f} m, SLAM {rec['slam_tuned']['ate_m']:.3f} m "
                   f"(ratio {rec['ratio_tuned']:.2f})", flush=True)
-    unseen = {}
+    unseen, laps = {}, {}
     if "street" in cfg.scenes:
-        for seed in cfg.unseen_street_seeds:
-            root = render_once("street", "car", cfg.unseen_frames, cfg.street_width, seed, out / f"street_unseen_s{seed}",
-                               log, ("--quiet",))
-            seq = open_sequence(root)
-            path = out / "cases" / f"street_unseen_s{seed}.json"
-            used = _models_used(seq, "dis")
-            rec = cached_case(path, used, commit)
-            if rec is None:
-                print(f"street {seed} (unseen), deepslam slam defaults", flush=True)
-                rec = {**evaluate_unseen(seq), "models_sha256": used, "commit": commit}
-                atomic.write_json(path, rec)
-                print(f"  VO ATE {rec['vo']['ate_m']:.3f} m, SLAM {rec['slam']['ate_m']:.3f} m "
-                      f"(ratio {rec['ratio']:.2f})", flush=True)
-            unseen[str(seed)] = rec
-    laps = {}
-    if "street" in cfg.scenes:
-        for seed in cfg.laps_seeds:
-            root = render_once("street", "car", cfg.laps_frames, cfg.street_width, seed, out / f"street_laps_s{seed}",
-                               log, ("--route", "laps", "--quiet"))
-            seq = open_sequence(root)
-            path = out / "cases" / f"street_laps_s{seed}.json"
-            used = _models_used(seq, "dis")
-            rec = cached_case(path, used, commit)
-            if rec is None:
-                print(f"street {seed}, route laps, deepslam slam defaults", flush=True)
-                rec = {**evaluate_unseen(seq, both_ways=True), "models_sha256": used, "commit": commit}
-                atomic.write_json(path, rec)
-                print(f"  VO ATE {rec['vo']['ate_m']:.3f} m, SLAM {rec['slam']['ate_m']:.3f} m "
-                      f"(ratio {rec['ratio']:.2f})", flush=True)
-            laps[str(seed)] = rec
+        unseen = _street_defaults(cfg.unseen_street_seeds, cfg.unseen_frames, "unseen", (), cfg, out, log, commit)
+        laps = _street_defaults(cfg.laps_seeds, cfg.laps_frames, "laps", ("--route", "laps"), cfg, out, log, commit)
     report = {"config": dataclasses.asdict(cfg), "cases": cases, "unseen": unseen, "laps": laps,
               "perfect_loops": _perfect_loops_config(), "commands": log,
               "minutes": (time.perf_counter() - t0) / 60}
