@@ -33,7 +33,7 @@ MIXES = ("real", "real + rendered", "rendered")
 class ResultsExtraConfig:
     """What is trained and scored."""
 
-    samples: int = 200_000
+    samples: int = 80_000
     """Training samples per model (the same budget for every mix)."""
     seeds: tuple[int, ...] = (0,)
     """Training seeds (a row's mean over those)."""
