@@ -20,6 +20,7 @@ from deepslam.vo.data.prefetch import PairInputs
 from deepslam.vo.geometry.epipolar import EpipolarFitter, fuse_all
 from deepslam.vo.geometry.road_image import road_image
 from deepslam.vo.modelfiles.modelio import load_model
+from deepslam.vo.modelfiles.models import recorded_std_scale
 
 
 @functools.lru_cache(maxsize=1)
@@ -59,12 +60,15 @@ class VOPredictor:
         if bf16 is None:
             bf16 = True if self.device.type == "cuda" else cpu_has_native_bf16()
         self.bf16 = bool(bf16)
+        self.std_scale = recorded_std_scale(self.meta)
+        """(6,) per-DoF factor on every predicted std (``deepslam calibrate``; ones when the file records none)."""
 
     @classmethod
     def from_file(cls, path: str | Path, **kwargs) -> "VOPredictor":
         """Load a ``model.safetensors`` (or a training ``checkpoint.safetensors``); InputError when missing or malformed."""
         model, meta = load_model(path)
         kwargs.setdefault("name", Path(path).stem)
+        recorded_std_scale(meta, path)  # a malformed calibration is refused here, naming the file
         return cls(model, meta=meta, **kwargs)
 
     @property
@@ -105,7 +109,7 @@ class VOPredictor:
             log_stds.append(ls.double().cpu())
         if not means:
             return np.zeros((0, 6)), np.zeros((0, 6))
-        return torch.cat(means).numpy(), torch.cat(log_stds).exp().numpy()
+        return torch.cat(means).numpy(), torch.cat(log_stds).exp().numpy() * self.std_scale
 
     def prepare(self, flow_full: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
         """Full-resolution flow (H, W, 2) -> network input ((2, h, w) px, (4,) intrinsics)."""

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 import deepslam.models
 from deepslam.core.errors import InputError
 from deepslam.core.kinds import KINDS, kind_for_sequence  # noqa: F401 - part of this module's API
@@ -155,20 +157,40 @@ def write_with_pose(path: str | Path, out: str | Path, pose: str, scale: str | N
     (:data:`POSES`) recorded as its pose mode and, when given, ``scale`` (:data:`SCALES`) as its distance
     source: the same weights and meta otherwise. Returns the new meta. InputError naming ``path`` when it is
     not a VO model file."""
-    # deferred: both import torch; the header readers here stay torch-free (deepslam vo starts its flows first)
-    from deepslam.models import modelfile
-    from deepslam.vo.modelfiles.modelio import MODEL_FORMAT
-
     if pose not in POSES:
         raise InputError(None, f"pose must be one of {', '.join(POSES)}, got {pose!r}")
     if scale is not None and scale not in SCALES:
         raise InputError(None, f"scale must be one of {', '.join(SCALES)}, got {scale!r}")
+    return write_with_meta(path, out, {"pose": pose, **({"scale": scale} if scale is not None else {})})
+
+
+def write_with_meta(path: str | Path, out: str | Path, updates: dict) -> dict:
+    """Write the VO model file ``path`` to ``out`` (atomically) with the meta entries ``updates`` set (JSON
+    values), the same weights and other meta. Returns the new meta. InputError naming ``path`` when it is not a
+    VO model file."""
+    # deferred: both import torch; the header readers here stay torch-free (deepslam vo starts its flows first)
+    from deepslam.models import modelfile
+    from deepslam.vo.modelfiles.modelio import MODEL_FORMAT
+
     kind, tree = modelfile.load(path, (MODEL_FORMAT,))
-    meta = {**(tree.get("meta") if isinstance(tree.get("meta"), dict) else {}), "pose": pose}
-    if scale is not None:
-        meta["scale"] = scale
+    meta = {**(tree.get("meta") if isinstance(tree.get("meta"), dict) else {}), **updates}
     modelfile.save(out, kind, {**tree, "meta": meta})
     return meta
+
+
+def recorded_std_scale(meta: dict, path=None) -> np.ndarray:
+    """(6,) float64 the per-DoF factor on the predicted std that the model's meta records (``deepslam calibrate``:
+    :mod:`vo.calibration`); ones where it records none. InputError naming ``path`` for a malformed one."""
+    value = meta.get("std_scale") if isinstance(meta, dict) else None
+    if value is None:
+        return np.ones(6)
+    try:
+        scale = np.asarray(value, np.float64).reshape(6)
+    except (TypeError, ValueError):
+        scale = None
+    if scale is None or not (np.isfinite(scale).all() and (scale > 0).all()):
+        raise InputError(path, f"malformed VO model: its meta.std_scale {short(value)} is not 6 positive numbers")
+    return scale
 
 
 def flow_for_model(flow: str, path: str | Path, recorded: dict | None = None, **given):
