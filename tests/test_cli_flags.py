@@ -31,7 +31,7 @@ def _option(parser: argparse.ArgumentParser, flag: str) -> argparse.Action | Non
 
 
 # every command, by what it owes: the ones that run long, those that compute figures, and the quick tools
-NEEDS_QUIET_AND_JSON = ("adapt", "dataset", "gen", "render", "slam", "stress", "train", "train-flow", "tune-slam",
+NEEDS_QUIET_AND_JSON = ("adapt", "calibrate", "dataset", "gen", "render", "slam", "stress", "train", "train-flow", "tune-slam",
                         "validate-flow", "vo")
 NEEDS_JSON = ("eval", "fit-motion", "info")
 QUICK = ("convert-model", "ensemble-model", "set-pose", "set-solve", "view")
