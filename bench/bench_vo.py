@@ -210,7 +210,7 @@ def run(quick: bool) -> list[dict]:
                      "one frame per call, fp32", m["single"], ">= 200 frames/s", m["batched"] >= 200))
     rows.append(_row("synthetic data 96x320 (synthesized at 192x640, pooled), batch 128",
                      _best({"d": lambda: synthetic_data_throughput(256 if quick else 1024)}, rounds)["d"], "samples/s"))
-    from deepslam.vo.infer import cpu_has_native_bf16
+    from deepslam.runtime.device import cpu_has_native_bf16
 
     bf16 = cpu_has_native_bf16()
     readme = readme_train_throughput(512 if quick else 2560)

@@ -66,7 +66,10 @@ class FlowTrainConfig:
     threads: int = 2
     """torch CPU threads."""
     device: str = "cpu"
-    """Torch device to train on (``cpu``, ``cuda``, ``cuda:N``); bf16 autocast on either."""
+    """Torch device to train on (``cpu``, ``cuda``, ``cuda:N``)."""
+    bf16: bool = True
+    """bf16 autocast of the network's forward pass (``train-flow --bf16 auto`` turns it on with CUDA and on CPUs
+    that compute bf16 natively: elsewhere it is emulated, about 10x slower than float32)."""
     loader_workers: int = 0
     """Processes that build the batches ahead of the training step (0: built in the training process).
     Each step's batch is drawn from its own seed stream, so the batches (and the model) are the same
@@ -289,7 +292,7 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
             b = next(batches)
             if dev.type != "cpu":
                 b = {k: v.pin_memory().to(dev, non_blocking=True) for k, v in b.items()}
-            with torch.autocast(dev.type, dtype=torch.bfloat16):
+            with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=cfg.bf16):
                 outs = model(b["img0"], b["img1"])
             loss = multiscale_loss([o.float() for o in outs], b["flow"], cfg.level_weights)
             scalars = {}
@@ -298,7 +301,7 @@ def train_flow(cfg: FlowTrainConfig, pairs: FlowPairs, out_dir: str | Path, resu
                 if dev.type != "cpu":
                     rb = {k: v.to(dev) for k, v in rb.items()}
                 uloss, parts = unsupervised_loss(model, rb["img0"], rb["img1"], rb["aug0"], rb["aug1"],
-                                                 cfg.smooth_weight, dev.type, cfg.smooth_order)
+                                                 cfg.smooth_weight, dev.type, cfg.smooth_order, cfg.bf16)
                 run_census += parts["census"]
                 scalars["flow/step/real_census"] = parts["census"]
                 loss = loss + cfg.real_weight * uloss

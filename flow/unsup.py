@@ -124,8 +124,8 @@ def smoothness_loss(flow: torch.Tensor, img: torch.Tensor, order: int = 1) -> to
 
 
 def unsupervised_loss(model, img0: torch.Tensor, img1: torch.Tensor, aug0: torch.Tensor, aug1: torch.Tensor,
-                      smooth_weight: float, autocast_device: str = "cpu", smooth_order: int = 1
-                      ) -> tuple[torch.Tensor, dict]:
+                      smooth_weight: float, autocast_device: str = "cpu", smooth_order: int = 1,
+                      bf16: bool = True) -> tuple[torch.Tensor, dict]:
     """The census + smoothness loss of ``model`` on real pairs (both directions), and its parts.
 
     Args:
@@ -135,11 +135,12 @@ def unsupervised_loss(model, img0: torch.Tensor, img1: torch.Tensor, aug0: torch
         smooth_weight: weight of the smoothness term.
         smooth_order: 1 or 2, the smoothness term's order (:func:`smoothness_loss`).
         autocast_device: device type for bf16 autocast of the network's forward pass.
+        bf16: whether that autocast is on.
     Returns:
         (loss scalar, {"census", "smooth", "non_occluded"} floats for the log).
     """
     b = img0.shape[0]
-    with torch.autocast(autocast_device, dtype=torch.bfloat16):
+    with torch.autocast(autocast_device, dtype=torch.bfloat16, enabled=bf16):
         outs = model(torch.cat([aug0, aug1]), torch.cat([aug1, aug0]))
 
     coarse = outs[-1].float()  # (2B, 2, H/4, W/4) at the finest estimated level

@@ -1,6 +1,9 @@
 """Which torch device to compute on: ``--device auto|cpu|cuda[:N]`` as the commands take it."""
 from __future__ import annotations
 
+import functools
+from pathlib import Path
+
 import torch
 
 from deepslam.core.errors import InputError
@@ -33,3 +36,22 @@ def resolve_device(spec: str | None) -> torch.device:
             raise InputError(None, f"--device {spec}: only {torch.cuda.device_count()} CUDA device(s) here")
         return dev
     raise InputError(None, f"--device {spec!r} is not {DEVICE_CHOICES}")
+
+
+@functools.lru_cache(maxsize=1)
+def cpu_has_native_bf16() -> bool:
+    """True when this CPU computes bf16 natively (AVX512-BF16 or AMX), where bf16 autocast pays off; on other
+    CPUs autocast emulates bf16, about 10x slower than float32."""
+    try:
+        flags = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return False
+    return "avx512_bf16" in flags or "amx_bf16" in flags
+
+
+def resolve_bf16(spec: str, device: torch.device) -> bool:
+    """bf16 autocast for a ``--bf16 auto|on|off`` value on ``device``: ``auto`` is on with CUDA and on CPUs that
+    compute bf16 natively (:func:`cpu_has_native_bf16`)."""
+    if spec == "auto":
+        return device.type == "cuda" or cpu_has_native_bf16()
+    return spec == "on"

@@ -15,22 +15,13 @@ from tqdm import tqdm
 
 from deepslam.flow.estimators import to_network_input
 from deepslam.flow.images import to_grey
+from deepslam.runtime.device import cpu_has_native_bf16
 from deepslam.vo.data.frames import frame_inverse_depth
 from deepslam.vo.data.prefetch import PairInputs
 from deepslam.vo.geometry.epipolar import EpipolarFitter, fuse_all
 from deepslam.vo.geometry.road_image import road_image
 from deepslam.vo.modelfiles.modelio import load_model
 from deepslam.vo.modelfiles.models import recorded_std_scale
-
-
-@functools.lru_cache(maxsize=1)
-def cpu_has_native_bf16() -> bool:
-    """True when this CPU computes bf16 natively (AVX512-BF16 or AMX), where bf16 autocast pays off."""
-    try:
-        flags = Path("/proc/cpuinfo").read_text()
-    except OSError:
-        return False
-    return "avx512_bf16" in flags or "amx_bf16" in flags
 
 
 class VOPredictor:

@@ -208,13 +208,10 @@ def train_config(args: argparse.Namespace, net, device):
     """The :class:`vo.trainconfig.TrainConfig` of the flags, for network ``net`` on torch ``device`` (bf16 ``auto``:
     on CUDA, and on CPUs that compute bf16 natively). InputError for a hold-out fraction outside (0, 1)."""
     from deepslam.core.errors import InputError
-    from deepslam.vo.infer import cpu_has_native_bf16
+    from deepslam.runtime.device import resolve_bf16
     from deepslam.vo.trainconfig import TrainConfig
 
-    if args.bf16 == "auto":
-        bf16 = True if device.type == "cuda" else cpu_has_native_bf16()
-    else:
-        bf16 = args.bf16 == "on"
+    bf16 = resolve_bf16(args.bf16, device)
     cfg = TrainConfig(net=net, batch_size=args.batch, lr_min=args.lr_min, lr_max=args.lr_max,
                       lr_half_cycle_steps=args.half_cycle_steps, patience_epochs=args.patience, lr_stop=args.lr_stop,
                       max_epochs=args.max_epochs, max_minutes=args.max_minutes, max_samples=args.max_samples,

@@ -28,6 +28,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--loader-workers", type=int, default=0, metavar="K",
                    help="processes that build the batches ahead of each step (0: none); the same batches for any K. "
                         "On a GPU machine the batches, not the network, bound the speed: use most of its cores")
+    p.add_argument("--bf16", choices=("auto", "on", "off"), default="auto",
+                   help="bf16 autocast (auto: with CUDA and on CPUs that compute bf16 natively)")
     p.add_argument("--device", default="auto", help="auto (CUDA when torch sees one, else the CPU), cpu, cuda or cuda:N")
     p.add_argument("--init", default="", metavar="FLOW_MODEL",
                    help="start from this flow model's weights (fine-tuning, e.g. models/flow_learned.safetensors "
@@ -73,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
 
     from deepslam.core.errors import InputError
     from deepslam.core.readers import open_sequence
-    from deepslam.runtime.device import resolve_device
+    from deepslam.runtime.device import resolve_bf16, resolve_device
     from deepslam.flow.train import FlowPairs, FlowTrainConfig, train_flow
     from deepslam.runtime.training import TrainingDiverged
 
@@ -99,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
     device = resolve_device(args.device)
     cfg = FlowTrainConfig(crop=(ch, cw), batch_size=args.batch, lr=args.lr, max_steps=args.max_steps,
                           max_minutes=args.max_minutes, stop_after_steps=args.stop_after, seed=args.seed,
-                          threads=args.threads, device=str(device), loader_workers=args.loader_workers,
+                          threads=args.threads, device=str(device), bf16=resolve_bf16(args.bf16, device), loader_workers=args.loader_workers,
                           init=args.init,
                           real_batch_size=args.real_batch if args.real else 0, real_weight=args.real_weight,
                           smooth_weight=args.smooth_weight, smooth_order=args.smooth_order)

@@ -10,6 +10,7 @@ from deepslam.core.errors import InputError
 from deepslam.flow.metrics import endpoint_error
 from deepslam.flow.net import FlowNet, FlowNetConfig, LearnedFlow, correlation, load_flow_model, warp
 from deepslam.flow.train import FlowTrainConfig, multiscale_loss, train_flow
+from deepslam.runtime.device import cpu_has_native_bf16
 from tests.textures import shifted_texture_batch
 
 SMALL = FlowNetConfig(channels=(8, 12, 16), estimator_channels=(16,), finest_level=1, work_width=128, search_px=2)
@@ -68,8 +69,9 @@ class _Shifted:
 
 
 def test_training_learns_a_translation_and_the_model_file_loads(tmp_path):
+    # bf16 where this CPU computes it natively (train-flow's auto): emulated, it trains ~10x slower
     cfg = FlowTrainConfig(net=SMALL, crop=(64, 128), batch_size=8, lr=1e-3, max_steps=600, level_weights=(1.0, 0.5, 0.25),
-                          checkpoint_steps=200, threads=2)
+                          checkpoint_steps=200, threads=2, bf16=cpu_has_native_bf16())
     path = train_flow(cfg, _Shifted(), tmp_path / "run", progress=False)
     model, meta = load_flow_model(path)
     assert meta["steps"] == 600
