@@ -34,7 +34,7 @@ def test_slam_cli_writes_trajectories_record_and_plot(seq_dir, tmp_path, capsys)
     assert slam_fmt == vo_fmt == "tum" and slam.timestamps_s is not None
     assert len(slam) == len(vo) == 60
     rec = json.loads((tmp_path / "run" / "traj.json").read_text())
-    assert rec["n_loops"] > 10
+    assert rec["n_loops"] >= 9  # of the 10 keyframes (every 3rd frame) on the second lap
     # the frames inside a cycle a loop edge closes: at least the longest loop's span, at most all the loops' span
     first, last = min(min(p) for p in rec["loops"]), max(max(p) for p in rec["loops"])
     longest = max(abs(j - i) + 1 for i, j in rec["loops"])
@@ -122,10 +122,19 @@ def test_slam_cli_corrupt_image_read_in_the_relocalization_thread(seq_dir, tmp_p
 
     bad = tmp_path / "seq"
     shutil.copytree(seq_dir, bad)
-    png = sorted((bad / "rgb").glob("*.png"))[7]
+    png = sorted((bad / "rgb").glob("*.png"))[6]  # a keyframe (every 3rd frame by default)
     png.write_bytes(png.read_bytes()[:100])
     out = tmp_path / "t.txt"
     rc = main(["slam", "--sequence", str(bad), "--odometry", "gt-noisy", "--out", str(out)])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and png.name in err[0]
     assert not out.exists()
+
+
+def test_keyframe_stride_flags_default_to_the_pipelines():
+    from deepslam.cli import build_parser
+    from deepslam.slam.pipeline import PipelineConfig
+
+    for command in ("slam", "tune-slam"):
+        parsed, _ = build_parser().parse_known_args([command, "--sequence", "s", "--out", "o"])
+        assert parsed.keyframe_stride == PipelineConfig().keyframe_stride == 3, command

@@ -16,6 +16,8 @@ from deepslam.slam.synthetic import synthetic_trajectory, write_loop_sequence
 
 N, LAPS = 80, 2.0  # 40 frames per lap: frame i and i + 40 are the same place
 RELOC = RelocConfig(image_scale=1.0, n_features=300, vocabulary_size=200, n_candidates=5)
+# the pipelines below relocalize every frame: a synthetic place matches only its exact revisit, 40 frames later
+# (not a multiple of the default keyframe stride)
 
 
 @pytest.fixture(scope="module")
@@ -73,7 +75,7 @@ def test_params_json_round_trip_and_errors(tmp_path):
 def test_pipeline_closes_the_loop_on_a_revisit_sequence(loop_seq):
     cons = GroundTruthOdometry(NoiseConfig(bias6=(0, 0.004, 0, 0, 0, 0), seed=1))
     loops = GroundTruthOdometry(NoiseConfig(seed=2))
-    res = run_slam(loop_seq, cons, loops, SlamParams(t_loop=20), PipelineConfig(reloc=RELOC), show_progress=False)
+    res = run_slam(loop_seq, cons, loops, SlamParams(t_loop=20), PipelineConfig(reloc=RELOC, keyframe_stride=1), show_progress=False)
     pairs = {tuple(p) for p in res.loops.pairs.tolist()}
     per_lap = int(N / LAPS)
     true = {(i, i + per_lap) for i in range(N - per_lap)}
@@ -90,7 +92,7 @@ def test_pipeline_closes_the_loop_on_a_revisit_sequence(loop_seq):
 def test_t_loop_filters_loops_and_prepared_stages_are_reused(loop_seq):
     cons = GroundTruthOdometry(NoiseConfig(bias6=(0, 0.004, 0, 0, 0, 0), seed=1))
     loops = GroundTruthOdometry(NoiseConfig(seed=2))
-    prep = prepare(loop_seq, cons, loops, PipelineConfig(reloc=RELOC), show_progress=False)
+    prep = prepare(loop_seq, cons, loops, PipelineConfig(reloc=RELOC, keyframe_stride=1), show_progress=False)
     _, near = solve(prep, SlamParams(t_loop=20))
     _, far = solve(prep, SlamParams(t_loop=45))  # revisits are 40 frames apart: none is far enough
     assert len(near) > 0 and len(far) == 0
@@ -122,7 +124,7 @@ def test_loop_pairs_whose_flow_breaks_are_left_out(loop_seq, loop_check):
     assert isinstance(_BrokenEvery3rd(), VerifiedOdometry)
     assert not isinstance(GroundTruthOdometry(), VerifiedOdometry)
     cons = GroundTruthOdometry(NoiseConfig(bias6=(0, 0.004, 0, 0, 0, 0), seed=1))
-    config = PipelineConfig(reloc=RELOC, loop_check=loop_check)
+    config = PipelineConfig(reloc=RELOC, keyframe_stride=1, loop_check=loop_check)
     res = run_slam(loop_seq, cons, _BrokenEvery3rd(), SlamParams(t_loop=20), config, show_progress=False)
     plain = run_slam(loop_seq, cons, GroundTruthOdometry(NoiseConfig(seed=2)), SlamParams(t_loop=20), config,
                      show_progress=False)
@@ -148,12 +150,12 @@ def test_loop_search_in_the_background_equals_the_sequential_one(loop_seq):
     odometry; the loops and the trajectory are exactly those of the lazy, sequential search."""
     cons = GroundTruthOdometry(NoiseConfig(bias6=(0, 0.004, 0, 0, 0, 0), seed=1))
     loops = GroundTruthOdometry(NoiseConfig(seed=2))
-    vocab = run_slam(loop_seq, cons, loops, SlamParams(t_loop=20), PipelineConfig(reloc=RELOC),
+    vocab = run_slam(loop_seq, cons, loops, SlamParams(t_loop=20), PipelineConfig(reloc=RELOC, keyframe_stride=1),
                      show_progress=False).vocabulary
     params = SlamParams(t_loop=20)
-    res = run_slam(loop_seq, cons, loops, params, PipelineConfig(reloc=RELOC), vocabulary=vocab, show_progress=False)
+    res = run_slam(loop_seq, cons, loops, params, PipelineConfig(reloc=RELOC, keyframe_stride=1), vocabulary=vocab, show_progress=False)
     assert "loop_search_thread_s" in res.timings and "loop_search_s" not in res.timings
-    prep = prepare(loop_seq, cons, loops, PipelineConfig(reloc=RELOC), vocabulary=vocab, show_progress=False)
+    prep = prepare(loop_seq, cons, loops, PipelineConfig(reloc=RELOC, keyframe_stride=1), vocabulary=vocab, show_progress=False)
     assert prep._loops_by_t == {}  # no t_loop given: nothing searched yet
     opt, lazy = solve(prep, params, world_from_cam0=loop_seq.gt.world_from_cam[0])
     assert len(lazy) > 0
