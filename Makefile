@@ -41,6 +41,7 @@ bench-speed: $(STAMP)
 
 results: $(STAMP)
 	$(PY) -m bench.results_slam
+	$(PY) -m bench.results_keyframes
 	$(PY) -m bench.results_width
 	$(PY) -m bench.results_vo
 	$(PY) -m bench.results_repro

@@ -29,6 +29,9 @@ SECTIONS = (
      "strides 1-3, and the rank agreement of the two."),
     ("slam", "VO alone against SLAM", "python -m bench.results_slam",
      "ATE of the odometry alone and of the SLAM pose graph on simulated streets and rooms."),
+    ("keyframes", "Relocalization on every k-th frame", "python -m bench.results_keyframes",
+     "deepslam slam's defaults with keyframe strides 1-3 on loop routes and a room: loop recall, SLAM ATE and what "
+     "relocalization costs; the rule that decides the default stride."),
     ("width", "The default odometry at every width", "python -m bench.results_width",
      "deepslam vo's default as recorded and read upsampled to 640 px on unseen streets rendered at 320-1241 px, "
      "rooms, the README's 320 px streets beside pnp, and KITTI; the rule that decides the default read width."),

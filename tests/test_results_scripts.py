@@ -549,3 +549,27 @@ def test_the_extra_data_table_compares_real_with_real_plus_rendered():
     md = results_extra.markdown({"config": dataclasses.asdict(results_extra.ResultsExtraConfig()), "rows": rows,
                                  "minutes": 1.0, "commands": []})
     assert "drift x0.50 (the renders help" in md and "| real + rendered | 10 / 1 / 1 |" in md
+
+
+def test_keyframe_rule_and_loop_recall():
+    """bench.results_keyframes: the recall counts keyframes revisiting a place the same way that got a loop edge;
+    the rule keeps the largest stride within max(1.05 x, + 0.05 m) of stride 1's ATE and 0.9 x its recall."""
+    from bench import results_keyframes as rk
+    from deepslam.slam.synthetic import circle_trajectory
+
+    poses = circle_trajectory(120, 10.0, 2.0, 0.0)  # two laps of 60 frames: frame j revisits j - 60
+    kf = list(range(0, 120, 3))
+    none = rk.loop_recall(poses, kf, np.zeros((0, 2), np.int64), t_loop=50)
+    assert none["revisiting"] == 20 and none["found"] == 0 and none["recall"] == 0.0
+    half = rk.loop_recall(poses, kf, np.array([(j - 60, j) for j in range(60, 90, 3)]), t_loop=50)
+    assert half["found"] == 10 and half["recall"] == 0.5
+    assert rk.loop_recall(poses, kf, np.array([(0, 60)]), t_loop=70)["revisiting"] == 0  # none more than 70 apart
+
+    def row(ate, recall):
+        return {"slam": {"ate_m": ate}, "recall": {"recall": recall}}
+
+    rows = {"a": {"1": row(1.0, 0.9), "2": row(1.04, 0.85), "3": row(1.2, 0.9)},
+            "b": {"1": row(0.2, None), "2": row(0.24, None), "3": row(0.2, None)}}
+    assert rk.rule(rows, (1, 2, 3)) == {"met": {"1": True, "2": True, "3": False}, "chosen": 2}
+    rows["a"]["2"] = row(1.04, 0.8)  # recall under 0.9 x
+    assert rk.rule(rows, (1, 2, 3))["chosen"] == 1
