@@ -120,7 +120,7 @@ def bench_retrieval(quick: bool) -> list[dict]:
                 for q in queries:
                     db.query(*q, k=20)
                 scipy_s = (time.perf_counter() - t0) / len(queries)
-            out.append(_row(f"BoW retrieval, top-20 of {size} frames, compiled posting-list loop (numba, 2 threads; "
+            out.append(_row(f"BoW retrieval, top-20 of {size} frames, compiled posting-list loop (numba; "
                             "the default from reloc.COMPILED_MIN_ROWS rows), per query", fast * 1e3, "ms",
                             "scipy column slice + mat-vec (below that size), in turn", scipy_s * 1e3,
                             "<= 5 ms a query", fast * 1e3 <= 5))

@@ -13,7 +13,7 @@ Retrieval speed: the database keeps every BoW vector in growable CSR arrays and 
 (CSC, i.e. inverted-index) copy of all but the newest rows, rebuilt when the newest part grows past a
 quarter of the rest. A query multiplies only the columns of its own words (cost: the summed lengths
 of its words' posting lists) plus the few newest rows (a CSR mat-vec), never a Python loop over frames; from
-``COMPILED_MIN_ROWS`` rows the posting lists are walked by a compiled loop on both cores (numba).
+``COMPILED_MIN_ROWS`` rows the posting lists are walked by a compiled loop (numba).
 
 Image coordinates: keypoints are stored in full-resolution pixels of the sequence's camera (the
 detector's coordinates divided by ``image_scale``), so the camera's K applies unchanged.
@@ -23,7 +23,6 @@ from __future__ import annotations
 import dataclasses
 import io
 import json
-import threading
 import time
 from pathlib import Path
 
@@ -330,36 +329,25 @@ and mat-vec, which need no compiling and cost well under a millisecond there. Bo
 query's word order: the same float32 scores."""
 
 _POSTING_KERNEL = None
-_POSTING_LOCK = threading.Lock()
 
 
 def _posting_scores():
-    """The compiled scorer ``(indptr, indices, data, ids, weights, n_rows, n_blocks) -> (n_rows,) float32``: for
-    each query word ``ids[a]`` (weight ``weights[a]``), ``out[r] += data[p] * weights[a]`` over its posting list
-    (CSC column: rows ``indices[p]`` ascending, p in ``indptr[w]:indptr[w + 1]``). The rows are split into
-    ``n_blocks`` ranges, one a thread; each finds its range in a list by bisection, so every row still adds its
-    products in word order."""
+    """The compiled scorer ``(indptr, indices, data, ids, weights, n_rows) -> (n_rows,) float32``: for each query
+    word ``ids[a]`` (weight ``weights[a]``), ``out[r] += data[p] * weights[a]`` over its posting list (CSC column:
+    rows ``indices[p]``, p in ``indptr[w]:indptr[w + 1]``). One thread: the loop is bound by memory (a query reads
+    millions of entries), two threads over row blocks measured no faster."""
     global _POSTING_KERNEL
     if _POSTING_KERNEL is None:
         import numba  # deferred: compiled only for databases past COMPILED_MIN_ROWS rows
 
-        if numba.config.THREADING_LAYER == "default":  # fork-safe, as gen.flow's kernels (calls serialised)
-            numba.config.THREADING_LAYER = "forksafe"
-
-        @numba.njit(parallel=True, nogil=True)
-        def scores(indptr, indices, data, ids, weights, n_rows, n_blocks):  # pragma: no cover - compiled
+        @numba.njit(nogil=True)
+        def scores(indptr, indices, data, ids, weights, n_rows):  # pragma: no cover - compiled
             out = np.zeros(n_rows, np.float32)
-            for b in numba.prange(n_blocks):
-                lo = b * n_rows // n_blocks
-                hi = (b + 1) * n_rows // n_blocks
-                for a in range(len(ids)):
-                    w = ids[a]
-                    q = weights[a]
-                    start, stop = indptr[w], indptr[w + 1]
-                    p = start + np.searchsorted(indices[start:stop], lo)
-                    while p < stop and indices[p] < hi:
-                        out[indices[p]] += data[p] * q
-                        p += 1
+            for a in range(len(ids)):
+                w = ids[a]
+                q = weights[a]
+                for p in range(indptr[w], indptr[w + 1]):
+                    out[indices[p]] += data[p] * q
             return out
 
         _POSTING_KERNEL = scores
@@ -442,8 +430,7 @@ class BowDatabase:
         n_idx = min(self._n_indexed, n_vis)
         if n_idx >= COMPILED_MIN_ROWS:
             csc = self._csc
-            with _POSTING_LOCK:
-                s = _posting_scores()(csc.indptr, csc.indices, csc.data, ids, weights, self._n_indexed, 2)
+            s = _posting_scores()(csc.indptr, csc.indices, csc.data, ids, weights, self._n_indexed)
             out[:n_idx] = s[:n_idx]
         elif n_idx > 0:
             cols = self._csc[:, ids]  # (n_indexed, m): only the query's posting lists

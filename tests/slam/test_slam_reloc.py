@@ -189,9 +189,8 @@ def test_verification_stops_at_the_first_accepted_candidate(views, vocab, stop):
 
 
 def test_compiled_posting_scores_equal_scipys_bit_for_bit(monkeypatch):
-    """Past COMPILED_MIN_ROWS a compiled loop scores the query (two row blocks, each bisecting into the posting
-    lists): the same float32 scores as scipy's column slice and mat-vec, and as the naive loop, at every
-    visibility (blocks that split inside a posting list, rows not yet indexed)."""
+    """Past COMPILED_MIN_ROWS a compiled loop over the posting lists scores the query: the same float32 scores as
+    scipy's column slice and mat-vec, and as the naive loop, at every visibility (rows not yet indexed too)."""
     from deepslam.slam import reloc
 
     rng = np.random.default_rng(3)
