@@ -82,14 +82,20 @@ def test_kmeans_finds_separated_clusters():
     assert len(set(d.argmin(axis=1))) == 5 and np.all(d.min(axis=1) < 1e-3)
 
 
-def test_database_scores_equal_naive_and_respect_visibility():
-    rng = np.random.default_rng(0)
-    k = 300
+def _random_bow_rows(seed: int, n: int, k: int, draws: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """n sparse BoW vectors over k words: ``draws`` word draws each (unique ids ascending), weights of L2 norm 1."""
+    rng = np.random.default_rng(seed)
     rows = []
-    for _ in range(1500):
-        ids = np.unique(rng.integers(0, k, 40)).astype(np.int32)
+    for _ in range(n):
+        ids = np.unique(rng.integers(0, k, draws)).astype(np.int32)
         w = rng.uniform(0.1, 1, len(ids)).astype(np.float32)
         rows.append((ids, w / np.linalg.norm(w)))
+    return rows
+
+
+def test_database_scores_equal_naive_and_respect_visibility():
+    k = 300
+    rows = _random_bow_rows(0, 1500, k, 40)
     db = BowDatabase(k)
     for i, r in enumerate(rows):
         db.add(*r)
@@ -193,13 +199,8 @@ def test_compiled_posting_scores_equal_scipys_bit_for_bit(monkeypatch):
     scipy's column slice and mat-vec, and as the naive loop, at every visibility (rows not yet indexed too)."""
     from deepslam.slam import reloc
 
-    rng = np.random.default_rng(3)
     k = 200
-    rows = []
-    for _ in range(1200):
-        ids = np.unique(rng.integers(0, k, 30)).astype(np.int32)
-        w = rng.uniform(0.1, 1, len(ids)).astype(np.float32)
-        rows.append((ids, w / np.linalg.norm(w)))
+    rows = _random_bow_rows(3, 1200, k, 30)
     db = BowDatabase(k)
     db.add_many(rows)
     queries = [rows[7], rows[1100], (np.array([0, 5, 199], np.int32), np.array([0.6, 0.0, 0.8], np.float32))]
