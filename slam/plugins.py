@@ -39,7 +39,7 @@ from deepslam.core.plugins import ENTRY_POINT_GROUPS, load_factory
 from deepslam.core.trajio import read_trajectory_and_format
 from deepslam.slam.odometry import GroundTruthOdometry, NoiseConfig, check_prediction
 from deepslam.vo.modelfiles import models
-from deepslam.vo.pipeline import read_view
+from deepslam.vo.pipeline import check_read_width, read_view
 
 ENTRY_POINT_GROUP = ENTRY_POINT_GROUPS["odometry"]
 """Entry-point group of odometry plugins (``NAME = "module:factory"``)."""
@@ -364,8 +364,7 @@ def network_view(opts: OdometryOptions, seq):
     the same frames, its camera scaled alike); with a plug-in, a command or noisy ground truth, ``seq`` itself."""
     if opts.odometry != "model" or opts.odometry_command or not opts.read_width_px:
         return seq
-    if not 0 <= opts.read_width_px <= 8192:
-        raise InputError(None, f"--read-width must be in 0..8192 px, got {opts.read_width_px}")
+    check_read_width(opts.read_width_px)
     path, _ = models.locate(opts.model_cons, seq, "cons", opts.flow)
     return read_view(seq, opts.read_width_px, path, opts.flow)
 

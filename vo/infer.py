@@ -15,7 +15,7 @@ from tqdm import tqdm
 
 from deepslam.flow.estimators import to_network_input
 from deepslam.flow.images import to_grey
-from deepslam.runtime.device import cpu_has_native_bf16
+from deepslam.runtime.device import resolve_bf16
 from deepslam.vo.data.frames import frame_inverse_depth
 from deepslam.vo.data.prefetch import PairInputs
 from deepslam.vo.geometry.epipolar import EpipolarFitter, fuse_all
@@ -49,7 +49,7 @@ class VOPredictor:
         self.device = torch.device(device)
         self.model = self.model.to(self.device)
         if bf16 is None:
-            bf16 = True if self.device.type == "cuda" else cpu_has_native_bf16()
+            bf16 = resolve_bf16("auto", self.device)
         self.bf16 = bool(bf16)
         self.std_scale = recorded_std_scale(self.meta)
         """(6,) per-DoF factor on every predicted std (``deepslam calibrate``; ones when the file records none)."""

@@ -106,8 +106,7 @@ def run_vo(seq, cfg: VOConfig = VOConfig(), odometry=None) -> VOResult:
     """
     if not 1 <= cfg.batch <= 4096:
         raise InputError(None, f"--batch must be in 1..4096, got {cfg.batch}")
-    if not 0 <= cfg.read_width_px <= 8192:
-        raise InputError(None, f"--read-width must be in 0..8192 px, got {cfg.read_width_px}")
+    check_read_width(cfg.read_width_px)
     frames = cfg.frames(len(seq))
     pairs = np.stack([frames[:-1], frames[1:]], axis=1)
     if odometry is not None:
@@ -133,6 +132,12 @@ def _reads_depth(model_path) -> bool:
         return bool(modeltree.net_config(modeltree.read_header_tree(model_path)).get("depth_channel"))
     except Exception:  # noqa: BLE001 - any unreadable file: not upsampled, the loader reports it
         return True
+
+
+def check_read_width(read_width_px: int) -> None:
+    """InputError unless ``read_width_px`` (``--read-width``) is in 0..8192 px."""
+    if not 0 <= read_width_px <= 8192:
+        raise InputError(None, f"--read-width must be in 0..8192 px, got {read_width_px}")
 
 
 def read_view(seq, read_width_px: int, model_path, flow: str):

@@ -15,6 +15,9 @@ READ_WIDTH_HELP = ("the network reads frames narrower than PX upsampled to PX wi
                    "alike; a network on estimated flow that does not read depth; relocalization sees the same frames): "
                    "at 320 px DIS and the road scale over-read the distance. 0: as recorded (default %(default)s; wider frames, "
                    "KITTI's, EuRoC's and TUM's, are read as recorded)")
+KEYFRAME_STRIDE_HELP = ("relocalize every K-th frame (default %(default)s: the same revisits found as on every frame, at a "
+                        "third of the cost; docs/experiments/2026-12-06_keyframe_stride.md)")
+"""Help of ``--keyframe-stride`` (``slam``, ``tune-slam``; its default is :attr:`slam.pipeline.PipelineConfig.keyframe_stride`'s)."""
 COMMAND_TIMEOUT_HELP = ("seconds the --odometry-command (or a Python plug-in's predict) may run on the sequence "
                         "(3600); a command runs without a shell: the template is split into arguments once and "
                         "{sequence}/{out} replaced inside them ({{ and }} for literal braces)")

@@ -57,9 +57,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--vocabulary", default=None, metavar="NPZ",
                    help="BoW vocabulary (default: train one on the sequence's keyframes)")
     p.add_argument("--save-vocabulary", default=None, metavar="NPZ", help="write the vocabulary used")
-    p.add_argument("--keyframe-stride", type=int, default=3, metavar="K",
-                   help="relocalize every K-th frame (default 3: the same revisits found as on every frame, at a third "
-                        "of the cost; docs/experiments/2026-12-06_keyframe_stride.md)")
+    p.add_argument("--keyframe-stride", type=int, default=3, metavar="K", help=_odometry_flags.KEYFRAME_STRIDE_HELP)
     p.add_argument("--no-loops", action="store_true", help="odometry only (no loop closure)")
     p.add_argument("--no-loop-check", action="store_true",
                    help="keep loop pairs whose flow fits no rigid motion (by default they are left out)")

@@ -64,9 +64,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pose", choices=("net", "epipolar"), default=None,
                    help="consecutive-frame motions as deepslam slam --pose (tune with the mode slam will run): net or "
                         "epipolar; default: the mode the NN_cons file records")
-    p.add_argument("--keyframe-stride", type=int, default=3, metavar="K",
-                   help="relocalize every K-th frame (default 3: the same revisits found as on every frame, at a third "
-                        "of the cost; docs/experiments/2026-12-06_keyframe_stride.md)")
+    p.add_argument("--keyframe-stride", type=int, default=3, metavar="K", help=_odometry_flags.KEYFRAME_STRIDE_HELP)
     p.add_argument("--robust", choices=("none", "huber", "cauchy"), default="cauchy", help="robust kernel on loops")
     p.add_argument("--no-loop-check", action="store_true",
                    help="keep loop pairs whose flow fits no rigid motion (as deepslam slam --no-loop-check)")
