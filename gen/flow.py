@@ -724,12 +724,12 @@ def synthesize_flow(depth_z: torch.Tensor, intrinsics: np.ndarray, cam1_from_cam
     depth (sky in a render, 0 or non-finite) is a point at infinity and gets the rotation-only flow,
     as the simulator's ground-truth flow and any real estimator give it.
 
-    Computed in chunks of about ``chunk_pixels`` pixels with in-place ops (the temporaries stay in
-    cache, as in gen.flow), optionally averaged over ``pool`` x ``pool`` blocks per chunk
-    (:func:`pool_flow`).
+    Computed on the depth's device: on the CPU in chunks of about ``chunk_pixels`` pixels with in-place ops
+    (the temporaries stay in cache, as in gen.flow), on a GPU in one chunk; optionally averaged over
+    ``pool`` x ``pool`` blocks per chunk (:func:`pool_flow`).
 
     Args:
-        depth_z: (B, H, W) float32 metres, 0 = none.
+        depth_z: (B, H, W) float32 metres, 0 = none (a tensor on any device: the result is on the same one).
         intrinsics: (B, 4) fx, fy, cx, cy at H x W.
         cam1_from_cam0: (B, 4, 4) float64.
         missing_depth: ``infinity`` or ``invalid`` (flow 0, valid false).
@@ -746,17 +746,18 @@ def synthesize_flow(depth_z: torch.Tensor, intrinsics: np.ndarray, cam1_from_cam
     b, h, w = z_all.shape
     if h % pool or w % pool:
         raise ValueError(f"depth {h}x{w} is not a multiple of pool {pool}")
+    f32 = dict(dtype=torch.float32, device=z_all.device)
     m = torch.as_tensor(projection_coefficients(np.asarray(intrinsics, np.float64).reshape(b, 4),
-                                                np.asarray(cam1_from_cam0, np.float64).reshape(b, 4, 4)),
-                        dtype=torch.float32)
-    u = torch.arange(w, dtype=torch.float32).view(1, 1, w)
-    v = torch.arange(h, dtype=torch.float32).view(1, h, 1)
-    flow_out = torch.empty(b, 2, h // pool, w // pool)
-    valid_out = torch.empty(b, h // pool, w // pool, dtype=torch.bool)
-    n_chunk = max(1, min(b, chunk_pixels // (h * w)))
-    p = torch.empty(n_chunk, 3, h, w)
-    inv = torch.empty(n_chunk, h, w)
-    flow = torch.empty(n_chunk, 2, h, w)
+                                                np.asarray(cam1_from_cam0, np.float64).reshape(b, 4, 4)), **f32)
+    u = torch.arange(w, **f32).view(1, 1, w)
+    v = torch.arange(h, **f32).view(1, h, 1)
+    flow_out = torch.empty(b, 2, h // pool, w // pool, **f32)
+    valid_out = torch.empty(b, h // pool, w // pool, dtype=torch.bool, device=z_all.device)
+    # a GPU wants one launch per op for the whole batch; a CPU wants the temporaries to stay in cache
+    n_chunk = b if z_all.device.type != "cpu" else max(1, min(b, chunk_pixels // (h * w)))
+    p = torch.empty(n_chunk, 3, h, w, **f32)
+    inv = torch.empty(n_chunk, h, w, **f32)
+    flow = torch.empty(n_chunk, 2, h, w, **f32)
     with torch.no_grad():
         for s in range(0, b, n_chunk):
             n = min(n_chunk, b - s)

@@ -12,6 +12,8 @@
 #
 #   bash scripts/train_paper_recipe.sh [OUT] [SAMPLES] [SEEDS]     # OUT = out/paper_recipe, SEEDS = "0"
 #   BF16=off bash scripts/train_paper_recipe.sh ...                  # bf16 autocast: auto (default), on, off
+#   NET=paper bash scripts/train_paper_recipe.sh out/paper_recipe_paper   # the paper's 96x320 network
+#   PARALLEL=1 EXTRA="--max-minutes 6" bash scripts/train_paper_recipe.sh ...   # on a GPU: every model at once
 #
 # bf16 autocast is on by default where the CPU computes bf16 natively (AVX-512 BF16); on a CPU without it,
 # autocast is emulated and ~10x slower than float32 (measured: 389 against 40 s for 10,240 samples on an
@@ -20,6 +22,8 @@
 # Resumable: every step whose output exists is skipped and a training folder with a checkpoint continues
 # with --resume (a killed run loses at most one epoch). About 45 minutes per model on 2 idle cores at
 # 2,000,000 samples. docs/training.md says how the figures are read (bench.results_repro).
+# On a GPU the synthetic flow is made on the GPU too (`train --synth-device auto`), a model takes minutes, and
+# PARALLEL=1 trains every model of every seed at once; EXTRA adds flags to each `train` (a time cap, say).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/paper_recipe}
@@ -39,12 +43,18 @@ for k in 1 2; do
       $OUT/street_train_s2/poses.txt --stride $k --consecutive kde --out "$OUT/motion_s$k.json"
 done
 
-RECIPE="--net cpu --loss l1 --rot-weight 50 --batch 128 --lr-min 1e-4 --lr-max 1e-3 --half-cycle-steps 1000 \
-  --patience 10 --lr-stop 1e-5 --max-epochs 100000 --max-samples $SAMPLES --holdout 0.1 --nll-epochs 20 --threads 2 --bf16 ${BF16:-auto} --quiet"
+RECIPE="--net ${NET:-cpu} --loss l1 --rot-weight 50 --batch 128 --lr-min 1e-4 --lr-max 1e-3 --half-cycle-steps 1000 \
+  --patience 10 --lr-stop 1e-5 --max-epochs 100000 --max-samples $SAMPLES --holdout 0.1 --nll-epochs 20 --threads 2 --bf16 ${BF16:-auto} --quiet ${EXTRA:-}"
+PIDS=""
 train() {
   local out=$1; shift
   [ -f "$out/model.safetensors" ] && return 0
-  $DS train $RECIPE "$@" --out "$out" $([ -f "$out/checkpoint.safetensors" ] && echo --resume)
+  if [ "${PARALLEL:-0}" = 1 ]; then
+    $DS train $RECIPE "$@" --out "$out" $([ -f "$out/checkpoint.safetensors" ] && echo --resume) &
+    PIDS="$PIDS $!"
+  else
+    $DS train $RECIPE "$@" --out "$out" $([ -f "$out/checkpoint.safetensors" ] && echo --resume)
+  fi
 }
 for seed in $SEEDS; do
   train "$OUT/synthetic_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
@@ -55,4 +65,5 @@ for seed in $SEEDS; do
   train "$OUT/supervised_samepatience_cons_s$seed" --mode supervised --seed $seed --sequence $TRAIN --flow gt \
       --strides 1,2 --patience 186
 done
+for pid in $PIDS; do wait "$pid"; done  # PARALLEL=1: every training started above, failing if one failed
 echo "done: $OUT"

@@ -100,11 +100,12 @@ def _autocast(cfg: TrainConfig):
 
 
 def _on(cfg: TrainConfig, b: dict) -> dict:
-    """A batch on the training device (pinned and non-blocking to CUDA; untouched on the CPU)."""
+    """A batch on the training device (pinned and non-blocking to CUDA; untouched on the CPU and where a
+    tensor is there already, as synthetic flow made on the GPU)."""
     dev = torch.device(cfg.device)
     if dev.type == "cpu":
         return b
-    return {k: v.pin_memory().to(dev, non_blocking=True) for k, v in b.items()}
+    return {k: v if v.device.type == dev.type else v.pin_memory().to(dev, non_blocking=True) for k, v in b.items()}
 
 
 def _step_size(cfg: TrainConfig, n_train: int) -> int:

@@ -88,6 +88,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--appearance-noise", type=float, default=0.0, metavar="SIGMA",
                    help="with --synthetic-flow NAME: Gaussian noise (grey levels) on the rendered second view, for "
                         "the appearance changes a real next frame has and a resampled one lacks (0 = none)")
+    g.add_argument("--synth-device", choices=("auto", "cpu"), default="auto",
+                   help="where exact synthetic flow is made: auto = the training device (on a GPU, where a CPU core's "
+                        "~1,600 samples/s would limit the training) or cpu")
     g.add_argument("--data-threads", type=int, default=2, help="threads that render and estimate (--synthetic-flow NAME)")
     g.add_argument("--sample-pool", type=int, default=0, metavar="N",
                    help="make N synthetic samples once and train on passes over them (an epoch is one pass) "
@@ -223,10 +226,11 @@ def train_config(args: argparse.Namespace, net, device):
     return cfg
 
 
-def data_sources(args: argparse.Namespace, net, progress: bool) -> tuple:
+def data_sources(args: argparse.Namespace, net, progress: bool, device) -> tuple:
     """The training data the flags name, as the library builds it (:mod:`vo.data.sources`,
     :func:`vo.data.recipe.synthetic_sources`): (training source, held-out source, meta), the meta what config.json
-    and the model file record of the data."""
+    and the model file record of the data; exact synthetic flow is made on torch ``device`` (the training
+    device) unless ``--synth-device cpu``."""
     from deepslam.core.errors import InputError
     from deepslam.vo.data import motion, sources
     from deepslam.vo.data.recipe import SyntheticData, synthetic_sources
@@ -257,7 +261,8 @@ def data_sources(args: argparse.Namespace, net, progress: bool) -> tuple:
             flow_options=_dis_flags.given_options(args.synthetic_flow, args), frame_scales=tuple(args.frame_scales),
             appearance_noise=args.appearance_noise, data_threads=args.data_threads, sample_pool=args.sample_pool,
             missing_depth=args.missing_depth, speed_range=args.speed_range, rate_hz=args.rate_hz,
-            camera_tilt_deg=args.camera_tilt_deg, scene_scale=args.scene_scale, mirror_frames=args.mirror_frames)
+            camera_tilt_deg=args.camera_tilt_deg, scene_scale=args.scene_scale, mirror_frames=args.mirror_frames,
+            device="cpu" if args.synth_device == "cpu" else str(device))
         train_src, hold_src, data_meta = synthetic_sources(spec, net, args.seed, progress)
     else:
         spec = sources.SupervisedData(

@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     net = _train_flags.net_config(args)
     cfg = _train_flags.train_config(args, net, device)
     progress = not (args.quiet or args.json) and rank == 0
-    train_src, hold_src, data_meta = _train_flags.data_sources(args, net, progress)
+    train_src, hold_src, data_meta = _train_flags.data_sources(args, net, progress, device)
     meta: dict = {"mode": args.mode, **data_meta}
     meta["argv"] = sys.argv[1:]
     if progress:

@@ -89,6 +89,8 @@ class SyntheticData:
     """``MIN:MAX``: each sample's scene scaled."""
     mirror_frames: bool = False
     """Every training frame also mirrored left-right."""
+    device: str = "cpu"
+    """Torch device that holds the frames' depth and synthesizes exact flow (``cpu`` or the training GPU)."""
 
 
 def synthetic_sources(spec: SyntheticData, net: NetConfig, seed: int, progress: bool):
@@ -121,7 +123,7 @@ def synthetic_sources(spec: SyntheticData, net: NetConfig, seed: int, progress: 
 
         def source(fr, n, s):
             return SyntheticSource(fr, sampler, n, s, f, missing_depth, tilt=tilt, inv_depth=net.depth_channel,
-                                   scene_scale=scene_scale, unknown=net.unknown_flow)
+                                   scene_scale=scene_scale, unknown=net.unknown_flow, device=spec.device)
     else:
         frames = load_image_frames(seqs, spec.frame_step, spec.depth, spec.max_frames, progress,
                                    scales=spec.frame_scales)
@@ -148,7 +150,8 @@ def synthetic_sources(spec: SyntheticData, net: NetConfig, seed: int, progress: 
                        if flat_speed is not None and flat_speed.fraction < 1 else {}),
                     "camera_tilt": tilt.to_dict() if tilt else None,
                     "scene_scale": scene_scale.to_dict() if scene_scale else None,
-                    **({"mirror_frames": True} if spec.mirror_frames else {})}
+                    **({"mirror_frames": True} if spec.mirror_frames else {}),
+                    **({"synth_device": spec.device} if spec.device != "cpu" else {})}
     if estimator_name is not None:
         meta["flow"] = {"estimator": spec.synthetic_flow, "options": opts}  # what vo/slam set up to match
         meta["data"].update(synth_factor=None, missing_depth=None, frame_scales=list(spec.frame_scales),

@@ -93,6 +93,22 @@ def test_synthetic_source_is_deterministic_per_epoch_and_pools_correctly():
                                                                CAM.scaled(80, 24).cx, CAM.scaled(80, 24).cy], rtol=1e-6)
 
 
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device on this machine")
+def test_synthetic_source_on_the_gpu_draws_the_cpu_samples():
+    """Made on the GPU (``device``), a batch holds the same frames and motions as on the CPU, its flow on
+    the GPU and equal to the CPU's to float rounding; the held-out set comes back to the CPU."""
+    kw = dict(samples_per_epoch=20, seed=4, synth_factor=2)
+    cpu = next(SyntheticSource(_frames(2), toy_motion_sampler(), **kw).batches(3, 8))
+    gpu_src = SyntheticSource(_frames(2), toy_motion_sampler(), device="cuda", **kw)
+    gpu = next(gpu_src.batches(3, 8))
+    assert gpu["flow"].is_cuda and not gpu["target"].is_cuda
+    assert torch.equal(cpu["target"], gpu["target"]) and torch.equal(cpu["intrinsics"], gpu["intrinsics"])
+    torch.testing.assert_close(gpu["flow"].cpu(), cpu["flow"], atol=2e-4, rtol=1e-5)
+    assert float(cpu["flow"].abs().mean()) > 0.1
+    assert gpu_src.materialize(12, 7).flow.device.type == "cpu"
+
+
 def test_flow_synthesized_at_twice_the_size_and_pooled_matches_the_direct_one():
     motion = se3.from_euler6(np.array([[0.002, 0.01, -0.003, 0.05, 0.02, -0.8]]))
     small, big = CAM.scaled(80, 24), CAM.scaled(160, 48)
