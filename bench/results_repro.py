@@ -10,6 +10,9 @@ shipped model, essential matrix and road scale). Each model's learning curve (he
 translation and of the yaw against samples seen) is plotted from its ``history.json`` with a power-law fit
 of its second half, which says what twice the samples would give.
 
+The paper preset's models (``NET=paper``, the paper's 96 x 320 network) are scored beside them from
+``bench/paper_recipe_paper``.
+
 ``--models DIR``: the folder of the training script (default ``bench/paper_recipe``, where the trained files
 are kept: ``{synthetic,supervised}_cons_s{SEED}/model.safetensors`` or ``checkpoint.safetensors`` of a run still
 going, and their ``history.json``). Writes ``results.json``, ``results.md`` and ``learning_curve.png`` under
@@ -36,6 +39,15 @@ MODES = ("synthetic", "supervised", "supervised_samepatience")
 20,000 samples), which lets it train for the same budget."""
 MODE_LABELS = {"synthetic": "synthetic", "supervised": "supervised",
                "supervised_samepatience": "supervised, patience matched in samples"}
+PAPER = "paper:"
+"""Row-key prefix of the paper preset's models (96 x 320 input, 64 filters, 2 x 500 units a branch)."""
+
+
+def label(key: str) -> str:
+    """Table label of a row key (``mode`` or ``paper:mode``)."""
+    if key.startswith(PAPER):
+        return f"paper preset, {MODE_LABELS[key[len(PAPER):]]}"
+    return f"cpu preset, {MODE_LABELS[key]}"
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -45,7 +57,9 @@ class ReproConfig:
 
     models: str = "bench/paper_recipe"
     """Folder of the trained models (``scripts/train_paper_recipe.sh OUT``; relative to the repository)."""
-    seeds: tuple[int, ...] = (0,)
+    paper_models: str = "bench/paper_recipe_paper"
+    """Folder of the paper preset's models (``NET=paper scripts/train_paper_recipe.sh OUT``; "" = none)."""
+    seeds: tuple[int, ...] = (0, 1, 2)
     """Training seeds to score (a row's mean +- std is over those present)."""
     width: int = 414
     """Rendered width of the held-out street, pixels (the training renders' width)."""
@@ -139,26 +153,35 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
     k07 = data / "kitti" / "sequences" / "07"
     cases = [("street_exact", held, "gt"), ("street_dis", held, "dis")] + ([("kitti07_dis", k07, "dis")]
                                                                             if k07.is_dir() else [])
-    rows: dict = {m: [] for m in MODES}
+    folders = [("", models_dir)]
+    if cfg.paper_models:
+        folders.append((PAPER, Path(cfg.paper_models) if Path(cfg.paper_models).is_absolute()
+                        else REPO / cfg.paper_models))
+    rows: dict = {}
     curves, trained = {}, {}
-    for mode in MODES:
-        for seed in cfg.seeds:
-            folder = models_dir / f"{mode}_cons_s{seed}"
-            model = _model_file(folder)
-            if model is None:
-                continue
-            if (folder / "history.json").is_file():
-                curves[f"{mode} s{seed}"] = learning_curve(folder / "history.json")
-            summary = json.loads((folder / "summary.json").read_text()) if (folder / "summary.json").is_file() else {}
-            trained[f"{mode} s{seed}"] = {"file": str(model.relative_to(models_dir)),
-                                          "samples": int(curves.get(f"{mode} s{seed}", {}).get("samples", [0])[-1]),
-                                          "stop": summary.get("stop_reason", "still training")}
-            rec = {"seed": seed}
-            for name, seq, flow in cases:
-                print(f"score {mode} seed {seed}: {name}", flush=True)
-                rec[name] = _cached(out / "eval" / f"{mode}_s{seed}_{name}.json", lambda: vo_scores(
-                    seq, out / "runs" / f"{mode}_s{seed}_{name}.txt", "--model", str(model), "--flow", flow, "--pose", "net"))
-            rows[mode].append(rec)
+    for prefix, folder_root in folders:
+        for mode in MODES:
+            key = prefix + mode
+            for seed in cfg.seeds:
+                folder = folder_root / f"{mode}_cons_s{seed}"
+                model = _model_file(folder)
+                if model is None:
+                    continue
+                if (folder / "history.json").is_file():
+                    curves[f"{key} s{seed}"] = learning_curve(folder / "history.json")
+                summary = json.loads((folder / "summary.json").read_text()) if (folder / "summary.json").is_file() else {}
+                config = json.loads((folder / "config.json").read_text()) if (folder / "config.json").is_file() else {}
+                trained[f"{key} s{seed}"] = {"file": str(model.relative_to(REPO) if model.is_relative_to(REPO) else model),
+                                             "samples": int(curves.get(f"{key} s{seed}", {}).get("samples", [0])[-1]),
+                                             "stop": summary.get("stop_reason", "still training"),
+                                             "device": config.get("train", {}).get("device", "n/a")}
+                rec = {"seed": seed}
+                for name, seq, flow in cases:
+                    print(f"score {key} seed {seed}: {name}", flush=True)
+                    rec[name] = _cached(out / "eval" / f"{key}_s{seed}_{name}.json", lambda: vo_scores(
+                        seq, out / "runs" / f"{key}_s{seed}_{name}.txt", "--model", str(model), "--flow", flow,
+                        "--pose", "net"))
+                rows.setdefault(key, []).append(rec)
     default = {name: _cached(out / "eval" / f"default_{name}.json",
                              lambda: vo_scores(seq, out / "runs" / f"default_{name}.txt"))
                for name, seq, flow in cases if flow == "dis"}
@@ -166,13 +189,15 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
         plot_curves(curves, out / "learning_curve.png")
     report = {"config": dataclasses.asdict(cfg), "models": trained, "rows": rows, "default": default,
               "curves": curves, "cases": [c[0] for c in cases], "minutes": (time.perf_counter() - t0) / 60}
-    def err(mode: str, name: str) -> dict:
-        return _agg([r[name]["kitti_t_err_pct"] or r[name]["endpoint_drift_pct"] for r in rows[mode]])
+    def err(key: str, name: str) -> dict:
+        return _agg([r[name]["kitti_t_err_pct"] or r[name]["endpoint_drift_pct"] for r in rows.get(key, [])])
 
     report["ratio_synthetic_over_supervised"] = {
-        other: {name: (err("synthetic", name)["mean"] / err(other, name)["mean"]
-                       if err("synthetic", name)["mean"] is not None and err(other, name)["mean"] else None)
-                for name in report["cases"]} for other in MODES[1:]}
+        prefix + other: {name: (err(prefix + "synthetic", name)["mean"] / err(prefix + other, name)["mean"]
+                                if err(prefix + "synthetic", name)["mean"] is not None
+                                and err(prefix + other, name)["mean"] else None)
+                         for name in report["cases"]}
+        for prefix, _ in folders for other in MODES[1:] if rows.get(prefix + other)}
     write_report(out, report, markdown)
     return report
 
@@ -191,17 +216,18 @@ def markdown(report: dict) -> str:
             return "n/a"
         return f"{a['mean']:{f}} ± {a['std']:{f}}" if a["n"] > 1 else f"{a['mean']:{f}}"
 
-    md = ["The paper's recipe at scale (NN_cons, cpu preset; `scripts/train_paper_recipe.sh`), scored with the "
-          "network's own pose (`--pose net`) on data no model saw. Models:"]
-    md += [f"- {MODE_LABELS.get(k.rsplit(' ', 1)[0], k)} ({k.rsplit(' ', 1)[1]}): `{v['file']}`, {v['samples']:,} samples, "
-           f"stopped: {v.get('stop', 'n/a')}" for k, v in report["models"].items()] or ["- none found"]
+    md = ["The paper's recipe at scale (NN_cons: the cpu preset, 48 x 160 input, and the paper's 96 x 320 network; "
+          "`scripts/train_paper_recipe.sh`), scored with the network's own pose (`--pose net`) on data no model saw. "
+          "A row is the mean ± std over the training seeds present (n). Models:"]
+    md += [f"- {label(k.rsplit(' ', 1)[0])} ({k.rsplit(' ', 1)[1]}): `{v['file']}`, {v['samples']:,} samples, "
+           f"trained on {v.get('device', 'n/a')}, stopped: {v.get('stop', 'n/a')}"
+           for k, v in report["models"].items()] or ["- none found"]
     for case in report["cases"]:
         md += ["", f"**{CASE_TITLES.get(case, case)}**", "",
                "| | " + " | ".join(t for t, _, _ in FIGURES) + " |", "|---" * (len(FIGURES) + 1) + "|"]
-        for mode in MODES:
-            recs = report["rows"][mode]
+        for key, recs in report["rows"].items():
             if recs:
-                md.append(f"| {MODE_LABELS[mode]} (n={len(recs)}) | " + " | ".join(
+                md.append(f"| {label(key)} (n={len(recs)}) | " + " | ".join(
                     pm(_agg([r[case][k] for r in recs]), f) for _, k, f in FIGURES) + " |")
         if case in report["default"]:
             d = report["default"][case]
@@ -210,14 +236,16 @@ def markdown(report: dict) -> str:
         for other, by_case in report["ratio_synthetic_over_supervised"].items():
             r = by_case.get(case)
             if r is not None:
-                md.append(f"\nsynthetic / {MODE_LABELS[other]} (t_err, or drift where the route is under 100 m): x{r:.2f}")
-    cal = [(mode, r["seed"], case, r[case].get("within_1_sigma")) for mode in MODES for r in report["rows"][mode]
+                prefix = PAPER if other.startswith(PAPER) else ""
+                md.append(f"\n{label(prefix + 'synthetic')} / {label(other)} (t_err, or drift where the route is under "
+                          f"100 m): x{r:.2f}")
+    cal = [(key, r["seed"], case, r[case].get("within_1_sigma")) for key, recs in report["rows"].items() for r in recs
            for case in report["cases"] if r[case].get("within_1_sigma")]
     if cal:
         md += ["", "Uncertainty: share of pairs whose error is within the predicted 1-sigma, per DoF (euler x, y, z, "
                "t x, y, z; a calibrated Gaussian gives 0.68):", ""]
-        md += [f"- {mode} s{seed}, {CASE_TITLES.get(case, case)}: " + ", ".join(f"{x:.2f}" for x in c)
-               for mode, seed, case, c in cal]
+        md += [f"- {label(key)} s{seed}, {CASE_TITLES.get(case, case)}: " + ", ".join(f"{x:.2f}" for x in c)
+               for key, seed, case, c in cal]
     fits = [(k, c[f"{n}_fit"]) for k, c in report["curves"].items() for n in ("t_z_m",) if f"{n}_fit" in c]
     if report["curves"]:
         md += ["", "![learning curves](learning_curve.png)"]

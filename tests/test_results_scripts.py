@@ -497,7 +497,12 @@ def test_repro_learning_curve_fits_a_power_law_and_the_table_reads_it(tmp_path):
               "ratio_synthetic_over_supervised": {"supervised": {"street_exact": 2.0},
                                                   "supervised_samepatience": {"street_exact": None}}}
     md = results_repro.markdown(report)
-    assert "| synthetic (n=1) | 1 |" in md and "x2.00" in md and "at 2x" in md
+    assert "| cpu preset, synthetic (n=1) | 1 |" in md and "x2.00" in md and "at 2x" in md
+    report["rows"]["paper:synthetic"] = [{"seed": 0, "street_exact": figures}, {"seed": 1, "street_exact": figures}]
+    report["ratio_synthetic_over_supervised"]["paper:supervised"] = {"street_exact": 0.5}
+    md = results_repro.markdown(report)
+    assert "| paper preset, synthetic (n=2) | 1 ± 0 |" in md
+    assert "paper preset, synthetic / paper preset, supervised (t_err" in md and "x0.50" in md
 
 
 def test_the_loop_route_table_counts_loops_by_direction_and_marks_both_targets():

@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from deepslam.core.errors import InputError
+from deepslam.core.kinds import kind_for_sequence
 from deepslam.vo.infer import VOPredictor
 from deepslam.vo.modelfiles import models
 
@@ -50,3 +51,29 @@ def resolve_predictor(spec: str | None, seq=None, which: str = "cons", flow=None
     ``kitti:loops``-style shipped names, or None (the shipped model for ``seq``'s camera kind). Shipped
     models follow ``flow`` (the estimator's name or object, see :func:`vo.modelfiles.models.shipped_path`); a file is taken as is."""
     return load_predictor(*models.locate(spec, seq, which, flow), **kwargs)
+
+
+class PaperNetwork:
+    """The paper's network as an odometry plug-in (``--odometry network``, entry point ``network``): the shipped
+    NN_cons of the sequence's camera kind on DIS flow (set up as that model was trained), read with the network's
+    own pose: no essential matrix, no road scale. What the paper evaluates, measured beside ``deepslam vo``'s
+    default (which reads the same network's flow through the epipolar pose and the road scale on streets)."""
+
+    name = "paper-network"
+    """The shipped NN_cons, its own pose, on DIS flow."""
+
+    def __init__(self):
+        self._by_kind: dict = {}
+
+    def predict(self, seq, pairs):
+        """(mean6, std6) per pair (i, j) of ``seq``: the paper's vector of ``cam_j_from_cam_i`` and its std."""
+        kind = kind_for_sequence(seq)
+        if kind not in self._by_kind:
+            path, shipped = models.locate(None, seq, "cons", "dis")
+            self._by_kind[kind] = model_odometry(path, "dis", shipped, pose="net")
+        return self._by_kind[kind].predict(seq, pairs)
+
+
+def make_network() -> PaperNetwork:
+    """The entry point's factory (``--odometry network`` or ``--odometry deepslam.vo.odometry:make_network``)."""
+    return PaperNetwork()

@@ -130,6 +130,22 @@ def test_entry_point_names_resolve():
 
     assert isinstance(plugins.load_odometry("pnp").inner, PnPOdometry)
     assert isinstance(plugins.load_odometry("deepslam.slam.classical:make_pnp").inner, PnPOdometry)
+    from deepslam.vo.odometry import PaperNetwork
+
+    assert isinstance(plugins.load_odometry("network").inner, PaperNetwork)
+
+
+def test_the_papers_network_plugin_is_the_shipped_model_read_with_its_own_pose(seq_dir):
+    from deepslam.vo.modelfiles import models
+    from deepslam.vo.odometry import PaperNetwork, model_odometry
+
+    seq = open_sequence(seq_dir)
+    pairs = [(0, 1), (1, 2), (2, 3)]
+    mean6, std6 = PaperNetwork().predict(seq, pairs)
+    path, shipped = models.locate(None, seq, "cons", "dis")
+    own_mean6, own_std6 = model_odometry(path, "dis", shipped, pose="net").predict(seq, pairs)
+    np.testing.assert_array_equal(mean6, own_mean6)
+    np.testing.assert_array_equal(std6, own_std6)
 
 
 def test_classical_pnp_baseline_with_depth_is_accurate(seq_dir):
