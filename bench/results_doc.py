@@ -38,10 +38,11 @@ SECTIONS = (
     ("vo", "Training on single frames against supervised training", "python -m bench.results_vo",
      "The paper's synthetic training (single frames, no poses) against training on ground-truth poses, over seeds."),
     ("repro", "The paper's recipe at scale: single frames against supervised, the network's own pose",
-     "bash scripts/train_paper_recipe.sh bench/paper_recipe  # hours; then python -m bench.results_repro",
-     "NN_cons trained by the paper's recipe for 2 M samples, synthetic from single frames and supervised on the same "
-     "renders, scored with their own pose on a held-out street (exact and DIS flow) and on KITTI 07, beside the "
-     "geometry default; learning curves."),
+     "bash scripts/train_paper_recipe.sh bench/paper_recipe  # hours on 2 cores, minutes on a GPU; then "
+     "python -m bench.results_repro",
+     "NN_cons trained by the paper's recipe for up to 2 M samples (three seeds of the cpu preset, one of the paper's "
+     "96 x 320 network), synthetic from single frames and supervised on the same renders, scored with their own pose "
+     "on a held-out street (exact and DIS flow) and on KITTI 07, beside the geometry default; learning curves."),
     ("extra", "Rendered frames as extra training data", "python -m bench.results_extra",
      "One network and budget trained the paper's way on real single frames (KITTI 06), real plus rendered, and "
      "rendered alone; scored on KITTI 07, which none of them saw."),
