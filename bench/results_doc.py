@@ -37,6 +37,9 @@ SECTIONS = (
      "rooms, the README's 320 px streets beside pnp, and KITTI; the rule that decides the default read width."),
     ("vo", "Training on single frames against supervised training", "python -m bench.results_vo",
      "The paper's synthetic training (single frames, no poses) against training on ground-truth poses, over seeds."),
+    ("exact_model", "Which model reads the simulator's exact flow on streets", "python -m bench.results_exact_model",
+     "The shipped kitti_cons against the paper recipe's synthetic models on unseen streets at three widths and "
+     "strides 1-3, exact flow, each model's own pose; the rule that decides which `deepslam vo --flow gt` runs."),
     ("repro", "The paper's recipe at scale: single frames against supervised, the network's own pose",
      "bash scripts/train_paper_recipe.sh bench/paper_recipe  # hours on 2 cores, minutes on a GPU; then "
      "python -m bench.results_repro",

@@ -183,8 +183,9 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
                         "--pose", "net"))
                 rows.setdefault(key, []).append(rec)
     default = {name: _cached(out / "eval" / f"default_{name}.json",
-                             lambda: vo_scores(seq, out / "runs" / f"default_{name}.txt"))
-               for name, seq, flow in cases if flow == "dis"}
+                             lambda: vo_scores(seq, out / "runs" / f"default_{name}.txt",
+                                               *(() if flow == "dis" else ("--flow", flow))))
+               for name, seq, flow in cases}
     if curves:
         plot_curves(curves, out / "learning_curve.png")
     report = {"config": dataclasses.asdict(cfg), "models": trained, "rows": rows, "default": default,
@@ -231,7 +232,7 @@ def markdown(report: dict) -> str:
                     pm(_agg([r[case][k] for r in recs]), f) for _, k, f in FIGURES) + " |")
         if case in report["default"]:
             d = report["default"][case]
-            md.append("| geometry default (`deepslam vo`) | " + " | ".join(
+            md.append("| geometry default (`deepslam vo`, the same flow) | " + " | ".join(
                 "n/a" if d.get(k) is None else f"{d[k]:{f}}" for _, k, f in FIGURES) + " |")
         for other, by_case in report["ratio_synthetic_over_supervised"].items():
             r = by_case.get(case)

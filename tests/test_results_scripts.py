@@ -578,3 +578,24 @@ def test_keyframe_rule_and_loop_recall():
     assert rk.rule(rows, (1, 2, 3)) == {"met": {"1": True, "2": True, "3": False}, "chosen": 2}
     rows["a"]["2"] = row(1.04, 0.8)  # recall under 0.9 x
     assert rk.rule(rows, (1, 2, 3))["chosen"] == 1
+
+
+def test_the_exact_flow_model_rule_needs_mean_rows_and_path_band():
+    from bench import results_exact_model as rem
+
+    cfg = dataclasses.replace(rem.ExactModelConfig(), candidates=(("base", "kitti"), ("good", "a"), ("banded", "b"),
+                                                                  ("few", "c")), min_rows_better=2)
+
+    def rec(t, p=1.0):
+        return {"t_err_pct": t, "path_ratio": p}
+    rows = [{"base": rec(5.0, 1.12), "good": rec(1.0), "banded": rec(0.5, 1.07), "few": rec(6.0)},
+            {"base": rec(4.0, 1.10), "good": rec(1.5), "banded": rec(0.5), "few": rec(0.1)},
+            {"base": rec(4.0, 1.10), "good": rec(4.5, 0.97), "banded": rec(0.5), "few": rec(4.5)}]
+    v = rem.verdicts(cfg, rows)
+    assert v["good"]["passes"] and v["good"]["rows_better"] == 2
+    assert not v["banded"]["passes"] and not v["banded"]["path_in_band"]  # best t_err, but path x1.07 on a row
+    assert not v["few"]["passes"] and v["few"]["rows_better"] == 1  # lower mean, better on one row only
+    assert not v["base"]["passes"] and v["_chosen"] == "good"
+    md = rem.markdown({"config": dataclasses.asdict(cfg), "rows": [{"seed": 1, "width": 320, "stride": 1, **r}
+                                                                  for r in rows], "verdicts": v})
+    assert "Chosen by the rule: **good**" in md and "| base | 4.333 | 0 of 3 | 1.100-1.120 | default |" in md

@@ -138,6 +138,10 @@ def test_shipped_models_follow_the_flow_estimator(monkeypatch, tmp_path, street_
     assert resolve_predictor("kitti", None, "cons", "dis").name == "kitti_cons_dis"
     assert resolve_predictor(str(tmp_path / "kitti_cons.safetensors"), None, "cons", "dis").name != "kitti_cons_dis"
     assert models.shipped_path("kitti", "cons", "learned-dis").name == "kitti_cons_dis.safetensors"
+    shutil.copy(street_model, tmp_path / "kitti_cons_gt.safetensors")  # exact flow's own choice where shipped
+    assert models.shipped_path("kitti", "cons", "gt").name == "kitti_cons_gt.safetensors"
+    assert models.shipped_path("kitti", "loops", "gt").name == "kitti_loops.safetensors"
+    assert models.shipped_path("kitti", "cons").name == "kitti_cons.safetensors"
 
 
 def test_vo_runs_on_the_learned_flow_refined_by_dis(plane_sequence, tmp_path):

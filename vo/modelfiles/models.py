@@ -24,9 +24,10 @@ from deepslam.vo.modelfiles import modeltree
 
 WHICH = ("cons", "loops")
 """NN_cons (consecutive frames) and NN_loops (loop pairs)."""
-FLOW_VARIANTS = ("dis", "learned")
-"""Estimators with models trained on their flow (file suffix ``_<name>``): OpenCV DIS, and the learned
-flow estimator (``models/flow_learned.safetensors``)."""
+FLOW_VARIANTS = ("dis", "learned", "gt")
+"""Estimators with models chosen for their flow (file suffix ``_<name>``): OpenCV DIS, the learned flow estimator
+(``models/flow_learned.safetensors``), and the simulator's exact flow (``gt``: on streets the paper recipe's
+single-frame model, chosen by docs/experiments/2026-12-06_exact_flow_model.md; elsewhere the plain model)."""
 SHARED_VARIANTS = {"learned-dis": "dis"}
 """Estimators read by the models of another's flow: ``learned-dis`` (DIS refining the learned flow) by DIS's
 models (chosen on KITTI 06, 2026-12-03: the DIS model reads it at drift 2.0 %, the learned-flow model 4.2 %)."""
@@ -34,8 +35,8 @@ models (chosen on KITTI 06, 2026-12-03: the DIS model reads it at drift 2.0 %, t
 
 def flow_variant(flow: str | None) -> str | None:
     """The variant suffix for a flow estimator's name or object name (``dis``, ``dis-medium`` -> ``dis``;
-    ``learned`` -> ``learned``; ``learned-dis`` -> ``dis`` (:data:`SHARED_VARIANTS`); ``gt``, None -> None:
-    exact flow is what the plain models learned)."""
+    ``learned`` -> ``learned``; ``learned-dis`` -> ``dis`` (:data:`SHARED_VARIANTS`); ``gt`` -> ``gt``; None ->
+    None). A kind without a file of the variant uses its plain model (exact flow is what it learned)."""
     if flow is None:
         return None
     name = str(getattr(flow, "name", flow))
