@@ -232,7 +232,7 @@ def markdown(report: dict) -> str:
                     pm(_agg([r[case][k] for r in recs]), f) for _, k, f in FIGURES) + " |")
         if case in report["default"]:
             d = report["default"][case]
-            md.append("| geometry default (`deepslam vo`, the same flow) | " + " | ".join(
+            md.append("| `deepslam vo`'s default on the same flow | " + " | ".join(
                 "n/a" if d.get(k) is None else f"{d[k]:{f}}" for _, k, f in FIGURES) + " |")
         for other, by_case in report["ratio_synthetic_over_supervised"].items():
             r = by_case.get(case)
