@@ -67,6 +67,12 @@ class ReproConfig:
     """Town of the held-out street (the training towns are 1 and 2)."""
     heldout_frames: int = 300
     """Frames of the held-out street (10 Hz)."""
+    slam_seed: int = 7441
+    """Town of the loop street (``render --route laps``) on which VO and SLAM are compared (0: none)."""
+    slam_frames: int = 1900
+    """Frames of the loop street."""
+    slam_modes: tuple[str, ...] = ("synthetic", "supervised")
+    """Training modes scored with SLAM (each seed present, both presets)."""
 
 
 def _model_file(folder: Path) -> Path | None:
@@ -88,6 +94,21 @@ def vo_scores(seq_dir: Path, out_txt: Path, *options: str) -> dict:
     return {**metric_subset(m), "path_length_ratio": m.get("path_length_ratio"),
             "endpoint_drift_pct": m.get("endpoint_drift_pct"),
             "within_1_sigma": within_one_sigma(seq_dir, out_txt.with_suffix(".motions.csv"))}
+
+
+def slam_scores(seq_dir: Path, out_txt: Path, *options: str) -> dict:
+    """``deepslam slam --sequence SEQ_DIR --out OUT_TXT OPTIONS --json`` in a child process: VO and SLAM ATE (m,
+    se3-aligned), the SLAM / VO ratio and the loop edges found and kept."""
+    argv = [sys.executable, "-m", "deepslam", "slam", "--sequence", str(seq_dir), "--out", str(out_txt), *options,
+            "--json", "--quiet"]
+    p = subprocess.run(argv, capture_output=True, text=True, cwd=REPO)
+    if p.returncode != 0:
+        raise RuntimeError(f"{' '.join(argv[2:])} failed: {p.stderr.strip()[-500:]}")
+    r = json.loads(p.stdout.strip().splitlines()[-1])
+    vo, slam = r["metrics_vo"]["ate_m"], r["metrics_slam"]["ate_m"]
+    return {"vo_ate_m": vo, "slam_ate_m": slam, "slam_over_vo": slam / vo if vo else None, "loops": r["n_loops"],
+            "loops_kept": int(sum(r.get("loops_kept_by_pose_graph") or [])),
+            "vo_path_ratio": r["metrics_vo"].get("path_length_ratio")}
 
 
 def within_one_sigma(seq_dir: Path, motions_csv: Path) -> list[float]:
@@ -153,6 +174,9 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
     k07 = data / "kitti" / "sequences" / "07"
     cases = [("street_exact", held, "gt"), ("street_dis", held, "dis")] + ([("kitti07_dis", k07, "dis")]
                                                                             if k07.is_dir() else [])
+    slam_seq = None if not cfg.slam_seed else render_once(
+        "street", "car", cfg.slam_frames, cfg.width, cfg.slam_seed, out / f"street_laps_s{cfg.slam_seed}", log,
+        ("--route", "laps", "--quiet"))
     folders = [("", models_dir)]
     if cfg.paper_models:
         folders.append((PAPER, Path(cfg.paper_models) if Path(cfg.paper_models).is_absolute()
@@ -181,11 +205,20 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
                     rec[name] = _cached(out / "eval" / f"{key}_s{seed}_{name}.json", lambda: vo_scores(
                         seq, out / "runs" / f"{key}_s{seed}_{name}.txt", "--model", str(model), "--flow", flow,
                         "--pose", "net"))
+                if slam_seq is not None and mode in cfg.slam_modes:
+                    print(f"slam {key} seed {seed}: loop street {cfg.slam_seed}", flush=True)
+                    rec["slam_laps_dis"] = _cached(out / "eval" / f"{key}_s{seed}_slam_laps.json", lambda: slam_scores(
+                        slam_seq, out / "runs" / f"{key}_s{seed}_slam_laps.txt", "--model-cons", str(model),
+                        "--pose", "net"))
                 rows.setdefault(key, []).append(rec)
     default = {name: _cached(out / "eval" / f"default_{name}.json",
                              lambda: vo_scores(seq, out / "runs" / f"default_{name}.txt",
                                                *(() if flow == "dis" else ("--flow", flow))))
                for name, seq, flow in cases}
+    if slam_seq is not None:
+        print(f"slam default: loop street {cfg.slam_seed}", flush=True)
+        default["slam_laps_dis"] = _cached(out / "eval" / "default_slam_laps.json",
+                                           lambda: slam_scores(slam_seq, out / "runs" / "default_slam_laps.txt"))
     if curves:
         plot_curves(curves, out / "learning_curve.png")
     report = {"config": dataclasses.asdict(cfg), "models": trained, "rows": rows, "default": default,
@@ -240,6 +273,22 @@ def markdown(report: dict) -> str:
                 prefix = PAPER if other.startswith(PAPER) else ""
                 md.append(f"\n{label(prefix + 'synthetic')} / {label(other)} (t_err, or drift where the route is under "
                           f"100 m): x{r:.2f}")
+    slam_rows = [(key, recs) for key, recs in report["rows"].items() if recs and "slam_laps_dis" in recs[0]]
+    if slam_rows:
+        cfg = report["config"]
+        md += ["", f"**Loop street (`render --route laps`, town {cfg['slam_seed']}, {cfg['slam_frames']} frames at "
+               f"{cfg['width']} px), DIS flow: `deepslam slam` with each NN_cons (its own pose) and the shipped NN_loops**",
+               "", "| | VO ATE [m] | SLAM ATE [m] | SLAM / VO | VO path ratio | loop edges (kept) |", "|---|---|---|---|---|---|"]
+        for key, recs in slam_rows:
+            r = [x["slam_laps_dis"] for x in recs]
+            md.append(f"| {label(key)} (n={len(r)}) | " + " | ".join(
+                pm(_agg([x[k] for x in r]), f) for k, f in (("vo_ate_m", ".3g"), ("slam_ate_m", ".3g"),
+                                                             ("slam_over_vo", ".2f"), ("vo_path_ratio", ".3f")))
+                      + f" | {np.mean([x['loops'] for x in r]):.0f} ({np.mean([x['loops_kept'] for x in r]):.0f}) |")
+        d = report["default"].get("slam_laps_dis")
+        if d:
+            md.append(f"| `deepslam slam`'s default | {d['vo_ate_m']:.3g} | {d['slam_ate_m']:.3g} | "
+                      f"{d['slam_over_vo']:.2f} | {d['vo_path_ratio']:.3f} | {d['loops']} ({d['loops_kept']}) |")
     cal = [(key, r["seed"], case, r[case].get("within_1_sigma")) for key, recs in report["rows"].items() for r in recs
            for case in report["cases"] if r[case].get("within_1_sigma")]
     if cal:
@@ -267,7 +316,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--models", default=None)
     known, rest = ap.parse_known_args(argv)
     cfg = ReproConfig() if known.models is None else ReproConfig(models=known.models)
-    quick = dataclasses.replace(cfg, heldout_frames=40, width=207)
+    quick = dataclasses.replace(cfg, heldout_frames=40, width=207, slam_seed=0)
     return results_main("results_repro", __doc__, cfg, quick, "repro", run, markdown, rest)
 
 

@@ -503,6 +503,15 @@ def test_repro_learning_curve_fits_a_power_law_and_the_table_reads_it(tmp_path):
     md = results_repro.markdown(report)
     assert "| paper preset, synthetic (n=2) | 1 ± 0 |" in md
     assert "paper preset, synthetic / paper preset, supervised (t_err" in md and "x0.50" in md
+    slam = {"vo_ate_m": 4.0, "slam_ate_m": 1.0, "slam_over_vo": 0.25, "loops": 500, "loops_kept": 480,
+            "vo_path_ratio": 0.95}
+    for r in report["rows"]["synthetic"]:
+        r["slam_laps_dis"] = slam
+    report["default"]["slam_laps_dis"] = {**slam, "vo_ate_m": 2.0, "slam_over_vo": 0.5}
+    report["config"] = {"slam_seed": 7441, "slam_frames": 1900, "width": 414}
+    md = results_repro.markdown(report)
+    assert "| cpu preset, synthetic (n=1) | 4 | 1 | 0.25 | 0.950 | 500 (480) |" in md
+    assert "| `deepslam slam`'s default | 2 | 1 | 0.50 | 0.950 | 500 (480) |" in md
 
 
 def test_the_loop_route_table_counts_loops_by_direction_and_marks_both_targets():
