@@ -592,7 +592,7 @@ def test_keyframe_rule_and_loop_recall():
 def test_the_exact_flow_model_rule_needs_mean_rows_and_path_band():
     from bench import results_exact_model as rem
 
-    cfg = dataclasses.replace(rem.ExactModelConfig(), candidates=(("base", "kitti"), ("good", "a"), ("banded", "b"),
+    cfg = dataclasses.replace(rem.ExactModelConfig(), candidates=(("base", "k"), ("good", "a"), ("banded", "b"),
                                                                   ("few", "c")), min_rows_better=2)
 
     def rec(t, p=1.0):
