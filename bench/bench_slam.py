@@ -265,17 +265,16 @@ def vo_end_to_end_fps(quick: bool) -> list[dict]:
     n = len(seq)
     env = {k: v for k, v in os.environ.items() if k != WORKERS_ENV}
     dis = models.flow_for_model("dis", models.shipped_path("kitti", "cons", "dis"))  # as `vo` sets it up
-    variants = {"default": ([], env), "slam": (["slam"], env), "net": (["--pose", "net"], env),
-                "network distance": (["--scale", "network"], env),
-                "one worker": ([], {**env, WORKERS_ENV: "1"}), "learned": (["--flow", "learned"], env),
-                "stride 4": (["--dis-patch-stride", "4"], env)}
+    variants = {"default": ("vo", [], env), "slam": ("slam", [], env), "net": ("vo", ["--pose", "net"], env),
+                "network distance": ("vo", ["--scale", "network"], env),
+                "one worker": ("vo", [], {**env, WORKERS_ENV: "1"}), "learned": ("vo", ["--flow", "learned"], env),
+                "stride 4": ("vo", ["--dis-patch-stride", "4"], env)}
     if dis.max_width:  # the shipped model runs DIS on downscaled frames: time it against full-size frames too
-        variants["full width"] = (["--dis-max-width", "0"], env)
+        variants["full width"] = ("vo", ["--dis-max-width", "0"], env)
     times: dict[str, list[float]] = {k: [] for k in variants}
     with tempfile.TemporaryDirectory(prefix="bench_vo_") as tmp:
         for _ in range(1 if quick else 3):  # in turn, so a change in the machine's load hits every variant alike
-            for name, (extra, run_env) in variants.items():
-                command, extra = (extra[0], extra[1:]) if extra[:1] == ["slam"] else ("vo", extra)
+            for name, (command, extra, run_env) in variants.items():
                 cmd = [sys.executable, "-m", "deepslam", command, "--sequence", str(root), "--out",
                        f"{tmp}/{command}.txt", "--quiet", *extra]
                 t, _ = _median_time(lambda: subprocess.run(cmd, cwd=base_dir(), check=True, capture_output=True,

@@ -48,6 +48,8 @@ def label(key: str) -> str:
     if key.startswith(PAPER):
         return f"paper preset, {MODE_LABELS[key[len(PAPER):]]}"
     return f"cpu preset, {MODE_LABELS[key]}"
+
+
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -82,29 +84,35 @@ def _model_file(folder: Path) -> Path | None:
     return None
 
 
-def vo_scores(seq_dir: Path, out_txt: Path, *options: str) -> dict:
-    """``deepslam vo --sequence SEQ_DIR --out OUT_TXT OPTIONS --json`` as a user runs it (a child process);
-    its metrics (se3-aligned): ATE, RPE, KITTI t_err / r_err, path ratio and end-point drift."""
-    argv = [sys.executable, "-m", "deepslam", "vo", "--sequence", str(seq_dir), "--out", str(out_txt), *options,
+def _repo_path(path: str) -> Path:
+    """``path`` as given when absolute, else relative to the repository."""
+    return Path(path) if Path(path).is_absolute() else REPO / path
+
+
+def _run_json(command: str, seq_dir: Path, out_txt: Path, options: tuple[str, ...]) -> dict:
+    """``deepslam COMMAND --sequence SEQ_DIR --out OUT_TXT OPTIONS --json`` as a user runs it (a child process):
+    the record it prints. RuntimeError with the end of its stderr when it fails."""
+    argv = [sys.executable, "-m", "deepslam", command, "--sequence", str(seq_dir), "--out", str(out_txt), *options,
             "--json", "--quiet"]
     p = subprocess.run(argv, capture_output=True, text=True, cwd=REPO)
     if p.returncode != 0:
         raise RuntimeError(f"{' '.join(argv[2:])} failed: {p.stderr.strip()[-500:]}")
-    m = json.loads(p.stdout.strip().splitlines()[-1])["metrics"]
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def vo_scores(seq_dir: Path, out_txt: Path, *options: str) -> dict:
+    """``deepslam vo`` (:func:`_run_json`): its metrics (se3-aligned): ATE, RPE, KITTI t_err / r_err, path ratio
+    and end-point drift, and the share of pairs within the predicted 1-sigma."""
+    m = _run_json("vo", seq_dir, out_txt, options)["metrics"]
     return {**metric_subset(m), "path_length_ratio": m.get("path_length_ratio"),
             "endpoint_drift_pct": m.get("endpoint_drift_pct"),
             "within_1_sigma": within_one_sigma(seq_dir, out_txt.with_suffix(".motions.csv"))}
 
 
 def slam_scores(seq_dir: Path, out_txt: Path, *options: str) -> dict:
-    """``deepslam slam --sequence SEQ_DIR --out OUT_TXT OPTIONS --json`` in a child process: VO and SLAM ATE (m,
-    se3-aligned), the SLAM / VO ratio and the loop edges found and kept."""
-    argv = [sys.executable, "-m", "deepslam", "slam", "--sequence", str(seq_dir), "--out", str(out_txt), *options,
-            "--json", "--quiet"]
-    p = subprocess.run(argv, capture_output=True, text=True, cwd=REPO)
-    if p.returncode != 0:
-        raise RuntimeError(f"{' '.join(argv[2:])} failed: {p.stderr.strip()[-500:]}")
-    r = json.loads(p.stdout.strip().splitlines()[-1])
+    """``deepslam slam`` (:func:`_run_json`): VO and SLAM ATE (m, se3-aligned), the SLAM / VO ratio, the VO's path
+    ratio and the loop edges found and kept."""
+    r = _run_json("slam", seq_dir, out_txt, options)
     vo, slam = r["metrics_vo"]["ate_m"], r["metrics_slam"]["ate_m"]
     return {"vo_ate_m": vo, "slam_ate_m": slam, "slam_over_vo": slam / vo if vo else None, "loops": r["n_loops"],
             "loops_kept": int(sum(r.get("loops_kept_by_pose_graph") or [])),
@@ -165,7 +173,7 @@ def plot_curves(curves: dict, path: Path) -> None:
 def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
     from deepslam.studies.demo import render_once
 
-    models_dir = Path(cfg.models) if Path(cfg.models).is_absolute() else REPO / cfg.models
+    models_dir = _repo_path(cfg.models)
     out.mkdir(parents=True, exist_ok=True)
     log: list[str] = []
     t0 = time.perf_counter()
@@ -179,8 +187,7 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
         ("--route", "laps", "--quiet"))
     folders = [("", models_dir)]
     if cfg.paper_models:
-        folders.append((PAPER, Path(cfg.paper_models) if Path(cfg.paper_models).is_absolute()
-                        else REPO / cfg.paper_models))
+        folders.append((PAPER, _repo_path(cfg.paper_models)))
     rows: dict = {}
     curves, trained = {}, {}
     for prefix, folder_root in folders:
@@ -212,8 +219,7 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
                         "--pose", "net"))
                 rows.setdefault(key, []).append(rec)
     default = {name: _cached(out / "eval" / f"default_{name}.json",
-                             lambda: vo_scores(seq, out / "runs" / f"default_{name}.txt",
-                                               *(() if flow == "dis" else ("--flow", flow))))
+                             lambda: vo_scores(seq, out / "runs" / f"default_{name}.txt", "--flow", flow))
                for name, seq, flow in cases}
     if slam_seq is not None:
         print(f"slam default: loop street {cfg.slam_seed}", flush=True)

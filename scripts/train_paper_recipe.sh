@@ -49,11 +49,12 @@ PIDS=""
 train() {
   local out=$1; shift
   [ -f "$out/model.safetensors" ] && return 0
+  local cmd=($DS train $RECIPE "$@" --out "$out" $([ -f "$out/checkpoint.safetensors" ] && echo --resume))
   if [ "${PARALLEL:-0}" = 1 ]; then
-    $DS train $RECIPE "$@" --out "$out" $([ -f "$out/checkpoint.safetensors" ] && echo --resume) &
+    "${cmd[@]}" &
     PIDS="$PIDS $!"
   else
-    $DS train $RECIPE "$@" --out "$out" $([ -f "$out/checkpoint.safetensors" ] && echo --resume)
+    "${cmd[@]}"
   fi
 }
 for seed in $SEEDS; do
