@@ -79,8 +79,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "estimator's name (e.g. dis: the second view is rendered from the single frame and the "
                         "estimator runs on the pair, so the network learns the flow it will be given; --dis-preset)")
     g.add_argument("--frame-scales", type=_floats, default=(1.0,), metavar="S,S...",
-                   help="with --synthetic-flow NAME: also use each frame downscaled by these factors (e.g. 1,0.65), "
-                        "as the estimator's errors depend on the resolution")
+                   help="with --synthetic-flow NAME: use each frame scaled by these factors (e.g. 1,0.65; above 1 "
+                        "upsampled as `vo --read-width` reads a narrow frame: 1.546 = 414 -> 640 px), as the "
+                        "estimator's errors depend on the resolution")
     g.add_argument("--mirror-frames", action="store_true",
                    help="synthetic mode: also train on every single frame flipped left-right (its camera mirrored): "
                         "the near side of the street on the other hand, so the network does not take a scene's "

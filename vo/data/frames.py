@@ -215,13 +215,15 @@ def load_image_frames(sequences: Seq, frame_step: int = 1, depth: str = "auto", 
 
     ``scales`` below 1 add the frame downscaled (image INTER_AREA, depth nearest, the camera scaled): an
     estimator errs differently at another resolution (DIS under-reads a road more on a smaller image),
-    so a network that will see several resolutions should be trained on them.
+    so a network that will see several resolutions should be trained on them. ``scales`` above 1 add it
+    upsampled (image bicubic, depth nearest) exactly as ``deepslam vo --read-width`` reads a narrow
+    frame (:class:`vo.pipeline.UpsampledView`): a 414 px render at 640 / 414 is what DIS is given at test.
 
     A render with a simulated depth sensor (``render --depth-noise``; :meth:`core.sequence.Sequence.depth_exact`)
     gives its exact depth as ``depth_z`` and the sensor's as ``depth_sensor``.
     """
-    if not scales or any(not (0.05 <= float(sc) <= 1.0) for sc in scales):
-        raise InputError(None, f"frame scales must be in [0.05, 1], got {list(scales)}")
+    if not scales or any(not (0.05 <= float(sc) <= 4.0) for sc in scales):
+        raise InputError(None, f"frame scales must be in [0.05, 4], got {list(scales)}")
     greys, depths, sensors, cam_idx, cams, names = [], [], [], [], [], []
     for seq in sequences:
         how = _depth_source(seq, depth)
@@ -239,7 +241,12 @@ def load_image_frames(sequences: Seq, frame_step: int = 1, depth: str = "auto", 
                 if cam not in cams:
                     cams.append(cam)
                 same = (w, h) == (seq.camera.width, seq.camera.height)
-                greys.append(grey if same else cv2.resize(grey, (w, h), interpolation=cv2.INTER_AREA))
+                if same:
+                    greys.append(grey)
+                elif w < seq.camera.width:
+                    greys.append(cv2.resize(grey, (w, h), interpolation=cv2.INTER_AREA))
+                else:  # the colour image upsampled, then grey: what the estimator gets from UpsampledView
+                    greys.append(to_grey(cv2.resize(seq.image(i), (w, h), interpolation=cv2.INTER_CUBIC)))
                 depths.append(d if same else resize_depth(d, w, h))
                 sensors.append(sensor if same or sensor is None else resize_depth(sensor, w, h))
                 cam_idx.append(cams.index(cam))

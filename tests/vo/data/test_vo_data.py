@@ -12,6 +12,7 @@ from deepslam.core import se3
 from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
 from deepslam.core.readers import open_sequence
+from deepslam.flow.images import to_grey
 from deepslam.gen import flow as gen_flow
 from deepslam.vo.data.frames import (Frames, fill_depth_holes, frame_inverse_depth, load_frames, load_image_frames,
                                 with_mirrored)
@@ -342,7 +343,19 @@ def test_image_frames_at_several_scales_split_by_source_frame(plane_sequence):
     assert len(hold) == 4 and len(train) == 8                 # 2 of 6 source frames, each at both scales
     assert not {n.split("@")[0] for n in train.names} & {n.split("@")[0] for n in hold.names}
     with pytest.raises(Exception, match="scales"):
-        load_image_frames([seq], scales=(1.5,), progress=False)
+        load_image_frames([seq], scales=(5.0,), progress=False)
+
+
+def test_image_frames_above_scale_one_are_what_vo_reads_at_its_read_width(plane_sequence):
+    from deepslam.vo.pipeline import UpsampledView
+
+    seq = open_sequence(plane_sequence)
+    width = round(seq.camera.width * 1.5)
+    frames = load_image_frames([seq], frame_step=2, scales=(1.5,), progress=False)
+    view = UpsampledView(seq, width)
+    assert frames.cameras == [view.camera]
+    np.testing.assert_array_equal(frames.grey[0], to_grey(view.image(0)))
+    assert frames.depth_z[0].shape == (view.camera.height, view.camera.width)
 
 
 def test_appearance_noise_on_the_rendered_view_is_seeded_and_changes_only_the_flow(plane_sequence):
