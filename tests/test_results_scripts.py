@@ -535,6 +535,10 @@ def test_repro_table_splits_the_own_pose_drift_into_rotation_and_distance():
     assert ("- the network's own pose / the default (issue 56's target: at most x2): cpu preset, synthetic on DIS "
             "flow of rendered views x20.0; paper preset, synthetic x17.5") in md
     assert md.count("paper preset, synthetic s0") == 0   # scored with its own pose only: no decomposition row
+    rec["kitti07_dis_cal06"] = {**figures(20.0), "within_1_sigma": [0.6, 0.7, 0.65, 0.6, 0.7, 0.75]}
+    md = results_repro.markdown(report)
+    assert ("- cpu preset, synthetic on DIS flow of rendered views s0, KITTI 07 slice (real, never trained on), DIS "
+            "flow, std calibrated on KITTI 06 (`deepslam calibrate`): 0.60, 0.70, 0.65, 0.60, 0.70, 0.75") in md
 
 
 def test_the_loop_route_table_counts_loops_by_direction_and_marks_both_targets():
