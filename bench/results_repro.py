@@ -137,9 +137,9 @@ def slam_scores(seq_dir: Path, out_txt: Path, *options: str) -> dict:
             "vo_path_ratio": r["metrics_vo"].get("path_length_ratio")}
 
 
-def within_one_sigma(seq_dir: Path, motions_csv: Path) -> list[float]:
-    """Per DoF (euler x, y, z, t x, y, z), the share of pairs whose error against the ground truth's
-    ``cam_j_from_cam_i`` is within the predicted 1-sigma (a calibrated Gaussian gives 0.68)."""
+def _predicted_and_true(seq_dir: Path, motions_csv: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(mean6, std6, true6) per pair of a ``vo`` run's motions CSV: (N, 6) float64 paper vectors of
+    ``cam_j_from_cam_i`` (euler x, y, z in rad; t x, y, z in m), the predicted std and the ground truth's."""
     from deepslam.core import se3
     from deepslam.core.readers import open_sequence
 
@@ -147,9 +147,27 @@ def within_one_sigma(seq_dir: Path, motions_csv: Path) -> list[float]:
     rows = np.loadtxt(motions_csv, delimiter=",", skiprows=1, ndmin=2)
     i, j = rows[:, 0].astype(int), rows[:, 1].astype(int)
     gt = seq.gt.world_from_cam
-    true6 = se3.to_euler6(se3.relative(gt[j], gt[i])).reshape(-1, 6)
-    err = np.abs(rows[:, 4:10] - true6)
-    return [float(x) for x in (err <= rows[:, 10:16]).mean(axis=0)]
+    return rows[:, 4:10], rows[:, 10:16], se3.to_euler6(se3.relative(gt[j], gt[i])).reshape(-1, 6)
+
+
+def within_one_sigma(seq_dir: Path, motions_csv: Path) -> list[float]:
+    """Per DoF (euler x, y, z, t x, y, z), the share of pairs whose error against the ground truth's
+    ``cam_j_from_cam_i`` is within the predicted 1-sigma (a calibrated Gaussian gives 0.68)."""
+    mean6, std6, true6 = _predicted_and_true(seq_dir, motions_csv)
+    return [float(x) for x in (np.abs(mean6 - true6) <= std6).mean(axis=0)]
+
+
+def yaw_and_forward_fit(seq_dir: Path, motions_csv: Path) -> dict:
+    """Per pair, the predicted yaw (euler y, the camera's vertical axis) and forward translation (t z) against
+    the ground truth's, fitted by a line: ``predicted = slope * true + offset``; slope 1, offset 0 and a small
+    residual std are a perfect reading. Degrees for the yaw, metres for t z."""
+    mean6, _, true6 = _predicted_and_true(seq_dir, motions_csv)
+    out = {}
+    for name, k, unit in (("yaw", 1, np.degrees(1.0)), ("forward", 5, 1.0)):
+        slope, offset = np.polyfit(true6[:, k], mean6[:, k], 1)
+        resid = mean6[:, k] - (slope * true6[:, k] + offset)
+        out[name] = {"slope": float(slope), "offset": float(offset * unit), "resid_std": float(resid.std() * unit)}
+    return out
 
 
 def learning_curve(history: Path) -> dict:
@@ -231,6 +249,7 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
                         seq, out / "runs" / f"{key}_s{seed}_{name}.txt", "--model", str(model), "--flow", flow,
                         "--pose", "net"))
                     if flow == "dis" and seed in cfg.decompose_seeds:
+                        rec[f"{name}_fit"] = yaw_and_forward_fit(seq, out / "runs" / f"{key}_s{seed}_{name}.motions.csv")
                         rec[f"{name}_epipolar"] = _cached(
                             out / "eval" / f"{key}_s{seed}_{name}_epipolar.json", lambda: vo_scores(
                                 seq, out / "runs" / f"{key}_s{seed}_{name}_epipolar.txt", "--model", str(model),
@@ -256,6 +275,9 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
     default = {name: _cached(out / "eval" / f"default_{name}.json",
                              lambda: vo_scores(seq, out / "runs" / f"default_{name}.txt", "--flow", flow))
                for name, seq, flow in cases}
+    for name, seq, flow in cases:
+        if flow == "dis":
+            default[f"{name}_fit"] = yaw_and_forward_fit(seq, out / "runs" / f"default_{name}.motions.csv")
     # pnp (SIFT + PnP-RANSAC) needs depth: the render's exact depth on the street; the KITTI slices have none
     default["street_pnp"] = _cached(out / "eval" / "pnp_street.json", lambda: vo_scores(
         held, out / "runs" / "pnp_street.txt", "--odometry", "pnp"))
@@ -353,6 +375,23 @@ def markdown(report: dict) -> str:
         md.append("| `deepslam vo`'s default (road scale) | " + " | ".join(
             f"{_err(report['default'][c]):.3g} (x{report['default'][c]['path_length_ratio']:.3f})"
             for c in report["cases"] if c.endswith("_dis")) + " |")
+    dis_cases = [c for c in report["cases"] if c.endswith("_dis")]
+    fits = [(label(key) + f" s{r['seed']}", r) for key, recs in report["rows"].items() for r in recs
+            if any(f"{c}_fit" in r for c in dis_cases)]
+    if fits:
+        fits.append(("`deepslam vo`'s default", report["default"]))
+
+        def fit_cell(f: dict | None) -> str:
+            if not f:
+                return "n/a"
+            y, z = f["yaw"], f["forward"]
+            return (f"yaw x{y['slope']:.2f} {y['offset']:+.3f}° ±{y['resid_std']:.3f}°; "
+                    f"forward x{z['slope']:.2f} ±{z['resid_std']:.3f} m")
+
+        md += ["", "Per pair against the ground truth, DIS flow: the yaw and the forward translation read, fitted by "
+               "`read = slope x true + offset`, and the residual's std (a perfect reading: x1.00, +0, ±0):", "",
+               "| | " + " | ".join(CASE_TITLES.get(c, c) for c in dis_cases) + " |", "|---" * (1 + len(dis_cases)) + "|"]
+        md += [f"| {name} | " + " | ".join(fit_cell(r.get(f"{c}_fit")) for c in dis_cases) + " |" for name, r in fits]
     slam_rows = [(key, recs) for key, recs in report["rows"].items() if recs and "slam_laps_dis" in recs[0]]
     if slam_rows:
         cfg = report["config"]

@@ -535,6 +535,13 @@ def test_repro_table_splits_the_own_pose_drift_into_rotation_and_distance():
     assert ("- the network's own pose / the default (issue 56's target: at most x2): cpu preset, synthetic on DIS "
             "flow of rendered views x20.0; paper preset, synthetic x17.5") in md
     assert md.count("paper preset, synthetic s0") == 0   # scored with its own pose only: no decomposition row
+    fit = {"yaw": {"slope": 0.78, "offset": 0.35, "resid_std": 0.42}, "forward": {"slope": 0.82, "offset": 0.1,
+                                                                                  "resid_std": 0.18}}
+    rec["kitti07_dis_fit"] = fit
+    report["default"]["kitti07_dis_fit"] = {**fit, "yaw": {"slope": 1.0, "offset": 0.002, "resid_std": 0.016}}
+    md = results_repro.markdown(report)
+    assert "| cpu preset, synthetic on DIS flow of rendered views s0 | yaw x0.78 +0.350° ±0.420°; forward x0.82 ±0.180 m |" in md
+    assert "| `deepslam vo`'s default | yaw x1.00 +0.002° ±0.016°; forward x0.82 ±0.180 m |" in md
     rec["kitti07_dis_cal06"] = {**figures(20.0), "within_1_sigma": [0.6, 0.7, 0.65, 0.6, 0.7, 0.75]}
     md = results_repro.markdown(report)
     assert ("- cpu preset, synthetic on DIS flow of rendered views s0, KITTI 07 slice (real, never trained on), DIS "
