@@ -158,15 +158,16 @@ def within_one_sigma(seq_dir: Path, motions_csv: Path) -> list[float]:
 
 
 def yaw_and_forward_fit(seq_dir: Path, motions_csv: Path) -> dict:
-    """Per pair, the predicted yaw (euler y, the camera's vertical axis) and forward translation (t z) against
-    the ground truth's, fitted by a line: ``predicted = slope * true + offset``; slope 1, offset 0 and a small
-    residual std are a perfect reading. Degrees for the yaw, metres for t z."""
+    """Per pair, the predicted yaw (euler y, about the camera's vertical axis) and forward translation (t z)
+    against the ground truth's: the gain (least-squares ``read = gain * true``, through the origin: for t z the
+    share of the distance read, for the yaw the share of the turns read) and the RMS of ``read - true``, in
+    degrees for the yaw and metres for t z; gain 1 and RMS 0 are a perfect reading."""
     mean6, _, true6 = _predicted_and_true(seq_dir, motions_csv)
     out = {}
     for name, k, unit in (("yaw", 1, np.degrees(1.0)), ("forward", 5, 1.0)):
-        slope, offset = np.polyfit(true6[:, k], mean6[:, k], 1)
-        resid = mean6[:, k] - (slope * true6[:, k] + offset)
-        out[name] = {"slope": float(slope), "offset": float(offset * unit), "resid_std": float(resid.std() * unit)}
+        read, true = mean6[:, k], true6[:, k]
+        gain = float(read @ true / (true @ true)) if true @ true > 0 else None
+        out[name] = {"gain": gain, "rms": float(np.sqrt(np.mean((read - true) ** 2)) * unit)}
     return out
 
 
@@ -385,11 +386,12 @@ def markdown(report: dict) -> str:
             if not f:
                 return "n/a"
             y, z = f["yaw"], f["forward"]
-            return (f"yaw x{y['slope']:.2f} {y['offset']:+.3f}° ±{y['resid_std']:.3f}°; "
-                    f"forward x{z['slope']:.2f} ±{z['resid_std']:.3f} m")
+            gain = "n/a" if y["gain"] is None else f"x{y['gain']:.2f}"
+            return f"yaw {gain}, {y['rms']:.3f}°; forward x{z['gain']:.2f}, {z['rms']:.3f} m"
 
-        md += ["", "Per pair against the ground truth, DIS flow: the yaw and the forward translation read, fitted by "
-               "`read = slope x true + offset`, and the residual's std (a perfect reading: x1.00, +0, ±0):", "",
+        md += ["", "Per pair against the ground truth, DIS flow: the share of the turns (yaw) and of the distance "
+               "(forward translation) read, as the gain of `read = gain x true` through the origin, and the RMS error "
+               "of a pair (a perfect reading: x1.00, 0):", "",
                "| | " + " | ".join(CASE_TITLES.get(c, c) for c in dis_cases) + " |", "|---" * (1 + len(dis_cases)) + "|"]
         md += [f"| {name} | " + " | ".join(fit_cell(r.get(f"{c}_fit")) for c in dis_cases) + " |" for name, r in fits]
     slam_rows = [(key, recs) for key, recs in report["rows"].items() if recs and "slam_laps_dis" in recs[0]]

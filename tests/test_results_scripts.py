@@ -535,13 +535,12 @@ def test_repro_table_splits_the_own_pose_drift_into_rotation_and_distance():
     assert ("- the network's own pose / the default (issue 56's target: at most x2): cpu preset, synthetic on DIS "
             "flow of rendered views x20.0; paper preset, synthetic x17.5") in md
     assert md.count("paper preset, synthetic s0") == 0   # scored with its own pose only: no decomposition row
-    fit = {"yaw": {"slope": 0.78, "offset": 0.35, "resid_std": 0.42}, "forward": {"slope": 0.82, "offset": 0.1,
-                                                                                  "resid_std": 0.18}}
+    fit = {"yaw": {"gain": 0.78, "rms": 0.42}, "forward": {"gain": 0.82, "rms": 0.18}}
     rec["kitti07_dis_fit"] = fit
-    report["default"]["kitti07_dis_fit"] = {**fit, "yaw": {"slope": 1.0, "offset": 0.002, "resid_std": 0.016}}
+    report["default"]["kitti07_dis_fit"] = {**fit, "yaw": {"gain": None, "rms": 0.016}}
     md = results_repro.markdown(report)
-    assert "| cpu preset, synthetic on DIS flow of rendered views s0 | yaw x0.78 +0.350° ±0.420°; forward x0.82 ±0.180 m |" in md
-    assert "| `deepslam vo`'s default | yaw x1.00 +0.002° ±0.016°; forward x0.82 ±0.180 m |" in md
+    assert "| cpu preset, synthetic on DIS flow of rendered views s0 | yaw x0.78, 0.420°; forward x0.82, 0.180 m |" in md
+    assert "| `deepslam vo`'s default | yaw n/a, 0.016°; forward x0.82, 0.180 m |" in md
     rec["kitti07_dis_cal06"] = {**figures(20.0), "within_1_sigma": [0.6, 0.7, 0.65, 0.6, 0.7, 0.75]}
     md = results_repro.markdown(report)
     assert ("- cpu preset, synthetic on DIS flow of rendered views s0, KITTI 07 slice (real, never trained on), DIS "
@@ -642,3 +641,20 @@ def test_the_exact_flow_model_rule_needs_mean_rows_and_path_band():
     md = rem.markdown({"config": dataclasses.asdict(cfg), "rows": [{"seed": 1, "width": 320, "stride": 1, **r}
                                                                   for r in rows], "verdicts": v})
     assert "Chosen by the rule: **good**" in md and "| base | 4.333 | 0 of 3 | 1.100-1.120 | default |" in md
+
+
+def test_repro_fit_reads_the_share_of_distance_and_turns_against_the_ground_truth(plane_sequence, tmp_path):
+    from bench import results_repro
+    from deepslam.core import se3
+    from deepslam.core.readers import open_sequence
+
+    gt = open_sequence(plane_sequence).gt.world_from_cam
+    true6 = se3.to_euler6(se3.relative(gt[1:], gt[:-1])).reshape(-1, 6)
+    read6 = true6 * np.array([1, 1, 1, 1, 1, 0.5])            # half the distance, the rest exact
+    rows = [[i, i + 1, 0.0, 0.1, *read6[i], *[0.01] * 6] for i in range(len(read6))]
+    csv = tmp_path / "run.motions.csv"
+    np.savetxt(csv, np.array(rows), delimiter=",", header="i,j,t_i_s,t_j_s,e,e,e,t,t,t,s,s,s,s,s,s", comments="")
+    fit = results_repro.yaw_and_forward_fit(plane_sequence, csv)
+    assert fit["forward"]["gain"] == pytest.approx(0.5, abs=1e-9)
+    assert fit["forward"]["rms"] == pytest.approx(0.5 * np.sqrt(np.mean(true6[:, 5] ** 2)), rel=1e-9)  # ~0.4 m
+    assert fit["yaw"]["rms"] == pytest.approx(0.0, abs=1e-9)
