@@ -44,8 +44,10 @@ SECTIONS = (
      "bash scripts/train_paper_recipe.sh bench/paper_recipe  # hours on 2 cores, minutes on a GPU; then "
      "python -m bench.results_repro",
      "NN_cons trained by the paper's recipe for up to 2 M samples (three seeds of the cpu preset, one of the paper's "
-     "96 x 320 network), synthetic from single frames and supervised on the same renders, scored with their own pose "
-     "on a held-out street (exact and DIS flow) and on KITTI 07, beside the geometry default; learning curves."),
+     "96 x 320 network; the synthetic model also on DIS flow of views rendered from the single frames), synthetic "
+     "from single frames and supervised on the same renders, scored with their own pose on a held-out street (exact "
+     "and DIS flow) and on KITTI 06 and 07, beside the geometry default and pnp; where the own pose's drift comes "
+     "from (rotation or distance); calibration; learning curves."),
     ("extra", "Rendered frames as extra training data", "python -m bench.results_extra",
      "One network and budget trained the paper's way on real single frames (KITTI 06), real plus rendered, and "
      "rendered alone; scored on KITTI 07, which none of them saw."),
