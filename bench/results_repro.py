@@ -59,6 +59,10 @@ def label(key: str) -> str:
     return f"cpu preset, {MODE_LABELS[key]}"
 
 
+CALIBRATED_ON = {"_cal06": "KITTI 06", "_calstreet": "another unseen street (town 8101)"}
+"""Suffix of a case whose model's std was calibrated first, and on what."""
+
+
 def _err(rec: dict) -> float | None:
     """The figure the issue's ratios read: t_err [%], or the end-point drift [% of path] on a route under 100 m."""
     return rec.get("kitti_t_err_pct") or rec.get("endpoint_drift_pct")
@@ -89,6 +93,9 @@ class ReproConfig:
     """Frames of the loop street."""
     slam_modes: tuple[str, ...] = ("synthetic", "synthetic_dis", "supervised")
     """Training modes scored with SLAM (each seed present, both presets)."""
+    calibration_seed: int = 8101
+    """Town of a simulated street (as the held-out one) on which seed 0's std is calibrated per DoF and then read
+    on town 7 and the KITTI slices, beside the calibration on KITTI 06 (0: none)."""
     decompose_seeds: tuple[int, ...] = (0,)
     """Seeds whose models are scored a second time on the DIS cases with the essential matrix's rotation and
     direction and the network's distance (``vo --pose epipolar --scale network``): the drift left is the
@@ -222,6 +229,11 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
     slam_seq = None if not cfg.slam_seed else render_once(
         "street", "car", cfg.slam_frames, cfg.width, cfg.slam_seed, out / f"street_laps_s{cfg.slam_seed}", log,
         ("--route", "laps", "--quiet"))
+    calibration_seqs = {tag: seq for tag, seq in (
+        ("cal06", kitti / "06" if (kitti / "06").is_dir() else None),
+        ("calstreet", render_once("street", "car", cfg.heldout_frames, cfg.width, cfg.calibration_seed,
+                                  out / f"street_calibration_s{cfg.calibration_seed}", log, ("--quiet",))
+         if cfg.calibration_seed else None)) if seq is not None}
     folders = [("", models_dir)]
     if cfg.paper_models:
         folders.append((PAPER, _repo_path(cfg.paper_models)))
@@ -255,17 +267,19 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
                             out / "eval" / f"{key}_s{seed}_{name}_epipolar.json", lambda: vo_scores(
                                 seq, out / "runs" / f"{key}_s{seed}_{name}_epipolar.txt", "--model", str(model),
                                 "--flow", flow, "--pose", "epipolar", "--scale", "network"))
-                if seed in cfg.decompose_seeds and model.name == "model.safetensors" and (kitti / "06").is_dir():
-                    # the predicted std fitted per DoF on the real KITTI 06 slice (a user's validation sequence with
-                    # ground truth: `deepslam calibrate`), then read on the DIS cases that slice is not
-                    calibrated = out / "eval" / f"{key}_s{seed}_cal06.safetensors"
+                for tag, cal_seq in calibration_seqs.items():
+                    if seed not in cfg.decompose_seeds or model.name != "model.safetensors":
+                        continue
+                    # the predicted std fitted per DoF on a validation sequence with ground truth (`deepslam
+                    # calibrate`, DIS flow), then read on the DIS cases that sequence is not
+                    calibrated = out / "eval" / f"{key}_s{seed}_{tag}.safetensors"
                     if not calibrated.is_file():
-                        _run_json("calibrate", kitti / "06", calibrated, (str(model), "--pose", "net"))
+                        _run_json("calibrate", cal_seq, calibrated, (str(model), "--pose", "net"))
                     for name, seq, flow in cases:
-                        if flow == "dis" and name != "kitti06_dis":
-                            rec[f"{name}_cal06"] = _cached(
-                                out / "eval" / f"{key}_s{seed}_{name}_cal06.json", lambda: vo_scores(
-                                    seq, out / "runs" / f"{key}_s{seed}_{name}_cal06.txt", "--model", str(calibrated),
+                        if flow == "dis" and seq != cal_seq:
+                            rec[f"{name}_{tag}"] = _cached(
+                                out / "eval" / f"{key}_s{seed}_{name}_{tag}.json", lambda: vo_scores(
+                                    seq, out / "runs" / f"{key}_s{seed}_{name}_{tag}.txt", "--model", str(calibrated),
                                     "--flow", flow, "--pose", "net"))
                 if slam_seq is not None and mode in cfg.slam_modes:
                     print(f"slam {key} seed {seed}: loop street {cfg.slam_seed}", flush=True)
@@ -411,14 +425,20 @@ def markdown(report: dict) -> str:
             md.append(f"| `deepslam slam`'s default | {d['vo_ate_m']:.3g} | {d['slam_ate_m']:.3g} | "
                       f"{d['slam_over_vo']:.2f} | {d['vo_path_ratio']:.3f} | {d['loops']} ({d['loops_kept']}) |")
     cal = [(key, r["seed"], case, r[case].get("within_1_sigma")) for key, recs in report["rows"].items() for r in recs
-           for case in [c + suffix for c in report["cases"] for suffix in ("", "_cal06")]
+           for case in [c + suffix for c in report["cases"] for suffix in ("",) + tuple(CALIBRATED_ON)]
            if r.get(case, {}).get("within_1_sigma")]
     if cal:
         md += ["", "Uncertainty: share of pairs whose error is within the predicted 1-sigma, per DoF (euler x, y, z, "
                "t x, y, z; a calibrated Gaussian gives 0.68):", ""]
-        md += [f"- {label(key)} s{seed}, {CASE_TITLES.get(case.removesuffix('_cal06'), case)}"
-               + (", std calibrated on KITTI 06 (`deepslam calibrate`)" if case.endswith("_cal06") else "") + ": "
-               + ", ".join(f"{x:.2f}" for x in c) for key, seed, case, c in cal]
+        def title(case: str) -> str:
+            for suffix, where in CALIBRATED_ON.items():
+                if case.endswith(suffix):
+                    return (f"{CASE_TITLES.get(case.removesuffix(suffix), case)}, std calibrated on {where} "
+                            "(`deepslam calibrate`)")
+            return CASE_TITLES.get(case, case)
+
+        md += [f"- {label(key)} s{seed}, {title(case)}: " + ", ".join(f"{x:.2f}" for x in c)
+               for key, seed, case, c in cal]
     fits = [(k, c[f"{n}_fit"]) for k, c in report["curves"].items() for n in ("t_z_m",) if f"{n}_fit" in c]
     if report["curves"]:
         md += ["", "![learning curves](learning_curve.png)"]
@@ -440,7 +460,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--models", default=None)
     known, rest = ap.parse_known_args(argv)
     cfg = ReproConfig() if known.models is None else ReproConfig(models=known.models)
-    quick = dataclasses.replace(cfg, heldout_frames=40, width=207, slam_seed=0)
+    quick = dataclasses.replace(cfg, heldout_frames=40, width=207, slam_seed=0, calibration_seed=0)
     return results_main("results_repro", __doc__, cfg, quick, "repro", run, markdown, rest)
 
 
