@@ -230,7 +230,8 @@ def load_image_frames(sequences: Seq, frame_step: int = 1, depth: str = "auto", 
         simulated_sensor = how == "rendered" and seq.depth_exact_paths is not None
         for i in tqdm(_frame_indices(seq, frame_step, max_frames), desc=f"frames {seq.name} ({how})", unit="frame",
                       disable=not progress, leave=False):
-            grey = to_grey(seq.image(i))
+            image = seq.image(i)
+            grey = to_grey(image)
             d = _frame_depth(seq, i, how, fill_stereo_holes, seq.camera.width, seq.camera.height)
             sensor = None
             if simulated_sensor:
@@ -246,7 +247,7 @@ def load_image_frames(sequences: Seq, frame_step: int = 1, depth: str = "auto", 
                 elif w < seq.camera.width:
                     greys.append(cv2.resize(grey, (w, h), interpolation=cv2.INTER_AREA))
                 else:  # the colour image upsampled, then grey: what the estimator gets from UpsampledView
-                    greys.append(to_grey(cv2.resize(seq.image(i), (w, h), interpolation=cv2.INTER_CUBIC)))
+                    greys.append(to_grey(cv2.resize(image, (w, h), interpolation=cv2.INTER_CUBIC)))
                 depths.append(d if same else resize_depth(d, w, h))
                 sensors.append(sensor if same or sensor is None else resize_depth(sensor, w, h))
                 cam_idx.append(cams.index(cam))
