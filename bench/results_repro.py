@@ -59,8 +59,8 @@ def label(key: str) -> str:
     return f"cpu preset, {MODE_LABELS[key]}"
 
 
-CALIBRATED_ON = {"_cal06": "KITTI 06", "_calstreet": "another unseen street (town 8101)"}
-"""Suffix of a case whose model's std was calibrated first, and on what."""
+CALIBRATED_ON = {"cal06": "KITTI 06", "calstreet": "another unseen street (town {calibration_seed})"}
+"""Tag of a calibration (a case ``{case}_{tag}`` was scored with the model's std calibrated first), and on what."""
 
 
 def _err(rec: dict) -> float | None:
@@ -229,11 +229,11 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
     slam_seq = None if not cfg.slam_seed else render_once(
         "street", "car", cfg.slam_frames, cfg.width, cfg.slam_seed, out / f"street_laps_s{cfg.slam_seed}", log,
         ("--route", "laps", "--quiet"))
-    calibration_seqs = {tag: seq for tag, seq in (
-        ("cal06", kitti / "06" if (kitti / "06").is_dir() else None),
-        ("calstreet", render_once("street", "car", cfg.heldout_frames, cfg.width, cfg.calibration_seed,
-                                  out / f"street_calibration_s{cfg.calibration_seed}", log, ("--quiet",))
-         if cfg.calibration_seed else None)) if seq is not None}
+    calibration_seqs = {tag: seq for tag, seq in zip(CALIBRATED_ON, (
+        kitti / "06" if (kitti / "06").is_dir() else None,
+        render_once("street", "car", cfg.heldout_frames, cfg.width, cfg.calibration_seed,
+                    out / f"street_calibration_s{cfg.calibration_seed}", log, ("--quiet",))
+        if cfg.calibration_seed else None)) if seq is not None}
     folders = [("", models_dir)]
     if cfg.paper_models:
         folders.append((PAPER, _repo_path(cfg.paper_models)))
@@ -366,31 +366,28 @@ def markdown(report: dict) -> str:
         over = [(key, by_case.get(case)) for key, by_case in report.get("ratio_over_default", {}).items()
                 if by_case.get(case) is not None]
         if over:
-            md.append("- the network's own pose / the default (issue 56's target: at most x2): " + "; ".join(
+            md.append("- the network's own pose / the default (the target: at most x2): " + "; ".join(
                 f"{label(key)} x{r:.1f}" for key, r in over))
-    epi = [(key, r["seed"], case) for key, recs in report["rows"].items() for r in recs for case in report["cases"]
-           if f"{case}_epipolar" in r]
-    if epi:
+    dis_cases = [c for c in report["cases"] if c.endswith("_dis")]
+    if any(f"{c}_epipolar" in r for recs in report["rows"].values() for r in recs for c in dis_cases):
         md += ["", "**Rotation or distance?** The same models on the DIS cases with the essential matrix's rotation and "
                "direction of travel and the network's distance (`vo --pose epipolar --scale network`): t_err or drift "
                "[%] with the network's own pose -> with the essential matrix's rotation (path ratio); what remains is "
                "the network's reading of scale.", "",
-               "| model | " + " | ".join(CASE_TITLES.get(c, c) for c in report["cases"] if c.endswith("_dis")) + " |",
-               "|---" * (1 + sum(c.endswith("_dis") for c in report["cases"])) + "|"]
+               "| model | " + " | ".join(CASE_TITLES.get(c, c) for c in dis_cases) + " |", "|---" * (1 + len(dis_cases)) + "|"]
         for key, recs in report["rows"].items():
             for r in recs:
-                if not any(f"{c}_epipolar" in r for c in report["cases"]):
+                if not any(f"{c}_epipolar" in r for c in dis_cases):
                     continue
                 cells = []
-                for c in (c for c in report["cases"] if c.endswith("_dis")):
+                for c in dis_cases:
                     own, e = r.get(c), r.get(f"{c}_epipolar")
                     cells.append("n/a" if not (own and e) or _err(own) is None or _err(e) is None else
                                  f"{_err(own):.3g} -> {_err(e):.3g} (x{e['path_length_ratio']:.3f})")
                 md.append(f"| {label(key)} s{r['seed']} | " + " | ".join(cells) + " |")
         md.append("| `deepslam vo`'s default (road scale) | " + " | ".join(
             f"{_err(report['default'][c]):.3g} (x{report['default'][c]['path_length_ratio']:.3f})"
-            for c in report["cases"] if c.endswith("_dis")) + " |")
-    dis_cases = [c for c in report["cases"] if c.endswith("_dis")]
+            for c in dis_cases) + " |")
     fits = [(label(key) + f" s{r['seed']}", r) for key, recs in report["rows"].items() for r in recs
             if any(f"{c}_fit" in r for c in dis_cases)]
     if fits:
@@ -425,15 +422,16 @@ def markdown(report: dict) -> str:
             md.append(f"| `deepslam slam`'s default | {d['vo_ate_m']:.3g} | {d['slam_ate_m']:.3g} | "
                       f"{d['slam_over_vo']:.2f} | {d['vo_path_ratio']:.3f} | {d['loops']} ({d['loops_kept']}) |")
     cal = [(key, r["seed"], case, r[case].get("within_1_sigma")) for key, recs in report["rows"].items() for r in recs
-           for case in [c + suffix for c in report["cases"] for suffix in ("",) + tuple(CALIBRATED_ON)]
+           for case in [c + suffix for c in report["cases"] for suffix in ("", *(f"_{t}" for t in CALIBRATED_ON))]
            if r.get(case, {}).get("within_1_sigma")]
     if cal:
         md += ["", "Uncertainty: share of pairs whose error is within the predicted 1-sigma, per DoF (euler x, y, z, "
                "t x, y, z; a calibrated Gaussian gives 0.68):", ""]
         def title(case: str) -> str:
-            for suffix, where in CALIBRATED_ON.items():
-                if case.endswith(suffix):
-                    return (f"{CASE_TITLES.get(case.removesuffix(suffix), case)}, std calibrated on {where} "
+            for tag, where in CALIBRATED_ON.items():
+                where = where.format(calibration_seed=report.get("config", {}).get("calibration_seed"))
+                if case.endswith(f"_{tag}"):
+                    return (f"{CASE_TITLES.get(case.removesuffix(f'_{tag}'), case)}, std calibrated on {where} "
                             "(`deepslam calibrate`)")
             return CASE_TITLES.get(case, case)
 

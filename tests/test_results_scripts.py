@@ -532,7 +532,7 @@ def test_repro_table_splits_the_own_pose_drift_into_rotation_and_distance():
     md = results_repro.markdown(report)
     assert "| cpu preset, synthetic on DIS flow of rendered views s0 | 20 -> 8 (x1.090) |" in md
     assert "| `deepslam vo`'s default (road scale) | 1 (x0.998) |" in md
-    assert ("- the network's own pose / the default (issue 56's target: at most x2): cpu preset, synthetic on DIS "
+    assert ("- the network's own pose / the default (the target: at most x2): cpu preset, synthetic on DIS "
             "flow of rendered views x20.0; paper preset, synthetic x17.5") in md
     assert md.count("paper preset, synthetic s0") == 0   # scored with its own pose only: no decomposition row
     fit = {"yaw": {"gain": 0.78, "rms": 0.42}, "forward": {"gain": 0.82, "rms": 0.18}}
