@@ -32,7 +32,8 @@ JSON file (``deepslam fit-motion`` writes it, :meth:`MotionModel.load` validates
               "fit": "truncated" or "plain" (optional: how the loop t were fitted, see fit_student_t)}}
 
 with, for a KDE, ``"consecutive": {"kind": "kde", "num_motions": N, "bandwidth": {"euler_x": .., ...},
-"lo": {..}, "hi": {..}, "motions": [[euler_x, .., t_z], ...]}`` (a file without ``kind`` is Student-t).
+"lo": {..}, "hi": {..}, "motions": [[euler_x, .., t_z], ...]}`` and optionally ``"speed_scale": [lo, hi]``
+(:attr:`KdeSix.speed_scale`); a file without ``kind`` is Student-t.
 """
 from __future__ import annotations
 
@@ -156,6 +157,11 @@ class KdeSix:
     """(6,) float64 smallest value sampled per DoF (the data's minimum)."""
     hi: np.ndarray
     """(6,) float64 largest value sampled per DoF (the data's maximum)."""
+    speed_scale: tuple[float, float] | None = None
+    """(lo, hi) of a factor drawn log-uniform per motion that multiplies its translation, its rotation kept
+    (``fit-motion --speed-scale``); None: none. On a circular arc the chord's direction depends on the heading
+    change alone, so a scaled motion is the same turn at a radius and speed scaled by the factor: it frees
+    the turn radius from the one the fitted routes were driven at (a town's car takes every corner on one arc)."""
 
     @property
     def num_motions(self) -> int:
@@ -166,7 +172,8 @@ class KdeSix:
         """(n, 6) float64 paper vectors (rad, m): ``rng.integers`` picks the motions, then ``rng.standard_normal``
         the jitter; a value the jitter took out of [lo, hi] gets its jitter redrawn (clipped after
         ``max_rounds``), so the range's ends get no pile of clipped draws (standing still stays still, not
-        0.016 m backwards)."""
+        0.016 m backwards). With :attr:`speed_scale`, ``rng.uniform`` then draws each motion's factor (the
+        translation may then leave [lo, hi]: that is the point)."""
         pick = rng.integers(0, len(self.motions), size=n)
         base = self.motions[pick]
         out = base + rng.standard_normal((n, 6)) * self.bandwidth
@@ -175,7 +182,11 @@ class KdeSix:
             if bad[0].size == 0:
                 break
             out[bad] = base[bad] + rng.standard_normal(bad[0].size) * self.bandwidth[bad[1]]
-        return np.clip(out, self.lo, self.hi)
+        out = np.clip(out, self.lo, self.hi)
+        if self.speed_scale is not None:
+            lo, hi = self.speed_scale
+            out[:, 3:] *= np.exp(rng.uniform(math.log(lo), math.log(hi), size=n))[:, None]
+        return out
 
     def marginal_pdf(self, k: int, x: np.ndarray) -> np.ndarray:
         """Density of DoF ``k`` at ``x`` (before clipping): the mean of the motions' Gaussian kernels."""
@@ -185,18 +196,28 @@ class KdeSix:
         return np.exp(-0.5 * z * z).mean(axis=1) / (h * math.sqrt(2 * math.pi))
 
     def to_dict(self) -> dict:
-        return {"kind": "kde", "num_motions": self.num_motions,
-                "bandwidth": {n: float(b) for n, b in zip(DOF_NAMES, self.bandwidth)},
-                "lo": {n: float(v) for n, v in zip(DOF_NAMES, self.lo)},
-                "hi": {n: float(v) for n, v in zip(DOF_NAMES, self.hi)},
-                "motions": np.round(self.motions, KDE_DIGITS).tolist()}
+        d = {"kind": "kde", "num_motions": self.num_motions,
+             "bandwidth": {n: float(b) for n, b in zip(DOF_NAMES, self.bandwidth)},
+             "lo": {n: float(v) for n, v in zip(DOF_NAMES, self.lo)},
+             "hi": {n: float(v) for n, v in zip(DOF_NAMES, self.hi)},
+             "motions": np.round(self.motions, KDE_DIGITS).tolist()}
+        if self.speed_scale is not None:
+            d["speed_scale"] = [float(x) for x in self.speed_scale]
+        return d
 
 
-def fit_kde(vectors: np.ndarray, seed: int = 0) -> KdeSix:
+SPEED_SCALE_LIMITS = (0.05, 20.0)
+"""Smallest and largest factor ``speed_scale`` may give (a motion model, not a teleport)."""
+
+
+def fit_kde(vectors: np.ndarray, seed: int = 0, speed_scale: tuple[float, float] | None = None) -> KdeSix:
     """A :class:`KdeSix` of (N, 6) paper vectors: bandwidth per DoF by Silverman's rule, 0.9 x min(std,
     IQR / 1.349) x N^(-1/5) (each marginal's own; the jitter only has to keep draws from repeating the data,
     and a wider one would blur the straight-driving peak of yaw); motions rounded to :data:`KDE_DIGITS`
-    places as stored; more than :data:`KDE_MAX_MOTIONS` are subsampled with ``seed``."""
+    places as stored; more than :data:`KDE_MAX_MOTIONS` are subsampled with ``seed``; ``speed_scale`` as
+    :attr:`KdeSix.speed_scale` (ValueError outside :data:`SPEED_SCALE_LIMITS` or with lo > hi)."""
+    if speed_scale is not None:
+        speed_scale = _check_speed_scale(speed_scale, ValueError)
     v = np.asarray(vectors, dtype=np.float64)
     v = v[np.all(np.isfinite(v), axis=1)]
     if len(v) < MIN_MOTIONS:
@@ -210,7 +231,18 @@ def fit_kde(vectors: np.ndarray, seed: int = 0) -> KdeSix:
     if np.any(spread <= 0):
         raise ValueError("a DoF has the same value in every motion: nothing to fit")
     bandwidth = 0.9 * spread * len(v) ** (-1.0 / 5.0)
-    return KdeSix(v, bandwidth, v.min(axis=0), v.max(axis=0))
+    return KdeSix(v, bandwidth, v.min(axis=0), v.max(axis=0), speed_scale)
+
+
+def _check_speed_scale(value, error) -> tuple[float, float]:
+    """``value`` as (lo, hi) floats, or ``error(message)`` raised when it is not two finite numbers with
+    lo <= hi inside :data:`SPEED_SCALE_LIMITS`."""
+    lo_lim, hi_lim = SPEED_SCALE_LIMITS
+    ok = (isinstance(value, (list, tuple)) and len(value) == 2
+          and all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in value))
+    if not ok or not lo_lim <= value[0] <= value[1] <= hi_lim:
+        raise error(f"speed_scale must be two numbers lo <= hi within [{lo_lim:g}, {hi_lim:g}], got {value!r}")
+    return float(value[0]), float(value[1])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -428,7 +460,10 @@ def _kde_from_dict(d: dict, where: str, bad) -> KdeSix:
         worst = float(np.abs(arr[:, k]).max())
         if max(worst, abs(vals["lo"][k]), abs(vals["hi"][k]), vals["bandwidth"][k]) > limit:
             raise bad(f"{where}: {name} has a value beyond {limit:g} {unit}: not a camera motion between two frames")
-    return KdeSix(arr, vals["bandwidth"], vals["lo"], vals["hi"])
+    speed_scale = d.get("speed_scale")
+    if speed_scale is not None:
+        speed_scale = _check_speed_scale(speed_scale, lambda m: bad(f"{where}.{m}"))
+    return KdeSix(arr, vals["bandwidth"], vals["lo"], vals["hi"], speed_scale)
 
 
 # ------------------------------------------------------------------------------------------- fitting
@@ -522,7 +557,8 @@ def fit_six(vectors: np.ndarray, fit: str = "truncated") -> SixDof:
 def fit_motion(trajectories: Sequence[Trajectory], stride: int = 1, loops: bool = False,
                loop_config: LoopConfig = LoopConfig(), sources: Sequence[str] = (),
                seed: int = 0, loop_fit: str = "truncated",
-               consecutive_kind: str = "student-t") -> tuple[MotionModel, np.ndarray, np.ndarray | None]:
+               consecutive_kind: str = "student-t",
+               speed_scale: tuple[float, float] | None = None) -> tuple[MotionModel, np.ndarray, np.ndarray | None]:
     """Fit the consecutive (and optionally loop) model to ground-truth trajectories.
 
     Args:
@@ -535,6 +571,7 @@ def fit_motion(trajectories: Sequence[Trajectory], stride: int = 1, loops: bool 
         loop_fit: how the loop distribution's Student-t are fitted (:func:`fit_student_t`).
         consecutive_kind: ``"student-t"`` (the paper's independent Student-t per DoF) or ``"kde"`` (the
             joint :class:`KdeSix`; the loop distribution stays Student-t).
+        speed_scale: the KDE's :attr:`KdeSix.speed_scale` (a ``"kde"`` fit only).
 
     Returns:
         (model, consecutive vectors (N, 6), loop vectors (M, 6) or None): the data, for plots and checks.
@@ -547,7 +584,9 @@ def fit_motion(trajectories: Sequence[Trajectory], stride: int = 1, loops: bool 
         raise ValueError(f"only {len(vec)} relative motions at stride {stride}; need at least {MIN_MOTIONS}")
     if consecutive_kind not in CONSECUTIVE_KINDS:
         raise ValueError(f"consecutive_kind must be one of {CONSECUTIVE_KINDS}, got {consecutive_kind!r}")
-    consecutive = fit_kde(vec, seed) if consecutive_kind == "kde" else fit_six(vec)
+    if speed_scale is not None and consecutive_kind != "kde":
+        raise ValueError("speed_scale needs the joint KDE (consecutive_kind 'kde')")
+    consecutive = fit_kde(vec, seed, speed_scale) if consecutive_kind == "kde" else fit_six(vec)
     loop, loop_vec = None, None
     if loops:
         rel = [loop_motions(t, loop_config) for t in trajectories]

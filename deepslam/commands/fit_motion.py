@@ -32,6 +32,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="consecutive motions: an independent Student-t per DoF (the paper's; default) or a joint "
                         "kernel density estimate of the motions themselves (keeps a turning car's sideways slide "
                         "and the real speed distribution; the loop distribution stays Student-t)")
+    p.add_argument("--speed-scale", default=None, metavar="LO,HI",
+                   help="with --consecutive kde: multiply each drawn motion's translation by a factor drawn "
+                        "log-uniform in [LO, HI], its rotation kept: the same turn at another radius and speed "
+                        "(frees the turn radius from the one the routes were driven at), e.g. 0.4,1.5")
     p.add_argument("--plot", default=None, metavar="PNG", help="write the paper's Figure 3 (histograms + fitted densities)")
     p.add_argument("--json", action="store_true", help="print a JSON summary instead of a table")
 
@@ -42,6 +46,18 @@ def run(args: argparse.Namespace) -> int:
 
     if args.stride < 1:
         raise InputError(None, f"--stride must be >= 1, got {args.stride}")
+    speed_scale = None
+    if args.speed_scale is not None:
+        if args.consecutive != "kde":
+            raise InputError(None, "--speed-scale needs --consecutive kde")
+        try:
+            speed_scale = tuple(float(x) for x in args.speed_scale.split(","))
+        except ValueError:
+            raise InputError(None, f"--speed-scale must be LO,HI (two numbers), got {args.speed_scale!r}") from None
+        lo_lim, hi_lim = motion.SPEED_SCALE_LIMITS
+        if len(speed_scale) != 2 or not lo_lim <= speed_scale[0] <= speed_scale[1] <= hi_lim:
+            raise InputError(None, f"--speed-scale must be LO,HI with {lo_lim:g} <= LO <= HI <= {hi_lim:g}, "
+                                   f"got {args.speed_scale!r}")
     from deepslam.core.outputs import check_distinct_outputs, check_output_not_input
 
     inputs = [("--poses", p) for p in args.poses]
@@ -54,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         model, vec, loop_vec = motion.fit_motion(trajectories, args.stride, args.loops, loop_cfg,
                                                  sources=[Path(p).name for p in args.poses], loop_fit=args.loop_fit,
-                                                 consecutive_kind=args.consecutive)
+                                                 consecutive_kind=args.consecutive, speed_scale=speed_scale)
     except ValueError as e:
         raise InputError(None, str(e)) from None
     model.save(args.out)

@@ -284,3 +284,52 @@ def test_cli_fit_motion_kde(shared_data, tmp_path, capsys):
     model = MotionModel.load(out)
     assert isinstance(model.consecutive, KdeSix) and model.consecutive.num_motions == 270 + 1100
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_kde_speed_scale_frees_the_turn_radius(tmp_path):
+    """A route that takes every corner on one arc: the plain KDE's draws keep its one yaw-per-metre; with a speed
+    scale the translation (forward and the sideways slide alike) is scaled by a log-uniform factor in [lo, hi],
+    the rotation untouched, so a turn keeps its chord direction (slide / forward) at another radius; the scale
+    survives the JSON and the draws are the same for the same seed."""
+    from deepslam.gen.motion import fit_kde
+
+    rng = np.random.default_rng(0)
+    yaw = np.concatenate([np.zeros(200), np.full(100, 0.05)]) + rng.normal(0, 1e-4, 300)
+    forward = 0.6 + rng.normal(0, 0.01, 300)
+    vec = np.zeros((300, 6))
+    vec[:, 1], vec[:, 5], vec[:, 3] = yaw, forward, -0.5 * yaw * forward  # the chord: half the heading change
+    vec[:, [0, 2, 4]] = rng.normal(0, 1e-4, (300, 3))
+    plain = fit_kde(vec).sample(5000, np.random.default_rng(1))
+    scaled_model = fit_kde(vec, speed_scale=(0.4, 1.5))
+    scaled = scaled_model.sample(5000, np.random.default_rng(1))
+    turn_p, turn_s = plain[:, 1] > 0.04, scaled[:, 1] > 0.04
+    ratio_p, ratio_s = plain[turn_p, 1] / plain[turn_p, 5], scaled[turn_s, 1] / scaled[turn_s, 5]
+    assert np.ptp(np.percentile(ratio_p, [5, 95])) < 0.02  # one radius (0.083 rad/m), up to the KDE's jitter
+    assert np.percentile(ratio_s, 5) < 0.06 and np.percentile(ratio_s, 95) > 0.15  # 0.055-0.21 rad/m
+    # the factor: log-uniform in [0.4, 1.5] (forward / the KDE's forward, up to its small jitter)
+    f = scaled[:, 5] / 0.6
+    assert 0.38 < f.min() < 0.45 and 1.4 < f.max() < 1.58 and abs(np.median(np.log(f)) - np.log(np.sqrt(0.6))) < 0.05
+    # the chord direction is kept: slide / forward against yaw as in the data
+    chord_s = np.median(scaled[turn_s, 3] / scaled[turn_s, 5])
+    assert abs(chord_s - np.median(plain[turn_p, 3] / plain[turn_p, 5])) < 1e-3 and abs(chord_s + 0.025) < 2e-3
+    np.testing.assert_array_equal(np.sort(scaled[:, 1]), np.sort(plain[:, 1]))  # rotations as without the scale
+    back = MotionModel.load(MotionModel(1, scaled_model).save(tmp_path / "s.json"))
+    assert back.consecutive.speed_scale == (0.4, 1.5)
+    np.testing.assert_array_equal(back.sample(40, np.random.default_rng(2))[0], scaled_model.sample(40, np.random.default_rng(2)))
+    for bad in ([0.4], [1.5, 0.4], [0.0, 1.0], [0.4, math.inf], ["a", 1.0]):
+        d = MotionModel(1, scaled_model).to_dict()
+        d["consecutive"]["speed_scale"] = bad
+        (tmp_path / "bad.json").write_text(json.dumps(d))
+        with pytest.raises(InputError, match="speed_scale must be"):
+            MotionModel.load(tmp_path / "bad.json")
+
+
+@pytest.mark.parametrize("flags,what", [(["--speed-scale", "0.4,1.5"], "needs --consecutive kde"),
+                                        (["--consecutive", "kde", "--speed-scale", "1.5,0.4"], "LO <= HI"),
+                                        (["--consecutive", "kde", "--speed-scale", "x"], "two numbers")])
+def test_cli_fit_motion_speed_scale_bad_input(shared_data, tmp_path, capsys, flags, what):
+    out = tmp_path / "m.json"
+    assert main(["fit-motion", "--poses", str(shared_data / "kitti" / "poses" / "04.txt"), "--out", str(out),
+                 *flags]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and what in err[0] and not out.exists()
