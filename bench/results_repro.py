@@ -33,9 +33,10 @@ import numpy as np
 from bench.results_common import write_report
 from bench.results_vo import _agg, _cached, metric_subset
 
-SYNTHETIC_MODES = ("synthetic", "synthetic_dis")
-"""Training folders of single-frame training: on exact synthesized flow (the paper) and on DIS flow of the second
-view rendered from each frame (``SYNTH_FLOW=dis``)."""
+SYNTHETIC_MODES = ("synthetic", "synthetic_dis", "synthetic_dis_speedscale")
+"""Training folders of single-frame training: on exact synthesized flow (the paper), on DIS flow of the second
+view rendered from each frame (``SYNTH_FLOW=dis``), and that with the motions' turn radius freed
+(``SPEED_SCALE=0.4,1.5``: each drawn translation scaled by a log-uniform factor, ``fit-motion --speed-scale``)."""
 SUPERVISED_MODES = ("supervised", "supervised_samepatience")
 """Training folders of supervised training: by the recipe (its patience in epochs of its ~1,100 pairs), and with
 the patience in samples matched to the synthetic run's (186 epochs = 10 x 20,000 samples), which lets it train
@@ -43,6 +44,7 @@ for the same budget."""
 MODES = SYNTHETIC_MODES + SUPERVISED_MODES
 """Training folders ``{mode}_cons_s{seed}``."""
 MODE_LABELS = {"synthetic": "synthetic", "synthetic_dis": "synthetic on DIS flow of rendered views",
+               "synthetic_dis_speedscale": "synthetic on DIS flow of rendered views, turn radius freed",
                "supervised": "supervised", "supervised_samepatience": "supervised, patience matched in samples"}
 PAPER_FIGURES = ("The paper's own figures (KITTI 00-10, its devkit's t_err [%] / r_err [deg/100 m], NN_cons with its "
                  "own pose): trained on single frames 5.57 ± 0.33 / 2.23 ± 0.15, supervised 2.07 ± 0.03 / 0.93 ± 0.04 "
@@ -91,7 +93,7 @@ class ReproConfig:
     """Town of the loop street (``render --route laps``) on which VO and SLAM are compared (0: none)."""
     slam_frames: int = 1900
     """Frames of the loop street."""
-    slam_modes: tuple[str, ...] = ("synthetic", "synthetic_dis", "supervised")
+    slam_modes: tuple[str, ...] = ("synthetic", "synthetic_dis", "synthetic_dis_speedscale", "supervised")
     """Training modes scored with SLAM (each seed present, both presets)."""
     calibration_seed: int = 8101
     """Town of a simulated street (as the held-out one) on which seed 0's std is calibrated per DoF and then read

@@ -15,6 +15,7 @@
 #   NET=paper bash scripts/train_paper_recipe.sh out/paper_recipe_paper   # the paper's 96x320 network
 #   PARALLEL=1 EXTRA="--max-minutes 6" bash scripts/train_paper_recipe.sh ...   # on a GPU: every model at once
 #   SYNTH_FLOW=dis bash scripts/train_paper_recipe.sh bench/paper_recipe      # the synthetic model on DIS flow
+#   SPEED_SCALE=0.4,1.5 SYNTH_FLOW=dis bash scripts/train_paper_recipe.sh ...  # ... with the turn radius freed
 #
 # bf16 autocast is on by default where the CPU computes bf16 natively (AVX-512 BF16); on a CPU without it,
 # autocast is emulated and ~10x slower than float32 (measured: 389 against 40 s for 10,240 samples on an
@@ -27,6 +28,9 @@
 # PARALLEL=1 trains every model of every seed at once; EXTRA adds flags to each `train` (a time cap, say).
 # SYNTH_FLOW=dis trains only the synthetic model, on DIS flow of views rendered from the single frames
 # (synthetic_dis_cons_sSEED; POOL samples made once, POOL_PATIENCE passes without improvement halve the rate).
+# SPEED_SCALE=LO,HI draws the synthetic motions from the same fits with each translation scaled by a log-uniform
+# factor in [LO, HI] (`fit-motion --speed-scale`: the towns' car takes every corner on one arc; this frees the
+# turn radius) into motion_speedscale_sK.json, and the synthetic models go to ..._speedscale_cons_sSEED.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/paper_recipe}
@@ -42,10 +46,14 @@ for s in 1 2; do
       --out "$OUT/street_train_s$s" --quiet
 done
 TRAIN="$OUT/street_train_s1 $OUT/street_train_s2"
+PRIOR=""  # the motion fits' and synthetic models' name suffix
+[ -n "${SPEED_SCALE:-}" ] && PRIOR=_speedscale
 for k in 1 2; do
-  [ -f "$OUT/motion_s$k.json" ] || $DS fit-motion --poses $OUT/street_train_s1/poses.txt \
-      $OUT/street_train_s2/poses.txt --stride $k --consecutive kde --out "$OUT/motion_s$k.json"
+  [ -f "$OUT/motion${PRIOR}_s$k.json" ] || $DS fit-motion --poses $OUT/street_train_s1/poses.txt \
+      $OUT/street_train_s2/poses.txt --stride $k --consecutive kde ${SPEED_SCALE:+--speed-scale $SPEED_SCALE} \
+      --out "$OUT/motion${PRIOR}_s$k.json"
 done
+MOTION="--motion $OUT/motion${PRIOR}_s1.json@1 --motion $OUT/motion${PRIOR}_s2.json@1"
 
 RECIPE="--net ${NET:-cpu} --loss l1 --rot-weight 50 --batch 128 --lr-min 1e-4 --lr-max 1e-3 --half-cycle-steps 1000 \
   --patience 10 --lr-stop 1e-5 --max-epochs 100000 --max-samples $SAMPLES --holdout 0.1 --nll-epochs 20 --threads 2 --bf16 ${BF16:-auto} --quiet ${EXTRA:-}"
@@ -67,14 +75,15 @@ for seed in $SEEDS; do
     # read at 640 px as `deepslam vo` reads a 414 px frame (1.5459 = 640 / 414), DIS medium on the pair; DIS makes
     # ~50 samples/s on 2 cores, so a pool of POOL samples is made once and trained on in passes (an epoch), with
     # the recipe's patience matched in samples (10 x 20,000 = 2 passes of 100,000)
-    train "$OUT/synthetic_${SYNTH_FLOW}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
-        --motion "$OUT/motion_s1.json@1" --motion "$OUT/motion_s2.json@1" --synthetic-flow "$SYNTH_FLOW" \
+    train "$OUT/synthetic_${SYNTH_FLOW}${PRIOR}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
+        $MOTION --synthetic-flow "$SYNTH_FLOW" \
         --dis-preset medium --frame-scales 1.5459 --sample-pool "${POOL:-100000}" --patience "${POOL_PATIENCE:-2}" \
         --data-threads 2
     continue
   fi
-  train "$OUT/synthetic_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
-      --motion "$OUT/motion_s1.json@1" --motion "$OUT/motion_s2.json@1" --samples-per-epoch 20000
+  train "$OUT/synthetic${PRIOR}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
+      $MOTION --samples-per-epoch 20000
+  [ -n "$PRIOR" ] && continue  # the prior changes the synthetic models only
   train "$OUT/supervised_cons_s$seed" --mode supervised --seed $seed --sequence $TRAIN --flow gt --strides 1,2
   # the recipe's patience is 10 epochs; a supervised epoch is ~1,100 pairs, a synthetic one 20,000 samples, so
   # the supervised run stops after ~120,000 samples: once more with the patience matched in samples (186 epochs)
