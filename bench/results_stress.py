@@ -1,8 +1,8 @@
 """The stress study with its defaults: flow, VO and SLAM errors against the fraction of moving pixels.
 
 ``deepslam stress`` on the default street (the KITTI-look street, seed 0, 300 frames per setting at 320 px,
-the shipped models, exact and DIS flow): static, moving cars by count and size, waving flags, and the
-heaviest setting. Writes the study's outputs (stress.json, stress.md, report.html, plots) into
+``deepslam vo``'s default on exact and DIS flow; beside it the paper's network with its own pose and ``pnp``):
+static, moving cars by count and size, waving flags, and the heaviest setting. Writes the study's outputs (stress.json, stress.md, report.html, plots) into
 ``out/results/stress/study`` and results.md (the table) into ``out/results/stress``
 (``python -m bench.results_stress [--quick]``, a few minutes on 2 cores).
 """
@@ -35,9 +35,13 @@ class ResultsStressConfig:
     """Flag amplitudes, metres (None: the study's default)."""
     combined: bool | None = None
     """The heaviest setting too (None: the study's default, yes)."""
+    plugins: tuple[str, ...] = ("network", "pnp")
+    """Odometries measured side by side with ``deepslam vo``'s default, each named in the table: the paper's
+    network with its own pose on DIS flow (``network``) and SIFT + PnP-RANSAC on the render's depth (``pnp``)."""
 
 
-QUICK = ResultsStressConfig(frames=100, objects=(0, 8), object_sizes=(2.0,), deform_amplitudes_m=(0.3,), combined=False)
+QUICK = ResultsStressConfig(frames=100, objects=(0, 8), object_sizes=(2.0,), deform_amplitudes_m=(0.3,), combined=False,
+                            plugins=("pnp",))
 
 
 def run(cfg: ResultsStressConfig, out: Path, data_dir: Path) -> dict:

@@ -436,6 +436,8 @@ def test_stress_results_run_the_study_in_a_folder_of_its_own(tmp_path, monkeypat
     assert "| static scene | 0 % |" in md and (tmp_path / "stress" / "stamp.json").is_file()
     assert "![VO ATE](study/stress_vo_ate.png)" in md          # the figure, relative to the results folder
     assert seen["config"].frames == 100 and seen["config"].objects == (0, 8) and not seen["config"].combined
+    assert seen["config"].plugins == ("pnp",)
+    assert results_stress.ResultsStressConfig().plugins == ("network", "pnp")  # the default run names all three
 
 
 def test_results_doc_copies_the_figures_a_table_links_and_drops_missing_ones(tmp_path, monkeypatch):
