@@ -474,6 +474,17 @@ def relative_vectors(trajectories: Sequence[Trajectory], stride: int = 1) -> np.
     return np.concatenate(out, axis=0) if out else np.zeros((0, 6))
 
 
+MIRROR_SIGNS = np.array([1.0, -1.0, -1.0, -1.0, 1.0, 1.0])
+"""Per DoF of a paper vector, its sign in the motion seen in a left-right mirror: with S = diag(-1, 1, 1) the
+mirrored motion is (S R S, S t), and S Rz(c) Ry(b) Rx(a) S = Rz(-c) Ry(-b) Rx(a)."""
+
+
+def mirrored_vectors(vectors: np.ndarray) -> np.ndarray:
+    """(N, 6) paper vectors (rad, m) of the same motions seen in a left-right mirror (:data:`MIRROR_SIGNS`): a
+    turn to the left becomes the same turn to the right, its sideways slide with it."""
+    return np.asarray(vectors, dtype=np.float64) * MIRROR_SIGNS
+
+
 def loop_motions(trajectory: Trajectory, config: LoopConfig = LoopConfig()) -> np.ndarray:
     """(M, 4, 4) ``cam_j_from_cam_i`` for loop pairs of one trajectory (both orders), see module doc."""
     pos = trajectory.positions
@@ -558,7 +569,8 @@ def fit_motion(trajectories: Sequence[Trajectory], stride: int = 1, loops: bool 
                loop_config: LoopConfig = LoopConfig(), sources: Sequence[str] = (),
                seed: int = 0, loop_fit: str = "truncated",
                consecutive_kind: str = "student-t",
-               speed_scale: tuple[float, float] | None = None) -> tuple[MotionModel, np.ndarray, np.ndarray | None]:
+               speed_scale: tuple[float, float] | None = None,
+               mirror: bool = False) -> tuple[MotionModel, np.ndarray, np.ndarray | None]:
     """Fit the consecutive (and optionally loop) model to ground-truth trajectories.
 
     Args:
@@ -572,6 +584,8 @@ def fit_motion(trajectories: Sequence[Trajectory], stride: int = 1, loops: bool 
         consecutive_kind: ``"student-t"`` (the paper's independent Student-t per DoF) or ``"kde"`` (the
             joint :class:`KdeSix`; the loop distribution stays Student-t).
         speed_scale: the KDE's :attr:`KdeSix.speed_scale` (a ``"kde"`` fit only).
+        mirror: fit the consecutive motions together with their mirror images (:func:`mirrored_vectors`): turns
+            both ways as often, whichever way the routes turned (a route that goes round its blocks one way).
 
     Returns:
         (model, consecutive vectors (N, 6), loop vectors (M, 6) or None): the data, for plots and checks.
@@ -580,6 +594,8 @@ def fit_motion(trajectories: Sequence[Trajectory], stride: int = 1, loops: bool 
         ValueError when there are too few motions (or no loop pair when ``loops``).
     """
     vec = relative_vectors(trajectories, stride)
+    if mirror:
+        vec = np.concatenate([vec, mirrored_vectors(vec)], axis=0)
     if len(vec) < MIN_MOTIONS:
         raise ValueError(f"only {len(vec)} relative motions at stride {stride}; need at least {MIN_MOTIONS}")
     if consecutive_kind not in CONSECUTIVE_KINDS:

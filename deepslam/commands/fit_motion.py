@@ -36,6 +36,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="with --consecutive kde: multiply each drawn motion's translation by a factor drawn "
                         "log-uniform in [LO, HI], its rotation kept: the same turn at another radius and speed "
                         "(frees the turn radius from the one the routes were driven at), e.g. 0.4,1.5")
+    p.add_argument("--mirror", action="store_true",
+                   help="fit the consecutive motions together with their left-right mirror images (yaw, roll and "
+                        "sideways motion negated): turns both ways as often, for routes that turn one way")
     p.add_argument("--plot", default=None, metavar="PNG", help="write the paper's Figure 3 (histograms + fitted densities)")
     p.add_argument("--json", action="store_true", help="print a JSON summary instead of a table")
 
@@ -70,7 +73,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         model, vec, loop_vec = motion.fit_motion(trajectories, args.stride, args.loops, loop_cfg,
                                                  sources=[Path(p).name for p in args.poses], loop_fit=args.loop_fit,
-                                                 consecutive_kind=args.consecutive, speed_scale=speed_scale)
+                                                 consecutive_kind=args.consecutive, speed_scale=speed_scale,
+                                                 mirror=args.mirror)
     except ValueError as e:
         raise InputError(None, str(e)) from None
     model.save(args.out)

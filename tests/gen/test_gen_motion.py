@@ -333,3 +333,34 @@ def test_cli_fit_motion_speed_scale_bad_input(shared_data, tmp_path, capsys, fla
                  *flags]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and what in err[0] and not out.exists()
+
+
+def test_mirrored_vectors_are_the_motion_seen_in_a_mirror():
+    """mirrored_vectors(v) is the paper vector of (S R S, S t), S = diag(-1, 1, 1), for any motion; fitting with
+    mirror=True draws turns both ways as often from a route that turned one way."""
+    from deepslam.core import se3
+    from deepslam.gen.motion import mirrored_vectors
+
+    rng = np.random.default_rng(0)
+    vec = rng.normal(0, [0.05, 0.2, 0.05, 0.3, 0.1, 1.0], (50, 6))
+    T = se3.from_euler6(vec)
+    S = np.diag([-1.0, 1.0, 1.0, 1.0])
+    np.testing.assert_allclose(mirrored_vectors(vec), se3.to_euler6(S @ T @ S), atol=1e-12)
+    np.testing.assert_array_equal(mirrored_vectors(mirrored_vectors(vec)), vec)
+    # a route that turns one way (yaw >= 0): the mirrored fit has both signs, half each
+    from deepslam.core.trajectory import Trajectory
+
+    steps = rng.normal(0, 1e-4, (200, 6))
+    steps[:, 5] += 0.6
+    steps[100:, 1] += 0.05
+    world_from_cam = [np.eye(4)]
+    for m in se3.from_euler6(steps):
+        world_from_cam.append(world_from_cam[-1] @ np.linalg.inv(m))
+    traj = Trajectory(np.stack(world_from_cam), np.arange(201) * 0.1)
+    plain, _, _ = fit_motion([traj], 1, consecutive_kind="kde")
+    both, vec2, _ = fit_motion([traj], 1, consecutive_kind="kde", mirror=True)
+    assert len(vec2) == 400
+    y_plain = plain.consecutive.sample(4000, np.random.default_rng(1))[:, 1]
+    y_both = both.consecutive.sample(4000, np.random.default_rng(1))[:, 1]
+    assert (y_plain < -0.03).mean() == 0 and 0.4 < (y_plain > 0.03).mean() < 0.6
+    assert 0.2 < (y_both < -0.03).mean() < 0.3 and 0.2 < (y_both > 0.03).mean() < 0.3
