@@ -66,7 +66,7 @@ SECTIONS = (
      "The RGB-D default, the untrained dense fit and the classical pnp plug-in on teddy."),
     ("stress", "Stress study: moving and deforming objects", "python -m bench.results_stress",
      "deepslam stress with its defaults on the default street: flow, VO and SLAM errors against the fraction of "
-     "moving pixels."),
+     "moving pixels, `deepslam vo`'s default beside the paper's network (its own pose) and pnp."),
     ("flow", "Learned optical flow against DIS (shipped model)", "python -m bench.results_flow",
      "End-point error and Fl-all on held-out renders; forward-backward consistency on real KITTI."),
     ("flow_gpu", "The flow network trained on a GPU against DIS and the shipped network",
