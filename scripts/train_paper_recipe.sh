@@ -16,6 +16,7 @@
 #   PARALLEL=1 EXTRA="--max-minutes 6" bash scripts/train_paper_recipe.sh ...   # on a GPU: every model at once
 #   SYNTH_FLOW=dis bash scripts/train_paper_recipe.sh bench/paper_recipe      # the synthetic model on DIS flow
 #   SPEED_SCALE=0.4,1.5 SYNTH_FLOW=dis bash scripts/train_paper_recipe.sh ...  # ... with the turn radius freed
+#   MIRROR=1 bash scripts/train_paper_recipe.sh ...                  # ... with turns both ways (mirrored motions)
 #
 # bf16 autocast is on by default where the CPU computes bf16 natively (AVX-512 BF16); on a CPU without it,
 # autocast is emulated and ~10x slower than float32 (measured: 389 against 40 s for 10,240 samples on an
@@ -31,6 +32,8 @@
 # SPEED_SCALE=LO,HI draws the synthetic motions from the same fits with each translation scaled by a log-uniform
 # factor in [LO, HI] (`fit-motion --speed-scale`: the towns' car takes every corner on one arc; this frees the
 # turn radius) into motion_speedscale_sK.json, and the synthetic models go to ..._speedscale_cons_sSEED.
+# MIRROR=1 fits the motions with their left-right mirror images (`fit-motion --mirror`: the towns turn one way
+# only) into motion[_speedscale]_mirror_sK.json, the synthetic models into ..._mirror_cons_sSEED.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/paper_recipe}
@@ -48,9 +51,11 @@ done
 TRAIN="$OUT/street_train_s1 $OUT/street_train_s2"
 PRIOR=""  # the motion fits' and synthetic models' name suffix
 [ -n "${SPEED_SCALE:-}" ] && PRIOR=_speedscale
+[ "${MIRROR:-0}" = 1 ] && PRIOR="${PRIOR}_mirror"
 for k in 1 2; do
   [ -f "$OUT/motion${PRIOR}_s$k.json" ] || $DS fit-motion --poses $OUT/street_train_s1/poses.txt \
       $OUT/street_train_s2/poses.txt --stride $k --consecutive kde ${SPEED_SCALE:+--speed-scale $SPEED_SCALE} \
+      $([ "${MIRROR:-0}" = 1 ] && echo --mirror) \
       --out "$OUT/motion${PRIOR}_s$k.json"
 done
 MOTION="--motion $OUT/motion${PRIOR}_s1.json@1 --motion $OUT/motion${PRIOR}_s2.json@1"
