@@ -2,8 +2,9 @@
 
 ``deepslam stress`` on the default street (the KITTI-look street, seed 0, 300 frames per setting at 320 px,
 ``deepslam vo``'s default on exact and DIS flow; beside it the paper's network with its own pose and ``pnp``):
-static, moving cars by count and size, waving flags, and the heaviest setting. Writes the study's outputs (stress.json, stress.md, report.html, plots) into
-``out/results/stress/study`` and results.md (the table) into ``out/results/stress``
+static, moving cars by count and size, waving flags, and the heaviest setting. Writes the study's outputs
+(stress.json, stress.md, report.html, plots) into ``out/results/stress/study`` and results.md (the table) into
+``out/results/stress``
 (``python -m bench.results_stress [--quick]``, a few minutes on 2 cores).
 """
 from __future__ import annotations

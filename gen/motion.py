@@ -217,7 +217,7 @@ def fit_kde(vectors: np.ndarray, seed: int = 0, speed_scale: tuple[float, float]
     places as stored; more than :data:`KDE_MAX_MOTIONS` are subsampled with ``seed``; ``speed_scale`` as
     :attr:`KdeSix.speed_scale` (ValueError outside :data:`SPEED_SCALE_LIMITS` or with lo > hi)."""
     if speed_scale is not None:
-        speed_scale = _check_speed_scale(speed_scale, ValueError)
+        speed_scale = check_speed_scale(speed_scale, ValueError)
     v = np.asarray(vectors, dtype=np.float64)
     v = v[np.all(np.isfinite(v), axis=1)]
     if len(v) < MIN_MOTIONS:
@@ -234,7 +234,7 @@ def fit_kde(vectors: np.ndarray, seed: int = 0, speed_scale: tuple[float, float]
     return KdeSix(v, bandwidth, v.min(axis=0), v.max(axis=0), speed_scale)
 
 
-def _check_speed_scale(value, error) -> tuple[float, float]:
+def check_speed_scale(value, error) -> tuple[float, float]:
     """``value`` as (lo, hi) floats, or ``error(message)`` raised when it is not two finite numbers with
     lo <= hi inside :data:`SPEED_SCALE_LIMITS`."""
     lo_lim, hi_lim = SPEED_SCALE_LIMITS
@@ -462,7 +462,7 @@ def _kde_from_dict(d: dict, where: str, bad) -> KdeSix:
             raise bad(f"{where}: {name} has a value beyond {limit:g} {unit}: not a camera motion between two frames")
     speed_scale = d.get("speed_scale")
     if speed_scale is not None:
-        speed_scale = _check_speed_scale(speed_scale, lambda m: bad(f"{where}.{m}"))
+        speed_scale = check_speed_scale(speed_scale, lambda m: bad(f"{where}.{m}"))
     return KdeSix(arr, vals["bandwidth"], vals["lo"], vals["hi"], speed_scale)
 
 

@@ -49,14 +49,13 @@ for s in 1 2; do
       --out "$OUT/street_train_s$s" --quiet
 done
 TRAIN="$OUT/street_train_s1 $OUT/street_train_s2"
-PRIOR=""  # the motion fits' and synthetic models' name suffix
-[ -n "${SPEED_SCALE:-}" ] && PRIOR=_speedscale
-[ "${MIRROR:-0}" = 1 ] && PRIOR="${PRIOR}_mirror"
+PRIOR=""      # the motion fits' and synthetic models' name suffix
+PRIOR_FIT=""  # ... and the fit-motion flags that make it
+if [ -n "${SPEED_SCALE:-}" ]; then PRIOR=_speedscale; PRIOR_FIT="--speed-scale $SPEED_SCALE"; fi
+if [ "${MIRROR:-0}" = 1 ]; then PRIOR="${PRIOR}_mirror"; PRIOR_FIT="$PRIOR_FIT --mirror"; fi
 for k in 1 2; do
   [ -f "$OUT/motion${PRIOR}_s$k.json" ] || $DS fit-motion --poses $OUT/street_train_s1/poses.txt \
-      $OUT/street_train_s2/poses.txt --stride $k --consecutive kde ${SPEED_SCALE:+--speed-scale $SPEED_SCALE} \
-      $([ "${MIRROR:-0}" = 1 ] && echo --mirror) \
-      --out "$OUT/motion${PRIOR}_s$k.json"
+      $OUT/street_train_s2/poses.txt --stride $k --consecutive kde $PRIOR_FIT --out "$OUT/motion${PRIOR}_s$k.json"
 done
 MOTION="--motion $OUT/motion${PRIOR}_s1.json@1 --motion $OUT/motion${PRIOR}_s2.json@1"
 

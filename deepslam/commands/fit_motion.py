@@ -54,13 +54,12 @@ def run(args: argparse.Namespace) -> int:
         if args.consecutive != "kde":
             raise InputError(None, "--speed-scale needs --consecutive kde")
         try:
-            speed_scale = tuple(float(x) for x in args.speed_scale.split(","))
+            values = [float(x) for x in args.speed_scale.split(",")]
         except ValueError:
             raise InputError(None, f"--speed-scale must be LO,HI (two numbers), got {args.speed_scale!r}") from None
         lo_lim, hi_lim = motion.SPEED_SCALE_LIMITS
-        if len(speed_scale) != 2 or not lo_lim <= speed_scale[0] <= speed_scale[1] <= hi_lim:
-            raise InputError(None, f"--speed-scale must be LO,HI with {lo_lim:g} <= LO <= HI <= {hi_lim:g}, "
-                                   f"got {args.speed_scale!r}")
+        speed_scale = motion.check_speed_scale(values, lambda _: InputError(
+            None, f"--speed-scale must be LO,HI with {lo_lim:g} <= LO <= HI <= {hi_lim:g}, got {args.speed_scale!r}"))
     from deepslam.core.outputs import check_distinct_outputs, check_output_not_input
 
     inputs = [("--poses", p) for p in args.poses]
