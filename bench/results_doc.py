@@ -45,7 +45,7 @@ SECTIONS = (
      "python -m bench.results_repro",
      "NN_cons trained by the paper's recipe for up to 2 M samples (three seeds of the cpu preset, one of the paper's "
      "96 x 320 network; the synthetic model also on DIS flow of views rendered from the single frames, and that with "
-     "the motions' turn radius freed), synthetic "
+     "the motions' turn radius freed or mirrored), synthetic "
      "from single frames and supervised on the same renders, scored with their own pose on a held-out street (exact "
      "and DIS flow) and on KITTI 06 and 07, beside the geometry default and pnp; where the own pose's drift comes "
      "from (rotation or distance); calibration; learning curves."),

@@ -33,10 +33,12 @@ import numpy as np
 from bench.results_common import write_report
 from bench.results_vo import _agg, _cached, metric_subset
 
-SYNTHETIC_MODES = ("synthetic", "synthetic_dis", "synthetic_dis_speedscale")
+SYNTHETIC_MODES = ("synthetic", "synthetic_dis", "synthetic_dis_speedscale", "synthetic_dis_mirror")
 """Training folders of single-frame training: on exact synthesized flow (the paper), on DIS flow of the second
-view rendered from each frame (``SYNTH_FLOW=dis``), and that with the motions' turn radius freed
-(``SPEED_SCALE=0.4,1.5``: each drawn translation scaled by a log-uniform factor, ``fit-motion --speed-scale``)."""
+view rendered from each frame (``SYNTH_FLOW=dis``), that with the motions' turn radius freed
+(``SPEED_SCALE=0.4,1.5``: each drawn translation scaled by a log-uniform factor, ``fit-motion --speed-scale``), and
+that with the motions fitted together with their left-right mirror images (``MIRROR=1``, ``fit-motion --mirror``:
+the training towns turn one way only)."""
 SUPERVISED_MODES = ("supervised", "supervised_samepatience")
 """Training folders of supervised training: by the recipe (its patience in epochs of its ~1,100 pairs), and with
 the patience in samples matched to the synthetic run's (186 epochs = 10 x 20,000 samples), which lets it train
@@ -45,6 +47,7 @@ MODES = SYNTHETIC_MODES + SUPERVISED_MODES
 """Training folders ``{mode}_cons_s{seed}``."""
 MODE_LABELS = {"synthetic": "synthetic", "synthetic_dis": "synthetic on DIS flow of rendered views",
                "synthetic_dis_speedscale": "synthetic on DIS flow of rendered views, turn radius freed",
+               "synthetic_dis_mirror": "synthetic on DIS flow of rendered views, turns both ways (mirrored motions)",
                "supervised": "supervised", "supervised_samepatience": "supervised, patience matched in samples"}
 PAPER_FIGURES = ("The paper's own figures (KITTI 00-10, its devkit's t_err [%] / r_err [deg/100 m], NN_cons with its "
                  "own pose): trained on single frames 5.57 ± 0.33 / 2.23 ± 0.15, supervised 2.07 ± 0.03 / 0.93 ± 0.04 "
@@ -93,7 +96,8 @@ class ReproConfig:
     """Town of the loop street (``render --route laps``) on which VO and SLAM are compared (0: none)."""
     slam_frames: int = 1900
     """Frames of the loop street."""
-    slam_modes: tuple[str, ...] = ("synthetic", "synthetic_dis", "synthetic_dis_speedscale", "supervised")
+    slam_modes: tuple[str, ...] = ("synthetic", "synthetic_dis", "synthetic_dis_speedscale", "synthetic_dis_mirror",
+                                   "supervised")
     """Training modes scored with SLAM (each seed present, both presets)."""
     calibration_seed: int = 8101
     """Town of a simulated street (as the held-out one) on which seed 0's std is calibrated per DoF and then read
@@ -166,18 +170,50 @@ def within_one_sigma(seq_dir: Path, motions_csv: Path) -> list[float]:
     return [float(x) for x in (np.abs(mean6 - true6) <= std6).mean(axis=0)]
 
 
-def yaw_and_forward_fit(seq_dir: Path, motions_csv: Path) -> dict:
-    """Per pair, the predicted yaw (euler y, about the camera's vertical axis) and forward translation (t z)
-    against the ground truth's: the gain (least-squares ``read = gain * true``, through the origin: for t z the
-    share of the distance read, for the yaw the share of the turns read) and the RMS of ``read - true``, in
-    degrees for the yaw and metres for t z; gain 1 and RMS 0 are a perfect reading."""
-    mean6, _, true6 = _predicted_and_true(seq_dir, motions_csv)
-    out = {}
+TURN_RAD = 0.01
+"""A pair turns if the ground truth's yaw (euler y of ``cam_j_from_cam_i``) exceeds this, radians (0.57 deg)."""
+
+
+def gains(mean6: np.ndarray, true6: np.ndarray) -> dict:
+    """Per pair, the read yaw (euler y, about the camera's vertical axis) and forward translation (t z) against the
+    ground truth's, from (N, 6) float64 paper vectors of ``cam_j_from_cam_i`` (euler x, y, z in rad; t x, y, z in
+    m): ``yaw`` and ``forward`` over all pairs, the gain (least-squares ``read = gain * true`` through the origin:
+    for t z the share of the distance read, for the yaw the share of the turns read) and the RMS of ``read - true``
+    (degrees for the yaw, metres for t z); ``left`` and ``right`` the yaw and forward gains on the turning pairs of
+    each sign (euler y > TURN_RAD: a left turn, the way the training towns turn; < -TURN_RAD: a right turn) and their
+    count ``n`` (gains None where no pair turns that way). Gain 1 and RMS 0 are a perfect reading."""
+    def gain(read: np.ndarray, true: np.ndarray) -> float | None:
+        return float(read @ true / (true @ true)) if len(true) and true @ true > 0 else None
+
+    out: dict = {}
     for name, k, unit in (("yaw", 1, np.degrees(1.0)), ("forward", 5, 1.0)):
         read, true = mean6[:, k], true6[:, k]
-        gain = float(read @ true / (true @ true)) if true @ true > 0 else None
-        out[name] = {"gain": gain, "rms": float(np.sqrt(np.mean((read - true) ** 2)) * unit)}
+        out[name] = {"gain": gain(read, true), "rms": float(np.sqrt(np.mean((read - true) ** 2)) * unit)}
+    for side, pick in (("left", true6[:, 1] > TURN_RAD), ("right", true6[:, 1] < -TURN_RAD)):
+        out[side] = {"n": int(pick.sum()), "yaw_gain": gain(mean6[pick, 1], true6[pick, 1]),
+                     "forward_gain": gain(mean6[pick, 5], true6[pick, 5])}
     return out
+
+
+def yaw_and_forward_fit(seq_dir: Path, motions_csv: Path) -> dict:
+    """:func:`gains` of a ``vo`` run's motions CSV against the sequence's ground truth."""
+    mean6, _, true6 = _predicted_and_true(seq_dir, motions_csv)
+    return gains(mean6, true6)
+
+
+def trajectory_fit(seq_dir: Path, trajectory_txt: Path) -> dict:
+    """:func:`gains` of consecutive frames' motions read off a trajectory file (any format ``deepslam`` reads, one
+    pose per frame of the sequence, matched by index) against the sequence's ground truth."""
+    from deepslam.core import se3
+    from deepslam.core.readers import open_sequence
+    from deepslam.core.trajio import read_trajectory
+
+    est = read_trajectory(trajectory_txt).world_from_cam
+    gt = open_sequence(seq_dir).gt.world_from_cam
+    if len(est) != len(gt):
+        raise ValueError(f"{trajectory_txt}: {len(est)} poses for {len(gt)} frames")
+    return gains(se3.to_euler6(se3.relative(est[1:], est[:-1])).reshape(-1, 6),
+                 se3.to_euler6(se3.relative(gt[1:], gt[:-1])).reshape(-1, 6))
 
 
 def learning_curve(history: Path) -> dict:
@@ -288,6 +324,8 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
                     rec["slam_laps_dis"] = _cached(out / "eval" / f"{key}_s{seed}_slam_laps.json", lambda: slam_scores(
                         slam_seq, out / "runs" / f"{key}_s{seed}_slam_laps.txt", "--model-cons", str(model),
                         "--pose", "net"))
+                    if seed in cfg.decompose_seeds:
+                        rec["slam_laps_dis_fit"] = trajectory_fit(slam_seq, out / "runs" / f"{key}_s{seed}_slam_laps_vo.txt")
                 rows.setdefault(key, []).append(rec)
     default = {name: _cached(out / "eval" / f"default_{name}.json",
                              lambda: vo_scores(seq, out / "runs" / f"default_{name}.txt", "--flow", flow))
@@ -302,6 +340,7 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
         print(f"slam default: loop street {cfg.slam_seed}", flush=True)
         default["slam_laps_dis"] = _cached(out / "eval" / "default_slam_laps.json",
                                            lambda: slam_scores(slam_seq, out / "runs" / "default_slam_laps.txt"))
+        default["slam_laps_dis_fit"] = trajectory_fit(slam_seq, out / "runs" / "default_slam_laps_vo.txt")
     if curves:
         plot_curves(curves, out / "learning_curve.png")
     report = {"config": dataclasses.asdict(cfg), "models": trained, "rows": rows, "default": default,
@@ -330,6 +369,38 @@ CASE_TITLES = {"street_exact": "held-out street (town 7, 10 Hz), exact flow",
                "street_dis": "held-out street (town 7, 10 Hz), DIS flow",
                "kitti06_dis": "KITTI 06 slice (real, stereo, never trained on), DIS flow",
                "kitti07_dis": "KITTI 07 slice (real, never trained on), DIS flow"}
+
+
+def turns_table(report: dict) -> list[str]:
+    """Markdown lines: per model (seed 0) and the default, the yaw and forward gains on the left and the right turns
+    of every DIS case (and the loop street) that has both (:func:`gains`); no lines where none has."""
+    cases = [c for c in [*report["cases"], "slam_laps_dis"] if c.endswith("_dis")]
+    recs = [(f"{label(key)} s{r['seed']}", r) for key, recs in report["rows"].items() for r in recs]
+    recs.append(("`deepslam vo`'s default", report["default"]))
+    both = [c for c in cases if any((r.get(f"{c}_fit") or {}).get("right", {}).get("n") and
+                                    (r.get(f"{c}_fit") or {}).get("left", {}).get("n") for _, r in recs)]
+    if not both:
+        return []
+
+    def cell(side: dict | None) -> str:
+        if not side or side.get("yaw_gain") is None:
+            return "n/a"
+        return f"yaw x{side['yaw_gain']:.2f}, forward x{side['forward_gain']:.2f}"
+
+    titles = {**CASE_TITLES, "slam_laps_dis": "loop street (town {slam_seed}, `--route laps`), DIS flow".format(
+        slam_seed=report.get("config", {}).get("slam_seed"))}
+    head = [f"{titles.get(c, c)}: {side} ({n})" for c in both for side, n in (
+        ("left", next(r[f"{c}_fit"]["left"]["n"] for _, r in recs if r.get(f"{c}_fit"))),
+        ("right", next(r[f"{c}_fit"]["right"]["n"] for _, r in recs if r.get(f"{c}_fit"))))]
+    md = ["", "**Turns of each sign.** The training towns turn left only (the yaw of every training pair is >= "
+          f"-0.005 rad). Per pair, the yaw and forward gains on the pairs turning left and right (|yaw| > {TURN_RAD} "
+          "rad, their count in brackets); a turn the network never saw is read short and made up as distance:", "",
+          "| | " + " | ".join(head) + " |", "|---" * (1 + len(head)) + "|"]
+    for name, r in recs:
+        if any(r.get(f"{c}_fit") for c in both):
+            md.append(f"| {name} | " + " | ".join(
+                cell((r.get(f"{c}_fit") or {}).get(side)) for c in both for side in ("left", "right")) + " |")
+    return md
 
 
 def markdown(report: dict) -> str:
@@ -407,6 +478,7 @@ def markdown(report: dict) -> str:
                "of a pair (a perfect reading: x1.00, 0):", "",
                "| | " + " | ".join(CASE_TITLES.get(c, c) for c in dis_cases) + " |", "|---" * (1 + len(dis_cases)) + "|"]
         md += [f"| {name} | " + " | ".join(fit_cell(r.get(f"{c}_fit")) for c in dis_cases) + " |" for name, r in fits]
+    md += turns_table(report)
     slam_rows = [(key, recs) for key, recs in report["rows"].items() if recs and "slam_laps_dis" in recs[0]]
     if slam_rows:
         cfg = report["config"]

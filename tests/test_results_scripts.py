@@ -549,6 +549,42 @@ def test_repro_table_splits_the_own_pose_drift_into_rotation_and_distance():
             "flow, std calibrated on KITTI 06 (`deepslam calibrate`): 0.60, 0.70, 0.65, 0.60, 0.70, 0.75") in md
 
 
+def test_repro_gains_split_the_turns_by_sign_and_the_table_shows_the_unseen_one():
+    import numpy as np
+
+    from bench import results_repro
+
+    rng = np.random.default_rng(0)
+    true6 = np.zeros((60, 6))
+    true6[:20, 1] = rng.uniform(0.02, 0.05, 20)     # left turns
+    true6[20:35, 1] = -rng.uniform(0.02, 0.05, 15)  # right turns
+    true6[:, 5] = rng.uniform(0.5, 1.5, 60)
+    read6 = true6.copy()
+    read6[20:35, 1] *= 0.4    # the right turns read short ...
+    read6[20:35, 5] *= 1.5    # ... and made up as distance
+    g = results_repro.gains(read6, true6)
+    assert g["left"] == {"n": 20, "yaw_gain": pytest.approx(1.0), "forward_gain": pytest.approx(1.0)}
+    assert g["right"]["n"] == 15 and g["right"]["yaw_gain"] == pytest.approx(0.4)
+    assert g["right"]["forward_gain"] == pytest.approx(1.5)
+    assert 0.4 < g["yaw"]["gain"] < 1.0 and g["yaw"]["rms"] > 0
+    straight = results_repro.gains(read6[35:], true6[35:])
+    assert straight["left"]["yaw_gain"] is None and straight["right"]["n"] == 0
+    report = {"cases": ["street_dis", "kitti07_dis"], "config": {"slam_seed": 7441},
+              "rows": {"synthetic_dis": [{"seed": 0, "street_dis_fit": straight, "kitti07_dis_fit": g,
+                                          "slam_laps_dis_fit": g}]},
+              "default": {"kitti07_dis_fit": results_repro.gains(true6, true6)}}
+    md = "\n".join(results_repro.turns_table(report))
+    assert "KITTI 07 slice (real, never trained on), DIS flow: right (15)" in md and "town 7," not in md
+    assert "loop street (town 7441, `--route laps`), DIS flow: left (20)" in md
+    assert ("| cpu preset, synthetic on DIS flow of rendered views s0 | yaw x1.00, forward x1.00 | yaw x0.40, "
+            "forward x1.50 | yaw x1.00, forward x1.00 | yaw x0.40, forward x1.50 |") in md
+    assert "| `deepslam vo`'s default | yaw x1.00, forward x1.00 | yaw x1.00, forward x1.00 | n/a | n/a |" in md
+    report["rows"]["synthetic_dis"][0].pop("kitti07_dis_fit")
+    report["rows"]["synthetic_dis"][0].pop("slam_laps_dis_fit")
+    report["default"] = {}
+    assert results_repro.turns_table(report) == []
+
+
 def test_the_loop_route_table_counts_loops_by_direction_and_marks_both_targets():
     laps = {"vo": {"ate_m": 3.0, "ate_sim3_m": 1.9, "path_length_ratio": 0.986},
             "slam": {"ate_m": 2.5, "ate_sim3_m": 1.0}, "ratio": 2.5 / 3.0, "vo_path_ratio": 0.986,
