@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import argparse
 
-from deepslam.commands import _dis_flags
+from deepslam.commands import _dis_flags, _odometry_flags
 
 # Library imports sit in the functions: building the parser of every command (deepslam --help) must
 # not import numpy, torch or the simulator.
@@ -108,6 +108,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="consecutive pairs (NN_cons) or loop pairs far apart in time (NN_loops)")
     g.add_argument("--max-pairs", type=int, default=0, help="at most this many pairs per sequence (0 = all)")
     g.add_argument("--flow", default="dis", help="flow estimator: dis or gt")
+    g.add_argument("--read-width", type=int, default=_odometry_flags.READ_WIDTH_PX, metavar="PX",
+                   help="estimated flow is made between frames narrower than PX upsampled to PX wide, as `deepslam vo "
+                        "--read-width` reads them (default %(default)s; 0: as recorded; exact flow and depth-reading "
+                        "networks: always as recorded)")
     _dis_flags.add_arguments(g, training=True)
     g = p.add_argument_group("network")
     g.add_argument("--net", choices=("cpu", "paper", "tiny"), default="paper", help="preset, refined by the options below")
@@ -269,6 +273,6 @@ def data_sources(args: argparse.Namespace, net, progress: bool, device) -> tuple
         spec = sources.SupervisedData(
             sequences=tuple(args.sequence), flow=args.flow, flow_options=_dis_flags.given_options(args.flow, args),
             pairs=PairSpec(strides=tuple(args.strides), kind=args.pairs, max_pairs=args.max_pairs),
-            holdout=args.holdout)
+            holdout=args.holdout, read_width_px=args.read_width)
         train_src, hold_src, data_meta = sources.supervised_sources(spec, net, args.seed, progress)
     return train_src, hold_src, data_meta

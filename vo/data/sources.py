@@ -16,6 +16,7 @@ from deepslam.core.readers import open_sequence
 from deepslam.flow import registry as flow_registry
 from deepslam.vo.data import samples, supervised, toy
 from deepslam.vo.net import NetConfig
+from deepslam.vo.pipeline import UpsampledView, check_read_width
 
 
 def shard_sources(shards, net: NetConfig, holdout: float, seed: int):
@@ -50,6 +51,10 @@ class SupervisedData:
     """That estimator's options (:func:`flow.registry.estimator_options`), as (name, value) pairs."""
     holdout: float = 0.1
     """Fraction of the samples held out."""
+    read_width_px: int = 0
+    """Frames narrower than this are read upsampled to it (:class:`vo.pipeline.UpsampledView`) before an estimated
+    flow is made between them, as ``deepslam vo --read-width`` reads them at test time; 0: as recorded. Exact flow
+    (``gt``) and networks that read depth take the frames as recorded, as ``vo`` does."""
 
 
 def supervised_sources(spec: SupervisedData, net: NetConfig, seed: int, progress: bool):
@@ -58,6 +63,7 @@ def supervised_sources(spec: SupervisedData, net: NetConfig, seed: int, progress
     estimator and its options) and ``data`` (pairs per sequence, strides, flow)."""
     if not spec.sequences:
         raise InputError(None, "supervised mode needs --sequence DIR...")
+    check_read_width(spec.read_width_px)
     options = dict(spec.flow_options)
     est = flow_registry.make(spec.flow, **options)
     parts, counts = [], {}
@@ -66,6 +72,8 @@ def supervised_sources(spec: SupervisedData, net: NetConfig, seed: int, progress
         if seq.gt is None:
             raise InputError(seq.root, "supervised training needs ground-truth poses; this sequence has none")
         pairs = supervised.frame_pairs(seq.gt.world_from_cam, spec.pairs)
+        if spec.read_width_px > seq.camera.width and spec.flow != "gt" and not net.depth_channel:
+            seq = UpsampledView(seq, spec.read_width_px)
         counts[str(seq.root)] = int(len(pairs))
         if len(pairs):
             parts.append(supervised.supervised_samples(seq, pairs, est, net.input_width, net.input_height, progress,
@@ -77,5 +85,6 @@ def supervised_sources(spec: SupervisedData, net: NetConfig, seed: int, progress
                                                                                                           seed)
     meta = {"flow": {"estimator": spec.flow, "options": options},
             "data": {"sequences": counts, "pairs": spec.pairs.kind, "strides": list(spec.pairs.strides),
-                     "flow": est.name, "n_pairs": int(sum(counts.values()))}}
+                     "flow": est.name, "n_pairs": int(sum(counts.values())),
+                     "read_width_px": spec.read_width_px}}
     return train_src, hold_src, meta

@@ -2,6 +2,7 @@
 deterministic batches, supervised pairs, and both training modes through the command line."""
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -294,6 +295,28 @@ def test_train_cli_supervised_with_ground_truth_flow(plane_sequence, tmp_path):
     assert rc == 0
     cfg = json.loads((out / "config.json").read_text())
     assert cfg["data"]["data"]["n_pairs"] == 11 + 10 and cfg["data"]["data"]["flow"] == "gt"
+
+
+def test_supervised_pairs_read_narrow_frames_upsampled_for_estimated_flow_as_vo_does(plane_sequence):
+    from deepslam.vo.data.sources import SupervisedData, supervised_sources
+    from deepslam.vo.net import NetConfig
+
+    net = NetConfig(input_height=24, input_width=80)
+    spec = SupervisedData(sequences=(str(plane_sequence),), pairs=PairSpec(max_pairs=3), flow="dis", holdout=0.34)
+
+    def flows(read_width: int, flow: str = "dis"):
+        train, hold, meta = supervised_sources(dataclasses.replace(spec, read_width_px=read_width, flow=flow), net, 0,
+                                               progress=False)
+        return np.concatenate([train.flow.numpy(), hold.flow.numpy()]), meta["data"]
+
+    recorded, meta0 = flows(0)
+    upsampled, meta = flows(512)  # the plane's frames are 256 px wide
+    assert meta0["read_width_px"] == 0 and meta["read_width_px"] == 512 and meta["n_pairs"] == 3
+    assert recorded.shape == upsampled.shape and not np.array_equal(recorded, upsampled)
+    assert np.nanmean(np.abs(upsampled - recorded)) < 0.3 * np.nanmean(np.abs(recorded))  # the same motion
+    np.testing.assert_array_equal(flows(512, "gt")[0], flows(0, "gt")[0])  # exact flow: as recorded
+    with pytest.raises(InputError, match="--read-width"):
+        flows(-1)
 
 
 def test_train_cli_bad_input(tmp_path, plane_sequence):
