@@ -27,8 +27,9 @@
 # 2,000,000 samples. docs/training.md says how the figures are read (bench.results_repro).
 # On a GPU the synthetic flow is made on the GPU too (`train --synth-device auto`), a model takes minutes, and
 # PARALLEL=1 trains every model of every seed at once; EXTRA adds flags to each `train` (a time cap, say).
-# SYNTH_FLOW=dis trains only the synthetic model, on DIS flow of views rendered from the single frames
-# (synthetic_dis_cons_sSEED; POOL samples made once, POOL_PATIENCE passes without improvement halve the rate).
+# SYNTH_FLOW=dis trains the synthetic model on DIS flow of views rendered from the single frames
+# (synthetic_dis_cons_sSEED; POOL samples made once, POOL_PATIENCE passes without improvement halve the rate) and
+# the supervised model on DIS flow of the renders' own pairs (supervised_dis_cons_sSEED).
 # SPEED_SCALE=LO,HI draws the synthetic motions from the same fits with each translation scaled by a log-uniform
 # factor in [LO, HI] (`fit-motion --speed-scale`: the towns' car takes every corner on one arc; this frees the
 # turn radius) into motion_speedscale_sK.json, and the synthetic models go to ..._speedscale_cons_sSEED.
@@ -83,6 +84,10 @@ for seed in $SEEDS; do
         $MOTION --synthetic-flow "$SYNTH_FLOW" \
         --dis-preset medium --frame-scales 1.5459 --sample-pool "${POOL:-100000}" --patience "${POOL_PATIENCE:-2}" \
         --data-threads 2
+    # and supervised on the same renders' pairs with the same DIS flow (frames read at 640 px as `vo` reads them:
+    # `train --read-width`), the comparison at equal flow; the prior changes the synthetic model only
+    [ -z "$PRIOR" ] && train "$OUT/supervised_${SYNTH_FLOW}_cons_s$seed" --mode supervised --seed $seed \
+        --sequence $TRAIN --flow "$SYNTH_FLOW" --dis-preset medium --strides 1,2
     continue
   fi
   train "$OUT/synthetic${PRIOR}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \

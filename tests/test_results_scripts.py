@@ -583,6 +583,9 @@ def test_repro_gains_split_the_turns_by_sign_and_the_table_shows_the_unseen_one(
     report["rows"]["synthetic_dis"][0].pop("slam_laps_dis_fit")
     report["default"] = {}
     assert results_repro.turns_table(report) == []
+    # a synthetic model's ratio is taken against supervised training on the same kind of flow
+    assert results_repro.compared_with("synthetic_dis_mirror") == ("supervised_dis",)
+    assert results_repro.compared_with("synthetic") == ("supervised", "supervised_samepatience")
 
 
 def test_the_loop_route_table_counts_loops_by_direction_and_marks_both_targets():
