@@ -212,8 +212,9 @@ def yaw_and_forward_fit(seq_dir: Path, motions_csv: Path) -> dict:
 
 
 def trajectory_fit(seq_dir: Path, trajectory_txt: Path) -> dict:
-    """:func:`gains` of consecutive frames' motions read off a trajectory file (any format ``deepslam`` reads, one
-    pose per frame of the sequence, matched by index) against the sequence's ground truth."""
+    """:func:`gains` (its dict) of consecutive frames' motions ``cam_{k+1}_from_cam_k`` read off a camera
+    trajectory file (KITTI or TUM ``world_from_cam``, one pose per frame of the sequence, matched by index) against
+    the sequence's ground truth."""
     from deepslam.core import se3
     from deepslam.core.readers import open_sequence
     from deepslam.core.trajio import read_trajectory
@@ -335,7 +336,9 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
                         slam_seq, out / "runs" / f"{key}_s{seed}_slam_laps.txt", "--model-cons", str(model),
                         "--pose", "net"))
                     if seed in cfg.decompose_seeds:
-                        rec["slam_laps_dis_fit"] = trajectory_fit(slam_seq, out / "runs" / f"{key}_s{seed}_slam_laps_vo.txt")
+                        rec["slam_laps_dis_fit"] = _cached(
+                            out / "eval" / f"{key}_s{seed}_slam_laps_fit.json",
+                            lambda: trajectory_fit(slam_seq, out / "runs" / f"{key}_s{seed}_slam_laps_vo.txt"))
                 rows.setdefault(key, []).append(rec)
     default = {name: _cached(out / "eval" / f"default_{name}.json",
                              lambda: vo_scores(seq, out / "runs" / f"default_{name}.txt", "--flow", flow))
@@ -350,7 +353,8 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
         print(f"slam default: loop street {cfg.slam_seed}", flush=True)
         default["slam_laps_dis"] = _cached(out / "eval" / "default_slam_laps.json",
                                            lambda: slam_scores(slam_seq, out / "runs" / "default_slam_laps.txt"))
-        default["slam_laps_dis_fit"] = trajectory_fit(slam_seq, out / "runs" / "default_slam_laps_vo.txt")
+        default["slam_laps_dis_fit"] = _cached(out / "eval" / "default_slam_laps_fit.json", lambda: trajectory_fit(
+            slam_seq, out / "runs" / "default_slam_laps_vo.txt"))
     if curves:
         plot_curves(curves, out / "learning_curve.png")
     report = {"config": dataclasses.asdict(cfg), "models": trained, "rows": rows, "default": default,
@@ -382,29 +386,31 @@ CASE_TITLES = {"street_exact": "held-out street (town 7, 10 Hz), exact flow",
 
 
 def turns_table(report: dict) -> list[str]:
-    """Markdown lines: per model (seed 0) and the default, the yaw and forward gains on the left and the right turns
-    of every DIS case (and the loop street) that has both (:func:`gains`); no lines where none has."""
+    """Markdown lines: per scored model and seed (those with fits: ``decompose_seeds``) and the default, the yaw and
+    forward gains on the left and the right turns of every DIS case (and the loop street) that has both
+    (:func:`gains`); no lines where none has."""
     cases = [c for c in [*report["cases"], "slam_laps_dis"] if c.endswith("_dis")]
     recs = [(f"{label(key)} s{r['seed']}", r) for key, recs in report["rows"].items() for r in recs]
     recs.append(("`deepslam vo`'s default", report["default"]))
-    both = [c for c in cases if any((r.get(f"{c}_fit") or {}).get("right", {}).get("n") and
-                                    (r.get(f"{c}_fit") or {}).get("left", {}).get("n") for _, r in recs)]
+    def count(c: str, side: str) -> int:
+        return max([(r.get(f"{c}_fit") or {}).get(side, {}).get("n", 0) for _, r in recs])
+
+    both = [c for c in cases if count(c, "left") and count(c, "right")]
     if not both:
         return []
 
     def cell(side: dict | None) -> str:
-        if not side or side.get("yaw_gain") is None:
-            return "n/a"
-        return f"yaw x{side['yaw_gain']:.2f}, forward x{side['forward_gain']:.2f}"
+        def x(g: float | None) -> str:
+            return "n/a" if g is None else f"x{g:.2f}"
+        return "n/a" if not side else f"yaw {x(side.get('yaw_gain'))}, forward {x(side.get('forward_gain'))}"
 
     titles = {**CASE_TITLES, "slam_laps_dis": "loop street (town {slam_seed}, `--route laps`), DIS flow".format(
         slam_seed=report.get("config", {}).get("slam_seed"))}
-    head = [f"{titles.get(c, c)}: {side} ({n})" for c in both for side, n in (
-        ("left", next(r[f"{c}_fit"]["left"]["n"] for _, r in recs if r.get(f"{c}_fit"))),
-        ("right", next(r[f"{c}_fit"]["right"]["n"] for _, r in recs if r.get(f"{c}_fit"))))]
+    head = [f"{titles.get(c, c)}: {side} ({count(c, side)})" for c in both for side in ("left", "right")]
     md = ["", "**Turns of each sign.** The training towns turn left only (the yaw of every training pair is >= "
           f"-0.005 rad). Per pair, the yaw and forward gains on the pairs turning left and right (|yaw| > {TURN_RAD} "
-          "rad, their count in brackets); a turn the network never saw is read short and made up as distance:", "",
+          "rad, their count in brackets); a model whose motions never turn right reads a right turn short and makes "
+          "it up as distance:", "",
           "| | " + " | ".join(head) + " |", "|---" * (1 + len(head)) + "|"]
     for name, r in recs:
         if any(r.get(f"{c}_fit") for c in both):

@@ -588,6 +588,42 @@ def test_repro_gains_split_the_turns_by_sign_and_the_table_shows_the_unseen_one(
     assert results_repro.compared_with("synthetic") == ("supervised", "supervised_samepatience")
 
 
+def test_repro_trajectory_fit_reads_each_frames_motion_against_the_ground_truth(tmp_path):
+    import numpy as np
+
+    from bench import results_repro
+    from deepslam.core import se3
+    from deepslam.core.camera import PinholeCamera
+    from deepslam.core.ours import OursWriter
+    from deepslam.core.trajectory import Trajectory
+    from deepslam.core.trajio import write_trajectory
+
+    true6 = np.zeros((30, 6))
+    true6[:, 5] = -1.0                      # 1 m forward a frame (cam_{k+1}_from_cam_k: t_z = -1 m)
+    true6[5:12, 1] = 0.05                   # a left turn ...
+    true6[18:25, 1] = -0.05                 # ... and a right one
+    gt = se3.chain_euler6(true6)
+    camera = PinholeCamera(16, 8, 10.0, 10.0, 7.5, 3.5)
+    header = {"num_frames": len(gt), "rate_hz": 10.0, "camera": camera.to_dict(), "stereo_baseline_m": None,
+              "scene": "test", "trajectory": "drive", "seed": 0, "backend": "numpy", "config": {},
+              "has": {"rgb_right": False, "depth": False, "flow": False, "mask": False}}
+    w = OursWriter(tmp_path / "seq", header)
+    for i, pose in enumerate(gt):
+        w.write_frame(i, i / 10.0, pose, np.zeros((8, 16, 3), np.uint8))
+    w.finish()
+    read6 = true6.copy()
+    read6[18:25, 1] *= 0.5                  # the right turn read at half its yaw
+    est = se3.chain_euler6(read6)
+    write_trajectory(tmp_path / "vo.txt", Trajectory(est, np.arange(len(est)) / 10.0), "tum")
+    g = results_repro.trajectory_fit(tmp_path / "seq", tmp_path / "vo.txt")
+    assert g["left"]["n"] == 7 and g["right"]["n"] == 7
+    assert g["left"]["yaw_gain"] == pytest.approx(1.0) and g["right"]["yaw_gain"] == pytest.approx(0.5)
+    assert g["forward"]["gain"] == pytest.approx(1.0)
+    write_trajectory(tmp_path / "short.txt", Trajectory(est[:-1], np.arange(len(est) - 1) / 10.0), "tum")
+    with pytest.raises(ValueError, match="poses for"):
+        results_repro.trajectory_fit(tmp_path / "seq", tmp_path / "short.txt")
+
+
 def test_the_loop_route_table_counts_loops_by_direction_and_marks_both_targets():
     laps = {"vo": {"ate_m": 3.0, "ate_sim3_m": 1.9, "path_length_ratio": 0.986},
             "slam": {"ate_m": 2.5, "ate_sim3_m": 1.0}, "ratio": 2.5 / 3.0, "vo_path_ratio": 0.986,

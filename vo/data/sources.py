@@ -66,7 +66,7 @@ def supervised_sources(spec: SupervisedData, net: NetConfig, seed: int, progress
     check_read_width(spec.read_width_px)
     options = dict(spec.flow_options)
     est = flow_registry.make(spec.flow, **options)
-    parts, counts = [], {}
+    parts, counts, read_at = [], {}, {}
     for d in spec.sequences:
         seq = open_sequence(d)
         if seq.gt is None:
@@ -74,6 +74,7 @@ def supervised_sources(spec: SupervisedData, net: NetConfig, seed: int, progress
         pairs = supervised.frame_pairs(seq.gt.world_from_cam, spec.pairs)
         if spec.read_width_px > seq.camera.width and spec.flow != "gt" and not net.depth_channel:
             seq = UpsampledView(seq, spec.read_width_px)
+            read_at[str(seq.root)] = spec.read_width_px
         counts[str(seq.root)] = int(len(pairs))
         if len(pairs):
             parts.append(supervised.supervised_samples(seq, pairs, est, net.input_width, net.input_height, progress,
@@ -86,5 +87,5 @@ def supervised_sources(spec: SupervisedData, net: NetConfig, seed: int, progress
     meta = {"flow": {"estimator": spec.flow, "options": options},
             "data": {"sequences": counts, "pairs": spec.pairs.kind, "strides": list(spec.pairs.strides),
                      "flow": est.name, "n_pairs": int(sum(counts.values())),
-                     "read_width_px": spec.read_width_px}}
+                     "read_at_px": read_at}}
     return train_src, hold_src, meta

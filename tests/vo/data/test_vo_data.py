@@ -311,7 +311,7 @@ def test_supervised_pairs_read_narrow_frames_upsampled_for_estimated_flow_as_vo_
 
     recorded, meta0 = flows(0)
     upsampled, meta = flows(512)  # the plane's frames are 256 px wide
-    assert meta0["read_width_px"] == 0 and meta["read_width_px"] == 512 and meta["n_pairs"] == 3
+    assert meta0["read_at_px"] == {} and meta["read_at_px"] == {str(plane_sequence): 512} and meta["n_pairs"] == 3
     assert recorded.shape == upsampled.shape and not np.array_equal(recorded, upsampled)
     assert np.nanmean(np.abs(upsampled - recorded)) < 0.3 * np.nanmean(np.abs(recorded))  # the same motion
     np.testing.assert_array_equal(flows(512, "gt")[0], flows(0, "gt")[0])  # exact flow: as recorded
@@ -328,6 +328,7 @@ def test_train_cli_bad_input(tmp_path, plane_sequence):
     (tmp_path / "bad.json").write_text("{\"format\": 3}")
     assert main([*base, "--mode", "synthetic", "--source", str(plane_sequence), "--motion", str(tmp_path / "bad.json")]) == 2
     assert main([*base, "--mode", "supervised"]) == 2
+    assert main([*base, "--mode", "supervised", "--sequence", str(plane_sequence), "--read-width", "-5"]) == 2
     assert main([*base, "--mode", "synthetic", "--toy", "64", "--scene-scale", "0.5:1"]) == 2  # no single frames
     assert main([*base, "--mode", "synthetic", "--source", str(plane_sequence), "--motion", str(tmp_path / "bad.json"),
                  "--scene-scale", "1:0.5"]) == 2
