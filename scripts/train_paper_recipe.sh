@@ -29,7 +29,8 @@
 # PARALLEL=1 trains every model of every seed at once; EXTRA adds flags to each `train` (a time cap, say).
 # SYNTH_FLOW=dis trains the synthetic model on DIS flow of views rendered from the single frames
 # (synthetic_dis_cons_sSEED; POOL samples made once, POOL_PATIENCE passes without improvement halve the rate) and
-# the supervised model on DIS flow of the renders' own pairs (supervised_dis_cons_sSEED).
+# the supervised model on DIS flow of the renders' own pairs (supervised_dis_cons_sSEED); SKIP_SYNTHETIC=1 trains
+# the supervised one only (more seeds of it in minutes, where each synthetic one takes an hour on 2 cores).
 # SPEED_SCALE=LO,HI draws the synthetic motions from the same fits with each translation scaled by a log-uniform
 # factor in [LO, HI] (`fit-motion --speed-scale`: the towns' car takes every corner on one arc; this frees the
 # turn radius) into motion_speedscale_sK.json, and the synthetic models go to ..._speedscale_cons_sSEED.
@@ -80,7 +81,7 @@ for seed in $SEEDS; do
     # read at 640 px as `deepslam vo` reads a 414 px frame (1.5459 = 640 / 414), DIS medium on the pair; DIS makes
     # ~50 samples/s on 2 cores, so a pool of POOL samples is made once and trained on in passes (an epoch), with
     # the recipe's patience matched in samples (10 x 20,000 = 2 passes of 100,000)
-    train "$OUT/synthetic_${SYNTH_FLOW}${PRIOR}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
+    [ "${SKIP_SYNTHETIC:-0}" = 1 ] || train "$OUT/synthetic_${SYNTH_FLOW}${PRIOR}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
         $MOTION --synthetic-flow "$SYNTH_FLOW" \
         --dis-preset medium --frame-scales 1.5459 --sample-pool "${POOL:-100000}" --patience "${POOL_PATIENCE:-2}" \
         --data-threads 2
