@@ -33,12 +33,12 @@ import numpy as np
 from bench.results_common import write_report
 from bench.results_vo import _agg, _cached, metric_subset
 
-SYNTHETIC_MODES = ("synthetic", "synthetic_dis", "synthetic_dis_speedscale", "synthetic_dis_mirror")
+SYNTHETIC_MODES = ("synthetic", "synthetic_mirror", "synthetic_dis", "synthetic_dis_speedscale", "synthetic_dis_mirror")
 """Training folders of single-frame training: on exact synthesized flow (the paper), on DIS flow of the second
-view rendered from each frame (``SYNTH_FLOW=dis``), that with the motions' turn radius freed
-(``SPEED_SCALE=0.4,1.5``: each drawn translation scaled by a log-uniform factor, ``fit-motion --speed-scale``), and
-that with the motions fitted together with their left-right mirror images (``MIRROR=1``, ``fit-motion --mirror``:
-the training towns turn one way only)."""
+view rendered from each frame (``SYNTH_FLOW=dis``), and the DIS one with the motions' turn radius freed
+(``SPEED_SCALE=0.4,1.5``: each drawn translation scaled by a log-uniform factor, ``fit-motion --speed-scale``);
+``_mirror``: the motions fitted together with their left-right mirror images (``fit-motion --mirror``: the training
+towns turn one way only), the recipe script's default prior (``MIRROR=0``: without)."""
 SUPERVISED_MODES = ("supervised", "supervised_samepatience", "supervised_dis")
 """Training folders of supervised training: by the recipe (its patience in epochs of its ~1,100 pairs), with
 the patience in samples matched to the synthetic run's (186 epochs = 10 x 20,000 samples), which lets it train
@@ -46,7 +46,8 @@ for the same budget, and by the recipe on DIS flow of the same pairs (``SYNTH_FL
 640 px as ``vo`` reads them), the comparison at equal flow for the synthetic models on DIS flow."""
 MODES = SYNTHETIC_MODES + SUPERVISED_MODES
 """Training folders ``{mode}_cons_s{seed}``."""
-MODE_LABELS = {"synthetic": "synthetic", "synthetic_dis": "synthetic on DIS flow of rendered views",
+MODE_LABELS = {"synthetic": "synthetic", "synthetic_mirror": "synthetic, turns both ways (mirrored motions)",
+               "synthetic_dis": "synthetic on DIS flow of rendered views",
                "synthetic_dis_speedscale": "synthetic on DIS flow of rendered views, turn radius freed",
                "synthetic_dis_mirror": "synthetic on DIS flow of rendered views, turns both ways (mirrored motions)",
                "supervised": "supervised", "supervised_samepatience": "supervised, patience matched in samples",

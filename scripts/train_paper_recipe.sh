@@ -16,7 +16,7 @@
 #   PARALLEL=1 EXTRA="--max-minutes 6" bash scripts/train_paper_recipe.sh ...   # on a GPU: every model at once
 #   SYNTH_FLOW=dis bash scripts/train_paper_recipe.sh bench/paper_recipe      # the synthetic model on DIS flow
 #   SPEED_SCALE=0.4,1.5 SYNTH_FLOW=dis bash scripts/train_paper_recipe.sh ...  # ... with the turn radius freed
-#   MIRROR=1 bash scripts/train_paper_recipe.sh ...                  # ... with turns both ways (mirrored motions)
+#   MIRROR=0 bash scripts/train_paper_recipe.sh ...                  # the towns' own motions, turning one way
 #
 # bf16 autocast is on by default where the CPU computes bf16 natively (AVX-512 BF16); on a CPU without it,
 # autocast is emulated and ~10x slower than float32 (measured: 389 against 40 s for 10,240 samples on an
@@ -34,8 +34,10 @@
 # SPEED_SCALE=LO,HI draws the synthetic motions from the same fits with each translation scaled by a log-uniform
 # factor in [LO, HI] (`fit-motion --speed-scale`: the towns' car takes every corner on one arc; this frees the
 # turn radius) into motion_speedscale_sK.json, and the synthetic models go to ..._speedscale_cons_sSEED.
-# MIRROR=1 fits the motions with their left-right mirror images (`fit-motion --mirror`: the towns turn one way
-# only) into motion[_speedscale]_mirror_sK.json, the synthetic models into ..._mirror_cons_sSEED.
+# The motions are fitted with their left-right mirror images (`fit-motion --mirror`: the towns turn one way only;
+# docs/experiments/2026-12-06_turn_radius_prior.md, section 6) into motion[_speedscale]_mirror_sK.json, the
+# synthetic models into ..._mirror_cons_sSEED; MIRROR=0 fits the towns' own motions (motion_sK.json, the models
+# without the suffix). The supervised models do not depend on the prior.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/paper_recipe}
@@ -54,7 +56,7 @@ TRAIN="$OUT/street_train_s1 $OUT/street_train_s2"
 PRIOR=""      # the motion fits' and synthetic models' name suffix
 PRIOR_FIT=""  # ... and the fit-motion flags that make it
 if [ -n "${SPEED_SCALE:-}" ]; then PRIOR=_speedscale; PRIOR_FIT="--speed-scale $SPEED_SCALE"; fi
-if [ "${MIRROR:-0}" = 1 ]; then PRIOR="${PRIOR}_mirror"; PRIOR_FIT="$PRIOR_FIT --mirror"; fi
+if [ "${MIRROR:-1}" = 1 ]; then PRIOR="${PRIOR}_mirror"; PRIOR_FIT="$PRIOR_FIT --mirror"; fi
 for k in 1 2; do
   [ -f "$OUT/motion${PRIOR}_s$k.json" ] || $DS fit-motion --poses $OUT/street_train_s1/poses.txt \
       $OUT/street_train_s2/poses.txt --stride $k --consecutive kde $PRIOR_FIT --out "$OUT/motion${PRIOR}_s$k.json"
@@ -86,14 +88,13 @@ for seed in $SEEDS; do
         --dis-preset medium --frame-scales 1.5459 --sample-pool "${POOL:-100000}" --patience "${POOL_PATIENCE:-2}" \
         --data-threads 2
     # and supervised on the same renders' pairs with the same DIS flow (frames read at 640 px as `vo` reads them:
-    # `train --read-width`), the comparison at equal flow; the prior changes the synthetic model only
-    [ -z "$PRIOR" ] && train "$OUT/supervised_${SYNTH_FLOW}_cons_s$seed" --mode supervised --seed $seed \
+    # `train --read-width`), the comparison at equal flow
+    train "$OUT/supervised_${SYNTH_FLOW}_cons_s$seed" --mode supervised --seed $seed \
         --sequence $TRAIN --flow "$SYNTH_FLOW" --dis-preset medium --strides 1,2
     continue
   fi
   train "$OUT/synthetic${PRIOR}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
       $MOTION --samples-per-epoch 20000
-  [ -n "$PRIOR" ] && continue  # the prior changes the synthetic models only
   train "$OUT/supervised_cons_s$seed" --mode supervised --seed $seed --sequence $TRAIN --flow gt --strides 1,2
   # the recipe's patience is 10 epochs; a supervised epoch is ~1,100 pairs, a synthetic one 20,000 samples, so
   # the supervised run stops after ~120,000 samples: once more with the patience matched in samples (186 epochs)
