@@ -1,7 +1,7 @@
 """``python -m bench.results_width``: the default odometry at every width a user renders or records.
 
 ``deepslam vo`` with no flags but the read width, as recorded (``--read-width 0``) and read upsampled to 640 px
-(``--read-width 640``, :class:`vo.pipeline.UpsampledView`), on unseen simulated streets rendered at 320, 414,
+(``--read-width 640``, :class:`core.sequence.UpsampledView`), on unseen simulated streets rendered at 320, 414,
 640 and 1241 px (the same towns and routes at each width: the route and the content do not depend on the
 width), on unseen rooms at EuRoC's 376 px, on the README's quickstart street and ``stress --quick``'s static
 street (320 px, seed 0; beside ``pnp``, the classical plug-in, on the same frames), and on the real KITTI

@@ -9,6 +9,7 @@ import dataclasses
 from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import Callable, Iterator
 
+import cv2
 import numpy as np
 
 from deepslam.core import flowio
@@ -283,3 +284,28 @@ class Sequence:
     @property
     def has_stereo(self) -> bool:
         return self.right_paths is not None and self.baseline_m is not None
+
+
+class UpsampledView:
+    """A sequence read at a larger size: its images (and right images) upsampled bicubically to ``width`` px wide
+    (the height in proportion), its camera scaled likewise (pixel centres kept: ``c' = s (c + 0.5) - 0.5``);
+    everything else is the sequence's own. For estimated flow on the images only: depth and stored flow stay at
+    the recorded size, so a network that reads them, or ``--flow gt``, does not take this view."""
+
+    def __init__(self, seq, width: int):
+        self._seq = seq
+        cam = seq.camera
+        self.size = (int(width), int(round(cam.height * width / cam.width)))
+        self.camera = cam.scaled(*self.size)
+
+    def __len__(self) -> int:
+        return len(self._seq)
+
+    def __getattr__(self, name):
+        return getattr(self._seq, name)
+
+    def image(self, i: int) -> np.ndarray:
+        return cv2.resize(self._seq.image(i), self.size, interpolation=cv2.INTER_CUBIC)
+
+    def image_right(self, i: int) -> np.ndarray:
+        return cv2.resize(self._seq.image_right(i), self.size, interpolation=cv2.INTER_CUBIC)

@@ -12,10 +12,10 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import cv2
 import numpy as np
 
 from deepslam.core.errors import InputError
+from deepslam.core.sequence import UpsampledView  # noqa: F401 - importable from here too
 from deepslam.core.se3 import chain_euler6
 from deepslam.core.trajectory import check_finite_poses
 from deepslam.vo.modelfiles import models, modeltree
@@ -147,31 +147,6 @@ def read_view(seq, read_width_px: int, model_path, flow: str):
     if read_width_px > seq.camera.width and flow != "gt" and not _reads_depth(model_path):
         return UpsampledView(seq, read_width_px)
     return seq
-
-
-class UpsampledView:
-    """A sequence read at a larger size: its images (and right images) upsampled bicubically to ``width`` px wide
-    (the height in proportion), its camera scaled likewise (pixel centres kept: ``c' = s (c + 0.5) - 0.5``);
-    everything else is the sequence's own. For estimated flow on the images only: depth and stored flow stay at
-    the recorded size, so a network that reads them, or ``--flow gt``, does not take this view."""
-
-    def __init__(self, seq, width: int):
-        self._seq = seq
-        cam = seq.camera
-        self.size = (int(width), int(round(cam.height * width / cam.width)))
-        self.camera = cam.scaled(*self.size)
-
-    def __len__(self) -> int:
-        return len(self._seq)
-
-    def __getattr__(self, name):
-        return getattr(self._seq, name)
-
-    def image(self, i: int) -> np.ndarray:
-        return cv2.resize(self._seq.image(i), self.size, interpolation=cv2.INTER_CUBIC)
-
-    def image_right(self, i: int) -> np.ndarray:
-        return cv2.resize(self._seq.image_right(i), self.size, interpolation=cv2.INTER_CUBIC)
 
 
 def _network(seq, pairs: np.ndarray, cfg: VOConfig) -> tuple[np.ndarray, np.ndarray, str, dict]:

@@ -217,7 +217,7 @@ def load_image_frames(sequences: Seq, frame_step: int = 1, depth: str = "auto", 
     estimator errs differently at another resolution (DIS under-reads a road more on a smaller image),
     so a network that will see several resolutions should be trained on them. ``scales`` above 1 add it
     upsampled (image bicubic, depth nearest) exactly as ``deepslam vo --read-width`` reads a narrow
-    frame (:class:`vo.pipeline.UpsampledView`): a 414 px render at 640 / 414 is what DIS is given at test.
+    frame (:class:`core.sequence.UpsampledView`): a 414 px render at 640 / 414 is what DIS is given at test.
 
     A render with a simulated depth sensor (``render --depth-noise``; :meth:`core.sequence.Sequence.depth_exact`)
     gives its exact depth as ``depth_z`` and the sensor's as ``depth_sensor``.

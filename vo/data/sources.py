@@ -13,10 +13,10 @@ import numpy as np
 from deepslam.core.camera import KITTI_00_CAMERA
 from deepslam.core.errors import InputError
 from deepslam.core.readers import open_sequence
+from deepslam.core.sequence import UpsampledView
 from deepslam.flow import registry as flow_registry
 from deepslam.vo.data import samples, supervised, toy
 from deepslam.vo.net import NetConfig
-from deepslam.vo.pipeline import UpsampledView, check_read_width
 
 
 def shard_sources(shards, net: NetConfig, holdout: float, seed: int):
@@ -52,7 +52,7 @@ class SupervisedData:
     holdout: float = 0.1
     """Fraction of the samples held out."""
     read_width_px: int = 0
-    """Frames narrower than this are read upsampled to it (:class:`vo.pipeline.UpsampledView`) before an estimated
+    """Frames narrower than this are read upsampled to it (:class:`core.sequence.UpsampledView`) before an estimated
     flow is made between them, as ``deepslam vo --read-width`` reads them at test time; 0: as recorded. Exact flow
     (``gt``) and networks that read depth take the frames as recorded, as ``vo`` does."""
 
@@ -63,7 +63,6 @@ def supervised_sources(spec: SupervisedData, net: NetConfig, seed: int, progress
     estimator and its options) and ``data`` (pairs per sequence, strides, flow)."""
     if not spec.sequences:
         raise InputError(None, "supervised mode needs --sequence DIR...")
-    check_read_width(spec.read_width_px)
     options = dict(spec.flow_options)
     est = flow_registry.make(spec.flow, **options)
     parts, counts, read_at = [], {}, {}
