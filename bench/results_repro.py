@@ -220,12 +220,11 @@ def trajectory_fit(seq_dir: Path, trajectory_txt: Path) -> dict:
     from deepslam.core.readers import open_sequence
     from deepslam.core.trajio import read_trajectory
 
-    est = read_trajectory(trajectory_txt).world_from_cam
-    gt = open_sequence(seq_dir).gt.world_from_cam
+    est = read_trajectory(trajectory_txt)
+    gt = open_sequence(seq_dir).gt
     if len(est) != len(gt):
         raise ValueError(f"{trajectory_txt}: {len(est)} poses for {len(gt)} frames")
-    return gains(se3.to_euler6(se3.relative(est[1:], est[:-1])).reshape(-1, 6),
-                 se3.to_euler6(se3.relative(gt[1:], gt[:-1])).reshape(-1, 6))
+    return gains(se3.to_euler6(est.relative_motions()), se3.to_euler6(gt.relative_motions()))
 
 
 def learning_curve(history: Path) -> dict:

@@ -189,6 +189,7 @@ def check_ranges(args) -> None:
     import math
 
     from deepslam.core.errors import InputError
+    from deepslam.vo.pipeline import check_read_width
 
     positive = {"--batch": args.batch, "--samples-per-epoch": args.samples_per_epoch, "--frame-step": args.frame_step,
                 "--max-epochs": args.max_epochs, "--synth-factor": args.synth_factor, "--data-threads": args.data_threads}
@@ -210,8 +211,7 @@ def check_ranges(args) -> None:
             raise InputError(None, f"{flag} must be a positive number, got {v}")
     if args.lr_min > args.lr_max:
         raise InputError(None, f"--lr-min {args.lr_min} is above --lr-max {args.lr_max}")
-    if not 0 <= args.read_width <= 8192:
-        raise InputError(None, f"--read-width must be in 0..8192 px, got {args.read_width}")
+    check_read_width(args.read_width)
 
 
 def train_config(args: argparse.Namespace, net, device):
