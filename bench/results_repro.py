@@ -33,7 +33,8 @@ import numpy as np
 from bench.results_common import write_report
 from bench.results_vo import _agg, _cached, metric_subset
 
-SYNTHETIC_MODES = ("synthetic", "synthetic_mirror", "synthetic_dis", "synthetic_dis_speedscale", "synthetic_dis_mirror")
+SYNTHETIC_MODES = ("synthetic", "synthetic_mirror", "synthetic_dis", "synthetic_dis_speedscale", "synthetic_dis_mirror",
+                   "synthetic_dis_speedscale_mirror")
 """Training folders of single-frame training: on exact synthesized flow (the paper), on DIS flow of the second
 view rendered from each frame (``SYNTH_FLOW=dis``), and the DIS one with the motions' turn radius freed
 (``SPEED_SCALE=0.4,1.5``: each drawn translation scaled by a log-uniform factor, ``fit-motion --speed-scale``);
@@ -50,6 +51,8 @@ MODE_LABELS = {"synthetic": "synthetic", "synthetic_mirror": "synthetic, turns b
                "synthetic_dis": "synthetic on DIS flow of rendered views",
                "synthetic_dis_speedscale": "synthetic on DIS flow of rendered views, turn radius freed",
                "synthetic_dis_mirror": "synthetic on DIS flow of rendered views, turns both ways (mirrored motions)",
+               "synthetic_dis_speedscale_mirror": "synthetic on DIS flow of rendered views, turn radius freed, turns both "
+                                                  "ways",
                "supervised": "supervised", "supervised_samepatience": "supervised, patience matched in samples",
                "supervised_dis": "supervised on DIS flow of the renders' pairs"}
 PAPER_FIGURES = ("The paper's own figures (KITTI 00-10, its devkit's t_err [%] / r_err [deg/100 m], NN_cons with its "
@@ -108,7 +111,7 @@ class ReproConfig:
     slam_frames: int = 1900
     """Frames of the loop street."""
     slam_modes: tuple[str, ...] = ("synthetic", "synthetic_dis", "synthetic_dis_speedscale", "synthetic_dis_mirror",
-                                   "supervised")
+                                   "synthetic_dis_speedscale_mirror", "supervised")
     """Training modes scored with SLAM (each seed present, both presets)."""
     calibration_seed: int = 8101
     """Town of a simulated street (as the held-out one) on which seed 0's std is calibrated per DoF and then read

@@ -286,6 +286,17 @@ class Sequence:
         return self.right_paths is not None and self.baseline_m is not None
 
 
+def read_for_estimated_flow(seq, read_width_px: int, flow: str, reads_depth):
+    """``seq`` as a flow -> pose network reads it: an :class:`UpsampledView` ``read_width_px`` wide where the frames
+    are narrower, the flow is estimated (``flow`` is not ``"gt"``) and the network does not read depth
+    (``reads_depth``: a callable without arguments, asked only when the first two hold, so that a model file's
+    header is read only where it matters); else ``seq`` itself. ``deepslam vo`` and supervised training read frames
+    by this one rule."""
+    if read_width_px > seq.camera.width and flow != "gt" and not reads_depth():
+        return UpsampledView(seq, read_width_px)
+    return seq
+
+
 class UpsampledView:
     """A sequence read at a larger size: its images (and right images) upsampled bicubically to ``width`` px wide
     (the height in proportion), its camera scaled likewise (pixel centres kept: ``c' = s (c + 0.5) - 0.5``);

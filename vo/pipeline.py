@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from deepslam.core.errors import InputError
-from deepslam.core.sequence import UpsampledView  # noqa: F401 - importable from here too
+from deepslam.core.sequence import UpsampledView, read_for_estimated_flow  # noqa: F401 - UpsampledView importable from here too
 from deepslam.core.se3 import chain_euler6
 from deepslam.core.trajectory import check_finite_poses
 from deepslam.vo.modelfiles import models, modeltree
@@ -144,9 +144,7 @@ def read_view(seq, read_width_px: int, model_path, flow: str):
     """``seq`` as the network of the VO model file ``model_path`` reads it on flow estimator ``flow``: an
     :class:`UpsampledView` ``read_width_px`` wide where the frames are narrower, the flow is estimated (not ``gt``)
     and the network does not read depth; else ``seq`` itself."""
-    if read_width_px > seq.camera.width and flow != "gt" and not _reads_depth(model_path):
-        return UpsampledView(seq, read_width_px)
-    return seq
+    return read_for_estimated_flow(seq, read_width_px, flow, lambda: _reads_depth(model_path))
 
 
 def _network(seq, pairs: np.ndarray, cfg: VOConfig) -> tuple[np.ndarray, np.ndarray, str, dict]:

@@ -284,3 +284,23 @@ def test_atomic_files_get_normal_permissions(tmp_path):
     os.umask(umask)
     assert (tmp_path / "x.txt").stat().st_mode & 0o777 == 0o666 & ~umask
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_read_for_estimated_flow_upsamples_only_narrow_frames_of_estimated_flow_without_depth(plane_sequence):
+    from deepslam.core.sequence import UpsampledView, read_for_estimated_flow
+
+    seq = open_sequence(plane_sequence)
+    wide = 2 * seq.camera.width
+    asked = []
+
+    def reads_depth(answer):
+        return lambda: asked.append(answer) or answer
+
+    view = read_for_estimated_flow(seq, wide, "dis", reads_depth(False))
+    assert isinstance(view, UpsampledView) and view.camera.width == wide and len(view) == len(seq)
+    assert read_for_estimated_flow(seq, wide, "dis", reads_depth(True)) is seq           # the network reads depth
+    assert asked == [False, True]
+    assert read_for_estimated_flow(seq, wide, "gt", reads_depth(False)) is seq           # stored flow: its own size
+    assert read_for_estimated_flow(seq, seq.camera.width, "dis", reads_depth(False)) is seq  # wide enough already
+    assert read_for_estimated_flow(seq, 0, "dis", reads_depth(False)) is seq
+    assert asked == [False, True]  # the model's header is asked only where the first two conditions hold

@@ -13,7 +13,7 @@ import numpy as np
 from deepslam.core.camera import KITTI_00_CAMERA
 from deepslam.core.errors import InputError
 from deepslam.core.readers import open_sequence
-from deepslam.core.sequence import UpsampledView
+from deepslam.core.sequence import read_for_estimated_flow
 from deepslam.flow import registry as flow_registry
 from deepslam.vo.data import samples, supervised, toy
 from deepslam.vo.net import NetConfig
@@ -71,8 +71,9 @@ def supervised_sources(spec: SupervisedData, net: NetConfig, seed: int, progress
         if seq.gt is None:
             raise InputError(seq.root, "supervised training needs ground-truth poses; this sequence has none")
         pairs = supervised.frame_pairs(seq.gt.world_from_cam, spec.pairs)
-        if spec.read_width_px > seq.camera.width and spec.flow != "gt" and not net.depth_channel:
-            seq = UpsampledView(seq, spec.read_width_px)
+        view = read_for_estimated_flow(seq, spec.read_width_px, spec.flow, lambda: net.depth_channel)
+        if view is not seq:
+            seq = view
             read_at[str(seq.root)] = spec.read_width_px
         counts[str(seq.root)] = int(len(pairs))
         if len(pairs):
