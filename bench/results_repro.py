@@ -34,12 +34,13 @@ from bench.results_common import write_report
 from bench.results_vo import _agg, _cached, metric_subset
 
 SYNTHETIC_MODES = ("synthetic", "synthetic_mirror", "synthetic_dis", "synthetic_dis_speedscale", "synthetic_dis_mirror",
-                   "synthetic_dis_speedscale_mirror")
+                   "synthetic_dis_speedscale_mirror", "synthetic_dis_mirror_body", "synthetic_dis_speedscale_mirror_body")
 """Training folders of single-frame training: on exact synthesized flow (the paper), on DIS flow of the second
 view rendered from each frame (``SYNTH_FLOW=dis``), and the DIS one with the motions' turn radius freed
 (``SPEED_SCALE=0.4,1.5``: each drawn translation scaled by a log-uniform factor, ``fit-motion --speed-scale``);
 ``_mirror``: the motions fitted together with their left-right mirror images (``fit-motion --mirror``: the training
-towns turn one way only), the recipe script's default prior (``MIRROR=0``: without)."""
+towns turn one way only), the recipe script's default prior (``MIRROR=0``: without); ``_body``: KITTI 00-05 and 08-10's
+frame-to-frame pitch and roll added to each drawn motion (``BODY=1``, ``fit-motion --body-from``)."""
 SUPERVISED_MODES = ("supervised", "supervised_samepatience", "supervised_dis")
 """Training folders of supervised training: by the recipe (its patience in epochs of its ~1,100 pairs), with
 the patience in samples matched to the synthetic run's (186 epochs = 10 x 20,000 samples), which lets it train
@@ -53,6 +54,10 @@ MODE_LABELS = {"synthetic": "synthetic", "synthetic_mirror": "synthetic, turns b
                "synthetic_dis_mirror": "synthetic on DIS flow of rendered views, turns both ways (mirrored motions)",
                "synthetic_dis_speedscale_mirror": "synthetic on DIS flow of rendered views, turn radius freed, turns both "
                                                   "ways",
+               "synthetic_dis_mirror_body": "synthetic on DIS flow of rendered views, turns both ways, KITTI's body "
+                                            "pitch and roll",
+               "synthetic_dis_speedscale_mirror_body": "synthetic on DIS flow of rendered views, turn radius freed, "
+                                                       "turns both ways, KITTI's body pitch and roll",
                "supervised": "supervised", "supervised_samepatience": "supervised, patience matched in samples",
                "supervised_dis": "supervised on DIS flow of the renders' pairs"}
 PAPER_FIGURES = ("The paper's own figures (KITTI 00-10, its devkit's t_err [%] / r_err [deg/100 m], NN_cons with its "
@@ -111,7 +116,8 @@ class ReproConfig:
     slam_frames: int = 1900
     """Frames of the loop street."""
     slam_modes: tuple[str, ...] = ("synthetic", "synthetic_dis", "synthetic_dis_speedscale", "synthetic_dis_mirror",
-                                   "synthetic_dis_speedscale_mirror", "supervised")
+                                   "synthetic_dis_speedscale_mirror", "synthetic_dis_mirror_body",
+                                   "synthetic_dis_speedscale_mirror_body", "supervised")
     """Training modes scored with SLAM (each seed present, both presets)."""
     calibration_seed: int = 8101
     """Town of a simulated street (as the held-out one) on which seed 0's std is calibrated per DoF and then read

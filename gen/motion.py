@@ -33,7 +33,8 @@ JSON file (``deepslam fit-motion`` writes it, :meth:`MotionModel.load` validates
 
 with, for a KDE, ``"consecutive": {"kind": "kde", "num_motions": N, "bandwidth": {"euler_x": .., ...},
 "lo": {..}, "hi": {..}, "motions": [[euler_x, .., t_z], ...]}`` and optionally ``"speed_scale": [lo, hi]``
-(:attr:`KdeSix.speed_scale`); a file without ``kind`` is Student-t.
+(:attr:`KdeSix.speed_scale`) and ``"body": {"sources": [..], "bandwidth": {"euler_x": .., "euler_z": ..}, "motions":
+[[euler_x, euler_z], ...]}`` (:attr:`KdeSix.body`); a file without ``kind`` is Student-t.
 """
 from __future__ import annotations
 
@@ -134,6 +135,11 @@ class SixDof:
 
 KDE_MAX_MOTIONS = 25_000
 """At most this many motions are kept in a KDE model (a seeded subsample beyond; KITTI 00-05, 08-10 has 20,990)."""
+BODY_MAX_MOTIONS = 5_000
+"""At most this many pitch-and-roll pairs are kept in a KDE model's :attr:`KdeSix.body` (a seeded subsample beyond)."""
+BODY_DOFS = (0, 2)
+"""Columns of a paper vector the body's motion adds to: euler_x (pitch, about the camera's x axis) and euler_z (roll,
+about its optical axis)."""
 KDE_DIGITS = 6
 """Decimal places the KDE model's motions are stored with (1e-6 rad / 1e-6 m: far below any flow's resolution)."""
 
@@ -162,6 +168,16 @@ class KdeSix:
     (``fit-motion --speed-scale``); None: none. On a circular arc the chord's direction depends on the heading
     change alone, so a scaled motion is the same turn at a radius and speed scaled by the factor: it frees
     the turn radius from the one the fitted routes were driven at (a town's car takes every corner on one arc)."""
+    body: np.ndarray | None = None
+    """(M, 2) float64 frame-to-frame pitch and roll (euler_x, euler_z; rad) of other trajectories, one pair drawn
+    per motion (with Gaussian jitter of :attr:`body_bandwidth`) and added to the drawn motion's pitch and roll
+    (``fit-motion --body-from``); None: none. The car body's pitch and roll on its suspension, which the
+    simulator's car does not have: KITTI 00-05, 08-10 pitch 0.18 and roll 0.15 degrees RMS a frame, the towns'
+    0.001 and 0.03 (docs/experiments/2026-12-06_turn_radius_prior.md, section 8)."""
+    body_bandwidth: np.ndarray | None = None
+    """(2,) float64 Gaussian jitter of the :attr:`body` draws (rad), Silverman's rule as :func:`fit_kde`."""
+    body_sources: tuple[str, ...] = ()
+    """Names of the trajectories :attr:`body` was taken from."""
 
     @property
     def num_motions(self) -> int:
@@ -173,7 +189,8 @@ class KdeSix:
         the jitter; a value the jitter took out of [lo, hi] gets its jitter redrawn (clipped after
         ``max_rounds``), so the range's ends get no pile of clipped draws (standing still stays still, not
         0.016 m backwards). With :attr:`speed_scale`, ``rng.uniform`` then draws each motion's factor (the
-        translation may then leave [lo, hi]: that is the point)."""
+        translation may then leave [lo, hi]: that is the point). With :attr:`body`, ``rng.integers`` and
+        ``rng.standard_normal`` then draw each motion's added pitch and roll."""
         pick = rng.integers(0, len(self.motions), size=n)
         base = self.motions[pick]
         out = base + rng.standard_normal((n, 6)) * self.bandwidth
@@ -186,6 +203,9 @@ class KdeSix:
         if self.speed_scale is not None:
             lo, hi = self.speed_scale
             out[:, 3:] *= np.exp(rng.uniform(math.log(lo), math.log(hi), size=n))[:, None]
+        if self.body is not None:
+            pick = rng.integers(0, len(self.body), size=n)
+            out[:, BODY_DOFS] += self.body[pick] + rng.standard_normal((n, 2)) * self.body_bandwidth
         return out
 
     def marginal_pdf(self, k: int, x: np.ndarray) -> np.ndarray:
@@ -203,6 +223,10 @@ class KdeSix:
              "motions": np.round(self.motions, KDE_DIGITS).tolist()}
         if self.speed_scale is not None:
             d["speed_scale"] = [float(x) for x in self.speed_scale]
+        if self.body is not None:
+            d["body"] = {"sources": list(self.body_sources),
+                         "bandwidth": {DOF_NAMES[k]: float(b) for k, b in zip(BODY_DOFS, self.body_bandwidth)},
+                         "motions": np.round(self.body, KDE_DIGITS).tolist()}
         return d
 
 
@@ -225,13 +249,33 @@ def fit_kde(vectors: np.ndarray, seed: int = 0, speed_scale: tuple[float, float]
     if len(v) > KDE_MAX_MOTIONS:
         v = v[np.sort(np.random.default_rng(seed).choice(len(v), KDE_MAX_MOTIONS, replace=False))]
     v = np.round(v, KDE_DIGITS)
+    return KdeSix(v, silverman_bandwidth(v), v.min(axis=0), v.max(axis=0), speed_scale)
+
+
+def silverman_bandwidth(v: np.ndarray) -> np.ndarray:
+    """(D,) Gaussian kernel width per column of (N, D) samples: 0.9 x min(std, IQR / 1.349) x N^(-1/5) (the
+    std where the IQR is 0); ValueError when a column has one value throughout."""
     q25, q75 = np.percentile(v, [25, 75], axis=0)
     spread = np.minimum(v.std(axis=0), (q75 - q25) / 1.349)
     spread = np.where(spread > 0, spread, v.std(axis=0))
     if np.any(spread <= 0):
         raise ValueError("a DoF has the same value in every motion: nothing to fit")
-    bandwidth = 0.9 * spread * len(v) ** (-1.0 / 5.0)
-    return KdeSix(v, bandwidth, v.min(axis=0), v.max(axis=0), speed_scale)
+    return 0.9 * spread * len(v) ** (-1.0 / 5.0)
+
+
+def with_body(kde: KdeSix, vectors: np.ndarray, sources: Sequence[str] = (), seed: int = 0) -> KdeSix:
+    """``kde`` with :attr:`KdeSix.body` taken from the pitch and roll (:data:`BODY_DOFS`) of (N, 6) paper vectors
+    (rad, m) of other trajectories: the non-finite dropped, more than :data:`BODY_MAX_MOTIONS` subsampled with
+    ``seed``, rounded to :data:`KDE_DIGITS` places, the jitter by :func:`silverman_bandwidth`. ValueError with
+    fewer than :data:`MIN_MOTIONS`."""
+    v = np.asarray(vectors, dtype=np.float64)[:, BODY_DOFS]
+    v = v[np.all(np.isfinite(v), axis=1)]
+    if len(v) < MIN_MOTIONS:
+        raise ValueError(f"need at least {MIN_MOTIONS} motions for the body's pitch and roll, got {len(v)}")
+    if len(v) > BODY_MAX_MOTIONS:
+        v = v[np.sort(np.random.default_rng(seed).choice(len(v), BODY_MAX_MOTIONS, replace=False))]
+    v = np.round(v, KDE_DIGITS)
+    return dataclasses.replace(kde, body=v, body_bandwidth=silverman_bandwidth(v), body_sources=tuple(sources))
 
 
 def check_speed_scale(value, error) -> tuple[float, float]:
@@ -463,7 +507,33 @@ def _kde_from_dict(d: dict, where: str, bad) -> KdeSix:
     speed_scale = d.get("speed_scale")
     if speed_scale is not None:
         speed_scale = check_speed_scale(speed_scale, lambda m: bad(f"{where}.{m}"))
-    return KdeSix(arr, vals["bandwidth"], vals["lo"], vals["hi"], speed_scale)
+    kde = KdeSix(arr, vals["bandwidth"], vals["lo"], vals["hi"], speed_scale)
+    return kde if d.get("body") is None else _body_from_dict(kde, d["body"], f"{where}.body", bad)
+
+
+def _body_from_dict(kde: KdeSix, d, where: str, bad) -> KdeSix:
+    """``kde`` with the :attr:`KdeSix.body` of a motion file's ``body`` entry, validated (``bad(message)`` raised)."""
+    if not isinstance(d, dict):
+        raise bad(f"{where} must be an object with sources, bandwidth and motions")
+    sources = d.get("sources", [])
+    if not isinstance(sources, list) or not all(isinstance(x, str) for x in sources):
+        raise bad(f"{where}.sources must be a list of names")
+    try:
+        arr = np.array(d.get("motions"), dtype=np.float64)
+    except (TypeError, ValueError):
+        arr = np.zeros((0, 0))
+    if arr.ndim != 2 or arr.shape[1] != 2 or not len(arr):
+        raise bad(f"{where}.motions must be a non-empty list of [euler_x, euler_z] pairs")
+    if not np.all(np.isfinite(arr)) or np.abs(arr).max() > MAX_ABS_ROTATION_RAD:
+        raise bad(f"{where}.motions must be finite rotations within {MAX_ABS_ROTATION_RAD:g} rad")
+    bw = d.get("bandwidth")
+    names = [DOF_NAMES[k] for k in BODY_DOFS]
+    values = [bw.get(n) if isinstance(bw, dict) else None for n in names]
+    if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+               and 0 < v <= MAX_ABS_ROTATION_RAD for v in values):
+        raise bad(f"{where}.bandwidth must give {' and '.join(names)} as numbers in (0, {MAX_ABS_ROTATION_RAD:g}] rad")
+    return dataclasses.replace(kde, body=arr, body_bandwidth=np.array(values, dtype=np.float64),
+                               body_sources=tuple(sources))
 
 
 # ------------------------------------------------------------------------------------------- fitting
@@ -570,7 +640,9 @@ def fit_motion(trajectories: Sequence[Trajectory], stride: int = 1, loops: bool 
                seed: int = 0, loop_fit: str = "truncated",
                consecutive_kind: str = "student-t",
                speed_scale: tuple[float, float] | None = None,
-               mirror: bool = False) -> tuple[MotionModel, np.ndarray, np.ndarray | None]:
+               mirror: bool = False,
+               body: Sequence[Trajectory] = (),
+               body_sources: Sequence[str] = ()) -> tuple[MotionModel, np.ndarray, np.ndarray | None]:
     """Fit the consecutive (and optionally loop) model to ground-truth trajectories.
 
     Args:
@@ -586,6 +658,8 @@ def fit_motion(trajectories: Sequence[Trajectory], stride: int = 1, loops: bool 
         speed_scale: the KDE's :attr:`KdeSix.speed_scale` (a ``"kde"`` fit only).
         mirror: fit the consecutive motions together with their mirror images (:func:`mirrored_vectors`): turns
             both ways as often, whichever way the routes turned (a route that goes round its blocks one way).
+        body: trajectories whose frame-to-frame pitch and roll at ``stride`` are added to each drawn motion
+            (:func:`with_body`; a ``"kde"`` fit only); ``body_sources`` their names.
 
     Returns:
         (model, consecutive vectors (N, 6), loop vectors (M, 6) or None): the data, for plots and checks.
@@ -602,7 +676,11 @@ def fit_motion(trajectories: Sequence[Trajectory], stride: int = 1, loops: bool 
         raise ValueError(f"consecutive_kind must be one of {CONSECUTIVE_KINDS}, got {consecutive_kind!r}")
     if speed_scale is not None and consecutive_kind != "kde":
         raise ValueError("speed_scale needs the joint KDE (consecutive_kind 'kde')")
+    if body and consecutive_kind != "kde":
+        raise ValueError("body needs the joint KDE (consecutive_kind 'kde')")
     consecutive = fit_kde(vec, seed, speed_scale) if consecutive_kind == "kde" else fit_six(vec)
+    if body:
+        consecutive = with_body(consecutive, relative_vectors(body, stride), body_sources, seed)
     loop, loop_vec = None, None
     if loops:
         rel = [loop_motions(t, loop_config) for t in trajectories]

@@ -17,6 +17,7 @@
 #   SYNTH_FLOW=dis bash scripts/train_paper_recipe.sh bench/paper_recipe      # the synthetic model on DIS flow
 #   SPEED_SCALE=0.4,1.5 SYNTH_FLOW=dis bash scripts/train_paper_recipe.sh ...  # ... with the turn radius freed
 #   MIRROR=0 bash scripts/train_paper_recipe.sh ...                  # the towns' own motions, turning one way
+#   BODY=1 SYNTH_FLOW=dis bash scripts/train_paper_recipe.sh ...     # ... with KITTI's body pitch and roll added
 #
 # bf16 autocast is on by default where the CPU computes bf16 natively (AVX-512 BF16); on a CPU without it,
 # autocast is emulated and ~10x slower than float32 (measured: 389 against 40 s for 10,240 samples on an
@@ -37,7 +38,10 @@
 # The motions are fitted with their left-right mirror images (`fit-motion --mirror`: the towns turn one way only;
 # docs/experiments/2026-12-06_turn_radius_prior.md, section 6) into motion[_speedscale]_mirror_sK.json, the
 # synthetic models into ..._mirror_cons_sSEED; MIRROR=0 fits the towns' own motions (motion_sK.json, the models
-# without the suffix). The supervised models do not depend on the prior.
+# without the suffix). BODY=1 adds to each drawn motion the frame-to-frame pitch and roll of KITTI 00-05 and 08-10's
+# ground truth (`fit-motion --body-from`, from KITTI_POSES, default ../shared/data/kitti/poses; never 06 or 07, the
+# validation slices): the car body's motion on its suspension, which the towns' car lacks (suffix _body). The
+# supervised models do not depend on the prior.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/paper_recipe}
@@ -57,6 +61,11 @@ PRIOR=""      # the motion fits' and synthetic models' name suffix
 PRIOR_FIT=""  # ... and the fit-motion flags that make it
 if [ -n "${SPEED_SCALE:-}" ]; then PRIOR=_speedscale; PRIOR_FIT="--speed-scale $SPEED_SCALE"; fi
 if [ "${MIRROR:-1}" = 1 ]; then PRIOR="${PRIOR}_mirror"; PRIOR_FIT="$PRIOR_FIT --mirror"; fi
+if [ "${BODY:-0}" = 1 ]; then
+  KITTI_POSES=${KITTI_POSES:-../shared/data/kitti/poses}
+  PRIOR="${PRIOR}_body"
+  PRIOR_FIT="$PRIOR_FIT --body-from $(for n in 00 01 02 03 04 05 08 09 10; do printf '%s ' "$KITTI_POSES/$n.txt"; done)"
+fi
 for k in 1 2; do
   [ -f "$OUT/motion${PRIOR}_s$k.json" ] || $DS fit-motion --poses $OUT/street_train_s1/poses.txt \
       $OUT/street_train_s2/poses.txt --stride $k --consecutive kde $PRIOR_FIT --out "$OUT/motion${PRIOR}_s$k.json"

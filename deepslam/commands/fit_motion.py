@@ -39,6 +39,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mirror", action="store_true",
                    help="fit the consecutive motions together with their left-right mirror images (yaw, roll and "
                         "sideways motion negated): turns both ways as often, for routes that turn one way")
+    p.add_argument("--body-from", nargs="+", default=None, metavar="FILE",
+                   help="with --consecutive kde: camera trajectory files (as --poses) whose frame-to-frame pitch and "
+                        "roll at the same stride are added to each drawn motion, drawn independently: the car body's "
+                        "pitch and roll on its suspension, which the simulator's car lacks (e.g. "
+                        "kitti/poses/00.txt ... 05.txt 08.txt ... 10.txt)")
     p.add_argument("--plot", default=None, metavar="PNG", help="write the paper's Figure 3 (histograms + fitted densities)")
     p.add_argument("--json", action="store_true", help="print a JSON summary instead of a table")
 
@@ -62,18 +67,22 @@ def run(args: argparse.Namespace) -> int:
             None, f"--speed-scale must be LO,HI with {lo_lim:g} <= LO <= HI <= {hi_lim:g}, got {args.speed_scale!r}"))
     from deepslam.core.outputs import check_distinct_outputs, check_output_not_input
 
-    inputs = [("--poses", p) for p in args.poses]
+    if args.body_from and args.consecutive != "kde":
+        raise InputError(None, "--body-from needs --consecutive kde")
+    inputs = [("--poses", p) for p in args.poses] + [("--body-from", p) for p in args.body_from or ()]
     check_output_not_input(args.out, inputs, "--out")  # outputs never overwrite an input (core.outputs)
     check_output_not_input(args.plot, inputs, "--plot")
     check_distinct_outputs([("--out", args.out), ("--plot", args.plot)])
     trajectories = [read_trajectory(p) for p in args.poses]
+    body = [read_trajectory(p) for p in args.body_from or ()]
     loop_cfg = motion.LoopConfig(min_gap_frames=args.loop_gap, max_distance_m=args.loop_radius,
                                  max_angle_deg=args.loop_max_angle)
     try:
         model, vec, loop_vec = motion.fit_motion(trajectories, args.stride, args.loops, loop_cfg,
                                                  sources=[Path(p).name for p in args.poses], loop_fit=args.loop_fit,
                                                  consecutive_kind=args.consecutive, speed_scale=speed_scale,
-                                                 mirror=args.mirror)
+                                                 mirror=args.mirror, body=body,
+                                                 body_sources=[Path(p).name for p in args.body_from or ()])
     except ValueError as e:
         raise InputError(None, str(e)) from None
     model.save(args.out)

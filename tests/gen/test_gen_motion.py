@@ -364,3 +364,45 @@ def test_mirrored_vectors_are_the_motion_seen_in_a_mirror():
     y_both = both.consecutive.sample(4000, np.random.default_rng(1))[:, 1]
     assert (y_plain < -0.03).mean() == 0 and 0.4 < (y_plain > 0.03).mean() < 0.6
     assert 0.2 < (y_both < -0.03).mean() < 0.3 and 0.2 < (y_both > 0.03).mean() < 0.3
+
+
+def test_kde_body_adds_the_pitch_and_roll_of_other_trajectories(shared_data, tmp_path, capsys):
+    """A route driven without body motion (a simulated car: pitch and roll ~0) and KITTI's pitch and roll added
+    (``--body-from``): the draws' pitch and roll are the KITTI data's (KS), every other DoF is drawn as without
+    the body, the body survives the JSON with the same draws, and a malformed body names the file."""
+    from deepslam.core.trajio import read_trajectory
+    from deepslam.gen.motion import BODY_MAX_MOTIONS, fit_kde, relative_vectors, with_body
+
+    rng = np.random.default_rng(0)
+    vec = np.zeros((300, 6))
+    vec[:, 1], vec[:, 5] = np.where(np.arange(300) < 200, 0.0, 0.05), 0.6 + rng.normal(0, 0.01, 300)
+    vec[:, [0, 2, 3, 4]] = rng.normal(0, 1e-5, (300, 4))
+    kitti = [read_trajectory(shared_data / "kitti" / "poses" / f"{k:02d}.txt") for k in (0, 8)]
+    body_vec = relative_vectors(kitti, 1)
+    plain = fit_kde(vec)
+    model = with_body(plain, body_vec, ["00.txt", "08.txt"])
+    assert len(model.body) == BODY_MAX_MOTIONS < len(body_vec) and model.body_sources == ("00.txt", "08.txt")
+    draws, without = model.sample(20_000, np.random.default_rng(1)), plain.sample(20_000, np.random.default_rng(1))
+    for k in (0, 2):
+        assert stats.ks_2samp(draws[:, k], body_vec[:, k]).statistic < 0.03
+        assert np.sqrt(np.mean(without[:, k] ** 2)) < 1e-4 < 1e-3 < np.sqrt(np.mean(draws[:, k] ** 2))
+    np.testing.assert_array_equal(draws[:, [1, 3, 4, 5]], without[:, [1, 3, 4, 5]])
+    back = MotionModel.load(MotionModel(1, model).save(tmp_path / "b.json"))
+    np.testing.assert_array_equal(back.sample(40, np.random.default_rng(2))[0], model.sample(40, np.random.default_rng(2)))
+    for edit, what in ((lambda b: b.__setitem__("motions", [[0.0, 0.0, 0.0]]), "pairs"),
+                       (lambda b: b["motions"][3].__setitem__(0, 9.0), "within 3.14159 rad"),
+                       (lambda b: b["bandwidth"].pop("euler_z"), "bandwidth must give")):
+        d = MotionModel(1, model).to_dict()
+        edit(d["consecutive"]["body"])
+        (tmp_path / "bad.json").write_text(json.dumps(d))
+        with pytest.raises(InputError, match=what) as e:
+            MotionModel.load(tmp_path / "bad.json")
+        assert str(tmp_path / "bad.json") in str(e.value)
+    # the CLI: a student-t fit refuses it in one line, writing nothing
+    out = tmp_path / "m.json"
+    poses = str(shared_data / "kitti" / "poses" / "04.txt")
+    assert main(["fit-motion", "--poses", poses, "--body-from", poses, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--body-from needs --consecutive kde" in err[0] and not out.exists()
+    assert main(["fit-motion", "--poses", poses, "--consecutive", "kde", "--body-from", poses, "--out", str(out)]) == 0
+    assert MotionModel.load(out).consecutive.body_sources == ("04.txt",)
