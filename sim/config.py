@@ -36,6 +36,10 @@ class TrajectoryConfig:
     ahead of the axle slides sideways in a turn, as KITTI's does: a fit of KITTI's ground truth 00-10 (the
     sideways motion a pair = psi d / 2 + L psi, psi its turn, d its length) gives L = 0.84 m, 0.68-0.97 m by
     city sequence (docs/experiments/2026-12-05_vo_drift_sources.md)."""
+    body_motion: float = 0.0
+    """Car only: the car body's pitch and roll on its suspension, as a multiple of KITTI's (0: none, the camera
+    keeps the road's attitude; 1: frame-to-frame pitch and roll of 0.17 and 0.15 degrees RMS at 10 Hz, KITTI
+    00-10's ground truth, mostly at 1-2 Hz). :class:`sim.trajectories.BodyMotion`."""
 
     def resolved_kind(self, scene_name: str) -> str:
         if self.kind != "auto":
@@ -53,6 +57,8 @@ class TrajectoryConfig:
             raise InputError(None, f"trajectory seed must be a non-negative integer, got {self.seed}")
         if not (np.isfinite(self.camera_ahead_m) and 0.0 <= self.camera_ahead_m <= 5.0):
             raise InputError(None, f"camera distance ahead of the rear axle must be in [0, 5] m, got {self.camera_ahead_m}")
+        if not (np.isfinite(self.body_motion) and 0.0 <= self.body_motion <= 5.0):
+            raise InputError(None, f"body motion must be in [0, 5] (a multiple of KITTI's), got {self.body_motion}")
         return self
 
 

@@ -53,6 +53,6 @@ def scene_with_scaled_movers(cfg: SimConfig, scale: float) -> Scene:
     tcfg = cfg.trajectory
     tseed = tcfg.seed if tcfg.seed is not None else cfg.scene.seed
     motion = make_motion(base, tcfg.resolved_kind(base.name), np.random.default_rng([tseed, 1]), tcfg.rate_hz,
-                         tcfg.camera_ahead_m)
+                         tcfg.camera_ahead_m, tcfg.body_motion, np.random.default_rng([tseed, 3]))
     placed = separate_movers(base, motion, (tcfg.frames + 1) / float(motion.rate_hz), np.random.default_rng([tseed, 2]))
     return scaled_movers(placed, scale)

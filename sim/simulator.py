@@ -132,7 +132,10 @@ class Simulator:
             kind = tcfg.resolved_kind(base.name)
             if tcfg.camera_ahead_m and kind != "car":
                 raise InputError(None, f"a camera ahead of the rear axle is for the car trajectory, not the {base.name}'s {kind}")
-            motion = make_motion(base, kind, np.random.default_rng([tseed, 1]), tcfg.rate_hz, tcfg.camera_ahead_m)
+            if tcfg.body_motion and kind != "car":
+                raise InputError(None, f"body motion is for the car trajectory, not the {base.name}'s {kind}")
+            motion = make_motion(base, kind, np.random.default_rng([tseed, 1]), tcfg.rate_hz, tcfg.camera_ahead_m,
+                                 tcfg.body_motion, np.random.default_rng([tseed, 3]))
         self.motion = motion
         self.rate_hz = float(motion.rate_hz)
         self.num_frames = int(tcfg.frames)

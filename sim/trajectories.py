@@ -13,6 +13,8 @@ z forward), world z up, and ``rate_hz``.
   20 Hz; the loop repeats (period about 10-13 s), so every place is revisited with the same view.
   In the street: a flight along the route 3-5 m up at 1.5 m/s.
 - :class:`KeyframeMotion`: C2 interpolation of given poses (tests, custom paths).
+- :class:`BodyMotion`: the car body's pitch and roll on its suspension, added to :class:`CarMotion`'s camera
+  (``render --body-motion``).
 """
 from __future__ import annotations
 
@@ -44,6 +46,67 @@ def cam_from_forward(forward: np.ndarray, up: np.ndarray = np.array([0, 0, 1.0])
 BODY_FROM_CAM_ROT = np.array([[0, 0, 1.0], [-1.0, 0, 0], [0, -1.0, 0]])
 
 
+KITTI_BODY_RATE_RMS_RAD = (np.radians(0.17), np.radians(0.15))
+"""Frame-to-frame pitch and roll of KITTI 00-10's ground truth at 10 Hz, RMS, radians (00-05 and 08-10: 0.177 and
+0.154 degrees; 06 and 07: 0.134 and 0.112). Their power lies mostly at 1-2 Hz (pitch) and 0-3 Hz (roll), and the
+steps of successive frames correlate (+0.6): a body swaying on its springs, not noise of the ground truth."""
+BODY_TERMS = 4
+"""Sinusoids summed per angle in :class:`BodyMotion`."""
+BODY_BANDS_HZ = ((1.0, 2.0), (0.3, 2.5))
+"""Frequency ranges the pitch and roll sinusoids are drawn from, Hz (KITTI's power, see above)."""
+KITTI_RATE_HZ = 10.0
+BODY_CALIBRATION_S = 60.0
+"""Span over which :meth:`BodyMotion.create` sets the frame-to-frame RMS, seconds (a minute of driving)."""
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class BodyMotion:
+    """Pitch and roll of a car body on its suspension: per angle a sum of :data:`BODY_TERMS` sinusoids,
+    ``sum_k a_k sin(2 pi f_k t + phi_k)``, frequencies and phases drawn from a seed and the amplitudes scaled so
+    that the frame-to-frame change at KITTI's 10 Hz has ``scale`` x :data:`KITTI_BODY_RATE_RMS_RAD` RMS. The
+    camera turns with the body about its own centre (the few millimetres a pivot at the axles would move it
+    are left out)."""
+
+    terms: np.ndarray
+    """(2, K, 3) float64 per angle (pitch about the camera's x axis, nose down positive; roll about its z axis)
+    and sinusoid: amplitude (rad), frequency (Hz), phase (rad)."""
+
+    @staticmethod
+    def create(rng: np.random.Generator, scale: float) -> "BodyMotion":
+        """Frequencies ``rng.uniform``, one in each quarter of :data:`BODY_BANDS_HZ`, phases ``rng.uniform(0, 2 pi)``, relative
+        amplitudes ``rng.uniform(0.5, 1)``, then scaled so that the frame-to-frame change over the first
+        :data:`BODY_CALIBRATION_S` seconds at 10 Hz has the target RMS (measured on the sum itself: two
+        sinusoids of nearly one frequency add or cancel by their phases)."""
+        t = np.arange(0.0, BODY_CALIBRATION_S, 1.0 / KITTI_RATE_HZ)
+        terms = np.zeros((2, BODY_TERMS, 3))
+        for i, (lo, hi) in enumerate(BODY_BANDS_HZ):
+            terms[i, :, 1] = lo + (hi - lo) * (np.arange(BODY_TERMS) + rng.uniform(0.0, 1.0, BODY_TERMS)) / BODY_TERMS
+            terms[i, :, 2] = rng.uniform(0.0, 2 * np.pi, BODY_TERMS)
+            terms[i, :, 0] = rng.uniform(0.5, 1.0, BODY_TERMS)
+        steps = np.diff(np.stack(BodyMotion(terms).angles(t)), axis=1)
+        rms = np.sqrt(np.mean(steps ** 2, axis=1))
+        terms[:, :, 0] *= (scale * np.asarray(KITTI_BODY_RATE_RMS_RAD) / rms)[:, None]
+        return BodyMotion(terms)
+
+    def angles(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(pitch, roll): (N,) float64 radians at times ``t`` (N,) seconds."""
+        a, f, ph = self.terms[..., 0], self.terms[..., 1], self.terms[..., 2]
+        x = np.sin(2 * np.pi * f[:, None, :] * np.asarray(t, np.float64)[None, :, None] + ph[:, None, :])
+        out = np.sum(a[:, None, :] * x, axis=-1)
+        return out[0], out[1]
+
+    def rotation(self, t: np.ndarray) -> np.ndarray:
+        """(N, 3, 3) ``cam_road_from_cam``: the camera's attitude against the road's, Rx(pitch) Rz(roll)."""
+        pitch, roll = self.angles(t)
+        s, c = np.sin(pitch), np.cos(pitch)
+        rx = np.zeros((len(pitch), 3, 3))
+        rx[:, 0, 0], rx[:, 1, 1], rx[:, 1, 2], rx[:, 2, 1], rx[:, 2, 2] = 1.0, c, s, -s, c   # nose down about x
+        s, c = np.sin(roll), np.cos(roll)
+        rz = np.zeros((len(roll), 3, 3))
+        rz[:, 0, 0], rz[:, 0, 1], rz[:, 1, 0], rz[:, 1, 1], rz[:, 2, 2] = c, -s, s, c, 1.0
+        return rx @ rz
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class CarMotion:
     """The street's ego car (see module docstring)."""
@@ -57,6 +120,8 @@ class CarMotion:
     """Downward pitch of the camera about its x axis, radians (0: looking along the road)."""
     ahead_m: float = 0.0
     """Distance of the camera ahead of the rear axle, whose path the progress follows, metres (0: on it)."""
+    body: BodyMotion | None = None
+    """The body's pitch and roll on its suspension (None: the camera keeps the road's attitude)."""
 
     @staticmethod
     def create(scene: Scene, rng: np.random.Generator, rate_hz: float = 10.0, ahead_m: float = 0.0) -> "CarMotion":
@@ -89,6 +154,8 @@ class CarMotion:
         if self.pitch_rad:
             s, k = np.sin(self.pitch_rad), np.cos(self.pitch_rad)
             rot = rot @ np.array([[1.0, 0.0, 0.0], [0.0, k, s], [0.0, -s, k]])   # nose down about camera x
+        if self.body is not None:
+            rot = rot @ self.body.rotation(np.atleast_1d(np.asarray(t, np.float64)))
         return se3.from_rt(rot, pos)
 
 
@@ -257,13 +324,20 @@ class KeyframeMotion:
 
 
 def make_motion(scene: Scene, kind: str, rng: np.random.Generator, rate_hz: float | None = None,
-                camera_ahead_m: float = 0.0):
+                camera_ahead_m: float = 0.0, body_motion: float = 0.0, body_rng: np.random.Generator | None = None):
     """The scripted camera motion ``kind`` ("car" or "drone") for ``scene``; ``camera_ahead_m``: the car's
-    camera that far ahead of its rear axle (:attr:`sim.config.TrajectoryConfig.camera_ahead_m`)."""
+    camera that far ahead of its rear axle (:attr:`sim.config.TrajectoryConfig.camera_ahead_m`); ``body_motion``:
+    the car body's pitch and roll, a multiple of KITTI's (:class:`BodyMotion`, drawn from ``body_rng``, a
+    generator of its own so that the rest of the motion is the same with and without it)."""
     if kind == "car":
-        return CarMotion.create(scene, rng, rate_hz or 10.0, camera_ahead_m)
+        car = CarMotion.create(scene, rng, rate_hz or 10.0, camera_ahead_m)
+        if body_motion:
+            car = dataclasses.replace(car, body=BodyMotion.create(body_rng, body_motion))
+        return car
     if camera_ahead_m:
         raise ValueError("camera_ahead_m is for the car trajectory")
+    if body_motion:
+        raise ValueError("body_motion is for the car trajectory")
     if kind == "drone":
         if "lane_path" in scene.layout:
             return StreetDroneMotion.create(scene, rng, rate_hz or 20.0)
@@ -271,5 +345,5 @@ def make_motion(scene: Scene, kind: str, rng: np.random.Generator, rate_hz: floa
     raise ValueError(f"unknown trajectory kind {kind!r}")
 
 
-__all__ = ["CarMotion", "DroneMotion", "StreetDroneMotion", "KeyframeMotion", "make_motion", "cam_from_forward",
+__all__ = ["BodyMotion", "CarMotion", "DroneMotion", "StreetDroneMotion", "KeyframeMotion", "make_motion", "cam_from_forward",
            "smoothstep5"]

@@ -36,6 +36,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--camera-ahead", type=float, default=0.0, metavar="M",
                    help="car: the camera this far ahead of the rear axle, metres, so that it slides sideways in turns "
                         "as a real car's does (KITTI's ground truth fits 0.84); default 0: on the axle's path")
+    p.add_argument("--body-motion", type=float, default=0.0, metavar="S",
+                   help="car: the body's pitch and roll on its suspension, S times KITTI's (1: 0.17 and 0.15 degrees "
+                        "RMS from frame to frame at 10 Hz); default 0: the camera keeps the road's attitude")
     p.add_argument("--texture-density", type=float, default=None, metavar="PX_PER_M",
                    help="texels per metre of the procedural textures (default: street 20, room 100)")
     p.add_argument("--kitti-sequence", default=None, metavar="NN",
@@ -152,7 +155,8 @@ def run(args: argparse.Namespace) -> int:
                     varied_layout=args.varied_layout, narrow_layout=args.narrow_layout,
                     random_lighting=args.random_lighting, grainy_road=args.grainy_road,
                     street_style=args.street_style, route=args.route),
-        TrajectoryConfig(kind=args.trajectory, frames=args.frames, rate_hz=args.rate, camera_ahead_m=args.camera_ahead),
+        TrajectoryConfig(kind=args.trajectory, frames=args.frames, rate_hz=args.rate, camera_ahead_m=args.camera_ahead,
+                         body_motion=args.body_motion),
         RenderConfig(backend=args.backend, width=args.width, height=args.height,
                      stereo_baseline_m=args.stereo_baseline, focal_px=args.focal_px, flow=not args.no_flow,
                      depth_noise=None if args.depth_noise == "none" else args.depth_noise,
