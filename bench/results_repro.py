@@ -111,6 +111,9 @@ class ReproConfig:
     """Town of the held-out street (the training towns are 1 and 2)."""
     heldout_frames: int = 300
     """Frames of the held-out street (10 Hz)."""
+    body_motion: float = 1.0
+    """The held-out street rendered a second time with the car body's pitch and roll (``render --body-motion``,
+    a multiple of KITTI's), scored on DIS flow: the towns' car has none, KITTI's has (0: not rendered)."""
     slam_seed: int = 7441
     """Town of the loop street (``render --route laps``) on which VO and SLAM are compared (0: none)."""
     slam_frames: int = 1900
@@ -282,8 +285,13 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
     held = render_once("street", "car", cfg.heldout_frames, cfg.width, cfg.heldout_seed,
                        out / f"street_heldout_s{cfg.heldout_seed}", log, ("--quiet",))
     kitti = data / "kitti" / "sequences"
-    cases = [("street_exact", held, "gt"), ("street_dis", held, "dis")] + [
-        (f"kitti{n}_dis", kitti / n, "dis") for n in ("06", "07") if (kitti / n).is_dir()]
+    cases = [("street_exact", held, "gt"), ("street_dis", held, "dis")]
+    if cfg.body_motion:
+        cases.append(("street_body_dis", render_once(
+            "street", "car", cfg.heldout_frames, cfg.width, cfg.heldout_seed,
+            out / f"street_heldout_s{cfg.heldout_seed}_body", log, ("--body-motion", f"{cfg.body_motion:g}", "--quiet")),
+            "dis"))
+    cases += [(f"kitti{n}_dis", kitti / n, "dis") for n in ("06", "07") if (kitti / n).is_dir()]
     slam_seq = None if not cfg.slam_seed else render_once(
         "street", "car", cfg.slam_frames, cfg.width, cfg.slam_seed, out / f"street_laps_s{cfg.slam_seed}", log,
         ("--route", "laps", "--quiet"))
@@ -390,6 +398,7 @@ FIGURES = (("ATE [m]", "ate_m", ".3g"), ("t_err [%]", "kitti_t_err_pct", ".3g"),
            ("path ratio", "path_length_ratio", ".3f"))
 CASE_TITLES = {"street_exact": "held-out street (town 7, 10 Hz), exact flow",
                "street_dis": "held-out street (town 7, 10 Hz), DIS flow",
+               "street_body_dis": "held-out street with KITTI's body pitch and roll (town 7, `--body-motion 1`), DIS flow",
                "kitti06_dis": "KITTI 06 slice (real, stereo, never trained on), DIS flow",
                "kitti07_dis": "KITTI 07 slice (real, never trained on), DIS flow"}
 
