@@ -242,14 +242,21 @@ def fit_kde(vectors: np.ndarray, seed: int = 0, speed_scale: tuple[float, float]
     :attr:`KdeSix.speed_scale` (ValueError outside :data:`SPEED_SCALE_LIMITS` or with lo > hi)."""
     if speed_scale is not None:
         speed_scale = check_speed_scale(speed_scale, ValueError)
+    v = _kept_motions(vectors, KDE_MAX_MOTIONS, seed, "motions to fit")
+    return KdeSix(v, silverman_bandwidth(v), v.min(axis=0), v.max(axis=0), speed_scale)
+
+
+def _kept_motions(vectors: np.ndarray, most: int, seed: int, what: str) -> np.ndarray:
+    """The rows of (N, D) ``vectors`` a KDE keeps: the finite ones, a sorted subsample of ``most`` drawn with
+    ``seed`` beyond that, rounded to :data:`KDE_DIGITS` places; ValueError ("need at least ... {what}") with
+    fewer than :data:`MIN_MOTIONS`."""
     v = np.asarray(vectors, dtype=np.float64)
     v = v[np.all(np.isfinite(v), axis=1)]
     if len(v) < MIN_MOTIONS:
-        raise ValueError(f"need at least {MIN_MOTIONS} motions to fit, got {len(v)}")
-    if len(v) > KDE_MAX_MOTIONS:
-        v = v[np.sort(np.random.default_rng(seed).choice(len(v), KDE_MAX_MOTIONS, replace=False))]
-    v = np.round(v, KDE_DIGITS)
-    return KdeSix(v, silverman_bandwidth(v), v.min(axis=0), v.max(axis=0), speed_scale)
+        raise ValueError(f"need at least {MIN_MOTIONS} {what}, got {len(v)}")
+    if len(v) > most:
+        v = v[np.sort(np.random.default_rng(seed).choice(len(v), most, replace=False))]
+    return np.round(v, KDE_DIGITS)
 
 
 def silverman_bandwidth(v: np.ndarray) -> np.ndarray:
@@ -268,13 +275,8 @@ def with_body(kde: KdeSix, vectors: np.ndarray, sources: Sequence[str] = (), see
     (rad, m) of other trajectories: the non-finite dropped, more than :data:`BODY_MAX_MOTIONS` subsampled with
     ``seed``, rounded to :data:`KDE_DIGITS` places, the jitter by :func:`silverman_bandwidth`. ValueError with
     fewer than :data:`MIN_MOTIONS`."""
-    v = np.asarray(vectors, dtype=np.float64)[:, BODY_DOFS]
-    v = v[np.all(np.isfinite(v), axis=1)]
-    if len(v) < MIN_MOTIONS:
-        raise ValueError(f"need at least {MIN_MOTIONS} motions for the body's pitch and roll, got {len(v)}")
-    if len(v) > BODY_MAX_MOTIONS:
-        v = v[np.sort(np.random.default_rng(seed).choice(len(v), BODY_MAX_MOTIONS, replace=False))]
-    v = np.round(v, KDE_DIGITS)
+    v = _kept_motions(np.asarray(vectors, dtype=np.float64)[:, BODY_DOFS], BODY_MAX_MOTIONS, seed,
+                      "motions for the body's pitch and roll")
     return dataclasses.replace(kde, body=v, body_bandwidth=silverman_bandwidth(v), body_sources=tuple(sources))
 
 
