@@ -83,7 +83,8 @@ def compared_with(mode: str) -> tuple[str, ...]:
     return tuple(m for m in SUPERVISED_MODES if m != "supervised_dis")
 
 
-CALIBRATED_ON = {"cal06": "KITTI 06", "calstreet": "another unseen street (town {calibration_seed})"}
+CALIBRATED_ON = {"cal06": "KITTI 06", "calstreet": "another unseen street (town {calibration_seed})",
+                 "calbody": "another unseen street with KITTI's body pitch and roll (town {calibration_seed})"}
 """Tag of a calibration (a case ``{case}_{tag}`` was scored with the model's std calibrated first), and on what."""
 
 
@@ -124,7 +125,8 @@ class ReproConfig:
     """Training modes scored with SLAM (each seed present, both presets)."""
     calibration_seed: int = 8101
     """Town of a simulated street (as the held-out one) on which seed 0's std is calibrated per DoF and then read
-    on town 7 and the KITTI slices, beside the calibration on KITTI 06 (0: none)."""
+    on town 7 and the KITTI slices, beside the calibration on KITTI 06 (0: none); with :attr:`body_motion` also
+    on that street rendered with the body's pitch and roll."""
     decompose_seeds: tuple[int, ...] = (0,)
     """Seeds whose models are scored a second time on the DIS cases with the essential matrix's rotation and
     direction and the network's distance (``vo --pose epipolar --scale network``): the drift left is the
@@ -299,7 +301,11 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
         kitti / "06" if (kitti / "06").is_dir() else None,
         render_once("street", "car", cfg.heldout_frames, cfg.width, cfg.calibration_seed,
                     out / f"street_calibration_s{cfg.calibration_seed}", log, ("--quiet",))
-        if cfg.calibration_seed else None)) if seq is not None}
+        if cfg.calibration_seed else None,
+        render_once("street", "car", cfg.heldout_frames, cfg.width, cfg.calibration_seed,
+                    out / f"street_calibration_s{cfg.calibration_seed}_body", log,
+                    ("--body-motion", f"{cfg.body_motion:g}", "--quiet"))
+        if cfg.calibration_seed and cfg.body_motion else None)) if seq is not None}
     folders = [("", models_dir)]
     if cfg.paper_models:
         folders.append((PAPER, _repo_path(cfg.paper_models)))
