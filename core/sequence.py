@@ -286,6 +286,12 @@ class Sequence:
         return self.right_paths is not None and self.baseline_m is not None
 
 
+def check_read_width(read_width_px: int) -> None:
+    """InputError unless ``read_width_px`` (``--read-width``) is in 0..8192 px."""
+    if not 0 <= read_width_px <= 8192:
+        raise InputError(None, f"--read-width must be in 0..8192 px, got {read_width_px}")
+
+
 def read_for_estimated_flow(seq, read_width_px: int, flow: str, reads_depth):
     """``seq`` as a flow -> pose network reads it: an :class:`UpsampledView` ``read_width_px`` wide where the frames
     are narrower, the flow is estimated (``flow`` is not ``"gt"``) and the network does not read depth

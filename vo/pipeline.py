@@ -15,7 +15,8 @@ import math
 import numpy as np
 
 from deepslam.core.errors import InputError
-from deepslam.core.sequence import UpsampledView, read_for_estimated_flow  # noqa: F401 - UpsampledView importable from here too
+from deepslam.core.sequence import (  # noqa: F401 - UpsampledView and check_read_width importable from here too
+    UpsampledView, check_read_width, read_for_estimated_flow)
 from deepslam.core.se3 import chain_euler6
 from deepslam.core.trajectory import check_finite_poses
 from deepslam.vo.modelfiles import models, modeltree
@@ -132,12 +133,6 @@ def _reads_depth(model_path) -> bool:
         return bool(modeltree.net_config(modeltree.read_header_tree(model_path)).get("depth_channel"))
     except Exception:  # noqa: BLE001 - any unreadable file: not upsampled, the loader reports it
         return True
-
-
-def check_read_width(read_width_px: int) -> None:
-    """InputError unless ``read_width_px`` (``--read-width``) is in 0..8192 px."""
-    if not 0 <= read_width_px <= 8192:
-        raise InputError(None, f"--read-width must be in 0..8192 px, got {read_width_px}")
 
 
 def read_view(seq, read_width_px: int, model_path, flow: str):

@@ -13,7 +13,7 @@ import numpy as np
 from deepslam.core.camera import KITTI_00_CAMERA
 from deepslam.core.errors import InputError
 from deepslam.core.readers import open_sequence
-from deepslam.core.sequence import read_for_estimated_flow
+from deepslam.core.sequence import check_read_width, read_for_estimated_flow
 from deepslam.flow import registry as flow_registry
 from deepslam.vo.data import samples, supervised, toy
 from deepslam.vo.net import NetConfig
@@ -63,6 +63,7 @@ def supervised_sources(spec: SupervisedData, net: NetConfig, seed: int, progress
     estimator and its options) and ``data`` (pairs per sequence, strides, flow)."""
     if not spec.sequences:
         raise InputError(None, "supervised mode needs --sequence DIR...")
+    check_read_width(spec.read_width_px)
     options = dict(spec.flow_options)
     est = flow_registry.make(spec.flow, **options)
     parts, counts, read_at = [], {}, {}

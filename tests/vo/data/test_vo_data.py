@@ -315,6 +315,8 @@ def test_supervised_pairs_read_narrow_frames_upsampled_for_estimated_flow_as_vo_
     assert recorded.shape == upsampled.shape and not np.array_equal(recorded, upsampled)
     assert np.nanmean(np.abs(upsampled - recorded)) < 0.3 * np.nanmean(np.abs(recorded))  # the same motion
     np.testing.assert_array_equal(flows(512, "gt")[0], flows(0, "gt")[0])  # exact flow: as recorded
+    with pytest.raises(InputError, match="--read-width"):
+        flows(-1)
 
 
 def test_train_cli_bad_input(tmp_path, plane_sequence):
