@@ -96,15 +96,10 @@ class BodyMotion:
         return out[0], out[1]
 
     def rotation(self, t: np.ndarray) -> np.ndarray:
-        """(N, 3, 3) ``cam_road_from_cam``: the camera's attitude against the road's, Rx(pitch) Rz(roll)."""
+        """(N, 3, 3) ``cam_road_from_cam``: the camera's attitude against the road's, Rx(-pitch) Rz(roll) (nose down
+        for a positive pitch, as :attr:`CarMotion.pitch_rad`)."""
         pitch, roll = self.angles(t)
-        s, c = np.sin(pitch), np.cos(pitch)
-        rx = np.zeros((len(pitch), 3, 3))
-        rx[:, 0, 0], rx[:, 1, 1], rx[:, 1, 2], rx[:, 2, 1], rx[:, 2, 2] = 1.0, c, s, -s, c   # nose down about x
-        s, c = np.sin(roll), np.cos(roll)
-        rz = np.zeros((len(roll), 3, 3))
-        rz[:, 0, 0], rz[:, 0, 1], rz[:, 1, 0], rz[:, 1, 1], rz[:, 2, 2] = c, -s, s, c, 1.0
-        return rx @ rz
+        return Rotation.from_euler("XZ", np.stack([-pitch, roll], axis=-1)).as_matrix()
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
