@@ -288,11 +288,11 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
                        out / f"street_heldout_s{cfg.heldout_seed}", log, ("--quiet",))
     kitti = data / "kitti" / "sequences"
     cases = [("street_exact", held, "gt"), ("street_dis", held, "dis")]
+    swaying = ("--body-motion", f"{cfg.body_motion:g}", "--quiet")  # render flags of the streets with body motion
     if cfg.body_motion:
         cases.append(("street_body_dis", render_once(
             "street", "car", cfg.heldout_frames, cfg.width, cfg.heldout_seed,
-            out / f"street_heldout_s{cfg.heldout_seed}_body", log, ("--body-motion", f"{cfg.body_motion:g}", "--quiet")),
-            "dis"))
+            out / f"street_heldout_s{cfg.heldout_seed}_body", log, swaying), "dis"))
     cases += [(f"kitti{n}_dis", kitti / n, "dis") for n in ("06", "07") if (kitti / n).is_dir()]
     slam_seq = None if not cfg.slam_seed else render_once(
         "street", "car", cfg.slam_frames, cfg.width, cfg.slam_seed, out / f"street_laps_s{cfg.slam_seed}", log,
@@ -303,8 +303,7 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
                     out / f"street_calibration_s{cfg.calibration_seed}", log, ("--quiet",))
         if cfg.calibration_seed else None,
         render_once("street", "car", cfg.heldout_frames, cfg.width, cfg.calibration_seed,
-                    out / f"street_calibration_s{cfg.calibration_seed}_body", log,
-                    ("--body-motion", f"{cfg.body_motion:g}", "--quiet"))
+                    out / f"street_calibration_s{cfg.calibration_seed}_body", log, swaying)
         if cfg.calibration_seed and cfg.body_motion else None)) if seq is not None}
     folders = [("", models_dir)]
     if cfg.paper_models:
