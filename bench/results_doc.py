@@ -49,6 +49,11 @@ SECTIONS = (
      "from single frames and supervised on the same renders, scored with their own pose on a held-out street (exact "
      "and DIS flow) and on KITTI 06 and 07, beside the geometry default and pnp; where the own pose's drift comes "
      "from (rotation or distance); calibration; learning curves."),
+    ("repro_rgbd", "The paper's recipe on RGB-D: rendered rooms and TUM teddy, the network's own pose",
+     "SCENE=room bash scripts/train_paper_recipe.sh bench/paper_recipe  # then python -m bench.results_repro_rgbd",
+     "NN_cons trained by the paper's recipe on single frames of rendered Kinect-like rooms and supervised on the same "
+     "renders' pairs, scored with their own pose on an unseen room (exact and DIS flow) and on TUM fr3/teddy, beside "
+     "the RGB-D default and pnp."),
     ("extra", "Rendered frames as extra training data", "python -m bench.results_extra",
      "One network and budget trained the paper's way on real single frames (KITTI 06), real plus rendered, and "
      "rendered alone; scored on KITTI 07, which none of them saw."),

@@ -183,9 +183,14 @@ def _predicted_and_true(seq_dir: Path, motions_csv: Path) -> tuple[np.ndarray, n
 
     seq = open_sequence(seq_dir)
     rows = np.loadtxt(motions_csv, delimiter=",", skiprows=1, ndmin=2)
-    i, j = rows[:, 0].astype(int), rows[:, 1].astype(int)
-    gt = seq.gt.world_from_cam
-    return rows[:, 4:10], rows[:, 10:16], se3.to_euler6(se3.relative(gt[j], gt[i])).reshape(-1, 6)
+    gt = seq.gt
+    if len(gt) == len(seq):  # a ground-truth pose per frame
+        world_from_i, world_from_j = (gt.world_from_cam[rows[:, c].astype(int)] for c in (0, 1))
+    else:  # ground truth at its own times (TUM): interpolated at the pair's, pairs outside it left out
+        t0, t1 = gt.timestamps_s[0], gt.timestamps_s[-1]
+        rows = rows[(rows[:, 2] >= t0) & (rows[:, 3] <= t1)]
+        world_from_i, world_from_j = (gt.interpolate(rows[:, c]).world_from_cam for c in (2, 3))
+    return rows[:, 4:10], rows[:, 10:16], se3.to_euler6(se3.relative(world_from_j, world_from_i)).reshape(-1, 6)
 
 
 def within_one_sigma(seq_dir: Path, motions_csv: Path) -> list[float]:

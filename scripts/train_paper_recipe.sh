@@ -32,6 +32,10 @@
 # (synthetic_dis_cons_sSEED; POOL samples made once, POOL_PATIENCE passes without improvement halve the rate) and
 # the supervised model on DIS flow of the renders' own pairs (supervised_dis_cons_sSEED); SKIP_SYNTHETIC=1 trains
 # the supervised one only (more seeds of it in minutes, where each synthetic one takes an hour on 2 cores).
+# SCENE=room makes the RGB-D rows instead: the same recipe on two simulated rooms rendered as a Kinect would
+# see them (640x480, f = 537 px, 30 Hz; `render --scene room`, exact depth), motions fitted on the rooms' own
+# camera motion, the network's input 96 x 128 (the frames' 4:3 aspect; the cpu preset's 48 x 160 is the street
+# camera's): room_train_sK, motion_room..._sK.json, room_synthetic..._cons_sSEED, room_supervised_cons_sSEED.
 # SPEED_SCALE=LO,HI draws the synthetic motions from the same fits with each translation scaled by a log-uniform
 # factor in [LO, HI] (`fit-motion --speed-scale`: the towns' car takes every corner on one arc; this frees the
 # turn radius) into motion_speedscale_sK.json, and the synthetic models go to ..._speedscale_cons_sSEED.
@@ -52,11 +56,17 @@ DS="${DS:-.venv/bin/deepslam}"
 export MUJOCO_GL=${MUJOCO_GL:-egl} PYOPENGL_PLATFORM=${PYOPENGL_PLATFORM:-egl}
 mkdir -p "$OUT"
 
+SCENE=${SCENE:-street}
+case "$SCENE" in
+  street) RENDER="--scene street --frames 300 --width 414"; ROOM=""; INPUT=""; READ_SCALE=1.5459 ;;
+  room) RENDER="--scene room --frames 300 --width 640 --height 480 --focal-px 537 --rate 30 --stereo-baseline 0"
+        ROOM=room_; INPUT="--height 96 --width 128"; READ_SCALE=1 ;;
+  *) echo "SCENE must be street or room, not '$SCENE'" >&2; exit 2 ;;
+esac
 for s in 1 2; do
-  [ -f "$OUT/street_train_s$s/poses.txt" ] || $DS render --scene street --frames 300 --width 414 --seed $s \
-      --out "$OUT/street_train_s$s" --quiet
+  [ -f "$OUT/${SCENE}_train_s$s/poses.txt" ] || $DS render $RENDER --seed $s --out "$OUT/${SCENE}_train_s$s" --quiet
 done
-TRAIN="$OUT/street_train_s1 $OUT/street_train_s2"
+TRAIN="$OUT/${SCENE}_train_s1 $OUT/${SCENE}_train_s2"
 PRIOR=""      # the motion fits' and synthetic models' name suffix
 PRIOR_FIT=""  # ... and the fit-motion flags that make it
 if [ -n "${SPEED_SCALE:-}" ]; then PRIOR=_speedscale; PRIOR_FIT="--speed-scale $SPEED_SCALE"; fi
@@ -66,14 +76,15 @@ if [ "${BODY:-0}" = 1 ]; then
   PRIOR="${PRIOR}_body"
   PRIOR_FIT="$PRIOR_FIT --body-from $(for n in 00 01 02 03 04 05 08 09 10; do printf '%s ' "$KITTI_POSES/$n.txt"; done)"
 fi
+FIT="motion${ROOM:+_room}$PRIOR"  # the motion fits' name, without the stride
 for k in 1 2; do
-  [ -f "$OUT/motion${PRIOR}_s$k.json" ] || $DS fit-motion --poses $OUT/street_train_s1/poses.txt \
-      $OUT/street_train_s2/poses.txt --stride $k --consecutive kde $PRIOR_FIT --out "$OUT/motion${PRIOR}_s$k.json"
+  [ -f "$OUT/${FIT}_s$k.json" ] || $DS fit-motion --poses $OUT/${SCENE}_train_s1/poses.txt \
+      $OUT/${SCENE}_train_s2/poses.txt --stride $k --consecutive kde $PRIOR_FIT --out "$OUT/${FIT}_s$k.json"
 done
-MOTION="--motion $OUT/motion${PRIOR}_s1.json@1 --motion $OUT/motion${PRIOR}_s2.json@1"
+MOTION="--motion $OUT/${FIT}_s1.json@1 --motion $OUT/${FIT}_s2.json@1"
 
 RECIPE="--net ${NET:-cpu} --loss l1 --rot-weight 50 --batch 128 --lr-min 1e-4 --lr-max 1e-3 --half-cycle-steps 1000 \
-  --patience 10 --lr-stop 1e-5 --max-epochs 100000 --max-samples $SAMPLES --holdout 0.1 --nll-epochs 20 --threads 2 --bf16 ${BF16:-auto} --quiet ${EXTRA:-}"
+  --patience 10 --lr-stop 1e-5 --max-epochs 100000 --max-samples $SAMPLES --holdout 0.1 --nll-epochs 20 --threads 2 --bf16 ${BF16:-auto} --quiet $INPUT ${EXTRA:-}"
 PIDS=""
 train() {
   local out=$1; shift
@@ -92,22 +103,23 @@ for seed in $SEEDS; do
     # read at 640 px as `deepslam vo` reads a 414 px frame (1.5459 = 640 / 414), DIS medium on the pair; DIS makes
     # ~50 samples/s on 2 cores, so a pool of POOL samples is made once and trained on in passes (an epoch), with
     # the recipe's patience matched in samples (10 x 20,000 = 2 passes of 100,000)
-    [ "${SKIP_SYNTHETIC:-0}" = 1 ] || train "$OUT/synthetic_${SYNTH_FLOW}${PRIOR}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
+    [ "${SKIP_SYNTHETIC:-0}" = 1 ] || train "$OUT/${ROOM}synthetic_${SYNTH_FLOW}${PRIOR}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
         $MOTION --synthetic-flow "$SYNTH_FLOW" \
-        --dis-preset medium --frame-scales 1.5459 --sample-pool "${POOL:-100000}" --patience "${POOL_PATIENCE:-2}" \
+        --dis-preset medium --frame-scales $READ_SCALE --sample-pool "${POOL:-100000}" --patience "${POOL_PATIENCE:-2}" \
         --data-threads 2
     # and supervised on the same renders' pairs with the same DIS flow (frames read at 640 px as `vo` reads them:
     # `train --read-width`), the comparison at equal flow
-    train "$OUT/supervised_${SYNTH_FLOW}_cons_s$seed" --mode supervised --seed $seed \
+    train "$OUT/${ROOM}supervised_${SYNTH_FLOW}_cons_s$seed" --mode supervised --seed $seed \
         --sequence $TRAIN --flow "$SYNTH_FLOW" --dis-preset medium --strides 1,2
     continue
   fi
-  train "$OUT/synthetic${PRIOR}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
+  train "$OUT/${ROOM}synthetic${PRIOR}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
       $MOTION --samples-per-epoch 20000
-  train "$OUT/supervised_cons_s$seed" --mode supervised --seed $seed --sequence $TRAIN --flow gt --strides 1,2
+  train "$OUT/${ROOM}supervised_cons_s$seed" --mode supervised --seed $seed --sequence $TRAIN --flow gt --strides 1,2
+  [ "$SCENE" = room ] && continue
   # the recipe's patience is 10 epochs; a supervised epoch is ~1,100 pairs, a synthetic one 20,000 samples, so
   # the supervised run stops after ~120,000 samples: once more with the patience matched in samples (186 epochs)
-  train "$OUT/supervised_samepatience_cons_s$seed" --mode supervised --seed $seed --sequence $TRAIN --flow gt \
+  train "$OUT/${ROOM}supervised_samepatience_cons_s$seed" --mode supervised --seed $seed --sequence $TRAIN --flow gt \
       --strides 1,2 --patience 186
 done
 for pid in $PIDS; do wait "$pid"; done  # PARALLEL=1: every training started above, failing if one failed

@@ -735,3 +735,61 @@ def test_repro_fit_reads_the_share_of_distance_and_turns_against_the_ground_trut
     assert fit["forward"]["gain"] == pytest.approx(0.5, abs=1e-9)
     assert fit["forward"]["rms"] == pytest.approx(0.5 * np.sqrt(np.mean(true6[:, 5] ** 2)), rel=1e-9)  # ~0.4 m
     assert fit["yaw"]["rms"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_repro_reads_the_ground_truth_at_each_pairs_times_where_it_is_not_one_per_frame(shared_data, tmp_path):
+    import numpy as np
+
+    from bench import results_repro
+    from deepslam.core import se3
+    from deepslam.core.readers import open_sequence
+
+    teddy = shared_data / "tum" / "rgbd_dataset_freiburg3_teddy"
+    seq = open_sequence(teddy)
+    gt = seq.gt
+    assert len(gt) < len(seq)  # TUM: the ground truth does not cover every frame
+    t = seq.timestamps_s
+    pairs = [(k, k + 1) for k in range(len(seq) - 1)]
+    csv = tmp_path / "run.motions.csv"
+    csv.write_text("i,j,t_i_s,t_j_s,ex_rad,ey_rad,ez_rad,tx_m,ty_m,tz_m,std_ex_rad,std_ey_rad,std_ez_rad,std_tx_m,"
+                   "std_ty_m,std_tz_m\n" + "".join(f"{i},{j},{float(t[i])!r},{float(t[j])!r}" + ",0" * 6 + ",1" * 6 + "\n"
+                                                    for i, j in pairs))
+    mean6, std6, true6 = results_repro._predicted_and_true(teddy, csv)
+    inside = [(i, j) for i, j in pairs if t[i] >= gt.timestamps_s[0] and t[j] <= gt.timestamps_s[-1]]
+    assert len(true6) == len(mean6) == len(std6) == len(inside) < len(pairs)
+    at = {float(x): n for n, x in enumerate(gt.timestamps_s)}
+    checked = 0
+    for row, (i, j) in zip(true6, inside):
+        if float(t[i]) in at and float(t[j]) in at:  # both frames have a pose of their own: the motion is theirs
+            w = gt.world_from_cam
+            np.testing.assert_allclose(row, se3.to_euler6(se3.relative(w[at[float(t[j])]], w[at[float(t[i])]])),
+                                       atol=1e-9)
+            checked += 1
+    assert checked > 100
+    assert np.abs(true6[:, 3:]).max() > 1e-3  # the camera moves: a zero motion would not pass for the truth
+
+
+def test_repro_rgbd_table_rows_beside_and_ratio():
+    from bench import results_repro_rgbd as rr
+
+    def figures(ate, rpe):
+        return {"ate_m": ate, "rpe_t_m": rpe, "rpe_r_deg": 0.5, "path_length_ratio": 1.0,
+                "within_1_sigma": [0.7] * 6}
+
+    report = {"config": {"room_seed": 51}, "models": {"room_synthetic_mirror s0": {"file": "a", "samples": 1000},
+                                                      "room_supervised s0": {"file": "b", "samples": 500}},
+              "cases": ["room_exact", "teddy_dis"],
+              "rows": {"room_synthetic_mirror": [{"seed": 0, "room_exact": figures(0.2, 0.02),
+                                                  "teddy_dis": figures(0.5, 0.03)}],
+                       "room_supervised": [{"seed": 0, "room_exact": figures(0.1, 0.01),
+                                            "teddy_dis": {**figures(0.4, None)}}]},
+              "beside": {"pnp": {"room_exact": figures(0.01, 0.001)}}}
+    report["ratio_synthetic_over_supervised"] = rr.ratios(report)
+    assert report["ratio_synthetic_over_supervised"] == {
+        "room_synthetic_mirror/room_supervised": {"room_exact": pytest.approx(2.0), "teddy_dis": None}}
+    md = rr.markdown(report)
+    assert "**unseen rendered room (room 51, Kinect-like depth, 30 Hz), exact flow**" in md
+    assert ("| synthetic (single frames of the rooms, mirrored motions) (n=1) | 0.2 | 0.02 | 0.5 | 1.000 | "
+            "0.70, 0.70, 0.70, 0.70, 0.70, 0.70 |") in md
+    assert "| `pnp` (SIFT + PnP-RANSAC on the frame's depth; no flow) | 0.01 | 0.001 | 0.5 | 1.000 | |" in md
+    assert md.count("(RPE translation): x2.00") == 1  # teddy's ratio is missing a figure: not stated

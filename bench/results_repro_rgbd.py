@@ -1,0 +1,177 @@
+"""``python -m bench.results_repro_rgbd``: the paper's recipe on hand-held RGB-D cameras, rendered rooms and TUM teddy.
+
+Scores the NN_cons models that ``SCENE=room scripts/train_paper_recipe.sh`` trains (the cpu preset at a 96 x 128
+input, the paper's L1 loss, cyclic learning rate and stride mixture; synthetic: single frames of two rooms rendered
+as a Kinect would see them, motions drawn from a kernel density fit of their camera's own motion with its mirror
+images; supervised: the same renders' frame pairs, exact flow, ground-truth poses) with the network's own pose
+(``vo --pose net``) on data none of them saw: another rendered room (Kinect-like depth) with the simulator's exact
+flow and with DIS flow, and the real TUM fr3/teddy slice with DIS flow. Beside them, on the same data: the RGB-D
+default (``tum_cons``, what ``deepslam vo`` runs on a TUM sequence: the solve pose head with the frame's depth) and
+``pnp`` (SIFT + PnP-RANSAC on the frame's depth: the render's Kinect-like depth, teddy's sensor depth).
+
+The figures are the TUM benchmark's: ATE (m, se3-aligned) and RPE per frame (m, degrees), the path-length ratio,
+and the share of pairs within the predicted 1-sigma; synthetic / supervised is the ratio of the RPE's translation
+(the routes are a few metres long: a drift per 100 m means nothing there).
+
+``--models DIR``: the training script's folder (default ``bench/paper_recipe``: ``room_{mode}_cons_s{SEED}/``
+with ``model.safetensors``, or ``checkpoint.safetensors`` of a run still going). Writes ``results.json`` and
+``results.md`` under ``--out``; evaluations are cached there (a killed run resumes).
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+from pathlib import Path
+
+from bench.results_common import write_report
+from bench.results_repro import REPO, _model_file, _repo_path, learning_curve, vo_scores
+from bench.results_vo import _agg, _cached
+
+MODES = {"room_synthetic_mirror": "synthetic (single frames of the rooms, mirrored motions)",
+         "room_synthetic": "synthetic (single frames of the rooms, their own motions)",
+         "room_supervised": "supervised (the rooms' frame pairs, exact flow, poses)"}
+"""Training folders ``{mode}_cons_s{seed}`` of ``SCENE=room scripts/train_paper_recipe.sh`` and their labels."""
+SYNTHETIC_OVER_SUPERVISED = (("room_synthetic_mirror", "room_supervised"), ("room_synthetic", "room_supervised"))
+"""The pairs whose ratio the table states (same renders, same recipe, same budget cap)."""
+FIGURES = (("ATE [m]", "ate_m", ".3g"), ("RPE [m/frame]", "rpe_t_m", ".3g"), ("RPE [deg/frame]", "rpe_r_deg", ".3g"),
+           ("path ratio", "path_length_ratio", ".3f"))
+"""Columns of a case's table: (title, key of the ``vo`` record, format)."""
+CASE_TITLES = {"room_exact": "unseen rendered room (room {room_seed}, Kinect-like depth, 30 Hz), exact flow",
+               "room_dis": "unseen rendered room (room {room_seed}, Kinect-like depth, 30 Hz), DIS flow",
+               "teddy_dis": "TUM fr3/teddy (real, never trained on), DIS flow"}
+"""Title of each case (formatted with the config)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ReproRGBDConfig:
+    """What is scored and where."""
+
+    models: str = "bench/paper_recipe"
+    """Folder of the trained models (``SCENE=room scripts/train_paper_recipe.sh OUT``; relative to the repository)."""
+    seeds: tuple[int, ...] = (0, 1, 2)
+    """Training seeds to score (a row's mean +- std is over those present)."""
+    room_seed: int = 51
+    """Seed of the unseen room (the training rooms are 1 and 2; ``bench.results_adapt`` renders the same room)."""
+    room_frames: int = 150
+    """Frames of the unseen room (30 Hz)."""
+
+
+def _render_room(cfg: ReproRGBDConfig, out: Path) -> Path:
+    """The unseen room as a Kinect would see it (640x480, f = 537 px, 30 Hz, ``--depth-noise kinect``), in
+    deepslam's own format so that the simulator's exact flow is there too; rendered once, resumed if killed."""
+    from deepslam.studies.demo import render_once
+
+    flags = ("--height", "480", "--focal-px", "537", "--rate", "30", "--stereo-baseline", "0",
+             "--depth-noise", "kinect", "--quiet")
+    return render_once("room", "drone", cfg.room_frames, 640, cfg.room_seed, out / f"room_s{cfg.room_seed}", [], flags)
+
+
+def run(cfg: ReproRGBDConfig, out: Path, data: Path) -> dict:
+    t0 = time.perf_counter()
+    out.mkdir(parents=True, exist_ok=True)
+    models_dir = _repo_path(cfg.models)
+    room = _render_room(cfg, out)
+    cases = [("room_exact", room, "gt"), ("room_dis", room, "dis")]
+    teddy = data / "tum" / "rgbd_dataset_freiburg3_teddy"
+    if (teddy / "rgb.txt").is_file():
+        cases.append(("teddy_dis", teddy, "dis"))
+    rows: dict = {}
+    trained: dict = {}
+    for mode in MODES:
+        for seed in cfg.seeds:
+            folder = models_dir / f"{mode}_cons_s{seed}"
+            model = _model_file(folder)
+            if model is None:
+                continue
+            curve = learning_curve(folder / "history.json") if (folder / "history.json").is_file() else {}
+            trained[f"{mode} s{seed}"] = {"file": str(model.relative_to(REPO) if model.is_relative_to(REPO) else model),
+                                          "samples": int((curve.get("samples") or [0])[-1])}
+            rec = {"seed": seed}
+            for name, seq, flow in cases:
+                print(f"score {mode} seed {seed}: {name}", flush=True)
+                rec[name] = _cached(out / "eval" / f"{mode}_s{seed}_{name}.json", lambda: vo_scores(
+                    seq, out / "runs" / f"{mode}_s{seed}_{name}.txt", "--model", str(model), "--flow", flow,
+                    "--pose", "net"))
+            rows.setdefault(mode, []).append(rec)
+    beside: dict = {}
+    for name, seq, flow in cases:
+        beside.setdefault("default", {})[name] = _cached(out / "eval" / f"default_{name}.json", lambda: vo_scores(
+            seq, out / "runs" / f"default_{name}.txt", "--model", "tum:cons", "--flow", flow))
+        beside.setdefault("pnp", {})[name] = _cached(out / "eval" / f"pnp_{seq.name}.json", lambda: vo_scores(
+            seq, out / "runs" / f"pnp_{seq.name}.txt", "--odometry", "pnp"))
+    report = {"config": dataclasses.asdict(cfg), "models": trained, "rows": rows, "beside": beside,
+              "cases": [c[0] for c in cases], "minutes": (time.perf_counter() - t0) / 60}
+    report["ratio_synthetic_over_supervised"] = ratios(report)
+    write_report(out, report, markdown)
+    return report
+
+
+def ratios(report: dict) -> dict:
+    """``{"mine/other": {case: ratio}}``: the mean RPE translation of each synthetic mode over its supervised
+    counterpart's, per case (None where either is missing)."""
+    def mean(mode: str, case: str) -> float | None:
+        return _agg([r[case].get("rpe_t_m") for r in report["rows"].get(mode, [])])["mean"]
+
+    out = {}
+    for mine, other in SYNTHETIC_OVER_SUPERVISED:
+        if report["rows"].get(mine) and report["rows"].get(other):
+            out[f"{mine}/{other}"] = {c: (mean(mine, c) / mean(other, c)
+                                          if mean(mine, c) is not None and mean(other, c) else None)
+                                      for c in report["cases"]}
+    return out
+
+
+def markdown(report: dict) -> str:
+    def pm(a: dict, f: str) -> str:
+        if a["mean"] is None:
+            return "n/a"
+        return f"{a['mean']:{f}} ± {a['std']:{f}}" if a["n"] > 1 else f"{a['mean']:{f}}"
+
+    cfg = report.get("config", {})
+    md = ["The paper's recipe on a hand-held RGB-D camera (NN_cons, the cpu preset at a 96 x 128 input; `SCENE=room "
+          "scripts/train_paper_recipe.sh`), scored with the network's own pose (`--pose net`) on data no model saw. "
+          "A row is the mean ± std over the training seeds present (n). Models:"]
+    md += [f"- {MODES[k.rsplit(' ', 1)[0]]} ({k.rsplit(' ', 1)[1]}): `{v['file']}`, {v['samples']:,} samples"
+           for k, v in report["models"].items()] or ["- none found (train them with `SCENE=room bash "
+                                                      "scripts/train_paper_recipe.sh bench/paper_recipe`)"]
+    names = {"default": "the RGB-D default (`tum_cons`: solve head with the frame's depth, on the same flow)",
+             "pnp": "`pnp` (SIFT + PnP-RANSAC on the frame's depth; no flow)"}
+    for case in report["cases"]:
+        md += ["", f"**{CASE_TITLES.get(case, case).format(**cfg)}**", "",
+               "| | " + " | ".join(t for t, _, _ in FIGURES) + " | within 1-sigma (rx, ry, rz, tx, ty, tz) |",
+               "|---" * (len(FIGURES) + 2) + "|"]
+        for mode, recs in report["rows"].items():
+            shares = recs[0][case].get("within_1_sigma") if len(recs) == 1 else None
+            md.append(f"| {MODES[mode]} (n={len(recs)}) | " + " | ".join(
+                pm(_agg([r[case].get(k) for r in recs]), f) for _, k, f in FIGURES) + " | "
+                + (", ".join(f"{x:.2f}" for x in shares) if shares else "") + " |")
+        for key, label in names.items():
+            d = report.get("beside", {}).get(key, {}).get(case)
+            if d:
+                md.append(f"| {label} | " + " | ".join(
+                    "n/a" if d.get(k) is None else f"{d[k]:{f}}" for _, k, f in FIGURES) + " | |")
+        md.append("")
+        for pair, by_case in report.get("ratio_synthetic_over_supervised", {}).items():
+            if by_case.get(case) is not None:
+                mine, other = pair.split("/")
+                md.append(f"- {MODES[mine]} / {MODES[other]} (RPE translation): x{by_case[case]:.2f}")
+    md += ["", "The paper (EuRoC, rigid rooms): synthetic / supervised about x1.",
+           "", f"Run time: {report.get('minutes', 0):.1f} min."]
+    return "\n".join(md) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    from bench.results_common import results_main
+
+    ap = argparse.ArgumentParser(add_help=False)
+    ap.add_argument("--models", default=None)
+    known, rest = ap.parse_known_args(argv)
+    cfg = ReproRGBDConfig() if known.models is None else ReproRGBDConfig(models=known.models)
+    quick = dataclasses.replace(cfg, room_frames=12)
+    return results_main("results_repro_rgbd", __doc__, cfg, quick, "repro_rgbd", run, markdown, rest)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
