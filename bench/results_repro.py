@@ -119,7 +119,7 @@ class ReproConfig:
     """Town of the loop street (``render --route laps``) on which VO and SLAM are compared (0: none)."""
     slam_frames: int = 1900
     """Frames of the loop street."""
-    slam_modes: tuple[str, ...] = ("synthetic", "synthetic_dis", "synthetic_dis_speedscale", "synthetic_dis_mirror",
+    slam_modes: tuple[str, ...] = ("synthetic", "synthetic_mirror", "synthetic_dis", "synthetic_dis_speedscale", "synthetic_dis_mirror",
                                    "synthetic_dis_speedscale_mirror", "synthetic_dis_mirror_body",
                                    "synthetic_dis_speedscale_mirror_body", "supervised")
     """Training modes scored with SLAM (each seed present, both presets)."""
