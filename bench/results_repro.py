@@ -165,6 +165,25 @@ def vo_scores(seq_dir: Path, out_txt: Path, *options: str) -> dict:
             "within_1_sigma": within_one_sigma(seq_dir, out_txt.with_suffix(".motions.csv"))}
 
 
+def own_pose_scores(out: Path, tag: str, seq_dir: Path, model: Path, flow: str) -> dict:
+    """:func:`vo_scores` of ``model``'s own pose (``vo --pose net``) on ``seq_dir`` with ``flow``, cached in
+    ``out/eval/{tag}.json`` (a killed run resumes); the run's files are ``out/runs/{tag}.*``."""
+    return _cached(out / "eval" / f"{tag}.json", lambda: vo_scores(
+        seq_dir, out / "runs" / f"{tag}.txt", "--model", str(model), "--flow", flow, "--pose", "net"))
+
+
+def model_card(model: Path, curve: dict) -> dict:
+    """What the table says of a trained model: its file (relative to the repository), the samples it saw (from
+    its :func:`learning_curve`), why it stopped (``summary.json``; "still training" for a checkpoint) and where
+    it was trained (``config.json``)."""
+    folder = model.parent
+    summary = json.loads((folder / "summary.json").read_text()) if (folder / "summary.json").is_file() else {}
+    config = json.loads((folder / "config.json").read_text()) if (folder / "config.json").is_file() else {}
+    return {"file": str(model.relative_to(REPO) if model.is_relative_to(REPO) else model),
+            "samples": int((curve.get("samples") or [0])[-1]), "stop": summary.get("stop_reason", "still training"),
+            "device": config.get("train", {}).get("device", "n/a")}
+
+
 def slam_scores(seq_dir: Path, out_txt: Path, *options: str) -> dict:
     """``deepslam slam`` (:func:`_run_json`): VO and SLAM ATE (m, se3-aligned), the SLAM / VO ratio, the VO's path
     ratio and the loop edges found and kept."""
@@ -325,18 +344,11 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
                     continue
                 if (folder / "history.json").is_file():
                     curves[f"{key} s{seed}"] = learning_curve(folder / "history.json")
-                summary = json.loads((folder / "summary.json").read_text()) if (folder / "summary.json").is_file() else {}
-                config = json.loads((folder / "config.json").read_text()) if (folder / "config.json").is_file() else {}
-                trained[f"{key} s{seed}"] = {"file": str(model.relative_to(REPO) if model.is_relative_to(REPO) else model),
-                                             "samples": int(curves.get(f"{key} s{seed}", {}).get("samples", [0])[-1]),
-                                             "stop": summary.get("stop_reason", "still training"),
-                                             "device": config.get("train", {}).get("device", "n/a")}
+                trained[f"{key} s{seed}"] = model_card(model, curves.get(f"{key} s{seed}", {}))
                 rec = {"seed": seed}
                 for name, seq, flow in cases:
                     print(f"score {key} seed {seed}: {name}", flush=True)
-                    rec[name] = _cached(out / "eval" / f"{key}_s{seed}_{name}.json", lambda: vo_scores(
-                        seq, out / "runs" / f"{key}_s{seed}_{name}.txt", "--model", str(model), "--flow", flow,
-                        "--pose", "net"))
+                    rec[name] = own_pose_scores(out, f"{key}_s{seed}_{name}", seq, model, flow)
                     if flow == "dis" and seed in cfg.decompose_seeds:
                         rec[f"{name}_fit"] = yaw_and_forward_fit(seq, out / "runs" / f"{key}_s{seed}_{name}.motions.csv")
                         rec[f"{name}_epipolar"] = _cached(
@@ -447,12 +459,15 @@ def turns_table(report: dict) -> list[str]:
     return md
 
 
-def markdown(report: dict) -> str:
-    def pm(a: dict, f: str) -> str:
-        if a["mean"] is None:
-            return "n/a"
-        return f"{a['mean']:{f}} ± {a['std']:{f}}" if a["n"] > 1 else f"{a['mean']:{f}}"
+def pm(a: dict, f: str) -> str:
+    """A row's cell from :func:`bench.results_vo._agg`'s record: ``mean ± std`` over n > 1 seeds, the value for one,
+    ``n/a`` for none; ``f`` is the format of both numbers."""
+    if a["mean"] is None:
+        return "n/a"
+    return f"{a['mean']:{f}} ± {a['std']:{f}}" if a["n"] > 1 else f"{a['mean']:{f}}"
 
+
+def markdown(report: dict) -> str:
     md = ["The paper's recipe at scale (NN_cons: the cpu preset, 48 x 160 input, and the paper's 96 x 320 network; "
           "`scripts/train_paper_recipe.sh`), scored with the network's own pose (`--pose net`) on data no model saw. "
           "A row is the mean ± std over the training seeds present (n). Models:"]
@@ -569,15 +584,21 @@ def markdown(report: dict) -> str:
     return "\n".join(md) + "\n"
 
 
-def main(argv: list[str] | None = None) -> int:
+def main_with_models(name: str, doc: str, config, quick, out_name: str, run, markdown, argv: list[str] | None) -> int:
+    """:func:`bench.results_common.results_main` with ``--models DIR`` as well: ``config`` (a frozen dataclass with a
+    ``models`` field) scored from DIR; ``quick`` (config -> config) makes the smoke run's sizes from it."""
     from bench.results_common import results_main
 
     ap = argparse.ArgumentParser(add_help=False)
     ap.add_argument("--models", default=None)
     known, rest = ap.parse_known_args(argv)
-    cfg = ReproConfig() if known.models is None else ReproConfig(models=known.models)
-    quick = dataclasses.replace(cfg, heldout_frames=40, width=207, slam_seed=0, calibration_seed=0)
-    return results_main("results_repro", __doc__, cfg, quick, "repro", run, markdown, rest)
+    cfg = config if known.models is None else dataclasses.replace(config, models=known.models)
+    return results_main(name, doc, cfg, quick(cfg), out_name, run, markdown, rest)
+
+
+def main(argv: list[str] | None = None) -> int:
+    return main_with_models("results_repro", __doc__, ReproConfig(), lambda cfg: dataclasses.replace(
+        cfg, heldout_frames=40, width=207, slam_seed=0, calibration_seed=0), "repro", run, markdown, argv)
 
 
 if __name__ == "__main__":

@@ -19,14 +19,14 @@ with ``model.safetensors``, or ``checkpoint.safetensors`` of a run still going).
 """
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import sys
 import time
 from pathlib import Path
 
 from bench.results_common import write_report
-from bench.results_repro import REPO, _model_file, _repo_path, learning_curve, vo_scores
+from bench.results_repro import (_model_file, _repo_path, learning_curve, main_with_models, model_card,
+                                 own_pose_scores, pm, vo_scores)
 from bench.results_vo import _agg, _cached
 
 MODES = {"room_synthetic_mirror": "synthetic (single frames of the rooms, mirrored motions)",
@@ -86,14 +86,11 @@ def run(cfg: ReproRGBDConfig, out: Path, data: Path) -> dict:
             if model is None:
                 continue
             curve = learning_curve(folder / "history.json") if (folder / "history.json").is_file() else {}
-            trained[f"{mode} s{seed}"] = {"file": str(model.relative_to(REPO) if model.is_relative_to(REPO) else model),
-                                          "samples": int((curve.get("samples") or [0])[-1])}
+            trained[f"{mode} s{seed}"] = model_card(model, curve)
             rec = {"seed": seed}
             for name, seq, flow in cases:
                 print(f"score {mode} seed {seed}: {name}", flush=True)
-                rec[name] = _cached(out / "eval" / f"{mode}_s{seed}_{name}.json", lambda: vo_scores(
-                    seq, out / "runs" / f"{mode}_s{seed}_{name}.txt", "--model", str(model), "--flow", flow,
-                    "--pose", "net"))
+                rec[name] = own_pose_scores(out, f"{mode}_s{seed}_{name}", seq, model, flow)
             rows.setdefault(mode, []).append(rec)
     beside: dict = {}
     for name, seq, flow in cases:
@@ -124,16 +121,12 @@ def ratios(report: dict) -> dict:
 
 
 def markdown(report: dict) -> str:
-    def pm(a: dict, f: str) -> str:
-        if a["mean"] is None:
-            return "n/a"
-        return f"{a['mean']:{f}} ± {a['std']:{f}}" if a["n"] > 1 else f"{a['mean']:{f}}"
-
     cfg = report.get("config", {})
     md = ["The paper's recipe on a hand-held RGB-D camera (NN_cons, the cpu preset at a 96 x 128 input; `SCENE=room "
           "scripts/train_paper_recipe.sh`), scored with the network's own pose (`--pose net`) on data no model saw. "
           "A row is the mean ± std over the training seeds present (n). Models:"]
-    md += [f"- {MODES[k.rsplit(' ', 1)[0]]} ({k.rsplit(' ', 1)[1]}): `{v['file']}`, {v['samples']:,} samples"
+    md += [f"- {MODES[k.rsplit(' ', 1)[0]]} ({k.rsplit(' ', 1)[1]}): `{v['file']}`, {v['samples']:,} samples, "
+           f"trained on {v.get('device', 'n/a')}, stopped: {v.get('stop', 'n/a')}"
            for k, v in report["models"].items()] or ["- none found (train them with `SCENE=room bash "
                                                       "scripts/train_paper_recipe.sh bench/paper_recipe`)"]
     names = {"default": "the RGB-D default (`tum_cons`: solve head with the frame's depth, on the same flow)",
@@ -163,14 +156,8 @@ def markdown(report: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from bench.results_common import results_main
-
-    ap = argparse.ArgumentParser(add_help=False)
-    ap.add_argument("--models", default=None)
-    known, rest = ap.parse_known_args(argv)
-    cfg = ReproRGBDConfig() if known.models is None else ReproRGBDConfig(models=known.models)
-    quick = dataclasses.replace(cfg, room_frames=12)
-    return results_main("results_repro_rgbd", __doc__, cfg, quick, "repro_rgbd", run, markdown, rest)
+    return main_with_models("results_repro_rgbd", __doc__, ReproRGBDConfig(),
+                            lambda cfg: dataclasses.replace(cfg, room_frames=12), "repro_rgbd", run, markdown, argv)
 
 
 if __name__ == "__main__":
