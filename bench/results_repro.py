@@ -33,7 +33,7 @@ import numpy as np
 from bench.results_common import write_report
 from bench.results_vo import _agg, _cached, metric_subset
 
-SYNTHETIC_MODES = ("synthetic", "synthetic_mirror", "synthetic_dis", "synthetic_dis_speedscale", "synthetic_dis_mirror",
+SYNTHETIC_MODES = ("synthetic", "synthetic_mirror", "synthetic_speedscale_mirror", "synthetic_dis", "synthetic_dis_speedscale", "synthetic_dis_mirror",
                    "synthetic_dis_speedscale_mirror", "synthetic_dis_mirror_body", "synthetic_dis_speedscale_mirror_body")
 """Training folders of single-frame training: on exact synthesized flow (the paper), on DIS flow of the second
 view rendered from each frame (``SYNTH_FLOW=dis``), and the DIS one with the motions' turn radius freed
@@ -49,6 +49,7 @@ for the same budget, and by the recipe on DIS flow of the same pairs (``SYNTH_FL
 MODES = SYNTHETIC_MODES + SUPERVISED_MODES
 """Training folders ``{mode}_cons_s{seed}``."""
 MODE_LABELS = {"synthetic": "synthetic", "synthetic_mirror": "synthetic, turns both ways (mirrored motions)",
+               "synthetic_speedscale_mirror": "synthetic, turn radius freed, turns both ways",
                "synthetic_dis": "synthetic on DIS flow of rendered views",
                "synthetic_dis_speedscale": "synthetic on DIS flow of rendered views, turn radius freed",
                "synthetic_dis_mirror": "synthetic on DIS flow of rendered views, turns both ways (mirrored motions)",
