@@ -33,10 +33,11 @@ import numpy as np
 from bench.results_common import write_report
 from bench.results_vo import _agg, _cached, metric_subset
 
-SYNTHETIC_MODES = ("synthetic", "synthetic_mirror", "synthetic_speedscale_mirror", "synthetic_dis", "synthetic_dis_speedscale", "synthetic_dis_mirror",
-                   "synthetic_dis_speedscale_mirror", "synthetic_dis_mirror_body", "synthetic_dis_speedscale_mirror_body")
-"""Training folders of single-frame training: on exact synthesized flow (the paper), on DIS flow of the second
-view rendered from each frame (``SYNTH_FLOW=dis``), and the DIS one with the motions' turn radius freed
+SYNTHETIC_MODES = ("synthetic", "synthetic_mirror", "synthetic_speedscale_mirror", "synthetic_dis",
+                   "synthetic_dis_speedscale", "synthetic_dis_mirror", "synthetic_dis_speedscale_mirror",
+                   "synthetic_dis_mirror_body", "synthetic_dis_speedscale_mirror_body")
+"""Training folders of single-frame training: on exact synthesized flow (the paper) and on DIS flow of the second
+view rendered from each frame (``SYNTH_FLOW=dis``); ``_speedscale``: the motions' turn radius freed
 (``SPEED_SCALE=0.4,1.5``: each drawn translation scaled by a log-uniform factor, ``fit-motion --speed-scale``);
 ``_mirror``: the motions fitted together with their left-right mirror images (``fit-motion --mirror``: the training
 towns turn one way only), the recipe script's default prior (``MIRROR=0``: without); ``_body``: KITTI 00-05 and 08-10's
@@ -120,8 +121,8 @@ class ReproConfig:
     """Town of the loop street (``render --route laps``) on which VO and SLAM are compared (0: none)."""
     slam_frames: int = 1900
     """Frames of the loop street."""
-    slam_modes: tuple[str, ...] = ("synthetic", "synthetic_mirror", "synthetic_dis", "synthetic_dis_speedscale", "synthetic_dis_mirror",
-                                   "synthetic_dis_speedscale_mirror", "synthetic_dis_mirror_body",
+    slam_modes: tuple[str, ...] = ("synthetic", "synthetic_mirror", "synthetic_dis", "synthetic_dis_speedscale",
+                                   "synthetic_dis_mirror", "synthetic_dis_speedscale_mirror", "synthetic_dis_mirror_body",
                                    "synthetic_dis_speedscale_mirror_body", "supervised")
     """Training modes scored with SLAM (each seed present, both presets)."""
     calibration_seed: int = 8101
@@ -197,7 +198,10 @@ def slam_scores(seq_dir: Path, out_txt: Path, *options: str) -> dict:
 
 def _predicted_and_true(seq_dir: Path, motions_csv: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(mean6, std6, true6) per pair of a ``vo`` run's motions CSV: (N, 6) float64 paper vectors of
-    ``cam_j_from_cam_i`` (euler x, y, z in rad; t x, y, z in m), the predicted std and the ground truth's."""
+    ``cam_j_from_cam_i`` (euler x, y, z in rad; t x, y, z in m), the predicted std and the ground truth's. Where
+    the sequence has a ground-truth pose per frame, a pair's are its frames'; else (TUM: the ground truth at its
+    own times) they are interpolated at the pair's times, and the pairs outside the ground truth's time span are
+    left out (N is then less than the CSV's rows)."""
     from deepslam.core import se3
     from deepslam.core.readers import open_sequence
 

@@ -20,6 +20,7 @@ with ``model.safetensors``, or ``checkpoint.safetensors`` of a run still going).
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import sys
 import time
 from pathlib import Path
@@ -28,6 +29,7 @@ from bench.results_common import write_report
 from bench.results_repro import (_model_file, _repo_path, learning_curve, main_with_models, model_card,
                                  own_pose_scores, pm, vo_scores)
 from bench.results_vo import _agg, _cached
+from deepslam.studies.demo import render_once
 
 MODES = {"room_synthetic_mirror": "synthetic (single frames of the rooms, mirrored motions)",
          "room_synthetic": "synthetic (single frames of the rooms, their own motions)",
@@ -58,21 +60,27 @@ class ReproRGBDConfig:
     """Frames of the unseen room (30 Hz)."""
 
 
-def _render_room(cfg: ReproRGBDConfig, out: Path) -> Path:
+def _render_room(cfg: ReproRGBDConfig, out: Path, log: list[str]) -> Path:
     """The unseen room as a Kinect would see it (640x480, f = 537 px, 30 Hz, ``--depth-noise kinect``), in
-    deepslam's own format so that the simulator's exact flow is there too; rendered once, resumed if killed."""
-    from deepslam.studies.demo import render_once
-
+    deepslam's own format so that the simulator's exact flow is there too; rendered once, resumed if killed; the
+    command that makes it goes to ``log``."""
     flags = ("--height", "480", "--focal-px", "537", "--rate", "30", "--stereo-baseline", "0",
              "--depth-noise", "kinect", "--quiet")
-    return render_once("room", "drone", cfg.room_frames, 640, cfg.room_seed, out / f"room_s{cfg.room_seed}", [], flags)
+    return render_once("room", "drone", cfg.room_frames, 640, cfg.room_seed, out / f"room_s{cfg.room_seed}", log, flags)
+
+
+def _digest(path: Path) -> str:
+    """The first 12 hex digits of a file's SHA-256: a model's evaluations are cached under it, so a model trained
+    further (or again) is scored again."""
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:12]
 
 
 def run(cfg: ReproRGBDConfig, out: Path, data: Path) -> dict:
     t0 = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
     models_dir = _repo_path(cfg.models)
-    room = _render_room(cfg, out)
+    log: list[str] = []
+    room = _render_room(cfg, out, log)
     cases = [("room_exact", room, "gt"), ("room_dis", room, "dis")]
     teddy = data / "tum" / "rgbd_dataset_freiburg3_teddy"
     if (teddy / "rgb.txt").is_file():
@@ -87,18 +95,19 @@ def run(cfg: ReproRGBDConfig, out: Path, data: Path) -> dict:
                 continue
             curve = learning_curve(folder / "history.json") if (folder / "history.json").is_file() else {}
             trained[f"{mode} s{seed}"] = model_card(model, curve)
-            rec = {"seed": seed}
+            rec, digest = {"seed": seed}, _digest(model)
             for name, seq, flow in cases:
                 print(f"score {mode} seed {seed}: {name}", flush=True)
-                rec[name] = own_pose_scores(out, f"{mode}_s{seed}_{name}", seq, model, flow)
+                rec[name] = own_pose_scores(out, f"{mode}_s{seed}_{name}_{seq.name}_{digest}", seq, model, flow)
             rows.setdefault(mode, []).append(rec)
     beside: dict = {}
     for name, seq, flow in cases:
-        beside.setdefault("default", {})[name] = _cached(out / "eval" / f"default_{name}.json", lambda: vo_scores(
-            seq, out / "runs" / f"default_{name}.txt", "--model", "tum:cons", "--flow", flow))
+        tag = f"default_{name}_{seq.name}"
+        beside.setdefault("default", {})[name] = _cached(out / "eval" / f"{tag}.json", lambda: vo_scores(
+            seq, out / "runs" / f"{tag}.txt", "--model", "tum:cons", "--flow", flow))
         beside.setdefault("pnp", {})[name] = _cached(out / "eval" / f"pnp_{seq.name}.json", lambda: vo_scores(
             seq, out / "runs" / f"pnp_{seq.name}.txt", "--odometry", "pnp"))
-    report = {"config": dataclasses.asdict(cfg), "models": trained, "rows": rows, "beside": beside,
+    report = {"config": dataclasses.asdict(cfg), "commands": log, "models": trained, "rows": rows, "beside": beside,
               "cases": [c[0] for c in cases], "minutes": (time.perf_counter() - t0) / 60}
     report["ratio_synthetic_over_supervised"] = ratios(report)
     write_report(out, report, markdown)
