@@ -20,7 +20,6 @@ with ``model.safetensors``, or ``checkpoint.safetensors`` of a run still going).
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import sys
 import time
 from pathlib import Path
@@ -29,6 +28,7 @@ from bench.results_common import write_report
 from bench.results_repro import (_model_file, _repo_path, learning_curve, main_with_models, model_card,
                                  own_pose_scores, pm, vo_scores)
 from bench.results_vo import _agg, _cached
+from deepslam.core.integrity import sha256_file
 from deepslam.studies.demo import render_once
 
 MODES = {"room_synthetic_mirror": "synthetic (single frames of the rooms, mirrored motions)",
@@ -69,12 +69,6 @@ def _render_room(cfg: ReproRGBDConfig, out: Path, log: list[str]) -> Path:
     return render_once("room", "drone", cfg.room_frames, 640, cfg.room_seed, out / f"room_s{cfg.room_seed}", log, flags)
 
 
-def _digest(path: Path) -> str:
-    """The first 12 hex digits of a file's SHA-256: a model's evaluations are cached under it, so a model trained
-    further (or again) is scored again."""
-    return hashlib.sha256(path.read_bytes()).hexdigest()[:12]
-
-
 def run(cfg: ReproRGBDConfig, out: Path, data: Path) -> dict:
     t0 = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
@@ -95,7 +89,8 @@ def run(cfg: ReproRGBDConfig, out: Path, data: Path) -> dict:
                 continue
             curve = learning_curve(folder / "history.json") if (folder / "history.json").is_file() else {}
             trained[f"{mode} s{seed}"] = model_card(model, curve)
-            rec, digest = {"seed": seed}, _digest(model)
+            # cached under the model's digest: a model trained further (or again) is scored again
+            rec, digest = {"seed": seed}, sha256_file(model)[:12]
             for name, seq, flow in cases:
                 print(f"score {mode} seed {seed}: {name}", flush=True)
                 rec[name] = own_pose_scores(out, f"{mode}_s{seed}_{name}_{seq.name}_{digest}", seq, model, flow)
@@ -117,16 +112,12 @@ def run(cfg: ReproRGBDConfig, out: Path, data: Path) -> dict:
 def ratios(report: dict) -> dict:
     """``{"mine/other": {case: ratio}}``: the mean RPE translation of each synthetic mode over its supervised
     counterpart's, per case (None where either is missing)."""
-    def mean(mode: str, case: str) -> float | None:
-        return _agg([r[case].get("rpe_t_m") for r in report["rows"].get(mode, [])])["mean"]
+    def ratio(mine: str, other: str, case: str) -> float | None:
+        num, den = (_agg([r[case].get("rpe_t_m") for r in report["rows"][m]])["mean"] for m in (mine, other))
+        return num / den if num is not None and den else None
 
-    out = {}
-    for mine, other in SYNTHETIC_OVER_SUPERVISED:
-        if report["rows"].get(mine) and report["rows"].get(other):
-            out[f"{mine}/{other}"] = {c: (mean(mine, c) / mean(other, c)
-                                          if mean(mine, c) is not None and mean(other, c) else None)
-                                      for c in report["cases"]}
-    return out
+    return {f"{mine}/{other}": {c: ratio(mine, other, c) for c in report["cases"]}
+            for mine, other in SYNTHETIC_OVER_SUPERVISED if report["rows"].get(mine) and report["rows"].get(other)}
 
 
 def markdown(report: dict) -> str:

@@ -56,9 +56,9 @@ DS="${DS:-.venv/bin/deepslam}"
 export MUJOCO_GL=${MUJOCO_GL:-egl} PYOPENGL_PLATFORM=${PYOPENGL_PLATFORM:-egl}
 SCENE=${SCENE:-street}
 case "$SCENE" in
-  street) RENDER="--scene street --frames 300 --width 414"; ROOM=""; INPUT=""; READ_SCALE=1.5459 ;;
+  street) RENDER="--scene street --frames 300 --width 414"; ROOM=""; INPUT="" ;;
   room) RENDER="--scene room --frames 300 --width 640 --height 480 --focal-px 537 --rate 30 --stereo-baseline 0"
-        ROOM=room_; INPUT="--height 96 --width 128"; READ_SCALE=1
+        ROOM=room_; INPUT="--height 96 --width 128"
         # the RGB-D rows are the recipe on exact flow with the rooms' own motions (bench.results_repro_rgbd):
         # KITTI's body motion and the street's turn radius do not belong to a hand-held camera
         if [ "${SYNTH_FLOW:-exact}" != exact ] || [ -n "${SPEED_SCALE:-}" ] || [ "${BODY:-0}" = 1 ]; then
@@ -104,12 +104,12 @@ train() {
 for seed in $SEEDS; do
   if [ "$SYNTH_FLOW" != exact ]; then
     # the synthetic model on the flow it is given at test: the second view rendered from each single frame,
-    # read at 640 px as `deepslam vo` reads a 414 px frame (READ_SCALE 1.5459 = 640 / 414), DIS medium on the pair; DIS makes
+    # read at 640 px as `deepslam vo` reads a 414 px frame (1.5459 = 640 / 414), DIS medium on the pair; DIS makes
     # ~50 samples/s on 2 cores, so a pool of POOL samples is made once and trained on in passes (an epoch), with
     # the recipe's patience matched in samples (10 x 20,000 = 2 passes of 100,000)
     [ "${SKIP_SYNTHETIC:-0}" = 1 ] || train "$OUT/${ROOM}synthetic_${SYNTH_FLOW}${PRIOR}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
         $MOTION --synthetic-flow "$SYNTH_FLOW" \
-        --dis-preset medium --frame-scales $READ_SCALE --sample-pool "${POOL:-100000}" --patience "${POOL_PATIENCE:-2}" \
+        --dis-preset medium --frame-scales 1.5459 --sample-pool "${POOL:-100000}" --patience "${POOL_PATIENCE:-2}" \
         --data-threads 2
     # and supervised on the same renders' pairs with the same DIS flow (frames read at 640 px as `vo` reads them:
     # `train --read-width`), the comparison at equal flow

@@ -74,9 +74,10 @@ class BodyMotion:
     @staticmethod
     def create(rng: np.random.Generator, scale: float) -> "BodyMotion":
         """Frequencies ``rng.uniform``, one in each of :data:`BODY_TERMS` equal parts of :data:`BODY_BANDS_HZ`
-        (no two nearly alike), phases ``rng.uniform(0, 2 pi)``, relative amplitudes ``rng.uniform(0.5, 1)``, then scaled so that the frame-to-frame change over the first
-        :data:`BODY_CALIBRATION_S` seconds at 10 Hz has the target RMS (measured on the sum itself: two
-        sinusoids of nearly one frequency add or cancel by their phases)."""
+        (no two nearly alike), phases ``rng.uniform(0, 2 pi)``, relative amplitudes ``rng.uniform(0.5, 1)``, then
+        scaled so that the frame-to-frame change over the first :data:`BODY_CALIBRATION_S` seconds at 10 Hz has the
+        target RMS (measured on the sum itself: two sinusoids of nearly one frequency add or cancel by their
+        phases)."""
         t = np.arange(0.0, BODY_CALIBRATION_S, 1.0 / KITTI_RATE_HZ)
         terms = np.zeros((2, BODY_TERMS, 3))
         for i, (lo, hi) in enumerate(BODY_BANDS_HZ):
