@@ -16,7 +16,8 @@ The paper preset's models (``NET=paper``, the paper's 96 x 320 network) are scor
 ``--models DIR``: the folder of the training script (default ``bench/paper_recipe``, where the trained files
 are kept: ``{synthetic,supervised}_cons_s{SEED}/model.safetensors`` or ``checkpoint.safetensors`` of a run still
 going, and their ``history.json``). Writes ``results.json``, ``results.md`` and ``learning_curve.png`` under
-``--out``; evaluations are cached there (a killed run resumes).
+``--out``; evaluations are cached there (a killed run resumes; a model whose file changed, a checkpoint trained
+further, is scored again).
 """
 from __future__ import annotations
 
@@ -32,6 +33,8 @@ import numpy as np
 
 from bench.results_common import write_report
 from bench.results_vo import _agg, _cached, metric_subset
+from deepslam.core import atomic
+from deepslam.core.integrity import sha256_file
 
 SYNTHETIC_MODES = ("synthetic", "synthetic_mirror", "synthetic_speedscale_mirror", "synthetic_dis",
                    "synthetic_dis_speedscale", "synthetic_dis_mirror", "synthetic_dis_speedscale_mirror",
@@ -172,6 +175,21 @@ def own_pose_scores(out: Path, tag: str, seq_dir: Path, model: Path, flow: str) 
     ``out/eval/{tag}.json`` (a killed run resumes); the run's files are ``out/runs/{tag}.*``."""
     return _cached(out / "eval" / f"{tag}.json", lambda: vo_scores(
         seq_dir, out / "runs" / f"{tag}.txt", "--model", str(model), "--flow", flow, "--pose", "net"))
+
+
+def forget_if_retrained(out: Path, stem: str, model: Path) -> None:
+    """Clear the cached evaluations of ``stem`` (``out/eval/{stem}_*``, ``out/runs/{stem}_*``) when ``model`` is
+    not the file they were scored from: ``out/eval/{stem}.sha256`` keeps the digest of the model file scored
+    (written on first use, so a cache made before it is adopted as it stands). A checkpoint trained further, or a
+    model trained again, is scored again."""
+    digest = sha256_file(model)
+    sidecar = out / "eval" / f"{stem}.sha256"
+    if sidecar.is_file() and sidecar.read_text().strip() != digest:
+        for folder in (out / "eval", out / "runs"):
+            for stale in folder.glob(f"{stem}_*"):
+                stale.unlink()
+    sidecar.parent.mkdir(parents=True, exist_ok=True)
+    atomic.write_text(sidecar, digest + "\n")
 
 
 def model_card(model: Path, curve: dict) -> dict:
@@ -350,6 +368,7 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
                 if (folder / "history.json").is_file():
                     curves[f"{key} s{seed}"] = learning_curve(folder / "history.json")
                 trained[f"{key} s{seed}"] = model_card(model, curves.get(f"{key} s{seed}", {}))
+                forget_if_retrained(out, f"{key}_s{seed}", model)
                 rec = {"seed": seed}
                 for name, seq, flow in cases:
                     print(f"score {key} seed {seed}: {name}", flush=True)

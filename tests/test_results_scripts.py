@@ -793,3 +793,23 @@ def test_repro_rgbd_table_rows_beside_and_ratio():
             "0.70, 0.70, 0.70, 0.70, 0.70, 0.70 |") in md
     assert "| `pnp` (SIFT + PnP-RANSAC on the frame's depth; no flow) | 0.01 | 0.001 | 0.5 | 1.000 | |" in md
     assert md.count("(RPE translation): x2.00") == 1  # teddy's ratio is missing a figure: not stated
+
+
+def test_repro_scores_a_model_again_once_its_file_changes(tmp_path):
+    from bench.results_repro import forget_if_retrained
+
+    out, model = tmp_path / "repro", tmp_path / "model.safetensors"
+    model.write_bytes(b"checkpoint at 480,000 samples")
+    forget_if_retrained(out, "synthetic_s0", model)  # first use: the cache (empty here) is adopted
+    for folder, name in (("eval", "synthetic_s0_street_dis.json"), ("runs", "synthetic_s0_street_dis.txt"),
+                         ("eval", "synthetic_mirror_s0_street_dis.json"), ("eval", "synthetic_s1_street_dis.json")):
+        (out / folder).mkdir(parents=True, exist_ok=True)
+        (out / folder / name).write_text("{}")
+    forget_if_retrained(out, "synthetic_s0", model)  # same file: kept
+    assert (out / "eval" / "synthetic_s0_street_dis.json").is_file()
+    model.write_bytes(b"model at 1,200,000 samples")
+    forget_if_retrained(out, "synthetic_s0", model)  # trained further: its evaluations go, the others stay
+    assert not (out / "eval" / "synthetic_s0_street_dis.json").exists()
+    assert not (out / "runs" / "synthetic_s0_street_dis.txt").exists()
+    assert (out / "eval" / "synthetic_mirror_s0_street_dis.json").is_file()
+    assert (out / "eval" / "synthetic_s1_street_dis.json").is_file()
