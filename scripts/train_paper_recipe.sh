@@ -18,6 +18,7 @@
 #   SPEED_SCALE=0.4,1.5 SYNTH_FLOW=dis bash scripts/train_paper_recipe.sh ...  # ... with the turn radius freed
 #   MIRROR=0 bash scripts/train_paper_recipe.sh ...                  # the towns' own motions, turning one way
 #   BODY=1 SYNTH_FLOW=dis bash scripts/train_paper_recipe.sh ...     # ... with KITTI's body pitch and roll added
+#   SCENE=room DEPTH=1 bash scripts/train_paper_recipe.sh ...        # RGB-D: the frame's depth as an input channel
 #
 # bf16 autocast is on by default where the CPU computes bf16 natively (AVX-512 BF16); on a CPU without it,
 # autocast is emulated and ~10x slower than float32 (measured: 389 against 40 s for 10,240 samples on an
@@ -45,7 +46,9 @@
 # without the suffix). BODY=1 adds to each drawn motion the frame-to-frame pitch and roll of KITTI 00-05 and 08-10's
 # ground truth (`fit-motion --body-from`, from KITTI_POSES, default ../shared/data/kitti/poses; never 06 or 07, the
 # validation slices): the car body's motion on its suspension, which the towns' car lacks (suffix _body). The
-# supervised models do not depend on the prior.
+# supervised models do not depend on the prior. DEPTH=1 gives every model the first frame's inverse depth as a
+# third input channel (`train --depth-channel`; `vo` then reads each frame's depth: RGB-D cameras, renders,
+# stereo), the folders' suffix _depth before _cons.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/paper_recipe}
@@ -80,6 +83,8 @@ if [ "${BODY:-0}" = 1 ]; then
   PRIOR="${PRIOR}_body"
   PRIOR_FIT="$PRIOR_FIT --body-from $(for n in 00 01 02 03 04 05 08 09 10; do printf '%s ' "$KITTI_POSES/$n.txt"; done)"
 fi
+DEPTH_SFX=""  # the models' name suffix of DEPTH=1
+if [ "${DEPTH:-0}" = 1 ]; then DEPTH_SFX=_depth; INPUT="$INPUT --depth-channel"; fi
 FIT="motion${ROOM:+_room}$PRIOR"  # the motion fits' name, without the stride
 for k in 1 2; do
   [ -f "$OUT/${FIT}_s$k.json" ] || $DS fit-motion --poses $OUT/${SCENE}_train_s1/poses.txt \
@@ -107,23 +112,23 @@ for seed in $SEEDS; do
     # read at 640 px as `deepslam vo` reads a 414 px frame (1.5459 = 640 / 414), DIS medium on the pair; DIS makes
     # ~50 samples/s on 2 cores, so a pool of POOL samples is made once and trained on in passes (an epoch), with
     # the recipe's patience matched in samples (10 x 20,000 = 2 passes of 100,000)
-    [ "${SKIP_SYNTHETIC:-0}" = 1 ] || train "$OUT/${ROOM}synthetic_${SYNTH_FLOW}${PRIOR}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
+    [ "${SKIP_SYNTHETIC:-0}" = 1 ] || train "$OUT/${ROOM}synthetic_${SYNTH_FLOW}${PRIOR}${DEPTH_SFX}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
         $MOTION --synthetic-flow "$SYNTH_FLOW" \
         --dis-preset medium --frame-scales 1.5459 --sample-pool "${POOL:-100000}" --patience "${POOL_PATIENCE:-2}" \
         --data-threads 2
     # and supervised on the same renders' pairs with the same DIS flow (frames read at 640 px as `vo` reads them:
     # `train --read-width`), the comparison at equal flow
-    train "$OUT/${ROOM}supervised_${SYNTH_FLOW}_cons_s$seed" --mode supervised --seed $seed \
+    train "$OUT/${ROOM}supervised_${SYNTH_FLOW}${DEPTH_SFX}_cons_s$seed" --mode supervised --seed $seed \
         --sequence $TRAIN --flow "$SYNTH_FLOW" --dis-preset medium --strides 1,2
     continue
   fi
-  train "$OUT/${ROOM}synthetic${PRIOR}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
+  train "$OUT/${ROOM}synthetic${PRIOR}${DEPTH_SFX}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
       $MOTION --samples-per-epoch 20000
-  train "$OUT/${ROOM}supervised_cons_s$seed" --mode supervised --seed $seed --sequence $TRAIN --flow gt --strides 1,2
+  train "$OUT/${ROOM}supervised${DEPTH_SFX}_cons_s$seed" --mode supervised --seed $seed --sequence $TRAIN --flow gt --strides 1,2
   [ "$SCENE" = room ] && continue
   # the recipe's patience is 10 epochs; a supervised epoch is ~1,100 pairs, a synthetic one 20,000 samples, so
   # the supervised run stops after ~120,000 samples: once more with the patience matched in samples (186 epochs)
-  train "$OUT/${ROOM}supervised_samepatience_cons_s$seed" --mode supervised --seed $seed --sequence $TRAIN --flow gt \
+  train "$OUT/${ROOM}supervised_samepatience${DEPTH_SFX}_cons_s$seed" --mode supervised --seed $seed --sequence $TRAIN --flow gt \
       --strides 1,2 --patience 186
 done
 for pid in $PIDS; do wait "$pid"; done  # PARALLEL=1: every training started above, failing if one failed

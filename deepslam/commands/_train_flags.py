@@ -125,7 +125,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--coord-channels", action="store_true", help="add (u-cx)/fx, (v-cy)/fy input channels")
     g.add_argument("--depth-channel", action="store_true",
                    help="add the first frame's inverse depth as an input channel (RGB-D cameras, renders, stereo: "
-                        "vo/slam then read each frame's depth too); needs --mode synthetic --source")
+                        "vo/slam then read each frame's depth too); needs frames with depth: --source, or supervised --sequence")
     g.add_argument("--valid-channel", action="store_true",
                    help="add a channel marking where the flow is known (DIS's textureless pixels left out with "
                         "--dis-min-texture, depth holes): unknown flow is then left out when it is resized, instead "
@@ -248,11 +248,13 @@ def data_sources(args: argparse.Namespace, net, progress: bool, device) -> tuple
     if args.mode != "synthetic" or args.shards or args.toy:  # no single frames to act on
         for flag, what, given in (("--scene-scale", "scales single frames", scene_scale is not None),
                                   ("--camera-tilt-deg", "rotates single frames", tilt is not None),
-                                  ("--mirror-frames", "mirrors single frames", args.mirror_frames),
-                                  ("--depth-channel", "reads each single frame's depth", net.depth_channel)):
+                                  ("--mirror-frames", "mirrors single frames", args.mirror_frames)):
             if given:
                 raise InputError(None, f"{flag} {what}: it needs --mode synthetic with --source "
                                        "(not --toy, --shards or supervised pairs)")
+    if net.depth_channel and (args.shards or args.toy):  # supervised pairs read their first frame's depth
+        raise InputError(None, "--depth-channel reads each pair's first-frame depth: it needs frames with depth "
+                               "(--source, or supervised --sequence), not --toy or --shards")
     if args.mode == "synthetic" and args.shards:
         train_src, hold_src, data_meta = sources.shard_sources(args.shards, net, args.holdout, args.seed)
     elif args.mode == "synthetic" and args.toy:

@@ -126,5 +126,7 @@ def shard_samples(out_dir, holdout_fraction: float, seed: int, height: int, widt
 
 
 def concat_samples(parts: Seq[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
-    keys = ("flow", "intrinsics", "target")
+    """The samples of ``parts`` (dicts of ``flow``, ``intrinsics``, ``target`` and, where every part has it,
+    ``inv_depth``) one after another."""
+    keys = ("flow", "intrinsics", "target") + (("inv_depth",) if all("inv_depth" in p for p in parts) else ())
     return {k: np.concatenate([p[k] for p in parts], axis=0) for k in keys}

@@ -59,7 +59,7 @@ class SupervisedData:
 
 def supervised_sources(spec: SupervisedData, net: NetConfig, seed: int, progress: bool):
     """The frame pairs of ``spec.sequences`` with the estimator's flow at the network's input and their
-    ground-truth relative poses, split into training and held-out by ``seed``. ``meta`` holds ``flow`` (the
+    ground-truth relative poses (and each pair's first-frame depth for a depth-channel network), split into training and held-out by ``seed``. ``meta`` holds ``flow`` (the
     estimator and its options) and ``data`` (pairs per sequence, strides, flow)."""
     if not spec.sequences:
         raise InputError(None, "supervised mode needs --sequence DIR...")
@@ -79,12 +79,12 @@ def supervised_sources(spec: SupervisedData, net: NetConfig, seed: int, progress
         counts[str(seq.root)] = int(len(pairs))
         if len(pairs):
             parts.append(supervised.supervised_samples(seq, pairs, est, net.input_width, net.input_height, progress,
-                                                       unknown=net.unknown_flow))
+                                                       unknown=net.unknown_flow, inv_depth=net.depth_channel))
     if not parts:
         raise InputError(None, "no frame pairs to train on (sequences too short for the strides, or no loops)")
     s = samples.concat_samples(parts)
-    train_src, hold_src = samples.TensorSamples(s["flow"], s["intrinsics"], s["target"], seed=seed).split(spec.holdout,
-                                                                                                          seed)
+    train_src, hold_src = samples.TensorSamples(s["flow"], s["intrinsics"], s["target"], seed=seed,
+                                                inv_depth=s.get("inv_depth")).split(spec.holdout, seed)
     meta = {"flow": {"estimator": spec.flow, "options": options},
             "data": {"sequences": counts, "pairs": spec.pairs.kind, "strides": list(spec.pairs.strides),
                      "flow": est.name, "n_pairs": int(sum(counts.values())),

@@ -11,6 +11,7 @@ from deepslam.core import se3
 from deepslam.core.errors import InputError
 from deepslam.core.trajectory import revisit_pairs
 from deepslam.flow.estimators import to_network_input
+from deepslam.vo.data.frames import frame_inverse_depth
 
 @dataclasses.dataclass(frozen=True)
 class PairSpec:
@@ -47,7 +48,7 @@ def frame_pairs(gt_world_from_cam: np.ndarray, spec: PairSpec) -> np.ndarray:
 
 
 def supervised_samples(seq, pairs: np.ndarray, estimator, width: int, height: int, progress: bool = True,
-                       unknown: str = "zero") -> dict[str, np.ndarray]:
+                       unknown: str = "zero", inv_depth: bool = False) -> dict[str, np.ndarray]:
     """Flow between frame pairs of a sequence with ground truth, at network resolution, + targets.
 
     Args:
@@ -57,9 +58,12 @@ def supervised_samples(seq, pairs: np.ndarray, estimator, width: int, height: in
         width, height: network input size.
         unknown: how unknown flow is resized (:data:`flow.estimators.UNKNOWN_FLOW`: ``nan`` for a
             network with a validity channel).
+        inv_depth: also give each pair's first-frame inverse depth as a depth-channel network reads it at test
+            time (:func:`vo.data.frames.frame_inverse_depth`).
 
     Returns ``flow`` (P, 2, height, width) float32 px (NaN where unknown, with ``nan``), ``intrinsics`` (P, 4) float32, ``target``
-    (P, 6) float32 = to_euler6(cam_j_from_cam_i).
+    (P, 6) float32 = to_euler6(cam_j_from_cam_i), and with ``inv_depth`` ``"inv_depth"`` (P, 1, height, width)
+    float32 1/m (0 = unknown).
     """
     if seq.gt is None:
         raise InputError(seq.root, "supervised training needs ground-truth poses; this sequence has none")
@@ -71,4 +75,9 @@ def supervised_samples(seq, pairs: np.ndarray, estimator, width: int, height: in
                                                 unknown)
     w = seq.gt.world_from_cam
     target = se3.to_euler6(se3.relative(w[pairs[:, 1]], w[pairs[:, 0]])) if len(pairs) else np.zeros((0, 6))
-    return {"flow": flows, "intrinsics": intr, "target": target.astype(np.float32)}
+    out = {"flow": flows, "intrinsics": intr, "target": target.astype(np.float32)}
+    if inv_depth:
+        first = {int(i): frame_inverse_depth(seq, int(i), width, height) for i in np.unique(pairs[:, 0])}
+        out["inv_depth"] = np.stack([first[int(i)] for i in pairs[:, 0]]) if len(pairs) else \
+            np.zeros((0, 1, height, width), np.float32)
+    return out

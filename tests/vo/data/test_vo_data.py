@@ -18,7 +18,7 @@ from deepslam.gen import flow as gen_flow
 from deepslam.vo.data.frames import (Frames, fill_depth_holes, frame_inverse_depth, load_frames, load_image_frames,
                                 with_mirrored)
 from deepslam.vo.data.motion import MotionMixture, SceneScale
-from deepslam.vo.data.samples import epoch_seed
+from deepslam.vo.data.samples import concat_samples, epoch_seed
 from deepslam.vo.data.supervised import PairSpec, frame_pairs, supervised_samples
 from deepslam.vo.data.synthetic import EstimatedFlowSource, SyntheticSource
 from deepslam.vo.data.toy import flow_from_depth_np, plane_depth, toy_motion_sampler
@@ -544,8 +544,8 @@ def test_sources_give_the_inverse_depth_of_each_samples_frame(plane_sequence):
 
 
 def test_train_and_vo_with_a_depth_channel(plane_sequence, motion_json, tmp_path):
-    """`train --depth-channel` makes a network that vo feeds with each pair's first-frame depth; the
-    options that have no single frames to read depth from are refused with one line."""
+    """`train --depth-channel` makes a network that vo feeds with each pair's first-frame depth, from single
+    frames or supervised pairs; the options that have no frames to read depth from are refused with one line."""
     from deepslam.cli import main
     from deepslam.vo.infer import VOPredictor
 
@@ -562,8 +562,26 @@ def test_train_and_vo_with_a_depth_channel(plane_sequence, motion_json, tmp_path
     assert len([ln for ln in traj.read_text().splitlines() if not ln.startswith("#")]) == 12
     assert main(["train", "--mode", "synthetic", "--toy", "64", "--net", "tiny", "--depth-channel", "--quiet",
                  "--out", str(tmp_path / "toy")]) == 2
+    sup = tmp_path / "sup"
     assert main(["train", "--mode", "supervised", "--sequence", str(plane_sequence), "--flow", "gt", "--net", "tiny",
-                 "--depth-channel", "--quiet", "--out", str(tmp_path / "sup")]) == 2
+                 "--batch", "8", "--max-epochs", "2", "--nll-epochs", "1", "--bf16", "off", "--threads", "1",
+                 "--depth-channel", "--quiet", "--out", str(sup)]) == 0
+    assert VOPredictor.from_file(sup / "model.safetensors").needs_depth
+
+
+def test_supervised_pairs_carry_their_first_frames_depth(plane_sequence):
+    from deepslam.flow import registry as flow_registry
+
+    seq = open_sequence(plane_sequence)
+    pairs = frame_pairs(seq.gt.world_from_cam, PairSpec(strides=(1, 2)))[:5]
+    s = supervised_samples(seq, pairs, flow_registry.make("gt"), 80, 24, progress=False, inv_depth=True)
+    assert s["inv_depth"].shape == (5, 1, 24, 80)
+    for k, (i, _) in enumerate(pairs):
+        np.testing.assert_allclose(s["inv_depth"][k], frame_inverse_depth(seq, int(i), 80, 24))
+    both = concat_samples([s, s])
+    assert both["inv_depth"].shape == (10, 1, 24, 80)
+    assert "inv_depth" not in concat_samples([s, supervised_samples(seq, pairs, flow_registry.make("gt"), 80, 24,
+                                                                    progress=False)])
 
 
 def test_scene_scale_scales_each_samples_depth_and_keeps_the_motion_metric():
