@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import glob
 import json
 import subprocess
 import sys
@@ -186,7 +187,7 @@ def forget_if_retrained(out: Path, stem: str, model: Path) -> None:
     sidecar = out / "eval" / f"{stem}.sha256"
     if sidecar.is_file() and sidecar.read_text().strip() != digest:
         for folder in (out / "eval", out / "runs"):
-            for stale in folder.glob(f"{stem}_*"):
+            for stale in folder.glob(f"{glob.escape(stem)}_*"):
                 stale.unlink()
     sidecar.parent.mkdir(parents=True, exist_ok=True)
     atomic.write_text(sidecar, digest + "\n")

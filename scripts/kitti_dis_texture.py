@@ -21,10 +21,10 @@ def main(argv: list[str]) -> int:
     from deepslam.flow import estimators as fe, registry
     from deepslam.gen.flow import synthesize
     from deepslam.gen.novel_view import render_novel_view
-    from deepslam.vo.data.frames import _depth_source, _frame_depth
+    from deepslam.vo.data.frames import depth_source, _frame_depth
 
     seq = open_sequence(argv[0] if argv else "../shared/data/kitti/sequences/06")
-    how = _depth_source(seq, "auto")
+    how = depth_source(seq, "auto")
     dis = registry.make("dis", preset="medium")
     real, synthetic, texture = [], [], []
     for i in range(0, len(seq) - 1, 5):

@@ -46,9 +46,10 @@
 # without the suffix). BODY=1 adds to each drawn motion the frame-to-frame pitch and roll of KITTI 00-05 and 08-10's
 # ground truth (`fit-motion --body-from`, from KITTI_POSES, default ../shared/data/kitti/poses; never 06 or 07, the
 # validation slices): the car body's motion on its suspension, which the towns' car lacks (suffix _body). The
-# supervised models do not depend on the prior. DEPTH=1 gives every model the first frame's inverse depth as a
-# third input channel (`train --depth-channel`; `vo` then reads each frame's depth: RGB-D cameras, renders,
-# stereo), the folders' suffix _depth before _cons.
+# supervised models do not depend on the prior. DEPTH=1 (with SCENE=room) gives every model the first frame's
+# inverse depth as a third input channel (`train --depth-channel`; `vo` then reads each frame's depth), the
+# folders' suffix _depth before _cons. The training rooms' depth is exact; the unseen room's and TUM's are a
+# sensor's, with holes.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/paper_recipe}
@@ -69,6 +70,10 @@ case "$SCENE" in
         fi ;;
   *) echo "SCENE must be street or room, not '$SCENE'" >&2; exit 2 ;;
 esac
+if [ "${DEPTH:-0}" = 1 ] && [ "$SCENE" != room ]; then
+  # the rows that score depth-reading models are the RGB-D ones (bench.results_repro_rgbd), on exact flow
+  echo "DEPTH=1 is for SCENE=room (the RGB-D rows)" >&2; exit 2
+fi
 mkdir -p "$OUT"
 for s in 1 2; do
   [ -f "$OUT/${SCENE}_train_s$s/poses.txt" ] || $DS render $RENDER --seed $s --out "$OUT/${SCENE}_train_s$s" --quiet

@@ -86,8 +86,10 @@ def fill_depth_holes(depth_z: np.ndarray, keep_sky: bool = False) -> np.ndarray:
     return out
 
 
-def _depth_source(seq, depth: str) -> str:
-    """``rendered`` or ``stereo`` for ``seq`` (``auto``: rendered when present); InputError otherwise."""
+def depth_source(seq, depth: str) -> str:
+    """Where frame depth comes from for ``seq``: ``rendered`` (its depth maps: a render or an RGB-D sensor) or
+    ``stereo`` (its rectified pair); ``depth`` is ``auto`` (depth maps when present), ``rendered`` or ``stereo``.
+    InputError where the sequence has not got that source."""
     how = depth
     if how == "auto":
         how = "rendered" if seq.has_depth else "stereo"
@@ -131,7 +133,7 @@ def load_frames(sequences: Seq, width: int, height: int, frame_step: int = 1, de
     """
     depths, cam_idx, cams, names = [], [], [], []
     for seq in sequences:
-        how = _depth_source(seq, depth)
+        how = depth_source(seq, depth)
         cam = seq.camera.scaled(width, height)
         if cam not in cams:
             cams.append(cam)
@@ -150,7 +152,7 @@ def frame_inverse_depth(seq, i: int, width: int, height: int) -> np.ndarray:
     """The depth channel of frame i as a network with one reads it at test time: (1, height, width)
     float32 1/m (0 = unknown), from the sequence's depth maps (sensor or rendered) or else its stereo
     pair (holes filled, as in training); InputError for a sequence with neither."""
-    how = _depth_source(seq, "auto")
+    how = depth_source(seq, "auto")
     d = seq.depth(i) if how == "rendered" else fill_depth_holes(stereo_depth(seq, i))
     return inverse_depth_input(d, width, height)
 
@@ -226,7 +228,7 @@ def load_image_frames(sequences: Seq, frame_step: int = 1, depth: str = "auto", 
         raise InputError(None, f"frame scales must be in [0.05, 4], got {list(scales)}")
     greys, depths, sensors, cam_idx, cams, names = [], [], [], [], [], []
     for seq in sequences:
-        how = _depth_source(seq, depth)
+        how = depth_source(seq, depth)
         simulated_sensor = how == "rendered" and seq.depth_exact_paths is not None
         for i in tqdm(_frame_indices(seq, frame_step, max_frames), desc=f"frames {seq.name} ({how})", unit="frame",
                       disable=not progress, leave=False):

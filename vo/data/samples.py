@@ -127,6 +127,9 @@ def shard_samples(out_dir, holdout_fraction: float, seed: int, height: int, widt
 
 def concat_samples(parts: Seq[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
     """The samples of ``parts`` (dicts of ``flow``, ``intrinsics``, ``target`` and, where every part has it,
-    ``inv_depth``) one after another."""
-    keys = ("flow", "intrinsics", "target") + (("inv_depth",) if all("inv_depth" in p for p in parts) else ())
+    ``inv_depth``) one after another; ValueError where only some parts have ``inv_depth``."""
+    with_depth = ["inv_depth" in p for p in parts]
+    if any(with_depth) and not all(with_depth):
+        raise ValueError("some parts have an inverse depth and some have none")
+    keys = ("flow", "intrinsics", "target") + (("inv_depth",) if any(with_depth) else ())
     return {k: np.concatenate([p[k] for p in parts], axis=0) for k in keys}

@@ -15,7 +15,7 @@ from deepslam.core.errors import InputError
 from deepslam.core.readers import open_sequence
 from deepslam.core.sequence import check_read_width, read_for_estimated_flow
 from deepslam.flow import registry as flow_registry
-from deepslam.vo.data import samples, supervised, toy
+from deepslam.vo.data import frames, samples, supervised, toy
 from deepslam.vo.net import NetConfig
 
 
@@ -59,8 +59,9 @@ class SupervisedData:
 
 def supervised_sources(spec: SupervisedData, net: NetConfig, seed: int, progress: bool):
     """The frame pairs of ``spec.sequences`` with the estimator's flow at the network's input and their
-    ground-truth relative poses (and each pair's first-frame depth for a depth-channel network), split into training and held-out by ``seed``. ``meta`` holds ``flow`` (the
-    estimator and its options) and ``data`` (pairs per sequence, strides, flow)."""
+    ground-truth relative poses (and each pair's first-frame depth for a depth-channel network), split into
+    training and held-out by ``seed``. ``meta`` holds ``flow`` (the estimator and its options) and ``data``
+    (pairs per sequence, strides, flow)."""
     if not spec.sequences:
         raise InputError(None, "supervised mode needs --sequence DIR...")
     check_read_width(spec.read_width_px)
@@ -71,7 +72,11 @@ def supervised_sources(spec: SupervisedData, net: NetConfig, seed: int, progress
         seq = open_sequence(d)
         if seq.gt is None:
             raise InputError(seq.root, "supervised training needs ground-truth poses; this sequence has none")
-        pairs = supervised.frame_pairs(seq.gt.world_from_cam, spec.pairs)
+        pairs = supervised.frame_pairs(seq.gt.world_from_cam, spec.pairs)  # rows of the ground truth
+        if seq.gt_frames is not None:  # ... as frame indices where it does not cover every frame (TUM)
+            pairs = np.asarray(seq.gt_frames)[pairs]
+        if net.depth_channel:  # a sequence with no depth to read fails here, before its flow is made
+            frames.depth_source(seq, "auto")
         view = read_for_estimated_flow(seq, spec.read_width_px, spec.flow, lambda: net.depth_channel)
         if view is not seq:
             seq = view

@@ -53,7 +53,8 @@ def supervised_samples(seq, pairs: np.ndarray, estimator, width: int, height: in
 
     Args:
         seq: :class:`core.sequence.Sequence` with ``gt``.
-        pairs: (P, 2) frame indices (i, j).
+        pairs: (P, 2) frame indices (i, j), each a frame the ground truth covers (``seq.gt_frames`` where
+            it does not cover all: TUM).
         estimator: a :mod:`flow.estimators` estimator (``pair_flow(seq, i, j)``).
         width, height: network input size.
         unknown: how unknown flow is resized (:data:`flow.estimators.UNKNOWN_FLOW`: ``nan`` for a
@@ -68,16 +69,22 @@ def supervised_samples(seq, pairs: np.ndarray, estimator, width: int, height: in
     if seq.gt is None:
         raise InputError(seq.root, "supervised training needs ground-truth poses; this sequence has none")
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    gt_rows = pairs if seq.gt_frames is None else np.searchsorted(seq.gt_frames, pairs)
+    if seq.gt_frames is not None and not np.array_equal(np.asarray(seq.gt_frames)[np.minimum(
+            gt_rows, len(seq.gt_frames) - 1)], pairs):
+        raise InputError(seq.root, "a frame pair outside the frames the ground truth covers")
     flows = np.zeros((len(pairs), 2, height, width), np.float32)
     intr = np.zeros((len(pairs), 4), np.float32)
     for p, (i, j) in enumerate(tqdm(pairs, desc=f"flow {seq.name}", unit="pair", disable=not progress, leave=False)):
         flows[p], intr[p] = to_network_input(estimator.pair_flow(seq, int(i), int(j)), seq.camera, width, height,
                                                 unknown)
     w = seq.gt.world_from_cam
-    target = se3.to_euler6(se3.relative(w[pairs[:, 1]], w[pairs[:, 0]])) if len(pairs) else np.zeros((0, 6))
+    target = se3.to_euler6(se3.relative(w[gt_rows[:, 1]], w[gt_rows[:, 0]])) if len(pairs) else np.zeros((0, 6))
     out = {"flow": flows, "intrinsics": intr, "target": target.astype(np.float32)}
     if inv_depth:
-        first = {int(i): frame_inverse_depth(seq, int(i), width, height) for i in np.unique(pairs[:, 0])}
+        first = {int(i): frame_inverse_depth(seq, int(i), width, height)
+                 for i in tqdm(np.unique(pairs[:, 0]), desc=f"depth {seq.name}", unit="frame", disable=not progress,
+                               leave=False)}
         out["inv_depth"] = np.stack([first[int(i)] for i in pairs[:, 0]]) if len(pairs) else \
             np.zeros((0, 1, height, width), np.float32)
     return out

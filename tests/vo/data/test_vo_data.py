@@ -580,8 +580,8 @@ def test_supervised_pairs_carry_their_first_frames_depth(plane_sequence):
         np.testing.assert_allclose(s["inv_depth"][k], frame_inverse_depth(seq, int(i), 80, 24))
     both = concat_samples([s, s])
     assert both["inv_depth"].shape == (10, 1, 24, 80)
-    assert "inv_depth" not in concat_samples([s, supervised_samples(seq, pairs, flow_registry.make("gt"), 80, 24,
-                                                                    progress=False)])
+    with pytest.raises(ValueError, match="inverse depth"):
+        concat_samples([s, supervised_samples(seq, pairs, flow_registry.make("gt"), 80, 24, progress=False)])
 
 
 def test_scene_scale_scales_each_samples_depth_and_keeps_the_motion_metric():
@@ -747,3 +747,23 @@ def test_mirrored_image_frames_keep_the_sensor_depth_and_refuse_nothing(plane_se
     only = with_mirrored(fr, keep_original=False)
     assert len(only) == n and only.names == both.names[n:] and only.cameras == [fr.cameras[0].mirrored()]
     np.testing.assert_array_equal(only.grey[2], both.grey[n + 2])
+
+
+def test_supervised_pairs_on_tum_read_the_frames_the_ground_truth_covers(shared_data):
+    """TUM's ground truth starts a few frames after its first image: a supervised pair's flow and depth are
+    those of the frames whose poses make its target."""
+    from deepslam.flow import registry as flow_registry
+
+    seq = open_sequence(shared_data / "tum" / "rgbd_dataset_freiburg3_teddy")
+    assert seq.gt_frames is not None and seq.gt_frames[0] > 0
+    rows = frame_pairs(seq.gt.world_from_cam, PairSpec(strides=(1,)))[:3]
+    pairs = np.asarray(seq.gt_frames)[rows]
+    dis = flow_registry.make("dis")
+    s = supervised_samples(seq, pairs, dis, 32, 24, progress=False, inv_depth=True)
+    for k, (i, j) in enumerate(pairs):
+        expect = se3.to_euler6(se3.inverse(seq.gt_pose(int(j))) @ seq.gt_pose(int(i)))
+        np.testing.assert_allclose(s["target"][k], expect, atol=1e-6)
+        np.testing.assert_allclose(s["inv_depth"][k], frame_inverse_depth(seq, int(i), 32, 24))
+    with pytest.raises(InputError):
+        supervised_samples(seq, np.array([[0, 1]]), dis, 32, 24, progress=False)  # frame 0 has no pose
+
