@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import subprocess
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -813,3 +816,19 @@ def test_repro_scores_a_model_again_once_its_file_changes(tmp_path):
     assert not (out / "runs" / "synthetic_s0_street_dis.txt").exists()
     assert (out / "eval" / "synthetic_mirror_s0_street_dis.json").is_file()
     assert (out / "eval" / "synthetic_s1_street_dis.json").is_file()
+
+
+@pytest.mark.parametrize("env, message", [
+    ({"SCENE": "room", "SYNTH_FLOW": "dis"}, "SCENE=room trains the exact-flow recipe only"),
+    ({"SCENE": "room", "BODY": "1"}, "SCENE=room trains the exact-flow recipe only"),
+    ({"DEPTH": "1"}, "DEPTH=1 is for SCENE=room"),
+    ({"SCENE": "kitchen"}, "SCENE must be street or room"),
+])
+def test_recipe_script_refuses_a_mix_it_cannot_train_before_writing(tmp_path, env, message):
+    """scripts/train_paper_recipe.sh: a combination it does not train exits 2 with one line, its folder not made."""
+    out = tmp_path / "recipe"
+    script = Path(__file__).resolve().parents[1] / "scripts" / "train_paper_recipe.sh"
+    p = subprocess.run(["bash", str(script), str(out), "1000", "0"], capture_output=True, text=True,
+                       env={**os.environ, **env, "DS": "false"})
+    assert p.returncode == 2 and message in p.stderr and len(p.stderr.strip().splitlines()) == 1
+    assert not out.exists()
