@@ -479,7 +479,7 @@ def _train(cfg: TrainConfig, train_source: Source, holdout_source: Source, run: 
     if run.writer:
         save_model(model_path, model, meta_out, half=half_weights)
         atomic.write_json(out_dir / "summary.json", summary)
-        _plot_history(out_dir / "loss.png", state["history"])
+        _plot_history(out_dir / "loss.png", state["history"], cfg.loss, cfg.rot_weight)
     run.say(f"stopped: {_why(state['stop_reason'])} after {state['epoch']} epochs ({state.get('samples', 0)} samples, "
             f"{run.elapsed() / 60:.1f} min); held-out loss {final['loss']:.4g}, NLL {final['nll']:.4g}; wrote {model_path}")
     return TrainResult(out_dir, model_path, state["history"], state["stop_reason"], state["best_val"], final["nll"])
@@ -494,7 +494,13 @@ def _why(reason: str | None) -> str:
     return _WHY.get(head, str(reason)) + (f"; {rest.strip()}" if rest else "")
 
 
-def _plot_history(path: Path, history: list[dict]) -> None:
+def stage1_loss_title(loss: str, rot_weight: float) -> str:
+    """The pose loss a run trains on, as the loss plot names it (``loss``: ``"l1"`` or ``"mse"``)."""
+    kind = {"l1": "L1", "mse": "MSE"}.get(loss, loss)
+    return f"{rot_weight:g} {kind}(euler) + {kind}(t)"
+
+
+def _plot_history(path: Path, history: list[dict], loss: str, rot_weight: float) -> None:
     s1 = [h for h in history if h["stage"] == 1]
     s2 = [h for h in history if h["stage"] == 2]
     fig = new_figure((10, 4))
@@ -502,7 +508,7 @@ def _plot_history(path: Path, history: list[dict]) -> None:
     if s1:
         axes[0].semilogy([h["epoch"] for h in s1], [h["train_loss"] for h in s1], label="train")
         axes[0].semilogy([h["epoch"] for h in s1], [h["val_loss"] for h in s1], label="held-out")
-    axes[0].set(title="stage 1: 50 MSE(euler) + MSE(t)", xlabel="epoch")
+    axes[0].set(title=f"stage 1: {stage1_loss_title(loss, rot_weight)}", xlabel="epoch")
     axes[0].legend()
     if s2:
         axes[1].plot([h["epoch"] for h in s2], [h["holdout_nll"] for h in s2])

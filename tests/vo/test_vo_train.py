@@ -20,7 +20,7 @@ from deepslam.vo.data.toy import toy_plane_samples
 from deepslam.vo.infer import VOPredictor
 from deepslam.vo.modelfiles.modelio import load_checkpoint, load_model
 from deepslam.vo.net import NetConfig
-from deepslam.vo.train import CHECKPOINT, TrainConfig, fit_uncertainty, train
+from deepslam.vo.train import CHECKPOINT, TrainConfig, fit_uncertainty, stage1_loss_title, train
 
 REPO = Path(__file__).resolve().parents[2]
 CAM = KITTI_00_CAMERA.scaled(80, 24)
@@ -265,3 +265,8 @@ def test_cuda_training_matches_the_cpu_within_tolerance(toy, tmp_path):
     assert gpu.best_val_loss == pytest.approx(cpu.best_val_loss, rel=0.05)
     a, _ = load_model(gpu.model_path)  # trained on the GPU, loads on the CPU
     assert next(a.parameters()).device.type == "cpu"
+
+
+def test_the_loss_plot_names_the_loss_the_run_trained_on():
+    assert stage1_loss_title("l1", 50.0) == "50 L1(euler) + L1(t)"
+    assert stage1_loss_title("mse", 2.5) == "2.5 MSE(euler) + MSE(t)"
