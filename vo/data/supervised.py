@@ -69,17 +69,16 @@ def supervised_samples(seq, pairs: np.ndarray, estimator, width: int, height: in
     if seq.gt is None:
         raise InputError(seq.root, "supervised training needs ground-truth poses; this sequence has none")
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-    gt_rows = pairs if seq.gt_frames is None else np.searchsorted(seq.gt_frames, pairs)
-    if seq.gt_frames is not None and not np.array_equal(np.asarray(seq.gt_frames)[np.minimum(
-            gt_rows, len(seq.gt_frames) - 1)], pairs):
+    world_from_cam = [(seq.gt_pose(int(i)), seq.gt_pose(int(j))) for i, j in pairs]  # (w_i, w_j) per pair
+    if any(w_i is None or w_j is None for w_i, w_j in world_from_cam):
         raise InputError(seq.root, "a frame pair outside the frames the ground truth covers")
     flows = np.zeros((len(pairs), 2, height, width), np.float32)
     intr = np.zeros((len(pairs), 4), np.float32)
     for p, (i, j) in enumerate(tqdm(pairs, desc=f"flow {seq.name}", unit="pair", disable=not progress, leave=False)):
         flows[p], intr[p] = to_network_input(estimator.pair_flow(seq, int(i), int(j)), seq.camera, width, height,
                                                 unknown)
-    w = seq.gt.world_from_cam
-    target = se3.to_euler6(se3.relative(w[gt_rows[:, 1]], w[gt_rows[:, 0]])) if len(pairs) else np.zeros((0, 6))
+    target = se3.to_euler6(se3.relative(np.stack([w_j for _, w_j in world_from_cam]),
+                                        np.stack([w_i for w_i, _ in world_from_cam]))) if len(pairs) else np.zeros((0, 6))
     out = {"flow": flows, "intrinsics": intr, "target": target.astype(np.float32)}
     if inv_depth:
         first = {int(i): frame_inverse_depth(seq, int(i), width, height)
