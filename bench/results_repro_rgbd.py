@@ -15,7 +15,8 @@ and the share of pairs within the predicted 1-sigma; synthetic / supervised is t
 
 ``--models DIR``: the training script's folder (default ``bench/paper_recipe``: ``room_{mode}_cons_s{SEED}/``
 with ``model.safetensors``, or ``checkpoint.safetensors`` of a run still going). Writes ``results.json`` and
-``results.md`` under ``--out``; evaluations are cached there (a killed run resumes).
+``results.md`` under ``--out``; evaluations are cached there (a killed run resumes; a model whose file changed is
+scored again).
 """
 from __future__ import annotations
 
@@ -25,10 +26,9 @@ import time
 from pathlib import Path
 
 from bench.results_common import write_report
-from bench.results_repro import (_model_file, _repo_path, learning_curve, main_with_models, model_card,
-                                 own_pose_scores, pm, vo_scores)
+from bench.results_repro import (_model_file, _repo_path, forget_if_retrained, learning_curve, main_with_models,
+                                 model_card, own_pose_scores, pm, vo_scores)
 from bench.results_vo import _agg, _cached
-from deepslam.core.integrity import sha256_file
 from deepslam.studies.demo import render_once
 
 MODES = {"room_synthetic_mirror": "synthetic (single frames of the rooms, mirrored motions)",
@@ -96,11 +96,11 @@ def run(cfg: ReproRGBDConfig, out: Path, data: Path) -> dict:
                 continue
             curve = learning_curve(folder / "history.json") if (folder / "history.json").is_file() else {}
             trained[f"{mode} s{seed}"] = model_card(model, curve)
-            # cached under the model's digest: a model trained further (or again) is scored again
-            rec, digest = {"seed": seed}, sha256_file(model)[:12]
+            forget_if_retrained(out, f"{mode}_s{seed}", model)  # a model trained further (or again) is scored again
+            rec = {"seed": seed}
             for name, seq, flow in cases:
                 print(f"score {mode} seed {seed}: {name}", flush=True)
-                rec[name] = own_pose_scores(out, f"{mode}_s{seed}_{name}_{seq.name}_{digest}", seq, model, flow)
+                rec[name] = own_pose_scores(out, f"{mode}_s{seed}_{name}_{seq.name}", seq, model, flow)
             rows.setdefault(mode, []).append(rec)
     beside: dict = {}
     for name, seq, flow in cases:
