@@ -11,10 +11,14 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import torch
 
-from bench import results_slam, results_vo
+from bench import depth_channel_probe, results_slam, results_vo
 from deepslam.core import metrics, se3
 from deepslam.core.trajectory import Trajectory
+from deepslam.vo.infer import VOPredictor
+from deepslam.vo.modelfiles.modelio import make_net
+from deepslam.vo.net import NetConfig
 
 
 def _seq(world_from_cam: np.ndarray):
@@ -832,3 +836,29 @@ def test_recipe_script_refuses_a_mix_it_cannot_train_before_writing(tmp_path, en
                        env={**os.environ, **env, "DS": "false"})
     assert p.returncode == 2 and message in p.stderr and len(p.stderr.strip().splitlines()) == 1
     assert not out.exists()
+
+
+def test_depth_probe_reads_a_network_that_ignores_its_depth_as_one():
+    """bench.depth_channel_probe: a network whose depth-channel weights are zero moves no translation when its
+    inverse depth is doubled or zeroed (ratios exactly 1); with them random, the ratios move."""
+    torch.manual_seed(0)
+    net = make_net(NetConfig(6, 10, filters=4, hidden_units=8, depth_channel=True, kernels=(3,), strides=(1,)))
+    with torch.no_grad():
+        net.trans_mean.bias.fill_(1.0)  # a translation well away from zero
+    pred = VOPredictor(net, bf16=False, channels_last=False)
+    rng = np.random.default_rng(0)
+    flows = rng.normal(0, 3, (5, 2, 6, 10)).astype(np.float32)
+    intr = np.tile(np.float32([10, 10, 5, 3]), (5, 1))
+    inv = rng.uniform(0.2, 1.0, (5, 1, 6, 10)).astype(np.float32)
+    moved = depth_channel_probe.probe(pred, flows, intr, inv)
+    assert abs(moved["x2"] - 1.0) > 1e-4
+    with torch.no_grad():
+        net.conv[0].weight[:, 2].zero_()  # the depth channel's weights
+    still = depth_channel_probe.probe(pred, flows, intr, inv)
+    assert still["x2"] == pytest.approx(1.0, abs=1e-6) and still["zero"] == pytest.approx(1.0, abs=1e-6)
+
+
+def test_depth_probe_refuses_a_missing_room(tmp_path, capsys):
+
+    assert depth_channel_probe.main(["--room", str(tmp_path / "nothing")]) == 2
+    assert "no rendered room" in capsys.readouterr().err
