@@ -9,7 +9,7 @@ from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
 from deepslam.scenes import SceneConfig
 
-TRAJECTORY_KINDS = ("auto", "car", "drone")
+TRAJECTORY_KINDS = ("auto", "car", "drone", "handheld")
 BACKENDS = ("mujoco", "pyrender")
 FORMATS = ("ours", "kitti", "euroc", "tum")
 FLOW_FORMATS = ("npy", "flo", "png")
@@ -23,11 +23,13 @@ class TrajectoryConfig:
     """The scripted camera motion."""
 
     kind: str = "auto"
-    """"car" (planar, 1.65 m above the road, street only), "drone" (6DoF) or "auto" (street: car, room: drone)."""
+    """"car" (planar, 1.65 m above the road, street only), "drone" (6DoF), "handheld" (a camera walked round the
+    room's table at 0.2-0.45 m/s, aimed at it, with the hand's sway; room only) or "auto" (street: car, room:
+    drone)."""
     frames: int = 300
     """Number of frames to render."""
     rate_hz: float | None = None
-    """Frame rate in Hz (None: 10 for car, 20 for drone)."""
+    """Frame rate in Hz (None: 10 for car, 20 for drone, 30 for handheld)."""
     seed: int | None = None
     """Seed of the trajectory's random choices (speeds, waypoints); None: the scene's seed."""
     camera_ahead_m: float = 0.0

@@ -12,6 +12,12 @@ z forward), world z up, and ``rate_hz``.
   pitch and roll wobbling; time is scaled so speed <= 1.6 m/s and rotation rate <= 0.95 rad/s;
   20 Hz; the loop repeats (period about 10-13 s), so every place is revisited with the same view.
   In the street: a flight along the route 3-5 m up at 1.5 m/s.
+- :class:`HandheldMotion`: a hand-held camera carried round the room's table at a walking pace (0.2-0.45
+  m/s, 1.2-1.6 m up, in the drone's free ring), aimed at the table with the hand's sway (pan, tilt and roll
+  of a few degrees at 0.3-1.2 Hz); 30 Hz, a Kinect's rate; the walk is a closed loop, so it revisits. Made
+  for the RGB-D rows: TUM RGB-D's hand-held sequences move a few centimetres a frame against the drone's
+  3-7 at 30 Hz, and turn about a radian per metre (fr3/teddy: 12 mm and 0.87 degrees a frame at the median,
+  0.83 m of path per radian of rotation; the drone in the room 29 mm, 0.81 degrees, 1.9 m).
 - :class:`KeyframeMotion`: C2 interpolation of given poses (tests, custom paths).
 - :class:`BodyMotion`: the car body's pitch and roll on its suspension, added to :class:`CarMotion`'s camera
   (``render --body-motion``).
@@ -25,12 +31,25 @@ from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation
 
 from deepslam.core import se3
+from deepslam.core.errors import InputError
 from deepslam.scenes.geometry import PeriodicPath
 from deepslam.scenes.spec import PathProgress, Scene, StopGoProgress, smoothstep5, speed_profile
 
 CAR_MAX_SPEED_MPS = 15.0
 DRONE_MAX_SPEED_MPS = 1.6
 DRONE_MAX_RATE_RAD_S = 0.95
+HANDHELD_SPEED_MPS = (0.35, 0.55)
+"""Range of :class:`HandheldMotion`'s top walking speed, m/s (its loop's fastest point; the pace varies along
+the loop, about half of it at the slowest point)."""
+HANDHELD_HEIGHT_M = (1.2, 1.6)
+"""Range of the hand-held camera's height above the floor, metres."""
+HANDHELD_TARGET_Z_M = 0.9
+"""Height of the point on the room's table the camera is aimed at, metres (the table top is at 0.75 m,
+boxes stand on it)."""
+HANDHELD_SWAY_RAD = (0.10, 0.09, 0.05)
+"""Amplitude of each of the hand's pan, tilt and roll sinusoids about the aim, radians (three per angle)."""
+HANDHELD_SWAY_HZ = (0.3, 1.2)
+"""Frequency range of the hand's sway, Hz."""
 
 
 def cam_from_forward(forward: np.ndarray, up: np.ndarray = np.array([0, 0, 1.0])) -> np.ndarray:
@@ -267,6 +286,72 @@ class DroneMotion:
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
+class HandheldMotion:
+    """A hand-held camera walked round the room's table (see module docstring). ``pose_u(u)`` gives
+    world_from_cam over one loop u in [0, 1) (period 1: the walk revisits every place with the same view);
+    time maps to u through a start-from-rest warp and the loop period, set so that the walk's fastest point is
+    at :attr:`max_speed_mps`.
+
+    The path: radius ``r_spline(u)`` and height ``z_spline(u)`` round ``centre``, the angle ``2 pi u +
+    th_spline(u)`` (periodic splines; one way round, the pace varying). The aim: the optical axis from the camera to ``target`` with no roll, then the
+    hand's sway applied in the camera's own axes (pan about y, tilt about x, roll about z; OpenCV axes),
+    each a sum of sinusoids of u with integer frequencies (so the loop stays closed)."""
+
+    centre: np.ndarray
+    target: np.ndarray
+    r_spline: CubicSpline
+    th_spline: CubicSpline
+    z_spline: CubicSpline
+    sway_terms: np.ndarray
+    period_s: float
+    rate_hz: float
+    max_speed_mps: float
+    ramp_s: float = 2.0
+    name: str = "handheld"
+
+    @staticmethod
+    def create(scene: Scene, rng: np.random.Generator, rate_hz: float = 30.0) -> "HandheldMotion":
+        lay = scene.layout
+        n = 6
+        u = np.arange(n) / n
+        lo, hi = lay["radius_m"]
+        zlo, zhi = (max(HANDHELD_HEIGHT_M[0], lay["height_m"][0]), min(HANDHELD_HEIGHT_M[1], lay["height_m"][1]))
+        # knots inside the ring's middle so that the splines' overshoot stays inside the ring
+        r_spl = _periodic_spline(u, rng.uniform(lo + 0.15, hi - 0.15, n))
+        z_spl = _periodic_spline(u, rng.uniform(zlo + 0.05, zhi - 0.05, n))
+        th_spl = _periodic_spline(u, rng.uniform(-0.35, 0.35, n) * (2 * np.pi / n))  # the pace varies
+        speed = float(rng.uniform(*HANDHELD_SPEED_MPS))
+        centre = np.asarray(lay["centre"], np.float64)
+        target = np.array([centre[0], centre[1], HANDHELD_TARGET_Z_M])
+        uu = np.linspace(0, 1, 4000, endpoint=False)
+        length_per_loop = 2 * np.pi * float(np.mean(r_spl(uu)))
+        # sway frequencies in cycles per loop, drawn so that at the walk's pace they fall in HANDHELD_SWAY_HZ
+        loop_s = length_per_loop / speed
+        k = np.maximum(1, np.round(rng.uniform(*HANDHELD_SWAY_HZ, (3, 3)) * loop_s))
+        amp = np.asarray(HANDHELD_SWAY_RAD)[:, None] * rng.uniform(0.5, 1.0, (3, 3))
+        sway = np.stack([amp, k, rng.uniform(0, 2 * np.pi, (3, 3))], axis=-1)  # (angle, term, [a, k, phase])
+        m = HandheldMotion(centre, target, r_spl, th_spl, z_spl, sway, 1.0, rate_hz, speed)
+        du = 1e-4
+        v_u = np.linalg.norm(m.pose_u(uu + du)[:, :3, 3] - m.pose_u(uu)[:, :3, 3], axis=1) / du
+        return dataclasses.replace(m, period_s=float(v_u.max() / speed))
+
+    def pose_u(self, u) -> np.ndarray:
+        """world_from_cam (N, 4, 4) at loop parameters u (any real; period 1)."""
+        u = np.atleast_1d(np.asarray(u, np.float64))
+        uf = np.mod(u, 1.0)
+        th = 2 * np.pi * u + self.th_spline(uf)
+        r = self.r_spline(uf)
+        pos = np.stack([self.centre[0] + r * np.cos(th), self.centre[1] + r * np.sin(th), self.z_spline(uf)], -1)
+        aim = cam_from_forward(self.target - pos)
+        pan, tilt, roll = (DroneMotion._series(terms, u) for terms in self.sway_terms)
+        cam_from_swayed = Rotation.from_euler("YXZ", np.stack([pan, tilt, roll], -1)).as_matrix()
+        return se3.from_rt(aim @ cam_from_swayed, pos)
+
+    def world_from_cam(self, t) -> np.ndarray:
+        return self.pose_u(_time_warp(np.atleast_1d(t), self.ramp_s) / self.period_s)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
 class StreetDroneMotion:
     """A drone flying along the street route 3-5 m up at 1.5 m/s, yaw and pitch wobbling."""
 
@@ -321,7 +406,7 @@ class KeyframeMotion:
 
 def make_motion(scene: Scene, kind: str, rng: np.random.Generator, rate_hz: float | None = None,
                 camera_ahead_m: float = 0.0, body_motion: float = 0.0, body_rng: np.random.Generator | None = None):
-    """The scripted camera motion ``kind`` ("car" or "drone") for ``scene``; ``camera_ahead_m``: the car's
+    """The scripted camera motion ``kind`` ("car", "drone" or "handheld") for ``scene``; ``camera_ahead_m``: the car's
     camera that far ahead of its rear axle (:attr:`sim.config.TrajectoryConfig.camera_ahead_m`); ``body_motion``:
     the car body's pitch and roll, a multiple of KITTI's (:class:`BodyMotion`, drawn from ``body_rng``, a
     generator of its own so that the rest of the motion is the same with and without it)."""
@@ -338,8 +423,12 @@ def make_motion(scene: Scene, kind: str, rng: np.random.Generator, rate_hz: floa
         if "lane_path" in scene.layout:
             return StreetDroneMotion.create(scene, rng, rate_hz or 20.0)
         return DroneMotion.create(scene, rng, rate_hz or 20.0)
+    if kind == "handheld":
+        if "radius_m" not in scene.layout:
+            raise InputError(None, "the handheld trajectory walks round the room's table: use --scene room")
+        return HandheldMotion.create(scene, rng, rate_hz or 30.0)
     raise ValueError(f"unknown trajectory kind {kind!r}")
 
 
-__all__ = ["BodyMotion", "CarMotion", "DroneMotion", "StreetDroneMotion", "KeyframeMotion", "make_motion", "cam_from_forward",
+__all__ = ["BodyMotion", "CarMotion", "DroneMotion", "HandheldMotion", "StreetDroneMotion", "KeyframeMotion", "make_motion", "cam_from_forward",
            "smoothstep5"]

@@ -14,7 +14,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scene", default="street",
                    help="street (KITTI-like town), room (EuRoC-like hall), or a scene file (.yaml/.json) adding your "
                         "own OBJ/GLB/PLY meshes to one of them (README: Your own meshes); default street")
-    p.add_argument("--trajectory", default="auto", help="car, drone or auto (street: car, room: drone); default auto")
+    p.add_argument("--trajectory", default="auto", help="car, drone, handheld (room only: a camera walked round the table) or auto (street: car, room: drone); default auto")
     p.add_argument("--frames", type=int, default=300, help="number of frames (default 300)")
     p.add_argument("--out", required=True, help="output folder (must not exist or be empty, unless --resume)")
     p.add_argument("--format", default="ours",
@@ -32,7 +32,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--deform", type=float, default=0.0, metavar="A", help="amplitude of the waving flags in metres (0 = static)")
     p.add_argument("--seed", type=int, default=None, help="seed of the scene and trajectory (default: the scene "
                                                               "file's, else 0)")
-    p.add_argument("--rate", type=float, default=None, help="frame rate in Hz (default: car 10, drone 20)")
+    p.add_argument("--rate", type=float, default=None, help="frame rate in Hz (default: car 10, drone 20, handheld 30)")
     p.add_argument("--camera-ahead", type=float, default=0.0, metavar="M",
                    help="car: the camera this far ahead of the rear axle, metres, so that it slides sideways in turns "
                         "as a real car's does (KITTI's ground truth fits 0.84); default 0: on the axle's path")

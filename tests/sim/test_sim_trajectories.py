@@ -93,6 +93,37 @@ def test_drone_is_6dof_within_limits_smooth_and_revisits(seed):
     assert r.min() >= 1.5 - 1e-9 and r.max() <= 2.2 + 1e-9
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_handheld_walks_round_the_table_at_a_walking_pace_aimed_at_it_and_revisits(seed):
+    motion, poses = _sample("room", "handheld", seed, 70.0)
+    assert motion.rate_hz == 30.0
+    pos, vel, acc, rate = _kinematics(poses)
+    speed = np.linalg.norm(vel, axis=1)
+    assert speed[0] < 1e-3 and 0.35 - 1e-3 <= speed.max() <= 0.55 + 1e-3  # a walking pace, from rest
+    assert speed[300:].min() > 0.05  # it keeps walking after the start-up ramp (slower at places)
+    assert rate.max() <= 1.3 and np.abs(np.diff(acc, axis=0)).max() < 0.1
+    # in the drone's free ring, at a hand's height
+    r = np.linalg.norm(pos[:, :2], axis=1)
+    assert r.min() >= 1.5 and r.max() <= 2.2 and pos[:, 2].min() >= 1.2 - 1e-9 and pos[:, 2].max() <= 1.6 + 1e-9
+    # aimed at the table: its centre stays within 25 degrees of the optical axis (the hand's sway), in view
+    to_table = np.array([0.0, 0.0, 0.9]) - pos
+    axis = poses[:, :3, 2]  # the camera's z (forward) in the world
+    cos = np.sum(axis * to_table, axis=1) / np.linalg.norm(to_table, axis=1)
+    assert np.degrees(np.arccos(cos.max())) < 2.0 and np.degrees(np.arccos(cos.min())) < 25.0
+    # a closed loop: every pose comes back one period later
+    t1 = 5.0
+    np.testing.assert_allclose(motion.world_from_cam(np.array([t1]))[0],
+                               motion.world_from_cam(np.array([t1 + motion.period_s]))[0], atol=1e-9)
+    # a hand-held camera's turn for its path: between 0.4 and 1.2 m of path per radian of rotation
+    step = se3.relative(poses[:-1:3], poses[3::3])
+    assert 0.4 < np.linalg.norm(step[:, :3, 3], axis=1).sum() / se3.rotation_angle(step).sum() < 1.2
+
+
+def test_handheld_is_for_the_room():
+    with pytest.raises(InputError, match="handheld trajectory walks round the room's table"):
+        _sample("street", "handheld", 0, 1.0)
+
+
 def test_motions_are_deterministic_and_seed_dependent():
     _, a = _sample("street", "car", 3, 5.0)
     _, b = _sample("street", "car", 3, 5.0)
