@@ -4,14 +4,17 @@ Scores the NN_cons models that ``SCENE=room scripts/train_paper_recipe.sh`` trai
 input, the paper's L1 loss, cyclic learning rate and stride mixture; synthetic: single frames of two rooms rendered
 as a Kinect would see them, motions drawn from a kernel density fit of their camera's own motion with its mirror
 images; supervised: the same renders' frame pairs, exact flow, ground-truth poses) with the network's own pose
-(``vo --pose net``) on data none of them saw: another rendered room (Kinect-like depth) with the simulator's exact
-flow and with DIS flow, and the real TUM fr3/teddy slice with DIS flow. Beside them, on the same data: the RGB-D
+(``vo --pose net``) on data none of them saw: another rendered room (Kinect-like depth) flown by the drone and the
+same room walked hand-held (``render --trajectory handheld``: a hand-held camera's motion a frame, as teddy's), each
+with the simulator's exact flow and with DIS flow, and the real TUM fr3/teddy slice with DIS flow. Beside them, on the same data: the RGB-D
 default (``tum_cons``, what ``deepslam vo`` runs on a TUM sequence: the solve pose head with the frame's depth) and
 ``pnp`` (SIFT + PnP-RANSAC on the frame's depth: the render's Kinect-like depth, teddy's sensor depth).
 
 The figures are the TUM benchmark's: ATE (m, se3-aligned) and RPE per frame (m, degrees), the path-length ratio,
 and the share of pairs within the predicted 1-sigma; synthetic / supervised is the ratio of the RPE's translation
-(the routes are a few metres long: a drift per 100 m means nothing there).
+(the routes are a few metres long: a drift per 100 m means nothing there). Whether a rendered room ranks the
+rows as teddy does: the Spearman rank correlation of their ATE with teddy's (DIS flow), and how many networks read
+the room's path on the same side of 1 as teddy's.
 
 ``--models DIR``: the training script's folder (default ``bench/paper_recipe``: ``room_{mode}_cons_s{SEED}/``
 with ``model.safetensors``, or ``checkpoint.safetensors`` of a run still going). Writes ``results.json`` and
@@ -24,6 +27,8 @@ import dataclasses
 import sys
 import time
 from pathlib import Path
+
+from scipy.stats import spearmanr
 
 from bench.results_common import write_report
 from bench.results_repro import (_model_file, _repo_path, forget_if_retrained, learning_curve, main_with_models,
@@ -49,6 +54,10 @@ FIGURES = (("ATE [m]", "ate_m", ".3g"), ("RPE [m/frame]", "rpe_t_m", ".3g"), ("R
 """Columns of a case's table: (title, key of the ``vo`` record, format)."""
 CASE_TITLES = {"room_exact": "unseen rendered room (room {room_seed}, Kinect-like depth, 30 Hz), exact flow",
                "room_dis": "unseen rendered room (room {room_seed}, Kinect-like depth, 30 Hz), DIS flow",
+               "handheld_exact": "the same room walked hand-held (`--trajectory handheld`, {handheld_frames} frames at "
+                                 "30 Hz), exact flow",
+               "handheld_dis": "the same room walked hand-held (`--trajectory handheld`, {handheld_frames} frames at "
+                               "30 Hz), DIS flow",
                "teddy_dis": "TUM fr3/teddy (real, never trained on), DIS flow"}
 """Title of each case (formatted with the config)."""
 
@@ -65,15 +74,19 @@ class ReproRGBDConfig:
     """Seed of the unseen room (the training rooms are 1 and 2; ``bench.results_adapt`` renders the same room)."""
     room_frames: int = 150
     """Frames of the unseen room (30 Hz)."""
+    handheld_frames: int = 200
+    """Frames of the same room walked hand-held (30 Hz; 200: teddy's 6.7 s); 0: no hand-held rows."""
 
 
-def _render_room(cfg: ReproRGBDConfig, out: Path, log: list[str]) -> Path:
-    """The unseen room as a Kinect would see it (640x480, f = 537 px, 30 Hz, ``--depth-noise kinect``), in
-    deepslam's own format so that the simulator's exact flow is there too; rendered once, resumed if killed; the
-    command that makes it goes to ``log``."""
+def _render_room(cfg: ReproRGBDConfig, out: Path, log: list[str], trajectory: str = "drone") -> Path:
+    """The unseen room as a Kinect would see it (640x480, f = 537 px, 30 Hz, ``--depth-noise kinect``), flown by
+    the drone or walked hand-held (``trajectory``), in deepslam's own format so that the simulator's exact flow is
+    there too; rendered once, resumed if killed; the command that makes it goes to ``log``."""
     flags = ("--height", "480", "--focal-px", "537", "--rate", "30", "--stereo-baseline", "0",
              "--depth-noise", "kinect", "--quiet")
-    return render_once("room", "drone", cfg.room_frames, 640, cfg.room_seed, out / f"room_s{cfg.room_seed}", log, flags)
+    frames, folder = ((cfg.room_frames, f"room_s{cfg.room_seed}") if trajectory == "drone"
+                      else (cfg.handheld_frames, f"room_{trajectory}_s{cfg.room_seed}"))
+    return render_once("room", trajectory, frames, 640, cfg.room_seed, out / folder, log, flags)
 
 
 def run(cfg: ReproRGBDConfig, out: Path, data: Path) -> dict:
@@ -83,6 +96,9 @@ def run(cfg: ReproRGBDConfig, out: Path, data: Path) -> dict:
     log: list[str] = []
     room = _render_room(cfg, out, log)
     cases = [("room_exact", room, "gt"), ("room_dis", room, "dis")]
+    if cfg.handheld_frames:
+        handheld = _render_room(cfg, out, log, "handheld")
+        cases += [("handheld_exact", handheld, "gt"), ("handheld_dis", handheld, "dis")]
     teddy = data / "tum" / "rgbd_dataset_freiburg3_teddy"
     if (teddy / "rgb.txt").is_file():
         cases.append(("teddy_dis", teddy, "dis"))
@@ -112,6 +128,8 @@ def run(cfg: ReproRGBDConfig, out: Path, data: Path) -> dict:
     report = {"config": dataclasses.asdict(cfg), "commands": log, "models": trained, "rows": rows, "beside": beside,
               "cases": [c[0] for c in cases], "minutes": (time.perf_counter() - t0) / 60}
     report["ratio_synthetic_over_supervised"] = ratios(report)
+    report["agreement_with_teddy"] = {case: rank_agreement(report, case) for case in ("room_dis", "handheld_dis")
+                                      if case in report["cases"] and "teddy_dis" in report["cases"]}
     write_report(out, report, markdown)
     return report
 
@@ -125,6 +143,34 @@ def ratios(report: dict) -> dict:
 
     return {f"{mine}/{other}": {c: ratio(mine, other, c) for c in report["cases"]}
             for mine, other in SYNTHETIC_OVER_SUPERVISED if report["rows"].get(mine) and report["rows"].get(other)}
+
+
+def _ate_and_path(report: dict, case: str) -> dict:
+    """``{row: (ATE m, path ratio)}`` of every row on ``case``: each network mode's mean over seeds, the RGB-D
+    default and ``pnp``; rows without a figure are left out."""
+    rows = {}
+    for mode, recs in report["rows"].items():
+        ate = _agg([r[case].get("ate_m") for r in recs])["mean"]
+        path = _agg([r[case].get("path_length_ratio") for r in recs])["mean"]
+        if ate is not None:
+            rows[mode] = (ate, path)
+    for key, by_case in report.get("beside", {}).items():
+        d = by_case.get(case) or {}
+        if d.get("ate_m") is not None:
+            rows[key] = (d["ate_m"], d.get("path_length_ratio"))
+    return rows
+
+
+def rank_agreement(report: dict, case: str, reference: str = "teddy_dis") -> dict:
+    """How a rendered room's ``case`` ranks the rows against ``reference`` (teddy): ``{"rho": Spearman rank
+    correlation of the rows' ATE (None under 3 rows), "rows": n, "same_side": networks whose path ratio is on the
+    same side of 1 on both, "networks": networks with both ratios}``."""
+    mine, ref = _ate_and_path(report, case), _ate_and_path(report, reference)
+    common = [k for k in mine if k in ref]
+    rho = float(spearmanr([mine[k][0] for k in common], [ref[k][0] for k in common])[0]) if len(common) >= 3 else None
+    nets = [k for k in common if k in report["rows"] and mine[k][1] is not None and ref[k][1] is not None]
+    same = sum((mine[k][1] > 1) == (ref[k][1] > 1) for k in nets)
+    return {"rho": rho, "rows": len(common), "same_side": same, "networks": len(nets)}
 
 
 def markdown(report: dict) -> str:
@@ -157,6 +203,14 @@ def markdown(report: dict) -> str:
             if by_case.get(case) is not None:
                 mine, other = pair.split("/")
                 md.append(f"- {MODES[mine]} / {MODES[other]} (RPE translation): x{by_case[case]:.2f}")
+    agree = report.get("agreement_with_teddy", {})
+    if agree:
+        md += ["", "Does a rendered room rank the rows as teddy does (DIS flow)? Spearman rank correlation of the "
+               "rows' ATE with teddy's, and the networks reading the path on teddy's side of 1 (long or short):", ""]
+        for case, a in agree.items():
+            rho = "n/a" if a["rho"] is None else f"{a['rho']:.2f}"
+            md.append(f"- {CASE_TITLES.get(case, case).format(**cfg)}: rho {rho} over {a['rows']} rows; "
+                      f"{a['same_side']} of {a['networks']} networks on teddy's side")
     md += ["", "The paper (EuRoC, rigid rooms): synthetic / supervised about x1.",
            "", f"Run time: {report.get('minutes', 0):.1f} min."]
     return "\n".join(md) + "\n"
@@ -164,7 +218,7 @@ def markdown(report: dict) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     return main_with_models("results_repro_rgbd", __doc__, ReproRGBDConfig(),
-                            lambda cfg: dataclasses.replace(cfg, room_frames=12), "repro_rgbd", run, markdown, argv)
+                            lambda cfg: dataclasses.replace(cfg, room_frames=12, handheld_frames=12), "repro_rgbd", run, markdown, argv)
 
 
 if __name__ == "__main__":

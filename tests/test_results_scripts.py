@@ -802,6 +802,33 @@ def test_repro_rgbd_table_rows_beside_and_ratio():
     assert md.count("(RPE translation): x2.00") == 1  # teddy's ratio is missing a figure: not stated
 
 
+def test_repro_rgbd_rank_agreement_with_teddy():
+    """rank_agreement: Spearman's rho of the rows' ATE against teddy's (networks, the default and pnp together) and
+    the networks whose path ratio is on teddy's side of 1; the table states both."""
+    from bench import results_repro_rgbd as rr
+
+    def fig(ate, path):
+        return {"ate_m": ate, "path_length_ratio": path}
+
+    report = {"config": {"room_seed": 51, "handheld_frames": 200}, "models": {},
+              "cases": ["room_dis", "handheld_dis", "teddy_dis"],
+              "rows": {"room_synthetic_mirror": [{"room_dis": fig(0.1, 0.9), "handheld_dis": fig(0.3, 1.5),
+                                                  "teddy_dis": fig(0.4, 2.4)}],
+                       "room_supervised": [{"room_dis": fig(0.5, 0.7), "handheld_dis": fig(0.4, 1.2),
+                                            "teddy_dis": fig(0.5, 2.2)}]},
+              "beside": {"default": {"room_dis": fig(0.2, 0.8), "handheld_dis": fig(0.2, 1.1), "teddy_dis": fig(0.2, 1.1)},
+                         "pnp": {"room_dis": fig(0.3, 1.0), "handheld_dis": fig(0.02, 1.0), "teddy_dis": fig(0.02, 1.0)}}}
+    # teddy's order by ATE: pnp < default < synthetic < supervised; the hand-held room's the same, the drone room's
+    # synthetic < default < pnp < supervised
+    hand, drone = rr.rank_agreement(report, "handheld_dis"), rr.rank_agreement(report, "room_dis")
+    assert hand == {"rho": pytest.approx(1.0), "rows": 4, "same_side": 2, "networks": 2}
+    assert drone["rho"] == pytest.approx(0.2) and drone["same_side"] == 0 and drone["networks"] == 2
+    report["agreement_with_teddy"] = {"room_dis": drone, "handheld_dis": hand}
+    md = rr.markdown(report)
+    assert ("- the same room walked hand-held (`--trajectory handheld`, 200 frames at 30 Hz), DIS flow: rho 1.00 "
+            "over 4 rows; 2 of 2 networks on teddy's side") in md
+
+
 def test_repro_scores_a_model_again_once_its_file_changes(tmp_path):
     from bench.results_repro import forget_if_retrained
 
