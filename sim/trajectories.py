@@ -306,7 +306,8 @@ class HandheldMotion:
     period_s: float
     rate_hz: float
     max_speed_mps: float
-    ramp_s: float = 2.0
+    ramp_s: float = 0.5
+    """Seconds from rest to the walking pace (a person sets off in half a second; the drone takes 2)."""
     name: str = "handheld"
 
     @staticmethod
