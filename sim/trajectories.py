@@ -206,20 +206,47 @@ def _time_warp(t: np.ndarray, ramp_s: float) -> np.ndarray:
     return np.where(t < ramp_s, ramp_s * (x ** 6 - 3 * x ** 5 + 2.5 * x ** 4), ramp_s * 0.5 + (t - ramp_s))
 
 
+def _sinusoids(terms: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Sum of ``a sin(2 pi k u + phase)`` over the rows ``(a, k, phase)`` of ``terms`` (K, 3), at ``u`` (N,)."""
+    return sum(a * np.sin(2 * np.pi * k * u + ph) for a, k, ph in terms)
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
-class DroneMotion:
-    """A 6DoF flight (see module docstring); ``pose_u(u)`` gives world_from_cam over one loop
-    u in [0, 1), and time maps to u through a start-from-rest warp and the loop period."""
+class RingLoop:
+    """A closed loop round the room's vertical axis, in its free ring: over one loop u in [0, 1) the position is at
+    radius ``r_spline(u)`` from ``centre``, angle ``2 pi u + th_spline(u)`` and height ``z_spline(u)`` (periodic
+    splines); time maps to u through a start-from-rest warp of ``ramp_s`` seconds (a field of each subclass) and
+    the loop period. What :class:`DroneMotion` and :class:`HandheldMotion` share; each gives its own orientation
+    in ``pose_u``."""
 
     centre: np.ndarray
     r_spline: CubicSpline
     th_spline: CubicSpline
     z_spline: CubicSpline
+    period_s: float
+    rate_hz: float
+
+    def position_u(self, u: np.ndarray) -> np.ndarray:
+        """(N, 3) world position, metres, at loop parameters u (N,) (any real; period 1)."""
+        uf = np.mod(u, 1.0)
+        th = 2 * np.pi * u + self.th_spline(uf)
+        r = self.r_spline(uf)
+        return np.stack([self.centre[0] + r * np.cos(th), self.centre[1] + r * np.sin(th), self.z_spline(uf)], -1)
+
+    def pose_u(self, u) -> np.ndarray:
+        raise NotImplementedError
+
+    def world_from_cam(self, t) -> np.ndarray:
+        return self.pose_u(_time_warp(np.atleast_1d(t), self.ramp_s) / self.period_s)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class DroneMotion(RingLoop):
+    """A 6DoF flight (see module docstring); ``pose_u(u)`` gives world_from_cam over one loop."""
+
     yaw_terms: np.ndarray
     pitch_terms: np.ndarray
     roll_terms: np.ndarray
-    period_s: float
-    rate_hz: float
     yaw0: float = 0.0
     ramp_s: float = 2.0
     name: str = "drone"
@@ -254,7 +281,8 @@ class DroneMotion:
         pitch = np.array([[0.1, 2, rng.uniform(0, 2 * np.pi)], [0.03, 3, rng.uniform(0, 2 * np.pi)]])
         roll = np.array([[0.06, 1, rng.uniform(0, 2 * np.pi)], [0.02, 3, rng.uniform(0, 2 * np.pi)]])
         yaw0 = float(rng.uniform(0, 2 * np.pi))
-        m = DroneMotion(np.asarray(lay["centre"], np.float64), r_spl, th_spl, z_spl, yaw, pitch, roll, 1.0, rate_hz, yaw0)
+        m = DroneMotion(np.asarray(lay["centre"], np.float64), r_spl, th_spl, z_spl, 1.0, rate_hz,
+                        yaw_terms=yaw, pitch_terms=pitch, roll_terms=roll, yaw0=yaw0)
         # time scaling: the fastest point of the loop meets the speed and rotation-rate limits
         du = 1e-4
         p0 = m.pose_u(uu)
@@ -264,48 +292,30 @@ class DroneMotion:
         period = max(v_u.max() / DRONE_MAX_SPEED_MPS, w_u.max() / DRONE_MAX_RATE_RAD_S, 5.0)
         return dataclasses.replace(m, period_s=float(period))
 
-    @staticmethod
-    def _series(terms: np.ndarray, u: np.ndarray) -> np.ndarray:
-        return sum(a * np.sin(2 * np.pi * k * u + ph) for a, k, ph in terms)
-
     def pose_u(self, u) -> np.ndarray:
         """world_from_cam (N, 4, 4) at loop parameters u (any real; period 1)."""
         u = np.atleast_1d(np.asarray(u, np.float64))
-        uf = np.mod(u, 1.0)
-        th = 2 * np.pi * u + self.th_spline(uf)
-        r = self.r_spline(uf)
-        pos = np.stack([self.centre[0] + r * np.cos(th), self.centre[1] + r * np.sin(th), self.z_spline(uf)], -1)
-        yaw = self.yaw0 + self._series(self.yaw_terms, u)
-        pitch = 0.05 + self._series(self.pitch_terms, u)
-        roll = self._series(self.roll_terms, u)
+        yaw = self.yaw0 + _sinusoids(self.yaw_terms, u)
+        pitch = 0.05 + _sinusoids(self.pitch_terms, u)
+        roll = _sinusoids(self.roll_terms, u)
         world_from_body = Rotation.from_euler("ZYX", np.stack([yaw, pitch, roll], -1)).as_matrix()
-        return se3.from_rt(world_from_body @ BODY_FROM_CAM_ROT, pos)
-
-    def world_from_cam(self, t) -> np.ndarray:
-        return self.pose_u(_time_warp(np.atleast_1d(t), self.ramp_s) / self.period_s)
+        return se3.from_rt(world_from_body @ BODY_FROM_CAM_ROT, self.position_u(u))
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
-class HandheldMotion:
-    """A hand-held camera walked round the room's table (see module docstring). ``pose_u(u)`` gives
-    world_from_cam over one loop u in [0, 1) (period 1: the walk revisits every place with the same view);
-    time maps to u through a start-from-rest warp and the loop period, set so that the walk's fastest point is
-    at :attr:`max_speed_mps`.
+class HandheldMotion(RingLoop):
+    """A hand-held camera walked round the room's table (see module docstring): the :class:`RingLoop` one way
+    round, the pace varying, its period set so that the walk's fastest point is at :attr:`max_speed_mps`. The aim:
+    the optical axis from the camera to ``target`` with no roll, then the hand's sway applied in the camera's own
+    axes (pan about y, tilt about x, roll about z; OpenCV axes), each a sum of sinusoids of u with integer
+    frequencies (so the loop stays closed and the walk revisits every place with the same view)."""
 
-    The path: radius ``r_spline(u)`` and height ``z_spline(u)`` round ``centre``, the angle ``2 pi u +
-    th_spline(u)`` (periodic splines; one way round, the pace varying). The aim: the optical axis from the camera to ``target`` with no roll, then the
-    hand's sway applied in the camera's own axes (pan about y, tilt about x, roll about z; OpenCV axes),
-    each a sum of sinusoids of u with integer frequencies (so the loop stays closed)."""
-
-    centre: np.ndarray
     target: np.ndarray
-    r_spline: CubicSpline
-    th_spline: CubicSpline
-    z_spline: CubicSpline
+    """(3,) world point the optical axis is aimed at, metres."""
     sway_terms: np.ndarray
-    period_s: float
-    rate_hz: float
+    """(3, K, 3) the hand's pan, tilt and roll: K sinusoids ``(a rad, k cycles per loop, phase)`` each."""
     max_speed_mps: float
+    """The walk's top speed, m/s (its loop's fastest point)."""
     ramp_s: float = 0.5
     """Seconds from rest to the walking pace (a person sets off in half a second; the drone takes 2)."""
     name: str = "handheld"
@@ -331,7 +341,8 @@ class HandheldMotion:
         k = np.maximum(1, np.round(rng.uniform(*HANDHELD_SWAY_HZ, (3, 3)) * loop_s))
         amp = np.asarray(HANDHELD_SWAY_RAD)[:, None] * rng.uniform(0.5, 1.0, (3, 3))
         sway = np.stack([amp, k, rng.uniform(0, 2 * np.pi, (3, 3))], axis=-1)  # (angle, term, [a, k, phase])
-        m = HandheldMotion(centre, target, r_spl, th_spl, z_spl, sway, 1.0, rate_hz, speed)
+        m = HandheldMotion(centre, r_spl, th_spl, z_spl, 1.0, rate_hz, target=target, sway_terms=sway,
+                           max_speed_mps=speed)
         du = 1e-4
         v_u = np.linalg.norm(m.pose_u(uu + du)[:, :3, 3] - m.pose_u(uu)[:, :3, 3], axis=1) / du
         return dataclasses.replace(m, period_s=float(v_u.max() / speed))
@@ -339,17 +350,11 @@ class HandheldMotion:
     def pose_u(self, u) -> np.ndarray:
         """world_from_cam (N, 4, 4) at loop parameters u (any real; period 1)."""
         u = np.atleast_1d(np.asarray(u, np.float64))
-        uf = np.mod(u, 1.0)
-        th = 2 * np.pi * u + self.th_spline(uf)
-        r = self.r_spline(uf)
-        pos = np.stack([self.centre[0] + r * np.cos(th), self.centre[1] + r * np.sin(th), self.z_spline(uf)], -1)
+        pos = self.position_u(u)
         aim = cam_from_forward(self.target - pos)
-        pan, tilt, roll = (DroneMotion._series(terms, u) for terms in self.sway_terms)
+        pan, tilt, roll = (_sinusoids(terms, u) for terms in self.sway_terms)
         cam_from_swayed = Rotation.from_euler("YXZ", np.stack([pan, tilt, roll], -1)).as_matrix()
         return se3.from_rt(aim @ cam_from_swayed, pos)
-
-    def world_from_cam(self, t) -> np.ndarray:
-        return self.pose_u(_time_warp(np.atleast_1d(t), self.ramp_s) / self.period_s)
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
