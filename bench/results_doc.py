@@ -52,8 +52,9 @@ SECTIONS = (
     ("repro_rgbd", "The paper's recipe on RGB-D: rendered rooms and TUM teddy, the network's own pose",
      "SCENE=room bash scripts/train_paper_recipe.sh bench/paper_recipe  # then python -m bench.results_repro_rgbd",
      "NN_cons trained by the paper's recipe on single frames of rendered Kinect-like rooms and supervised on the same "
-     "renders' pairs, scored with their own pose on an unseen room (exact and DIS flow) and on TUM fr3/teddy, beside "
-     "the RGB-D default and pnp."),
+     "renders' pairs, scored with their own pose on an unseen room flown by a drone and walked hand-held (exact and "
+     "DIS flow) and on TUM fr3/teddy, beside the RGB-D default and pnp; whether each rendered room ranks the rows as "
+     "teddy does."),
     ("extra", "Rendered frames as extra training data", "python -m bench.results_extra",
      "One network and budget trained the paper's way on real single frames (KITTI 06), real plus rendered, and "
      "rendered alone; scored on KITTI 07, which none of them saw."),
