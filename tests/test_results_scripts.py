@@ -824,7 +824,11 @@ def test_repro_rgbd_rank_agreement_with_teddy():
     assert hand == {"rho": pytest.approx(1.0), "rows": 4, "same_side": 2, "networks": 2}
     assert drone["rho"] == pytest.approx(0.2) and drone["same_side"] == 0 and drone["networks"] == 2
     report["agreement_with_teddy"] = {"room_dis": drone, "handheld_dis": hand}
+    report["rows"]["room_supervised"][0]["teddy_dis_calhandheld"] = {"within_1_sigma": [0.6, 0.7, 0.75, 0.8, 0.5, 0.68]}
     md = rr.markdown(report)
+    assert ("- supervised (the rooms' frame pairs, exact flow, poses), calibrated on the hand-held room: 0.60, 0.70, "
+            "0.75, 0.80, 0.50, 0.68 (4 of 6 in 0.6-0.75)") in md
+    assert "calibrated on the drone's room" not in md  # not scored: not stated
     assert ("- the same room walked hand-held (`--trajectory handheld`, 200 frames at 30 Hz), DIS flow: rho 1.00 "
             "over 4 rows; 2 of 2 networks on teddy's side") in md
 
