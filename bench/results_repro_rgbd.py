@@ -44,12 +44,18 @@ MODES = {"room_synthetic_mirror": "synthetic (single frames of the rooms, mirror
          "room_synthetic_mirror_depth": "synthetic, mirrored motions, the frame's depth as an input channel",
          "room_synthetic_speedscale_mirror_depth": "synthetic, mirrored motions at 0.15-1x the rooms' speed, the "
                                                    "frame's depth as an input channel",
-         "room_supervised_depth": "supervised, the frame's depth as an input channel"}
+         "room_supervised_depth": "supervised, the frame's depth as an input channel",
+         "room_handheld_synthetic_mirror_depth": "synthetic, rooms walked hand-held (their motions, mirrored), the "
+                                                 "frame's depth as an input channel",
+         "room_handheld_supervised_depth": "supervised on the hand-held rooms' pairs, the frame's depth as an input "
+                                           "channel"}
 """Training folders ``{mode}_cons_s{seed}`` of ``SCENE=room scripts/train_paper_recipe.sh`` (``_depth``: with
-``DEPTH=1``, the first frame's inverse depth a third input channel) and their labels."""
+``DEPTH=1``, the first frame's inverse depth a third input channel; ``room_handheld_``: ``TRAJECTORY=handheld``,
+the training rooms walked hand-held) and their labels."""
 SYNTHETIC_OVER_SUPERVISED = (("room_synthetic_mirror", "room_supervised"), ("room_synthetic", "room_supervised"),
                              ("room_synthetic_mirror_depth", "room_supervised_depth"),
-                             ("room_synthetic_speedscale_mirror_depth", "room_supervised_depth"))
+                             ("room_synthetic_speedscale_mirror_depth", "room_supervised_depth"),
+                             ("room_handheld_synthetic_mirror_depth", "room_handheld_supervised_depth"))
 """The pairs whose ratio the table states (same renders, same recipe, same budget cap)."""
 FIGURES = (("ATE [m]", "ate_m", ".3g"), ("RPE [m/frame]", "rpe_t_m", ".3g"), ("RPE [deg/frame]", "rpe_r_deg", ".3g"),
            ("path ratio", "path_length_ratio", ".3f"))

@@ -20,6 +20,7 @@
 #   BODY=1 SYNTH_FLOW=dis bash scripts/train_paper_recipe.sh ...     # ... with KITTI's body pitch and roll added
 #   SCENE=room DEPTH=1 bash scripts/train_paper_recipe.sh ...        # RGB-D: the frame's depth as an input channel
 #   SCENE=room DEPTH=1 SPEED_SCALE=0.15,1.0 bash scripts/train_paper_recipe.sh ...  # ... the rooms' speed freed
+#   SCENE=room TRAJECTORY=handheld DEPTH=1 bash scripts/train_paper_recipe.sh ...  # ... rooms walked hand-held
 #
 # bf16 autocast is on by default where the CPU computes bf16 natively (AVX-512 BF16); on a CPU without it,
 # autocast is emulated and ~10x slower than float32 (measured: 389 against 40 s for 10,240 samples on an
@@ -50,7 +51,10 @@
 # supervised models do not depend on the prior. DEPTH=1 (with SCENE=room) gives every model the first frame's
 # inverse depth as a third input channel (`train --depth-channel`; `vo` then reads each frame's depth), the
 # folders' suffix _depth before _cons. The training rooms' depth is exact; the unseen room's and TUM's are a
-# sensor's, with holes.
+# sensor's, with holes. TRAJECTORY=handheld (with SCENE=room) renders the training rooms walked hand-held
+# (`render --trajectory handheld`: a walking pace and the hand's sway, as a hand-held RGB-D camera moves) into
+# room_handheld_train_sK, fits the motions on them (motion_room_handheld..._sK.json) and names the models
+# room_handheld_...: the prior then holds a hand-held camera's motion, drawn from the training data as the paper's.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/paper_recipe}
@@ -72,15 +76,23 @@ case "$SCENE" in
         fi ;;
   *) echo "SCENE must be street or room, not '$SCENE'" >&2; exit 2 ;;
 esac
+TRAJ_SFX=""  # the training renders', fits' and models' infix of TRAJECTORY=handheld
+case "${TRAJECTORY:-}" in
+  "") ;;
+  handheld) [ "$SCENE" = room ] || { echo "TRAJECTORY=handheld is for SCENE=room" >&2; exit 2; }
+            RENDER="$RENDER --trajectory handheld"; ROOM=room_handheld_; TRAJ_SFX=_handheld ;;
+  *) echo "TRAJECTORY must be handheld or unset (the scene's own), not '$TRAJECTORY'" >&2; exit 2 ;;
+esac
 if [ "${DEPTH:-0}" = 1 ] && [ "$SCENE" != room ]; then
   # the rows that score depth-reading models are the RGB-D ones (bench.results_repro_rgbd), on exact flow
   echo "DEPTH=1 is for SCENE=room (the RGB-D rows)" >&2; exit 2
 fi
 mkdir -p "$OUT"
+RENDERS="$OUT/${SCENE}${TRAJ_SFX}_train"  # the training renders, without the seed
 for s in 1 2; do
-  [ -f "$OUT/${SCENE}_train_s$s/poses.txt" ] || $DS render $RENDER --seed $s --out "$OUT/${SCENE}_train_s$s" --quiet
+  [ -f "${RENDERS}_s$s/poses.txt" ] || $DS render $RENDER --seed $s --out "${RENDERS}_s$s" --quiet
 done
-TRAIN="$OUT/${SCENE}_train_s1 $OUT/${SCENE}_train_s2"
+TRAIN="${RENDERS}_s1 ${RENDERS}_s2"
 PRIOR=""      # the motion fits' and synthetic models' name suffix
 PRIOR_FIT=""  # ... and the fit-motion flags that make it
 if [ -n "${SPEED_SCALE:-}" ]; then PRIOR=_speedscale; PRIOR_FIT="--speed-scale $SPEED_SCALE"; fi
@@ -92,10 +104,10 @@ if [ "${BODY:-0}" = 1 ]; then
 fi
 DEPTH_SFX=""  # the models' name suffix of DEPTH=1
 if [ "${DEPTH:-0}" = 1 ]; then DEPTH_SFX=_depth; INPUT="$INPUT --depth-channel"; fi
-FIT="motion${ROOM:+_room}$PRIOR"  # the motion fits' name, without the stride
+FIT="motion${ROOM:+_room}$TRAJ_SFX$PRIOR"  # the motion fits' name, without the stride
 for k in 1 2; do
-  [ -f "$OUT/${FIT}_s$k.json" ] || $DS fit-motion --poses $OUT/${SCENE}_train_s1/poses.txt \
-      $OUT/${SCENE}_train_s2/poses.txt --stride $k --consecutive kde $PRIOR_FIT --out "$OUT/${FIT}_s$k.json"
+  [ -f "$OUT/${FIT}_s$k.json" ] || $DS fit-motion --poses ${RENDERS}_s1/poses.txt \
+      ${RENDERS}_s2/poses.txt --stride $k --consecutive kde $PRIOR_FIT --out "$OUT/${FIT}_s$k.json"
 done
 MOTION="--motion $OUT/${FIT}_s1.json@1 --motion $OUT/${FIT}_s2.json@1"
 

@@ -858,6 +858,8 @@ def test_repro_scores_a_model_again_once_its_file_changes(tmp_path):
     ({"SCENE": "room", "BODY": "1"}, "SCENE=room trains the exact-flow recipe only"),
     ({"DEPTH": "1"}, "DEPTH=1 is for SCENE=room"),
     ({"SCENE": "kitchen"}, "SCENE must be street or room"),
+    ({"TRAJECTORY": "handheld"}, "TRAJECTORY=handheld is for SCENE=room"),
+    ({"SCENE": "room", "TRAJECTORY": "car"}, "TRAJECTORY must be handheld or unset"),
 ])
 def test_recipe_script_refuses_a_mix_it_cannot_train_before_writing(tmp_path, env, message):
     """scripts/train_paper_recipe.sh: a combination it does not train exits 2 with one line, its folder not made."""
