@@ -44,7 +44,8 @@ def probe(predictor: VOPredictor, flows: np.ndarray, intr: np.ndarray, inv: np.n
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--room", default="out/results/repro_rgbd/room_s51", help="the unseen room (bench.results_repro_rgbd renders it)")
+    ap.add_argument("--room", default="out/results/repro_rgbd/room_s51",
+                    help="the unseen room (bench.results_repro_rgbd renders it)")
     ap.add_argument("--models", default="bench/paper_recipe", help="folder of the trained models")
     args = ap.parse_args(argv)
     room = Path(args.room)

@@ -6,8 +6,8 @@ as a Kinect would see them, motions drawn from a kernel density fit of their cam
 images; supervised: the same renders' frame pairs, exact flow, ground-truth poses) with the network's own pose
 (``vo --pose net``) on data none of them saw: another rendered room (Kinect-like depth) flown by the drone and the
 same room walked hand-held (``render --trajectory handheld``: a hand-held camera's motion a frame, as teddy's), each
-with the simulator's exact flow and with DIS flow, and the real TUM fr3/teddy slice with DIS flow. Beside them, on the same data: the RGB-D
-default (``tum_cons``, what ``deepslam vo`` runs on a TUM sequence: the solve pose head with the frame's depth) and
+with the simulator's exact flow and with DIS flow, and the real TUM fr3/teddy slice with DIS flow. Beside them, on
+the same data: the RGB-D default (``tum_cons``, what ``deepslam vo`` runs on a TUM sequence: the solve pose head with the frame's depth) and
 ``pnp`` (SIFT + PnP-RANSAC on the frame's depth: the render's Kinect-like depth, teddy's sensor depth).
 
 The figures are the TUM benchmark's: ATE (m, se3-aligned) and RPE per frame (m, degrees), the path-length ratio,
@@ -130,16 +130,16 @@ def run(cfg: ReproRGBDConfig, out: Path, data: Path) -> dict:
                 print(f"score {mode} seed {seed}: {name}", flush=True)
                 rec[name] = own_pose_scores(out, f"{mode}_s{seed}_{name}_{seq.name}", seq, model, flow)
             for tag, cal_seq in calibrators.items():
-                if model.name != "model.safetensors" or "teddy_dis" not in rec:
-                    continue  # a checkpoint's std heads are untrained; no teddy, nothing to read
+                if seed != 0 or model.name != "model.safetensors" or "teddy_dis" not in rec:
+                    continue  # seed 0 only; a checkpoint's std heads are untrained; no teddy, nothing to read
                 # the std fitted per DoF on a rendered room with ground truth, then read on teddy
                 print(f"calibrate {mode} seed {seed}: {tag}", flush=True)
                 calibrated = out / "eval" / f"{mode}_s{seed}_{tag}.safetensors"
                 if not calibrated.is_file():
                     _run_json("calibrate", cal_seq, calibrated, (str(model), "--pose", "net"))
-                rec[f"teddy_dis_{tag}"] = _cached(out / "eval" / f"{mode}_s{seed}_teddy_dis_{tag}.json", lambda: vo_scores(
-                    teddy, out / "runs" / f"{mode}_s{seed}_teddy_dis_{tag}.txt", "--model", str(calibrated),
-                    "--flow", "dis", "--pose", "net"))
+                key = f"{mode}_s{seed}_teddy_dis_{tag}"
+                rec[f"teddy_dis_{tag}"] = _cached(out / "eval" / f"{key}.json", lambda: vo_scores(
+                    teddy, out / "runs" / f"{key}.txt", "--model", str(calibrated), "--flow", "dis", "--pose", "net"))
             rows.setdefault(mode, []).append(rec)
     beside: dict = {}
     for name, seq, flow in cases:
@@ -249,7 +249,8 @@ def markdown(report: dict) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     return main_with_models("results_repro_rgbd", __doc__, ReproRGBDConfig(),
-                            lambda cfg: dataclasses.replace(cfg, room_frames=12, handheld_frames=12), "repro_rgbd", run, markdown, argv)
+                            lambda cfg: dataclasses.replace(cfg, room_frames=12, handheld_frames=12), "repro_rgbd",
+                            run, markdown, argv)
 
 
 if __name__ == "__main__":

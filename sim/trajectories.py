@@ -436,5 +436,6 @@ def make_motion(scene: Scene, kind: str, rng: np.random.Generator, rate_hz: floa
     raise ValueError(f"unknown trajectory kind {kind!r}")
 
 
-__all__ = ["BodyMotion", "CarMotion", "DroneMotion", "HandheldMotion", "StreetDroneMotion", "KeyframeMotion", "make_motion", "cam_from_forward",
+__all__ = ["BodyMotion", "CarMotion", "DroneMotion", "HandheldMotion", "RingLoop", "StreetDroneMotion", "KeyframeMotion",
+           "make_motion", "cam_from_forward",
            "smoothstep5"]

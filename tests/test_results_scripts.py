@@ -816,8 +816,10 @@ def test_repro_rgbd_rank_agreement_with_teddy():
                                                   "teddy_dis": fig(0.4, 2.4)}],
                        "room_supervised": [{"room_dis": fig(0.5, 0.7), "handheld_dis": fig(0.4, 1.2),
                                             "teddy_dis": fig(0.5, 2.2)}]},
-              "beside": {"default": {"room_dis": fig(0.2, 0.8), "handheld_dis": fig(0.2, 1.1), "teddy_dis": fig(0.2, 1.1)},
-                         "pnp": {"room_dis": fig(0.3, 1.0), "handheld_dis": fig(0.02, 1.0), "teddy_dis": fig(0.02, 1.0)}}}
+              "beside": {"default": {"room_dis": fig(0.2, 0.8), "handheld_dis": fig(0.2, 1.1),
+                                     "teddy_dis": fig(0.2, 1.1)},
+                         "pnp": {"room_dis": fig(0.3, 1.0), "handheld_dis": fig(0.02, 1.0),
+                                 "teddy_dis": fig(0.02, 1.0)}}}
     # teddy's order by ATE: pnp < default < synthetic < supervised; the hand-held room's the same, the drone room's
     # synthetic < default < pnp < supervised
     hand, drone = rr.rank_agreement(report, "handheld_dis"), rr.rank_agreement(report, "room_dis")
