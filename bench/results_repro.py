@@ -171,6 +171,16 @@ def vo_scores(seq_dir: Path, out_txt: Path, *options: str) -> dict:
             "within_1_sigma": within_one_sigma(seq_dir, out_txt.with_suffix(".motions.csv"))}
 
 
+def calibrated_once(out: Path, stem: str, cal_seq: Path, model: Path) -> Path:
+    """``model`` with its predicted std fitted per DoF on ``cal_seq`` (``deepslam calibrate``, DIS flow, own pose),
+    written to ``out/eval/{stem}.safetensors`` once (a killed run resumes; :func:`forget_if_retrained` clears it
+    with the model's other evaluations)."""
+    calibrated = out / "eval" / f"{stem}.safetensors"
+    if not calibrated.is_file():
+        _run_json("calibrate", cal_seq, calibrated, (str(model), "--pose", "net"))
+    return calibrated
+
+
 def own_pose_scores(out: Path, tag: str, seq_dir: Path, model: Path, flow: str) -> dict:
     """:func:`vo_scores` of ``model``'s own pose (``vo --pose net``) on ``seq_dir`` with ``flow``, cached in
     ``out/eval/{tag}.json`` (a killed run resumes); the run's files are ``out/runs/{tag}.*``."""
@@ -385,9 +395,7 @@ def run(cfg: ReproConfig, out: Path, data: Path) -> dict:
                         continue
                     # the predicted std fitted per DoF on a validation sequence with ground truth (`deepslam
                     # calibrate`, DIS flow), then read on the DIS cases that sequence is not
-                    calibrated = out / "eval" / f"{key}_s{seed}_{tag}.safetensors"
-                    if not calibrated.is_file():
-                        _run_json("calibrate", cal_seq, calibrated, (str(model), "--pose", "net"))
+                    calibrated = calibrated_once(out, f"{key}_s{seed}_{tag}", cal_seq, model)
                     for name, seq, flow in cases:
                         if flow == "dis" and seq != cal_seq:
                             rec[f"{name}_{tag}"] = _cached(

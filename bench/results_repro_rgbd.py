@@ -33,7 +33,7 @@ from pathlib import Path
 from scipy.stats import spearmanr
 
 from bench.results_common import write_report
-from bench.results_repro import (_model_file, _repo_path, _run_json, forget_if_retrained, learning_curve,
+from bench.results_repro import (_model_file, _repo_path, calibrated_once, forget_if_retrained, learning_curve,
                                  main_with_models, model_card, own_pose_scores, pm, vo_scores)
 from bench.results_vo import _agg, _cached
 from deepslam.studies.demo import render_once
@@ -134,9 +134,7 @@ def run(cfg: ReproRGBDConfig, out: Path, data: Path) -> dict:
                     continue  # seed 0 only; a checkpoint's std heads are untrained; no teddy, nothing to read
                 # the std fitted per DoF on a rendered room with ground truth, then read on teddy
                 print(f"calibrate {mode} seed {seed}: {tag}", flush=True)
-                calibrated = out / "eval" / f"{mode}_s{seed}_{tag}.safetensors"
-                if not calibrated.is_file():
-                    _run_json("calibrate", cal_seq, calibrated, (str(model), "--pose", "net"))
+                calibrated = calibrated_once(out, f"{mode}_s{seed}_{tag}", cal_seq, model)
                 key = f"{mode}_s{seed}_teddy_dis_{tag}"
                 rec[f"teddy_dis_{tag}"] = _cached(out / "eval" / f"{key}.json", lambda: vo_scores(
                     teddy, out / "runs" / f"{key}.txt", "--model", str(calibrated), "--flow", "dis", "--pose", "net"))
@@ -235,7 +233,7 @@ def markdown(report: dict) -> str:
             md.append(f"- {CASE_TITLES.get(case, case).format(**cfg)}: rho {rho} over {a['rows']} rows; "
                       f"{a['same_side']} of {a['networks']} networks on teddy's side")
     cal = [(mode, tag, recs[0][f"teddy_dis_{tag}"]["within_1_sigma"]) for mode, recs in report["rows"].items()
-           for tag in CALIBRATED_ON if len(recs) >= 1 and (recs[0].get(f"teddy_dis_{tag}") or {}).get("within_1_sigma")]
+           for tag in CALIBRATED_ON if (recs[0].get(f"teddy_dis_{tag}") or {}).get("within_1_sigma")]
     if cal:
         md += ["", "Calibration: share of teddy's pairs within the predicted 1-sigma (rx, ry, rz, tx, ty, tz; a "
                "calibrated Gaussian gives 0.68, the target 0.6-0.75), each network's std fitted per DoF on a rendered "
