@@ -24,7 +24,7 @@ class TrajectoryConfig:
 
     kind: str = "auto"
     """"car" (planar, 1.65 m above the road, street only), "drone" (6DoF), "handheld" (a camera walked round the
-    room's table at 0.2-0.45 m/s, aimed at it, with the hand's sway; room only) or "auto" (street: car, room:
+    room's table at a walking pace, top speed 0.35-0.55 m/s, aimed at it, with the hand's sway; room only) or "auto" (street: car, room:
     drone)."""
     frames: int = 300
     """Number of frames to render."""

@@ -12,8 +12,8 @@ z forward), world z up, and ``rate_hz``.
   pitch and roll wobbling; time is scaled so speed <= 1.6 m/s and rotation rate <= 0.95 rad/s;
   20 Hz; the loop repeats (period about 10-13 s), so every place is revisited with the same view.
   In the street: a flight along the route 3-5 m up at 1.5 m/s.
-- :class:`HandheldMotion`: a hand-held camera carried round the room's table at a walking pace (0.2-0.45
-  m/s, 1.2-1.6 m up, in the drone's free ring), aimed at the table with the hand's sway (pan, tilt and roll
+- :class:`HandheldMotion`: a hand-held camera carried round the room's table at a walking pace (top speed
+  0.35-0.55 m/s, slower at places; 1.2-1.6 m up, in the drone's free ring), aimed at the table with the hand's sway (pan, tilt and roll
   of a few degrees at 0.3-1.2 Hz); 30 Hz, a Kinect's rate; the walk is a closed loop, so it revisits. Made
   for the RGB-D rows: TUM RGB-D's hand-held sequences move a few centimetres a frame against the drone's
   3-7 at 30 Hz, and turn about a radian per metre (fr3/teddy: 12 mm and 0.87 degrees a frame at the median,
@@ -344,7 +344,7 @@ class HandheldMotion(RingLoop):
         m = HandheldMotion(centre, r_spl, th_spl, z_spl, 1.0, rate_hz, target=target, sway_terms=sway,
                            max_speed_mps=speed)
         du = 1e-4
-        v_u = np.linalg.norm(m.pose_u(uu + du)[:, :3, 3] - m.pose_u(uu)[:, :3, 3], axis=1) / du
+        v_u = np.linalg.norm(m.position_u(uu + du) - m.position_u(uu), axis=1) / du
         return dataclasses.replace(m, period_s=float(v_u.max() / speed))
 
     def pose_u(self, u) -> np.ndarray:

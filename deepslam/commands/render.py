@@ -14,7 +14,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scene", default="street",
                    help="street (KITTI-like town), room (EuRoC-like hall), or a scene file (.yaml/.json) adding your "
                         "own OBJ/GLB/PLY meshes to one of them (README: Your own meshes); default street")
-    p.add_argument("--trajectory", default="auto", help="car, drone, handheld (room only: a camera walked round the table) or auto (street: car, room: drone); default auto")
+    p.add_argument("--trajectory", default="auto",
+                   help="car, drone, handheld (room only: a camera walked round the table) or auto (street: car, "
+                        "room: drone); default auto")
     p.add_argument("--frames", type=int, default=300, help="number of frames (default 300)")
     p.add_argument("--out", required=True, help="output folder (must not exist or be empty, unless --resume)")
     p.add_argument("--format", default="ours",
