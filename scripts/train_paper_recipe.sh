@@ -55,6 +55,10 @@
 # (`render --trajectory handheld`: a walking pace and the hand's sway, as a hand-held RGB-D camera moves) into
 # room_handheld_train_sK, fits the motions on them (motion_room_handheld..._sK.json) and names the models
 # room_handheld_...: the prior then holds a hand-held camera's motion, drawn from the training data as the paper's.
+# LEVER=M (SCENE=street) renders the training towns with the camera M metres ahead of the rear axle (`render
+# --camera-ahead M`; KITTI's ground truth fits 0.84), so that it slides sideways into a turn as KITTI's camera does
+# and the prior fitted on them holds that slide: renders street_lever_train_sK, fits motion_lever..._sK.json, models
+# ..._lever_... (docs/experiments/2026-12-07_lever_arm_training.md).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/paper_recipe}
@@ -65,9 +69,9 @@ DS="${DS:-.venv/bin/deepslam}"
 export MUJOCO_GL=${MUJOCO_GL:-egl} PYOPENGL_PLATFORM=${PYOPENGL_PLATFORM:-egl}
 SCENE=${SCENE:-street}
 case "$SCENE" in
-  street) RENDER="--scene street --frames 300 --width 414"; ROOM=""; INPUT="" ;;
+  street) RENDER="--scene street --frames 300 --width 414"; PFX=""; INPUT="" ;;
   room) RENDER="--scene room --frames 300 --width 640 --height 480 --focal-px 537 --rate 30 --stereo-baseline 0"
-        ROOM=room_; INPUT="--height 96 --width 128"
+        PFX=room_; INPUT="--height 96 --width 128"
         # the RGB-D rows are the recipe on exact flow with the rooms' own motions (bench.results_repro_rgbd),
         # their speed freed with SPEED_SCALE (the rooms' drone flies at 1-2 m/s, a hand-held camera walks);
         # KITTI's body motion does not belong to a hand-held camera
@@ -76,13 +80,18 @@ case "$SCENE" in
         fi ;;
   *) echo "SCENE must be street or room, not '$SCENE'" >&2; exit 2 ;;
 esac
-TRAJ_SFX=""  # the training renders', fits' and models' infix of TRAJECTORY=handheld
+TRAJ_SFX=""  # the training renders' and fits' infix of TRAJECTORY=handheld or LEVER (PFX: the models' prefix)
 case "${TRAJECTORY:-}" in
   "") ;;
   handheld) [ "$SCENE" = room ] || { echo "TRAJECTORY=handheld is for SCENE=room" >&2; exit 2; }
-            RENDER="$RENDER --trajectory handheld"; ROOM=room_handheld_; TRAJ_SFX=_handheld ;;
+            RENDER="$RENDER --trajectory handheld"; PFX=room_handheld_; TRAJ_SFX=_handheld ;;
   *) echo "TRAJECTORY must be handheld or unset (the scene's own), not '$TRAJECTORY'" >&2; exit 2 ;;
 esac
+if [ -n "${LEVER:-}" ]; then
+  [ "$SCENE" = street ] || { echo "LEVER is for SCENE=street (the car's camera)" >&2; exit 2; }
+  [[ "$LEVER" =~ ^[0-9]+(\.[0-9]+)?$ ]] || { echo "LEVER must be metres ahead of the rear axle, e.g. 0.84, not '$LEVER'" >&2; exit 2; }
+  RENDER="$RENDER --camera-ahead $LEVER"; PFX=lever_; TRAJ_SFX=_lever
+fi
 if [ "${DEPTH:-0}" = 1 ] && [ "$SCENE" != room ]; then
   # the rows that score depth-reading models are the RGB-D ones (bench.results_repro_rgbd), on exact flow
   echo "DEPTH=1 is for SCENE=room (the RGB-D rows)" >&2; exit 2
@@ -104,7 +113,7 @@ if [ "${BODY:-0}" = 1 ]; then
 fi
 DEPTH_SFX=""  # the models' name suffix of DEPTH=1
 if [ "${DEPTH:-0}" = 1 ]; then DEPTH_SFX=_depth; INPUT="$INPUT --depth-channel"; fi
-FIT="motion${ROOM:+_room}$TRAJ_SFX$PRIOR"  # the motion fits' name, without the stride
+FIT="motion$([ "$SCENE" = room ] && echo _room)$TRAJ_SFX$PRIOR"  # the motion fits' name, without the stride
 for k in 1 2; do
   [ -f "$OUT/${FIT}_s$k.json" ] || $DS fit-motion --poses ${RENDERS}_s1/poses.txt \
       ${RENDERS}_s2/poses.txt --stride $k --consecutive kde $PRIOR_FIT --out "$OUT/${FIT}_s$k.json"
@@ -131,23 +140,23 @@ for seed in $SEEDS; do
     # read at 640 px as `deepslam vo` reads a 414 px frame (1.5459 = 640 / 414), DIS medium on the pair; DIS makes
     # ~50 samples/s on 2 cores, so a pool of POOL samples is made once and trained on in passes (an epoch), with
     # the recipe's patience matched in samples (10 x 20,000 = 2 passes of 100,000)
-    [ "${SKIP_SYNTHETIC:-0}" = 1 ] || train "$OUT/${ROOM}synthetic_${SYNTH_FLOW}${PRIOR}${DEPTH_SFX}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
+    [ "${SKIP_SYNTHETIC:-0}" = 1 ] || train "$OUT/${PFX}synthetic_${SYNTH_FLOW}${PRIOR}${DEPTH_SFX}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
         $MOTION --synthetic-flow "$SYNTH_FLOW" \
         --dis-preset medium --frame-scales 1.5459 --sample-pool "${POOL:-100000}" --patience "${POOL_PATIENCE:-2}" \
         --data-threads 2
     # and supervised on the same renders' pairs with the same DIS flow (frames read at 640 px as `vo` reads them:
     # `train --read-width`), the comparison at equal flow
-    train "$OUT/${ROOM}supervised_${SYNTH_FLOW}${DEPTH_SFX}_cons_s$seed" --mode supervised --seed $seed \
+    train "$OUT/${PFX}supervised_${SYNTH_FLOW}${DEPTH_SFX}_cons_s$seed" --mode supervised --seed $seed \
         --sequence $TRAIN --flow "$SYNTH_FLOW" --dis-preset medium --strides 1,2
     continue
   fi
-  train "$OUT/${ROOM}synthetic${PRIOR}${DEPTH_SFX}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
+  train "$OUT/${PFX}synthetic${PRIOR}${DEPTH_SFX}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
       $MOTION --samples-per-epoch 20000
-  train "$OUT/${ROOM}supervised${DEPTH_SFX}_cons_s$seed" --mode supervised --seed $seed --sequence $TRAIN --flow gt --strides 1,2
+  train "$OUT/${PFX}supervised${DEPTH_SFX}_cons_s$seed" --mode supervised --seed $seed --sequence $TRAIN --flow gt --strides 1,2
   [ "$SCENE" = room ] && continue
   # the recipe's patience is 10 epochs; a supervised epoch is ~1,100 pairs, a synthetic one 20,000 samples, so
   # the supervised run stops after ~120,000 samples: once more with the patience matched in samples (186 epochs)
-  train "$OUT/${ROOM}supervised_samepatience${DEPTH_SFX}_cons_s$seed" --mode supervised --seed $seed --sequence $TRAIN --flow gt \
+  train "$OUT/${PFX}supervised_samepatience${DEPTH_SFX}_cons_s$seed" --mode supervised --seed $seed --sequence $TRAIN --flow gt \
       --strides 1,2 --patience 186
 done
 for pid in $PIDS; do wait "$pid"; done  # PARALLEL=1: every training started above, failing if one failed
