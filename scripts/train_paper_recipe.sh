@@ -113,7 +113,8 @@ if [ "${BODY:-0}" = 1 ]; then
 fi
 DEPTH_SFX=""  # the models' name suffix of DEPTH=1
 if [ "${DEPTH:-0}" = 1 ]; then DEPTH_SFX=_depth; INPUT="$INPUT --depth-channel"; fi
-FIT="motion$([ "$SCENE" = room ] && echo _room)$TRAJ_SFX$PRIOR"  # the motion fits' name, without the stride
+SCENE_SFX=""; [ "$SCENE" = room ] && SCENE_SFX=_room
+FIT="motion$SCENE_SFX$TRAJ_SFX$PRIOR"  # the motion fits' name, without the stride
 for k in 1 2; do
   [ -f "$OUT/${FIT}_s$k.json" ] || $DS fit-motion --poses ${RENDERS}_s1/poses.txt \
       ${RENDERS}_s2/poses.txt --stride $k --consecutive kde $PRIOR_FIT --out "$OUT/${FIT}_s$k.json"
