@@ -862,6 +862,8 @@ def test_repro_scores_a_model_again_once_its_file_changes(tmp_path):
     ({"SCENE": "kitchen"}, "SCENE must be street or room"),
     ({"TRAJECTORY": "handheld"}, "TRAJECTORY=handheld is for SCENE=room"),
     ({"SCENE": "room", "TRAJECTORY": "car"}, "TRAJECTORY must be handheld or unset"),
+    ({"SCENE": "room", "LEVER": "0.84"}, "LEVER is for SCENE=street"),
+    ({"LEVER": "ahead"}, "LEVER must be metres ahead of the rear axle"),
 ])
 def test_recipe_script_refuses_a_mix_it_cannot_train_before_writing(tmp_path, env, message):
     """scripts/train_paper_recipe.sh: a combination it does not train exits 2 with one line, its folder not made."""
@@ -871,6 +873,19 @@ def test_recipe_script_refuses_a_mix_it_cannot_train_before_writing(tmp_path, en
                        env={**os.environ, **env, "DS": "false"})
     assert p.returncode == 2 and message in p.stderr and len(p.stderr.strip().splitlines()) == 1
     assert not out.exists()
+
+
+@pytest.mark.parametrize("env", [{}, {"LEVER": "0.84"}, {"SYNTH_FLOW": "dis", "SPEED_SCALE": "0.4,1.5", "BODY": "1"},
+                                 {"SCENE": "room", "DEPTH": "1"}, {"SCENE": "room", "TRAJECTORY": "handheld"}])
+def test_recipe_script_runs_every_mix_it_trains_to_its_end(tmp_path, env):
+    """scripts/train_paper_recipe.sh under ``set -e``: with ``true`` standing in for deepslam (every step succeeds
+    and writes nothing) each mix it trains runs through its naming and steps to "done" (a name built from a failing
+    test once stopped the street recipe silently)."""
+    out = tmp_path / "recipe"
+    script = Path(__file__).resolve().parents[1] / "scripts" / "train_paper_recipe.sh"
+    p = subprocess.run(["bash", str(script), str(out), "1000", "0"], capture_output=True, text=True,
+                       env={**os.environ, **env, "DS": "true"})
+    assert p.returncode == 0 and f"done: {out}" in p.stdout, p.stderr
 
 
 def test_depth_probe_reads_a_network_that_ignores_its_depth_as_one():
@@ -897,3 +912,25 @@ def test_depth_probe_refuses_a_missing_room(tmp_path, capsys):
 
     assert depth_channel_probe.main(["--room", str(tmp_path / "nothing")]) == 2
     assert "no rendered room" in capsys.readouterr().err
+
+
+def test_lever_arm_turn_yaw_errors_and_true_rotation_drift():
+    """bench.lever_arm: a reading that overshoots every turn by 10 % shows a positive mean yaw error on the left
+    turns and a negative one on the right, none on the straight; with the true rotation put back and the true
+    translation kept the drift is zero, with the translation read 10 % long the path ratio is 1.1."""
+    from bench import lever_arm
+
+    n = 30
+    yaw = np.r_[np.full(10, 0.05), np.zeros(10), np.full(10, -0.05)]  # left, straight, right (rad a pair)
+    true6 = np.c_[np.zeros(n), yaw, np.zeros(n), np.zeros(n), np.zeros(n), np.full(n, 0.8)]
+    read6 = true6.copy()
+    read6[:, 1] *= 1.1
+    turns = lever_arm.turn_yaw_errors(read6, true6)
+    assert turns["left"]["n"] == 10 and turns["right"]["n"] == 10 and turns["straight"]["n"] == 10
+    assert turns["left"]["mean_deg"] == pytest.approx(np.degrees(0.005))
+    assert turns["right"]["mean_deg"] == pytest.approx(-np.degrees(0.005))
+    assert turns["straight"]["mean_deg"] == 0.0
+    assert lever_arm.drift_with_true_rotation(read6, true6)["endpoint_drift_m"] == pytest.approx(0.0, abs=1e-9)
+    long6 = read6.copy()
+    long6[:, 5] *= 1.1
+    assert lever_arm.drift_with_true_rotation(long6, true6)["path_length_ratio"] == pytest.approx(1.1)

@@ -1,0 +1,155 @@
+"""``python -m bench.lever_arm``: does the recipe read KITTI's turns once its training towns' camera sits ahead of the
+rear axle, as KITTI's does?
+
+KITTI's camera is about 0.84 m ahead of the rear axle and slides sideways into every turn; the training towns'
+camera rode on the axle (``render --camera-ahead 0``), so the recipe's prior never held that slide, and its flow
+reads as extra yaw. ``LEVER=0.84 scripts/train_paper_recipe.sh`` trains the same recipe on towns rendered with the
+lever (``lever_*`` models). This scores each model of :attr:`LeverConfig.model_names` with its own pose (``vo
+--pose net``) on the held-out town 7 without and with the lever (exact and DIS flow) and on the KITTI 06 and 07
+slices (DIS), beside ``deepslam vo``'s default: ATE, t_err (or the end-point drift on a route under 100 m), the path
+ratio, the mean yaw error (read - true, degrees) of the pairs turning each way and of the straight pairs, and the
+drift once the true rotation replaces the network's (what is left is its translation).
+
+    python -m bench.lever_arm [--models bench/paper_recipe] [--quick]
+
+Writes ``results.json`` and ``results.md`` under ``out/results/lever_arm`` (evaluations cached there: a killed run
+resumes); docs/experiments/2026-12-07_lever_arm_training.md reads them.
+"""
+from __future__ import annotations
+
+import dataclasses
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bench.results_common import write_report
+from bench.results_repro import (TURN_RAD, _err, _model_file, _predicted_and_true, _repo_path, forget_if_retrained,
+                                 main_with_models, own_pose_scores, vo_scores)
+from bench.results_vo import _cached
+from deepslam.core import metrics, se3
+
+
+@dataclasses.dataclass(frozen=True)
+class LeverConfig:
+    """What is scored and where."""
+
+    models: str = "bench/paper_recipe"
+    """Folder of the trained models (``scripts/train_paper_recipe.sh OUT``; relative to the repository)."""
+    model_names: tuple[str, ...] = ("synthetic_speedscale_mirror_cons_s0", "synthetic_mirror_cons_s0",
+                                    "lever_synthetic_mirror_cons_s0", "supervised_cons_s0", "lever_supervised_cons_s0")
+    """Model folders under :attr:`models` (each trained on axle towns next to its ``lever_`` twin; the speed-freed
+    model, whose KITTI 07 reading the record decomposes first; absent ones skipped)."""
+    lever_m: float = 0.84
+    """Metres the held-out town's camera sits ahead of the rear axle in its lever render (KITTI's fit)."""
+    heldout_seed: int = 7
+    """Town of the held-out street (the training towns are 1 and 2)."""
+    frames: int = 300
+    """Frames of each held-out render (10 Hz)."""
+    width: int = 414
+    """Rendered width, pixels (the training renders')."""
+
+
+def turn_yaw_errors(mean6: np.ndarray, true6: np.ndarray) -> dict:
+    """Mean yaw error (read - true, degrees) of the pairs turning left (true euler y > TURN_RAD), right (< -TURN_RAD)
+    and of the rest (straight), with their counts; from (N, 6) float64 paper vectors of ``cam_j_from_cam_i`` (euler
+    x, y, z in rad; t x, y, z in m). A reading that overshoots every turn gives a positive left and a negative right
+    mean; None where no pair falls in a part."""
+    err = np.degrees(mean6[:, 1] - true6[:, 1])
+    parts = {"left": true6[:, 1] > TURN_RAD, "right": true6[:, 1] < -TURN_RAD}
+    parts["straight"] = ~(parts["left"] | parts["right"])
+    return {name: {"n": int(pick.sum()), "mean_deg": float(err[pick].mean()) if pick.any() else None,
+                   "rms_deg": float(np.sqrt(np.mean(err[pick] ** 2))) if pick.any() else None}
+            for name, pick in parts.items()}
+
+
+def drift_with_true_rotation(mean6: np.ndarray, true6: np.ndarray) -> dict:
+    """:func:`core.metrics.drift` of consecutive pairs' motions (N, 6) chained with the true rotation (euler part of
+    ``true6``) and the read translation, against the truth chained: the drift the network's translation alone
+    leaves (path ratio, end-point drift in m and % of the path)."""
+    mixed = np.c_[true6[:, :3], mean6[:, 3:]]
+    return metrics.drift(se3.chain_euler6(true6), se3.chain_euler6(mixed))
+
+
+def _pair_figures(seq: Path, motions_csv: Path) -> dict:
+    mean6, _, true6 = _predicted_and_true(seq, motions_csv)
+    return {"turns": turn_yaw_errors(mean6, true6), "true_rotation": drift_with_true_rotation(mean6, true6)}
+
+
+def run(cfg: LeverConfig, out: Path, data: Path) -> dict:
+    from deepslam.studies.demo import render_once
+
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    log: list[str] = []
+    town = render_once("street", "car", cfg.frames, cfg.width, cfg.heldout_seed, out / f"street_s{cfg.heldout_seed}",
+                       log, ("--quiet",))
+    lever = render_once("street", "car", cfg.frames, cfg.width, cfg.heldout_seed,
+                        out / f"street_s{cfg.heldout_seed}_lever", log, ("--camera-ahead", f"{cfg.lever_m:g}", "--quiet"))
+    kitti = data / "kitti" / "sequences"
+    cases = [("street_exact", town, "gt"), ("street_dis", town, "dis"), ("lever_exact", lever, "gt"),
+             ("lever_dis", lever, "dis")]
+    cases += [(f"kitti{n}_dis", kitti / n, "dis") for n in ("06", "07") if (kitti / n).is_dir()]
+    rows: dict = {}
+    for name in cfg.model_names:
+        model = _model_file(_repo_path(cfg.models) / name)
+        if model is None:
+            continue
+        forget_if_retrained(out, name, model)
+        rows[name] = {"file": str(model)}
+        for case, seq, flow in cases:
+            print(f"score {name}: {case}", flush=True)
+            rec = own_pose_scores(out, f"{name}_{case}", seq, model, flow)
+            rows[name][case] = {**rec, **_pair_figures(seq, out / "runs" / f"{name}_{case}.motions.csv")}
+    default = {}
+    for case, seq, flow in cases:
+        rec = _cached(out / "eval" / f"default_{case}.json",
+                      lambda: vo_scores(seq, out / "runs" / f"default_{case}.txt", "--flow", flow))
+        default[case] = {**rec, **_pair_figures(seq, out / "runs" / f"default_{case}.motions.csv")}
+    report = {"config": dataclasses.asdict(cfg), "cases": [c for c, _, _ in cases], "models": rows,
+              "default": default, "renders": log, "minutes": (time.perf_counter() - t0) / 60}
+    write_report(out, report, markdown)
+    return report
+
+
+CASE_TITLES = {"street_exact": "town 7 (camera on the rear axle), exact flow",
+               "street_dis": "town 7 (camera on the rear axle), DIS flow",
+               "lever_exact": "town 7 with the camera {lever_m:g} m ahead of the rear axle, exact flow",
+               "lever_dis": "town 7 with the camera {lever_m:g} m ahead of the rear axle, DIS flow",
+               "kitti06_dis": "KITTI 06 slice (real), DIS flow", "kitti07_dis": "KITTI 07 slice (real), DIS flow"}
+
+
+def _f(x, spec: str = ".3f") -> str:
+    return "n/a" if x is None else format(x, spec)
+
+
+def markdown(report: dict) -> str:
+    cfg = report["config"]
+    md = ["Each model's own pose (`vo --pose net`); t_err [%], or the end-point drift [% of path] on a route under "
+          "100 m; the mean yaw error (read - true, deg) of the pairs turning left, right and of the straight ones "
+          "(a reading that overshoots the turns: left > 0, right < 0); the drift once the true rotation replaces "
+          "the network's.", ""]
+    for case in report["cases"]:
+        md += [f"**{CASE_TITLES[case].format(**cfg)}**", "",
+               "| | ATE [m] | t_err or drift [%] | path ratio | yaw error: left / right / straight [deg] | "
+               "drift with the true rotation [%] |", "|---|---|---|---|---|---|"]
+        for name, rec in [*report["models"].items(), ("`deepslam vo`'s default", report["default"])]:
+            r = rec[case]
+            turns = " / ".join(f"{_f(r['turns'][p]['mean_deg'], '+.3f')} ({r['turns'][p]['n']})"
+                               for p in ("left", "right", "straight"))
+            md.append(f"| {name} | {_f(r['ate_m'])} | {_f(_err(r), '.2f')} | {_f(r['path_length_ratio'])} | {turns} | "
+                      f"{_f(r['true_rotation']['endpoint_drift_pct'], '.2f')} |")
+        md.append("")
+    md += ["Renders: " + "; ".join(f"`{c}`" for c in report["renders"]), "",
+           f"Run time: {report['minutes']:.1f} min."]
+    return "\n".join(md) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    return main_with_models("lever_arm", __doc__, LeverConfig(), lambda cfg: dataclasses.replace(
+        cfg, frames=40, width=207), "lever_arm", run, markdown, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
