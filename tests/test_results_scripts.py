@@ -914,23 +914,23 @@ def test_depth_probe_refuses_a_missing_room(tmp_path, capsys):
     assert "no rendered room" in capsys.readouterr().err
 
 
-def test_lever_arm_turn_yaw_errors_and_true_rotation_drift():
-    """bench.lever_arm: a reading that overshoots every turn by 10 % shows a positive mean yaw error on the left
+def test_results_lever_turn_yaw_errors_and_true_rotation_drift():
+    """bench.results_lever: a reading that overshoots every turn by 10 % shows a positive mean yaw error on the left
     turns and a negative one on the right, none on the straight; with the true rotation put back and the true
     translation kept the drift is zero, with the translation read 10 % long the path ratio is 1.1."""
-    from bench import lever_arm
+    from bench import results_lever
 
     n = 30
     yaw = np.r_[np.full(10, 0.05), np.zeros(10), np.full(10, -0.05)]  # left, straight, right (rad a pair)
     true6 = np.c_[np.zeros(n), yaw, np.zeros(n), np.zeros(n), np.zeros(n), np.full(n, 0.8)]
     read6 = true6.copy()
     read6[:, 1] *= 1.1
-    turns = lever_arm.turn_yaw_errors(read6, true6)
+    turns = results_lever.turn_yaw_errors(read6, true6)
     assert turns["left"]["n"] == 10 and turns["right"]["n"] == 10 and turns["straight"]["n"] == 10
     assert turns["left"]["mean_deg"] == pytest.approx(np.degrees(0.005))
     assert turns["right"]["mean_deg"] == pytest.approx(-np.degrees(0.005))
     assert turns["straight"]["mean_deg"] == 0.0
-    assert lever_arm.drift_with_true_rotation(read6, true6)["endpoint_drift_m"] == pytest.approx(0.0, abs=1e-9)
+    assert results_lever.drift_with_true_rotation(read6, true6)["endpoint_drift_m"] == pytest.approx(0.0, abs=1e-9)
     long6 = read6.copy()
     long6[:, 5] *= 1.1
-    assert lever_arm.drift_with_true_rotation(long6, true6)["path_length_ratio"] == pytest.approx(1.1)
+    assert results_lever.drift_with_true_rotation(long6, true6)["path_length_ratio"] == pytest.approx(1.1)

@@ -1,4 +1,4 @@
-"""``python -m bench.lever_arm``: does the recipe read KITTI's turns once its training towns' camera sits ahead of the
+"""``python -m bench.results_lever``: does the recipe read KITTI's turns once its training towns' camera sits ahead of the
 rear axle, as KITTI's does?
 
 KITTI's camera is about 0.84 m ahead of the rear axle and slides sideways into every turn; the training towns'
@@ -10,9 +10,9 @@ slices (DIS), beside ``deepslam vo``'s default: ATE, t_err (or the end-point dri
 ratio, the mean yaw error (read - true, degrees) of the pairs turning each way and of the straight pairs, and the
 drift once the true rotation replaces the network's (what is left is its translation).
 
-    python -m bench.lever_arm [--models bench/paper_recipe] [--quick]
+    python -m bench.results_lever [--models bench/paper_recipe] [--quick]
 
-Writes ``results.json`` and ``results.md`` under ``out/results/lever_arm`` (evaluations cached there: a killed run
+Writes ``results.json`` and ``results.md`` under ``out/results/lever`` (evaluations cached there: a killed run
 resumes); docs/experiments/2026-12-07_lever_arm_training.md reads them.
 """
 from __future__ import annotations
@@ -147,8 +147,8 @@ def markdown(report: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return main_with_models("lever_arm", __doc__, LeverConfig(), lambda cfg: dataclasses.replace(
-        cfg, frames=40, width=207), "lever_arm", run, markdown, argv)
+    return main_with_models("results_lever", __doc__, LeverConfig(), lambda cfg: dataclasses.replace(
+        cfg, frames=40, width=207), "lever", run, markdown, argv)
 
 
 if __name__ == "__main__":
