@@ -129,17 +129,20 @@ def markdown(report: dict) -> str:
     md = ["Each model's own pose (`vo --pose net`); t_err [%], or the end-point drift [% of path] on a route under "
           "100 m; the mean yaw error (read - true, deg) of the pairs turning left, right and of the straight ones "
           "(a reading that overshoots the turns: left > 0, right < 0); the drift once the true rotation replaces "
-          "the network's.", ""]
+          "the network's; the share of pairs whose error is within the predicted 1-sigma, per DoF (a calibrated "
+          "Gaussian: 0.68; the default's std is its own model's).", ""]
     for case in report["cases"]:
         md += [f"**{CASE_TITLES[case].format(**cfg)}**", "",
                "| | ATE [m] | t_err or drift [%] | path ratio | yaw error: left / right / straight [deg] | "
-               "drift with the true rotation [%] |", "|---|---|---|---|---|---|"]
-        for name, rec in [*report["models"].items(), ("`deepslam vo`'s default", report["default"])]:
+               "drift with the true rotation [%] | within 1-sigma: euler x, y, z, t x, y, z |", "|---|---|---|---|---|---|---|"]
+        named = [(n, report["models"][n]) for n in cfg["model_names"] if n in report["models"]]
+        for name, rec in [*named, ("`deepslam vo`'s default", report["default"])]:
             r = rec[case]
             turns = " / ".join(f"{_f(r['turns'][p]['mean_deg'], '+.3f')} ({r['turns'][p]['n']})"
                                for p in ("left", "right", "straight"))
             md.append(f"| {name} | {_f(r['ate_m'])} | {_f(_err(r), '.2f')} | {_f(r['path_length_ratio'])} | {turns} | "
-                      f"{_f(r['true_rotation']['endpoint_drift_pct'], '.2f')} |")
+                      f"{_f(r['true_rotation']['endpoint_drift_pct'], '.2f')} | "
+                      f"{', '.join(_f(x, '.2f') for x in r.get('within_1_sigma') or [])} |")
         md.append("")
     md += ["Renders: " + "; ".join(f"`{c}`" for c in report["renders"]), "",
            f"Run time: {report['minutes']:.1f} min."]
