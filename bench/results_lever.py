@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from bench.results_common import write_report
-from bench.results_repro import (TURN_RAD, _err, _model_file, _predicted_and_true, _repo_path, forget_if_retrained,
-                                 main_with_models, own_pose_scores, vo_scores)
+from bench.results_repro import (TURN_RAD, _err, _model_file, _predicted_and_true, _repo_path, calibrated_once,
+                                 forget_if_retrained, main_with_models, own_pose_scores, vo_scores)
 from bench.results_vo import _cached
 from deepslam.core import metrics, se3
 
@@ -50,6 +50,10 @@ class LeverConfig:
     """Frames of each held-out render (10 Hz)."""
     width: int = 414
     """Rendered width, pixels (the training renders')."""
+    calibration_seed: int = 8101
+    """Town on which each model's std is calibrated per DoF (``deepslam calibrate``, DIS flow, own pose), rendered
+    as KITTI's car moves: the lever and KITTI's body pitch and roll (``--body-motion 1``); then read on the KITTI
+    slices (0: none)."""
 
 
 def turn_yaw_errors(mean6: np.ndarray, true6: np.ndarray) -> dict:
@@ -92,6 +96,9 @@ def run(cfg: LeverConfig, out: Path, data: Path) -> dict:
     cases = [("street_exact", town, "gt"), ("street_dis", town, "dis"), ("lever_exact", lever, "gt"),
              ("lever_dis", lever, "dis")]
     cases += [(f"kitti{n}_dis", kitti / n, "dis") for n in ("06", "07") if (kitti / n).is_dir()]
+    calibration = None if not cfg.calibration_seed else render_once(
+        "street", "car", cfg.frames, cfg.width, cfg.calibration_seed, out / f"street_s{cfg.calibration_seed}_kitti_car",
+        log, ("--camera-ahead", f"{cfg.lever_m:g}", "--body-motion", "1", "--quiet"))
     rows: dict = {}
     for name in cfg.model_names:
         model = _model_file(_repo_path(cfg.models) / name)
@@ -103,6 +110,11 @@ def run(cfg: LeverConfig, out: Path, data: Path) -> dict:
             print(f"score {name}: {case}", flush=True)
             rec = own_pose_scores(out, f"{name}_{case}", seq, model, flow)
             rows[name][case] = {**rec, **_pair_figures(seq, out / "runs" / f"{name}_{case}.motions.csv")}
+        if calibration is not None and model.name == "model.safetensors":
+            calibrated = calibrated_once(out, f"{name}_cal", calibration, model)
+            for case, seq, flow in cases:
+                if case.startswith("kitti"):
+                    rows[name][f"{case}_cal"] = own_pose_scores(out, f"{name}_{case}_cal", seq, calibrated, flow)
     default = {}
     for case, seq, flow in cases:
         rec = _cached(out / "eval" / f"default_{case}.json",
@@ -144,6 +156,15 @@ def markdown(report: dict) -> str:
             md.append(f"| {name} | {_f(r['ate_m'])} | {_f(_err(r), '.2f')} | {_f(r['path_length_ratio'])} | {turns} | "
                       f"{_f(r['true_rotation']['endpoint_drift_pct'], '.2f')} | "
                       f"{', '.join(_f(x, '.2f') for x in r.get('within_1_sigma') or [])} |")
+        md.append("")
+    cal = [(n, c) for n in cfg["model_names"] if n in report["models"] for c in report["cases"]
+           if f"{c}_cal" in report["models"][n]]
+    if cal:
+        md += [f"Each model's std calibrated per DoF on town {cfg['calibration_seed']} rendered as KITTI's car moves "
+               f"(the camera {cfg['lever_m']:g} m ahead of the rear axle, `--body-motion 1`; `deepslam calibrate`, DIS "
+               "flow), then the share of pairs within 1-sigma per DoF (euler x, y, z, t x, y, z; 0.68 calibrated):", ""]
+        md += [f"- {n}, {CASE_TITLES[c]}: " + ", ".join(f"{x:.2f}" for x in report["models"][n][f"{c}_cal"]["within_1_sigma"])
+               for n, c in cal]
         md.append("")
     md += ["Renders: " + "; ".join(f"`{c}`" for c in report["renders"]), "",
            f"Run time: {report['minutes']:.1f} min."]
