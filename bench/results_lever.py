@@ -39,6 +39,7 @@ class LeverConfig:
     """Folder of the trained models (``scripts/train_paper_recipe.sh OUT``; relative to the repository)."""
     model_names: tuple[str, ...] = ("synthetic_mirror_cons_s0", "lever_synthetic_mirror_cons_s0",
                                     "synthetic_speedscale_mirror_cons_s0", "lever_synthetic_speedscale_mirror_cons_s0",
+                                    "lever_synthetic_axlescale_mirror_cons_s0",
                                     "supervised_cons_s0", "lever_supervised_cons_s0")
     """Model folders under :attr:`models`, each trained on axle towns next to its ``lever_`` twin (absent ones
     skipped)."""

@@ -178,6 +178,12 @@ class KdeSix:
     """(2,) float64 Gaussian jitter of the :attr:`body` draws (rad), Silverman's rule as :func:`fit_kde`."""
     body_sources: tuple[str, ...] = ()
     """Names of the trajectories :attr:`body` was taken from."""
+    lever_m: float = 0.0
+    """Metres the fitted routes' camera sits ahead of the rear axle (``render --camera-ahead``; KITTI's 0.84): the
+    :attr:`speed_scale` factor then multiplies the axle's translation and keeps the camera's sideways slide into a
+    turn, which is the lever times the turn and does not grow with the distance travelled. With ``S`` the shift
+    (0, 0, L) from the axle to the camera, ``cam_j_from_cam_i = S^-1 axle_j_from_axle_i S``, so t_cam = t_axle +
+    (R - I) s: the scaled motion is k (t_cam - (R - I) s) + (R - I) s. 0: the whole translation is scaled."""
 
     @property
     def num_motions(self) -> int:
@@ -202,7 +208,9 @@ class KdeSix:
         out = np.clip(out, self.lo, self.hi)
         if self.speed_scale is not None:
             lo, hi = self.speed_scale
-            out[:, 3:] *= np.exp(rng.uniform(math.log(lo), math.log(hi), size=n))[:, None]
+            factor = np.exp(rng.uniform(math.log(lo), math.log(hi), size=n))[:, None]
+            slide = lever_slide(out, self.lever_m)
+            out[:, 3:] = (out[:, 3:] - slide) * factor + slide
         if self.body is not None:
             pick = rng.integers(0, len(self.body), size=n)
             out[:, BODY_DOFS] += self.body[pick] + rng.standard_normal((n, 2)) * self.body_bandwidth
@@ -223,6 +231,8 @@ class KdeSix:
              "motions": np.round(self.motions, KDE_DIGITS).tolist()}
         if self.speed_scale is not None:
             d["speed_scale"] = [float(x) for x in self.speed_scale]
+            if self.lever_m:
+                d["lever_m"] = float(self.lever_m)
         if self.body is not None:
             d["body"] = {"sources": list(self.body_sources),
                          "bandwidth": {DOF_NAMES[k]: float(b) for k, b in zip(BODY_DOFS, self.body_bandwidth)},
@@ -230,20 +240,50 @@ class KdeSix:
         return d
 
 
+def lever_slide(vectors: np.ndarray, lever_m: float) -> np.ndarray:
+    """(N, 3) float64 part of each motion's translation (m, frame j) that a camera ``lever_m`` metres ahead of the
+    rear axle adds to the axle's: (R - I) (0, 0, L), R the rotation of (N, 6) paper vectors of ``cam_j_from_cam_i``
+    (:attr:`KdeSix.lever_m`); zeros for ``lever_m`` 0."""
+    v = np.asarray(vectors, dtype=np.float64).reshape(-1, 6)
+    if not lever_m:
+        return np.zeros((len(v), 3))
+    rotation = se3.from_euler6(np.c_[v[:, :3], np.zeros((len(v), 3))])[:, :3, :3]
+    return (rotation[:, :, 2] - np.array([0.0, 0.0, 1.0])) * lever_m
+
+
+LEVER_LIMITS_M = (0.0, 5.0)
+"""Range of :attr:`KdeSix.lever_m` (the simulator's ``--camera-ahead`` range)."""
+
 SPEED_SCALE_LIMITS = (0.05, 20.0)
 """Smallest and largest factor ``speed_scale`` may give (a motion model, not a teleport)."""
 
 
-def fit_kde(vectors: np.ndarray, seed: int = 0, speed_scale: tuple[float, float] | None = None) -> KdeSix:
+def fit_kde(vectors: np.ndarray, seed: int = 0, speed_scale: tuple[float, float] | None = None,
+            lever_m: float = 0.0) -> KdeSix:
     """A :class:`KdeSix` of (N, 6) paper vectors: bandwidth per DoF by Silverman's rule, 0.9 x min(std,
     IQR / 1.349) x N^(-1/5) (each marginal's own; the jitter only has to keep draws from repeating the data,
     and a wider one would blur the straight-driving peak of yaw); motions rounded to :data:`KDE_DIGITS`
     places as stored; more than :data:`KDE_MAX_MOTIONS` are subsampled with ``seed``; ``speed_scale`` as
-    :attr:`KdeSix.speed_scale` (ValueError outside :data:`SPEED_SCALE_LIMITS` or with lo > hi)."""
+    :attr:`KdeSix.speed_scale` (ValueError outside :data:`SPEED_SCALE_LIMITS` or with lo > hi); ``lever_m`` as
+    :attr:`KdeSix.lever_m` (with a ``speed_scale`` only; ValueError outside :data:`LEVER_LIMITS_M`)."""
     if speed_scale is not None:
         speed_scale = check_speed_scale(speed_scale, ValueError)
+    lever_m = check_lever(lever_m, speed_scale, ValueError)
     v = _kept_motions(vectors, KDE_MAX_MOTIONS, seed, "motions to fit")
-    return KdeSix(v, silverman_bandwidth(v), v.min(axis=0), v.max(axis=0), speed_scale)
+    return KdeSix(v, silverman_bandwidth(v), v.min(axis=0), v.max(axis=0), speed_scale, lever_m=lever_m)
+
+
+def check_lever(value, speed_scale, error, names: tuple[str, str] = ("lever_m", "a speed_scale")) -> float:
+    """``value`` as a float lever (m), or ``error(message)`` raised when it is not a finite number within
+    :data:`LEVER_LIMITS_M`, or is not 0 without a ``speed_scale`` (the lever only changes how that scales);
+    ``names``: what the message calls the lever and the speed scale."""
+    lo, hi = LEVER_LIMITS_M
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+            or not lo <= value <= hi:
+        raise error(f"{names[0]} must be a number of metres within [{lo:g}, {hi:g}], got {value!r}")
+    if value and speed_scale is None:
+        raise error(f"{names[0]} needs {names[1]} (it says which part of the translation the factor scales)")
+    return float(value)
 
 
 def _kept_motions(vectors: np.ndarray, most: int, seed: int, what: str) -> np.ndarray:
@@ -509,7 +549,8 @@ def _kde_from_dict(d: dict, where: str, bad) -> KdeSix:
     speed_scale = d.get("speed_scale")
     if speed_scale is not None:
         speed_scale = check_speed_scale(speed_scale, lambda m: bad(f"{where}.{m}"))
-    kde = KdeSix(arr, vals["bandwidth"], vals["lo"], vals["hi"], speed_scale)
+    lever_m = check_lever(d.get("lever_m", 0.0), speed_scale, lambda m: bad(f"{where}.{m}"))
+    kde = KdeSix(arr, vals["bandwidth"], vals["lo"], vals["hi"], speed_scale, lever_m=lever_m)
     return kde if d.get("body") is None else _body_from_dict(kde, d["body"], f"{where}.body", bad)
 
 
@@ -644,7 +685,8 @@ def fit_motion(trajectories: Sequence[Trajectory], stride: int = 1, loops: bool 
                speed_scale: tuple[float, float] | None = None,
                mirror: bool = False,
                body: Sequence[Trajectory] = (),
-               body_sources: Sequence[str] = ()) -> tuple[MotionModel, np.ndarray, np.ndarray | None]:
+               body_sources: Sequence[str] = (),
+               lever_m: float = 0.0) -> tuple[MotionModel, np.ndarray, np.ndarray | None]:
     """Fit the consecutive (and optionally loop) model to ground-truth trajectories.
 
     Args:
@@ -662,6 +704,7 @@ def fit_motion(trajectories: Sequence[Trajectory], stride: int = 1, loops: bool 
             both ways as often, whichever way the routes turned (a route that goes round its blocks one way).
         body: trajectories whose frame-to-frame pitch and roll at ``stride`` are added to each drawn motion
             (:func:`with_body`; a ``"kde"`` fit only); ``body_sources`` their names.
+        lever_m: the KDE's :attr:`KdeSix.lever_m` (with ``speed_scale`` only).
 
     Returns:
         (model, consecutive vectors (N, 6), loop vectors (M, 6) or None): the data, for plots and checks.
@@ -680,7 +723,7 @@ def fit_motion(trajectories: Sequence[Trajectory], stride: int = 1, loops: bool 
         raise ValueError("speed_scale needs the joint KDE (consecutive_kind 'kde')")
     if body and consecutive_kind != "kde":
         raise ValueError("body needs the joint KDE (consecutive_kind 'kde')")
-    consecutive = fit_kde(vec, seed, speed_scale) if consecutive_kind == "kde" else fit_six(vec)
+    consecutive = fit_kde(vec, seed, speed_scale, lever_m) if consecutive_kind == "kde" else fit_six(vec)
     if body:
         consecutive = with_body(consecutive, relative_vectors(body, stride), body_sources, seed)
     loop, loop_vec = None, None

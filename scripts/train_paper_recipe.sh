@@ -58,7 +58,9 @@
 # LEVER=M (SCENE=street) renders the training towns with the camera M metres ahead of the rear axle (`render
 # --camera-ahead M`; KITTI's ground truth fits 0.84), so that it slides sideways into a turn as KITTI's camera does
 # and the prior fitted on them holds that slide: renders street_lever_train_sK, fits motion_lever..._sK.json, models
-# ..._lever_... (docs/experiments/2026-12-07_lever_arm_training.md).
+# ..._lever_... (docs/experiments/2026-12-07_lever_arm_training.md). With SPEED_SCALE the factor multiplies the whole
+# drawn translation, the lever's sideways slide too; AXLE_SCALE=1 scales the axle's motion and keeps the slide
+# (`fit-motion --speed-scale-lever`), the fits and models named _axlescale instead of _speedscale.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/paper_recipe}
@@ -92,6 +94,9 @@ if [ -n "${LEVER:-}" ]; then
   [[ "$LEVER" =~ ^[0-9]+(\.[0-9]+)?$ ]] || { echo "LEVER must be metres ahead of the rear axle, e.g. 0.84, not '$LEVER'" >&2; exit 2; }
   RENDER="$RENDER --camera-ahead $LEVER"; PFX=lever_; TRAJ_SFX=_lever
 fi
+if [ "${AXLE_SCALE:-0}" = 1 ] && { [ -z "${LEVER:-}" ] || [ -z "${SPEED_SCALE:-}" ]; }; then
+  echo "AXLE_SCALE=1 needs LEVER and SPEED_SCALE" >&2; exit 2
+fi
 if [ "${DEPTH:-0}" = 1 ] && [ "$SCENE" != room ]; then
   # the rows that score depth-reading models are the RGB-D ones (bench.results_repro_rgbd), on exact flow
   echo "DEPTH=1 is for SCENE=room (the RGB-D rows)" >&2; exit 2
@@ -105,6 +110,10 @@ TRAIN="${RENDERS}_s1 ${RENDERS}_s2"
 PRIOR=""      # the motion fits' and synthetic models' name suffix
 PRIOR_FIT=""  # ... and the fit-motion flags that make it
 if [ -n "${SPEED_SCALE:-}" ]; then PRIOR=_speedscale; PRIOR_FIT="--speed-scale $SPEED_SCALE"; fi
+if [ "${AXLE_SCALE:-0}" = 1 ]; then
+  # the speed scale applied to the axle's motion, the lever's slide into a turn kept (it does not grow with speed)
+  PRIOR=_axlescale; PRIOR_FIT="$PRIOR_FIT --speed-scale-lever $LEVER"
+fi
 if [ "${MIRROR:-1}" = 1 ]; then PRIOR="${PRIOR}_mirror"; PRIOR_FIT="$PRIOR_FIT --mirror"; fi
 if [ "${BODY:-0}" = 1 ]; then
   KITTI_POSES=${KITTI_POSES:-../shared/data/kitti/poses}

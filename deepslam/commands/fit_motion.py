@@ -36,6 +36,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="with --consecutive kde: multiply each drawn motion's translation by a factor drawn "
                         "log-uniform in [LO, HI], its rotation kept: the same turn at another radius and speed "
                         "(frees the turn radius from the one the routes were driven at), e.g. 0.4,1.5")
+    p.add_argument("--speed-scale-lever", type=float, default=0.0, metavar="M",
+                   help="with --speed-scale: the routes' camera sits M metres ahead of the rear axle (render "
+                        "--camera-ahead; KITTI's 0.84): the factor scales the axle's motion and keeps the camera's "
+                        "sideways slide into a turn, which does not grow with the speed (default 0: the whole "
+                        "translation is scaled)")
     p.add_argument("--mirror", action="store_true",
                    help="fit the consecutive motions together with their left-right mirror images (yaw, roll and "
                         "sideways motion negated): turns both ways as often, for routes that turn one way")
@@ -65,6 +70,8 @@ def run(args: argparse.Namespace) -> int:
         lo_lim, hi_lim = motion.SPEED_SCALE_LIMITS
         speed_scale = motion.check_speed_scale(values, lambda _: InputError(
             None, f"--speed-scale must be LO,HI with {lo_lim:g} <= LO <= HI <= {hi_lim:g}, got {args.speed_scale!r}"))
+    lever_m = motion.check_lever(args.speed_scale_lever, speed_scale, lambda m: InputError(None, m),
+                                 ("--speed-scale-lever", "--speed-scale"))
     from deepslam.core.outputs import check_distinct_outputs, check_output_not_input
 
     if args.body_from and args.consecutive != "kde":
@@ -81,6 +88,7 @@ def run(args: argparse.Namespace) -> int:
         model, vec, loop_vec = motion.fit_motion(trajectories, args.stride, args.loops, loop_cfg,
                                                  sources=[Path(p).name for p in args.poses], loop_fit=args.loop_fit,
                                                  consecutive_kind=args.consecutive, speed_scale=speed_scale,
+                                                 lever_m=lever_m,
                                                  mirror=args.mirror, body=body,
                                                  body_sources=[Path(p).name for p in args.body_from or ()])
     except ValueError as e:

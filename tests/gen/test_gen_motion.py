@@ -324,9 +324,64 @@ def test_kde_speed_scale_frees_the_turn_radius(tmp_path):
             MotionModel.load(tmp_path / "bad.json")
 
 
+def _arc_camera_motion(radius_m: float, yaw_rad: float, lever_m: float) -> np.ndarray:
+    """Paper vector of ``cam_j_from_cam_i`` for a camera ``lever_m`` ahead of a rear axle that drives an arc of
+    ``radius_m`` turning by ``yaw_rad`` (camera axes: x right, y down, z forward)."""
+    world_from_axle_j = se3.from_rt(se3.from_euler6([0, yaw_rad, 0, 0, 0, 0])[:3, :3],
+                                    [radius_m * (1 - math.cos(yaw_rad)), 0, radius_m * math.sin(yaw_rad)])
+    axle_from_cam = se3.from_rt(np.eye(3), [0, 0, lever_m])
+    return se3.to_euler6(se3.relative(world_from_axle_j @ axle_from_cam, axle_from_cam))
+
+
+def test_kde_speed_scale_with_a_lever_scales_the_axle_and_keeps_the_slide(tmp_path):
+    """A camera 0.84 m ahead of the rear axle slides sideways into a turn by the lever times the turn, at any
+    speed. Scaling the whole translation (``lever_m`` 0) draws that slide scaled too; with ``lever_m`` the factor
+    scales the axle's arc only: the motion scaled by k is the camera's on the arc k times as wide (known answer),
+    and every draw's translation less the lever's slide points along the axle's chord; the lever survives the JSON,
+    and a lever without a speed scale, or out of range, is refused."""
+    from deepslam.gen.motion import fit_kde, lever_slide
+
+    lever = 0.84
+    v = _arc_camera_motion(12.0, 0.05, lever)
+    for k in (0.4, 1.5):
+        slide = lever_slide(v[None], lever)[0]
+        np.testing.assert_allclose((v[3:] - slide) * k + slide, _arc_camera_motion(12.0 * k, 0.05, lever)[3:],
+                                   atol=1e-12)
+    assert not np.allclose(v[3:] * 0.4, _arc_camera_motion(4.8, 0.05, lever)[3:], atol=1e-3)  # plain scaling is not
+    rng = np.random.default_rng(0)
+    vec = np.array([_arc_camera_motion(r, y, lever) for r, y in zip(rng.uniform(10, 14, 300),
+                                                                     rng.choice([0.0, 0.05], 300))])
+    vec[:, [0, 2, 4]] = rng.normal(0, 1e-4, (300, 3))
+    model = fit_kde(vec, speed_scale=(0.4, 1.5), lever_m=lever)
+    draws = model.sample(3000, np.random.default_rng(1))
+    turn = np.abs(draws[:, 1]) > 0.04
+    assert turn.sum() > 1000
+    axle = draws[turn, 3:] - lever_slide(draws[turn], lever)  # where camera i is seen from camera j: behind
+    chord = np.arctan2(-axle[:, 0], -axle[:, 2])  # the axle's chord turns by half the heading change
+    assert abs(np.mean(chord - draws[turn, 1] / 2)) < 0.003  # on average: each draw has the KDE's jitter
+    plain = fit_kde(vec, speed_scale=(0.4, 1.5)).sample(3000, np.random.default_rng(1))
+    axle_plain = plain[turn, 3:] - lever_slide(plain[turn], lever)
+    assert np.mean(np.arctan2(-axle_plain[:, 0], -axle_plain[:, 2]) - plain[turn, 1] / 2) < -0.015
+    back = MotionModel.load(MotionModel(1, model).save(tmp_path / "lever.json"))
+    assert back.consecutive.lever_m == lever
+    np.testing.assert_array_equal(back.sample(40, np.random.default_rng(2))[0], model.sample(40, np.random.default_rng(2)))
+    with pytest.raises(ValueError, match="needs a speed_scale"):
+        fit_kde(vec, lever_m=lever)
+    for bad in (-0.1, 6.0, math.nan, "a"):
+        d = MotionModel(1, model).to_dict()
+        d["consecutive"]["lever_m"] = bad
+        (tmp_path / "bad.json").write_text(json.dumps(d))
+        with pytest.raises(InputError, match="lever_m must be"):
+            MotionModel.load(tmp_path / "bad.json")
+
+
 @pytest.mark.parametrize("flags,what", [(["--speed-scale", "0.4,1.5"], "needs --consecutive kde"),
                                         (["--consecutive", "kde", "--speed-scale", "1.5,0.4"], "LO <= HI"),
-                                        (["--consecutive", "kde", "--speed-scale", "x"], "two numbers")])
+                                        (["--consecutive", "kde", "--speed-scale", "x"], "two numbers"),
+                                        (["--consecutive", "kde", "--speed-scale-lever", "0.84"],
+                                         "--speed-scale-lever needs --speed-scale"),
+                                        (["--consecutive", "kde", "--speed-scale", "0.4,1.5", "--speed-scale-lever",
+                                          "9"], "--speed-scale-lever must be")])
 def test_cli_fit_motion_speed_scale_bad_input(shared_data, tmp_path, capsys, flags, what):
     out = tmp_path / "m.json"
     assert main(["fit-motion", "--poses", str(shared_data / "kitti" / "poses" / "04.txt"), "--out", str(out),
