@@ -38,11 +38,10 @@ class LeverConfig:
     models: str = "bench/paper_recipe"
     """Folder of the trained models (``scripts/train_paper_recipe.sh OUT``; relative to the repository)."""
     model_names: tuple[str, ...] = ("synthetic_mirror_cons_s0", "lever_synthetic_mirror_cons_s0",
-                                    "synthetic_speedscale_mirror_cons_s0", "lever_synthetic_speedscale_mirror_cons_s0",
-                                    "lever_synthetic_axlescale_mirror_cons_s0",
+                                    "synthetic_speedscale_mirror_cons_s0", "lever_synthetic_axlescale_mirror_cons_s0",
                                     "supervised_cons_s0", "lever_supervised_cons_s0")
-    """Model folders under :attr:`models`, each trained on axle towns next to its ``lever_`` twin (absent ones
-    skipped)."""
+    """Model folders under :attr:`models`, each trained on axle towns next to its ``lever_`` twin (the speed-freed
+    model's twin scales the axle's motion: ``AXLE_SCALE=1``); absent ones skipped."""
     lever_m: float = 0.84
     """Metres the held-out town's camera sits ahead of the rear axle in its lever render (KITTI's fit)."""
     heldout_seed: int = 7
