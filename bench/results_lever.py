@@ -3,7 +3,7 @@ rear axle, as KITTI's does?
 
 KITTI's camera is about 0.84 m ahead of the rear axle and slides sideways into every turn; the training towns'
 camera rode on the axle (``render --camera-ahead 0``), so the recipe's prior never held that slide, and its flow
-reads as extra yaw. ``LEVER=0.84 scripts/train_paper_recipe.sh`` trains the same recipe on towns rendered with the
+reads as extra yaw. ``scripts/train_paper_recipe.sh`` (``LEVER=0.84``, its default) trains the same recipe on towns rendered with the
 lever (``lever_*`` models). This scores each model of :attr:`LeverConfig.model_names` with its own pose (``vo
 --pose net``) on the held-out town 7 without and with the lever (exact and DIS flow) and on the KITTI 06 and 07
 slices (DIS), beside ``deepslam vo``'s default: ATE, t_err (or the end-point drift on a route under 100 m), the path

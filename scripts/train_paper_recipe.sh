@@ -55,12 +55,13 @@
 # (`render --trajectory handheld`: a walking pace and the hand's sway, as a hand-held RGB-D camera moves) into
 # room_handheld_train_sK, fits the motions on them (motion_room_handheld..._sK.json) and names the models
 # room_handheld_...: the prior then holds a hand-held camera's motion, drawn from the training data as the paper's.
-# LEVER=M (SCENE=street) renders the training towns with the camera M metres ahead of the rear axle (`render
-# --camera-ahead M`; KITTI's ground truth fits 0.84), so that it slides sideways into a turn as KITTI's camera does
-# and the prior fitted on them holds that slide: renders street_lever_train_sK, fits motion_lever..._sK.json, models
-# ..._lever_... (docs/experiments/2026-12-07_lever_arm_training.md). With SPEED_SCALE the factor multiplies the whole
-# drawn translation, the lever's sideways slide too; AXLE_SCALE=1 scales the axle's motion and keeps the slide
-# (`fit-motion --speed-scale-lever`), the fits and models named _axlescale instead of _speedscale.
+# LEVER=M (SCENE=street; default 0.84, KITTI's) renders the training towns with the camera M metres ahead of the rear
+# axle (`render --camera-ahead M`), so that it slides sideways into a turn as KITTI's camera does and the prior fitted
+# on them holds that slide: renders street_lever_train_sK, fits motion_lever..._sK.json, models lever_...
+# (docs/experiments/2026-12-07_lever_arm_training.md: with the turn radius freed it halves KITTI 07's drift). With
+# SPEED_SCALE the factor then scales the axle's motion and keeps the slide (`fit-motion --speed-scale-lever`; fits
+# and models named _axlescale instead of _speedscale). LEVER=0 trains on the axle-camera towns (the models without
+# the lever_ prefix, as every street model trained before the lever was the default).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/paper_recipe}
@@ -89,13 +90,11 @@ case "${TRAJECTORY:-}" in
             RENDER="$RENDER --trajectory handheld"; PFX=room_handheld_; TRAJ_SFX=_handheld ;;
   *) echo "TRAJECTORY must be handheld or unset (the scene's own), not '$TRAJECTORY'" >&2; exit 2 ;;
 esac
-if [ -n "${LEVER:-}" ]; then
+[ "$SCENE" = street ] && LEVER=${LEVER-0.84}  # KITTI's camera mount, unless set (LEVER=0: on the axle)
+if [ -n "${LEVER:-}" ] && [ "$LEVER" != 0 ]; then
   [ "$SCENE" = street ] || { echo "LEVER is for SCENE=street (the car's camera)" >&2; exit 2; }
   [[ "$LEVER" =~ ^[0-9]+(\.[0-9]+)?$ ]] || { echo "LEVER must be metres ahead of the rear axle, e.g. 0.84, not '$LEVER'" >&2; exit 2; }
   RENDER="$RENDER --camera-ahead $LEVER"; PFX=lever_; TRAJ_SFX=_lever
-fi
-if [ "${AXLE_SCALE:-0}" = 1 ] && { [ -z "${LEVER:-}" ] || [ -z "${SPEED_SCALE:-}" ]; }; then
-  echo "AXLE_SCALE=1 needs LEVER and SPEED_SCALE" >&2; exit 2
 fi
 if [ "${DEPTH:-0}" = 1 ] && [ "$SCENE" != room ]; then
   # the rows that score depth-reading models are the RGB-D ones (bench.results_repro_rgbd), on exact flow
@@ -110,7 +109,7 @@ TRAIN="${RENDERS}_s1 ${RENDERS}_s2"
 PRIOR=""      # the motion fits' and synthetic models' name suffix
 PRIOR_FIT=""  # ... and the fit-motion flags that make it
 if [ -n "${SPEED_SCALE:-}" ]; then PRIOR=_speedscale; PRIOR_FIT="--speed-scale $SPEED_SCALE"; fi
-if [ "${AXLE_SCALE:-0}" = 1 ]; then
+if [ "$TRAJ_SFX" = _lever ] && [ -n "${SPEED_SCALE:-}" ]; then
   # the speed scale applied to the axle's motion, the lever's slide into a turn kept (it does not grow with speed)
   PRIOR=_axlescale; PRIOR_FIT="$PRIOR_FIT --speed-scale-lever $LEVER"
 fi
