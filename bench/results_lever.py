@@ -41,7 +41,7 @@ class LeverConfig:
                                     "synthetic_speedscale_mirror_cons_s0", "lever_synthetic_axlescale_mirror_cons_s0",
                                     "supervised_cons_s0", "lever_supervised_cons_s0")
     """Model folders under :attr:`models`, each trained on axle towns next to its ``lever_`` twin (the speed-freed
-    model's twin scales the axle's motion: ``AXLE_SCALE=1``); absent ones skipped."""
+    model's twin scales the axle's motion: ``fit-motion --speed-scale-lever``); absent ones skipped."""
     lever_m: float = 0.84
     """Metres the held-out town's camera sits ahead of the rear axle in its lever render (KITTI's fit)."""
     heldout_seed: int = 7

@@ -247,7 +247,7 @@ def lever_slide(vectors: np.ndarray, lever_m: float) -> np.ndarray:
     v = np.asarray(vectors, dtype=np.float64).reshape(-1, 6)
     if not lever_m:
         return np.zeros((len(v), 3))
-    rotation = se3.from_euler6(np.c_[v[:, :3], np.zeros((len(v), 3))])[:, :3, :3]
+    rotation = se3.from_euler6(v)[:, :3, :3]
     return (rotation[:, :, 2] - np.array([0.0, 0.0, 1.0])) * lever_m
 
 
