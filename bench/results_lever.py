@@ -39,9 +39,12 @@ class LeverConfig:
     """Folder of the trained models (``scripts/train_paper_recipe.sh OUT``; relative to the repository)."""
     model_names: tuple[str, ...] = ("synthetic_mirror_cons_s0", "lever_synthetic_mirror_cons_s0",
                                     "synthetic_speedscale_mirror_cons_s0", "lever_synthetic_axlescale_mirror_cons_s0",
+                                    "synthetic_dis_speedscale_mirror_body_cons_s0",
+                                    "lever_synthetic_dis_axlescale_mirror_body_cons_s0",
                                     "supervised_cons_s0", "lever_supervised_cons_s0")
     """Model folders under :attr:`models`, each trained on axle towns next to its ``lever_`` twin (the speed-freed
-    model's twin scales the axle's motion: ``fit-motion --speed-scale-lever``); absent ones skipped."""
+    models' twins scale the axle's motion: ``fit-motion --speed-scale-lever``; the ``_dis`` pair trained on DIS flow
+    of rendered views, ``SYNTH_FLOW=dis``); absent ones skipped."""
     lever_m: float = 0.84
     """Metres the held-out town's camera sits ahead of the rear axle in its lever render (KITTI's fit)."""
     heldout_seed: int = 7
