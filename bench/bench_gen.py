@@ -17,10 +17,18 @@ repeated runs with the 1-minute load average. The machine's 2 cores are shared w
 """
 from __future__ import annotations
 
+import argparse
+import json
 import os
+import subprocess
+import sys
 import time
 
 import numpy as np
+
+from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
+from deepslam.core.paths import base_dir
 
 B, H, W = 128, 96, 320
 TARGET_SPS = 20_000.0
@@ -39,8 +47,6 @@ def _median_time(fn, repeats: int, warmup: int = 2) -> tuple[float, float]:
 
 
 def _inputs(rng: np.random.Generator):
-    from deepslam.core import se3
-
     # Depth: a road below the horizon and a facade at 8-40 m above it, with some holes (0 = none).
     v = np.arange(H, dtype=np.float64)[:, None] - (H - 1) / 2.0
     road = np.where(v > 1, 200.0 * 1.65 / np.maximum(v, 1e-3), 0.0)
@@ -71,7 +77,6 @@ def _measure_synthesis(quick: bool) -> dict:
     """Samples/s of gen.flow.synthesize in THIS process with torch on 2 threads (out=, fresh, z-buffer)."""
     import torch
 
-    from deepslam.core.camera import PinholeCamera
     from deepslam.gen.flow import synthesize
 
     old_threads = torch.get_num_threads()
@@ -112,12 +117,6 @@ def _measure_synthesis(quick: bool) -> dict:
 def _measure_in_subprocess(quick: bool, wait_policy: str) -> dict | None:
     """:func:`_measure_synthesis` in a fresh interpreter with ``OMP_WAIT_POLICY`` set (OpenMP reads it
     once, at start-up): PASSIVE lets waiting threads sleep, which matters when the cores are shared."""
-    import json
-    import subprocess
-    import sys
-
-    from deepslam.core.paths import base_dir
-
     env = {**os.environ, "OMP_WAIT_POLICY": wait_policy, "OMP_NUM_THREADS": "2"}
     cmd = [sys.executable, "-m", "bench.bench_gen", "--worker"] + (["--quick"] if quick else [])
     try:
@@ -128,7 +127,6 @@ def _measure_in_subprocess(quick: bool, wait_policy: str) -> dict | None:
 
 
 def run(quick: bool = False) -> list[dict]:
-    from deepslam.core.camera import PinholeCamera
     from deepslam.gen.flow_reference import synthesize_reference
 
     runs = {}
@@ -192,7 +190,6 @@ def run(quick: bool = False) -> list[dict]:
 def _dataset_sps(quick: bool) -> float:
     """SyntheticFlowDataset.get_batch samples/s from in-memory 376x1241 frames to 96x320 (motion draws,
     depth resampling (cached per frame), synthesis, targets)."""
-    from deepslam.core.camera import PinholeCamera
     from deepslam.gen.dataset import ArrayDepthFrames, DatasetConfig, SyntheticFlowDataset
     from deepslam.gen.motion import MotionModel, SixDof, StudentT
 
@@ -213,9 +210,6 @@ def _dataset_sps(quick: bool) -> float:
 
 
 if __name__ == "__main__":
-    import argparse
-    import json
-
     ap = argparse.ArgumentParser()
     ap.add_argument("--worker", action="store_true", help="measure synthesis in this process, print JSON")
     ap.add_argument("--quick", action="store_true")

@@ -11,6 +11,10 @@ import time
 
 import numpy as np
 
+from deepslam.core import metrics
+from deepslam.core.paths import shared_data_dir
+from deepslam.core.trajio import read_trajectory
+
 
 def _best_of(fn, repeat: int) -> float:
     best = math.inf
@@ -48,10 +52,6 @@ def _row(name, value, unit, baseline, baseline_value, target=None, met=None) -> 
 
 
 def run(quick: bool) -> list[dict]:
-    from deepslam.core import metrics
-    from deepslam.core.paths import shared_data_dir
-    from deepslam.core.trajio import read_trajectory
-
     data = shared_data_dir()
     gt_path, est_path = data / "kitti/poses/00.txt", data / "reference/KITTI_00_ORB.txt"
     if not gt_path.is_file():

@@ -14,10 +14,15 @@ Targets: >= 10 frames/s with flow; overhead <= 20 %.
 """
 from __future__ import annotations
 
+import dataclasses
+import json
 import os
+import sys
 import time
 
 import numpy as np
+
+from deepslam.core.camera import world_from_cam_gl_from_cv
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
@@ -79,8 +84,6 @@ def _bare_mujoco(sim):
 
 def _bare_pyrender(sim):
     import pyrender
-
-    from deepslam.core.camera import world_from_cam_gl_from_cv
 
     be = sim.backend
 
@@ -165,8 +168,6 @@ def _street_styles(quick: bool) -> list[dict]:
     them, each frame's depth pass made with the previous frame's occlusion test): the two looks' costs
     differ by view (the five stretches' own medians ranged 0.64-1.01 in one run), so one stretch alone
     does not tell."""
-    import dataclasses
-
     from deepslam.scenes import SceneConfig
     from deepslam.sim import RenderConfig, SimConfig, Simulator, TrajectoryConfig
 
@@ -213,8 +214,6 @@ OPTIONS = {
 
 def _options(quick: bool) -> list[dict]:
     """Frames/s of each camera option against the plain MuJoCo render with flow, same run."""
-    import dataclasses
-
     from deepslam.scenes import SceneConfig
     from deepslam.sim import RenderConfig, SimConfig, Simulator, TrajectoryConfig
 
@@ -243,7 +242,4 @@ def _options(quick: bool) -> list[dict]:
 
 
 if __name__ == "__main__":
-    import json
-    import sys
-
     print(json.dumps(run(quick="--quick" in sys.argv), indent=1))

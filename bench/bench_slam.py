@@ -21,12 +21,19 @@ Rows (each against a baseline measured in the same run):
 """
 from __future__ import annotations
 
+import json
 import os
+import subprocess
+import sys
 import tempfile
 import time
 from unittest import mock
 
 import numpy as np
+
+from deepslam.core.metrics import ate
+from deepslam.core.paths import base_dir, shared_data_dir
+from deepslam.core.readers import open_sequence
 
 
 def _row(name, value, unit, baseline=None, baseline_value=None, target=None, met=None, **extra):
@@ -128,7 +135,6 @@ def bench_retrieval(quick: bool) -> list[dict]:
 
 
 def bench_robustness(quick: bool) -> list[dict]:
-    from deepslam.core.metrics import ate
     from deepslam.slam.posegraph import Edges, PoseGraphConfig, chain, optimize
     from deepslam.slam.synthetic import loop_graph
 
@@ -248,11 +254,6 @@ def vo_end_to_end_fps(quick: bool) -> list[dict]:
     distance: what reading the distance from the road costs), with ``--flow learned``, and with
     ``--dis-patch-stride 4`` (DIS matching a patch every 4 pixels, not the preset's 3: the speed option the README
     documents, run on the shipped model, which was trained on stride 3)."""
-    import subprocess
-    import sys
-
-    from deepslam.core.paths import base_dir, shared_data_dir
-    from deepslam.core.readers import open_sequence
     from deepslam.flow import images as flow_images
     from deepslam.slam.pipeline import PipelineConfig
     from deepslam.vo.data.prefetch import WORKERS_ENV, default_workers
@@ -335,8 +336,5 @@ def run(quick: bool = False) -> list[dict]:
 
 
 if __name__ == "__main__":
-    import json
-    import sys
-
     for r in run(quick="--quick" in sys.argv):
         print(json.dumps(r, default=str))

@@ -19,11 +19,19 @@ Rows (each against its baseline measured in the same run):
 """
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
 
+from deepslam.core.camera import KITTI_00_CAMERA
+from deepslam.core.paths import shared_data_dir
+from deepslam.core.readers import open_sequence
 from deepslam.vo.net import FlowPoseNet, NetConfig, PAPER, pose_loss
 
 CPU_PRESET = NetConfig(48, 160, filters=32, hidden_units=256, flow_scale=10.0)
@@ -87,7 +95,6 @@ def inference_fps(cfg: NetConfig, batched: bool, frames: int) -> float:
 
 def synthetic_data_throughput(samples: int) -> float:
     """Samples/s of vo.data.synthetic.SyntheticSource at 96 x 320 (synthesis at 192 x 640, pooled), batch 128."""
-    from deepslam.core.camera import KITTI_00_CAMERA
     from deepslam.vo.data.frames import Frames
     from deepslam.vo.data.synthetic import SyntheticSource
     from deepslam.vo.data.toy import plane_depth, toy_motion_sampler
@@ -113,7 +120,6 @@ def estimated_flow_throughput(samples: int) -> tuple[float, float]:
     (exact flow synthesized at 96 x 320, pooled), batch 128."""
     import cv2
 
-    from deepslam.core.camera import KITTI_00_CAMERA
     from deepslam.vo.data.frames import Frames, ImageFrames, resize_depth
     from deepslam.vo.data.synthetic import EstimatedFlowSource, SyntheticSource
     from deepslam.vo.data.toy import plane_depth, toy_motion_sampler
@@ -133,12 +139,6 @@ def estimated_flow_throughput(samples: int) -> tuple[float, float]:
 
 def readme_train_throughput(samples: int) -> float:
     """Stage-1 samples/s of ``deepslam train`` with the README's defaults on a freshly rendered street."""
-    import json
-    import subprocess
-    import sys
-    import tempfile
-    from pathlib import Path
-
     from deepslam.vo.modelfiles.models import models_dir
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -156,12 +156,7 @@ def readme_train_throughput(samples: int) -> float:
 def vo_pairs_per_s(scale: str, stride: int = 3) -> float | None:
     """Pairs/s of ``deepslam vo`` on KITTI 07 at ``stride`` with ``--scale scale``, whole command (start-up,
     model load, flow, network, fit, writing); None without the shared data."""
-    import tempfile
-    from pathlib import Path
-
     from deepslam.cli import main
-    from deepslam.core.paths import shared_data_dir
-    from deepslam.core.readers import open_sequence
 
     seq = shared_data_dir() / "kitti" / "sequences" / "07"
     if not (seq / "calib.txt").is_file():

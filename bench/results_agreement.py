@@ -37,6 +37,7 @@ from scipy.stats import spearmanr
 
 from bench.results_common import results_main, write_report
 from bench.stamp import stamp
+from deepslam.core.readers import open_sequence
 
 
 @dataclasses.dataclass(frozen=True)
@@ -92,7 +93,6 @@ def _dis_epe(seq_dir: Path, stride: int, pairs: int = 8) -> float:
     """Mean end-point error (px) of DIS medium against the exact flow of frame pairs ``stride`` apart, over
     the pixels whose exact flow lands inside the second image (as KITTI's flow benchmark labels: a point
     that leaves the view, a parked car beside the camera at speed, has no flow to find)."""
-    from deepslam.core.readers import open_sequence
     from deepslam.flow.estimators import DISFlow, exact_pair_flow
     from deepslam.flow.metrics import endpoint_error
 

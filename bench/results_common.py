@@ -2,10 +2,16 @@
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 from pathlib import Path
 from typing import Callable
+
+from deepslam.core import atomic
+from deepslam.core.errors import InputError
+from deepslam.core.lock import output_lock
+from deepslam.core.paths import out_dir, shared_data_dir
 
 
 def results_main(name: str, doc: str, config, quick_config, out_name: str,
@@ -23,17 +29,12 @@ def results_main(name: str, doc: str, config, quick_config, out_name: str,
     """
     os.environ.setdefault("MUJOCO_GL", "egl")
     os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
-    from deepslam.core.errors import InputError
-    from deepslam.core.paths import out_dir, shared_data_dir
-
     ap = argparse.ArgumentParser(prog=f"python -m bench.{name}", description=doc.split("\n\n")[0])
     ap.add_argument("--out", type=Path, default=None, help=f"output folder (default: out/results/{out_name})")
     ap.add_argument("--data", type=Path, default=None, help="shared data folder (default: ../shared/data)")
     ap.add_argument("--quick", action="store_true", help="small sizes (a smoke run)")
     args = ap.parse_args(argv)
     out = args.out or out_dir() / "results" / (f"{out_name}_quick" if args.quick else out_name)
-    from deepslam.core.lock import output_lock
-
     try:
         with output_lock(out):  # one writer per results folder
             report = run(quick_config if args.quick else config, out, args.data or shared_data_dir())
@@ -60,11 +61,6 @@ def reuse_only_with_same_settings(out: Path, settings: dict) -> None:
     Raises:
         InputError: naming ``settings.json`` and the keys that differ.
     """
-    import json
-
-    from deepslam.core import atomic
-    from deepslam.core.errors import InputError
-
     path = Path(out) / "settings.json"
     now = json.loads(json.dumps(settings))
     if path.is_file():
@@ -89,8 +85,6 @@ def reuse_only_with_same_settings(out: Path, settings: dict) -> None:
 def parse_model_specs(specs: list[str], flows: tuple[str, ...]) -> list[tuple[str, str, str]]:
     """``--model NAME=PATH[@FLOW]`` options as (name, model path or shipped spec, flow); FLOW defaults to
     ``dis`` and must be one of ``flows``. InputError (one line) on a malformed spec."""
-    from deepslam.core.errors import InputError
-
     out = []
     for spec in specs:
         name, _, rest = spec.partition("=")
@@ -106,7 +100,6 @@ def write_report(out: Path, report: dict, markdown: Callable[[dict], str]) -> No
     """``results.json``, ``results.md`` (the report's markdown table) and ``stamp.json`` (date, commit,
     machine: :mod:`bench.stamp`) into ``out``, atomically."""
     from bench.stamp import write_stamp
-    from deepslam.core import atomic
 
     out.mkdir(parents=True, exist_ok=True)
     atomic.write_json(out / "results.json", report)
@@ -117,9 +110,6 @@ def write_report(out: Path, report: dict, markdown: Callable[[dict], str]) -> No
 def run_locked(name: str, out: Path, work: Callable[[], dict], markdown: Callable[[dict], str]) -> int:
     """``work()`` under the results folder's lock (one writer per folder), its markdown printed; an
     InputError raised by ``work`` (a bad --model, a missing slice) is one line naming ``name``, exit 2."""
-    from deepslam.core.errors import InputError
-    from deepslam.core.lock import output_lock
-
     try:
         with output_lock(out):
             report = work()

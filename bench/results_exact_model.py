@@ -18,6 +18,9 @@ import numpy as np
 
 from bench.results_common import write_report
 from bench.results_vo import _cached
+from deepslam.core import metrics
+from deepslam.core.readers import open_sequence
+from deepslam.core.trajectory import Trajectory
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -51,8 +54,6 @@ class ExactModelConfig:
 def score(seq, model: str, stride: int) -> dict:
     """t_err (%; the end-point drift in % of the path where the route is under KITTI's 100 m), path ratio and ATE
     (m) of ``model`` on ``seq``'s exact flow at ``stride``, its own pose, se3-aligned."""
-    from deepslam.core import metrics
-    from deepslam.core.trajectory import Trajectory
     from deepslam.vo.pipeline import VOConfig, run_vo
 
     res = run_vo(seq, VOConfig(model=str(REPO / model), flow="gt", pose="net", stride=stride, progress=False))
@@ -85,7 +86,6 @@ def verdicts(cfg: ExactModelConfig, rows: list[dict]) -> dict:
 
 
 def run(cfg: ExactModelConfig, out: Path, data: Path) -> dict:
-    from deepslam.core.readers import open_sequence
     from deepslam.studies.demo import render_once
 
     out.mkdir(parents=True, exist_ok=True)

@@ -25,6 +25,7 @@ import time
 from pathlib import Path
 
 from bench.results_common import results_main, write_report
+from deepslam.core import atomic
 
 MIXES = ("real", "real + rendered", "rendered")
 
@@ -83,7 +84,6 @@ def _train(mix: str, sources: list[str], motion: list[str], seed: int, cfg: Resu
 
 def run(cfg: ResultsExtraConfig, out: Path, data: Path) -> dict:
     from bench.results_repro import vo_scores
-    from deepslam.core import atomic
     from deepslam.studies.demo import render_once
 
     out.mkdir(parents=True, exist_ok=True)

@@ -28,6 +28,9 @@ from pathlib import Path
 import numpy as np
 
 from bench.stamp import write_stamp
+from deepslam.core import atomic
+from deepslam.core.paths import out_dir, shared_data_dir
+from deepslam.core.readers import open_sequence
 
 
 def fb_consistency(fw: np.ndarray, bw: np.ndarray) -> float:
@@ -59,9 +62,6 @@ street is the KITTI-look one; the training scripts here render no sequence with 
 
 
 def main(argv: list[str] | None = None) -> int:
-    from deepslam.core import atomic
-    from deepslam.core.paths import out_dir, shared_data_dir
-    from deepslam.core.readers import open_sequence
     from deepslam.flow.estimators import DISFlow, resize_flow
     from deepslam.flow.images import to_grey
     from deepslam.flow.metrics import endpoint_error

@@ -20,6 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from bench.results_common import results_main, write_report
+from deepslam.core import atomic
+from deepslam.core.readers import open_sequence
+from deepslam.core.trajectory import revisit_pairs
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,7 +68,6 @@ def loop_recall(gt_world_from_cam: np.ndarray, keyframes: list[int], loop_pairs:
     """Of the keyframes j with a same-way revisit of a keyframe i (ground truth, j - i > ``t_loop``), how many
     have an accepted loop edge ``(i', j)`` joining views the same way: ``{"revisiting": n, "found": n,
     "recall": found / revisiting}``."""
-    from deepslam.core.trajectory import revisit_pairs
     from deepslam.slam.reference import PerfectLoopsConfig
 
     cfg = PerfectLoopsConfig()
@@ -116,8 +118,6 @@ def evaluate(seq, strides: tuple[int, ...]) -> dict:
 
 
 def run(cfg: ResultsKeyframesConfig, out: Path) -> dict:
-    from deepslam.core import atomic
-    from deepslam.core.readers import open_sequence
     from deepslam.studies.demo import render_once
 
     out.mkdir(parents=True, exist_ok=True)

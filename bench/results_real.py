@@ -15,8 +15,15 @@ travel from the essential matrix of the flow with the network's distance (``deep
 from __future__ import annotations
 
 import dataclasses
+import os
 import sys
 from pathlib import Path
+
+from deepslam.core import metrics
+from deepslam.core.errors import InputError
+from deepslam.core.paths import out_dir, shared_data_dir
+from deepslam.core.readers import open_sequence
+from deepslam.core.trajectory import Trajectory
 
 
 SLICES = ("06", "07")
@@ -59,8 +66,6 @@ def seen_frames(meta: dict, seq_root: Path) -> str:
 def score(cand: Candidate, seq) -> dict:
     """``deepslam vo`` on the whole slice with ``cand`` (:func:`vo.pipeline.run_vo`, the distance from the
     network); the drift and ATE figures (core.metrics)."""
-    from deepslam.core import metrics
-    from deepslam.core.trajectory import Trajectory
     from deepslam.vo.modelfiles import models, modeltree
     from deepslam.vo.pipeline import VOConfig, run_vo
 
@@ -77,8 +82,6 @@ def score(cand: Candidate, seq) -> dict:
 
 def run(candidates: tuple[Candidate, ...], out: Path, data_dir: Path) -> dict:
     from bench.results_common import write_report
-    from deepslam.core.errors import InputError
-    from deepslam.core.readers import open_sequence
 
     rows = []
     for sl in SLICES:
@@ -108,10 +111,7 @@ def markdown(report: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    import os
-
     from bench.results_common import candidate_parser, parse_model_specs, run_locked
-    from deepslam.core.paths import out_dir, shared_data_dir
 
     os.environ.setdefault("MUJOCO_GL", "egl")
     ap = candidate_parser("results_real", __doc__, FLOWS)
@@ -122,7 +122,6 @@ def main(argv: list[str] | None = None) -> int:
     out = args.out or out_dir() / "results" / "real"
 
     def work() -> dict:
-        from deepslam.core.errors import InputError
         from deepslam.vo.modelfiles.models import POSES
 
         if not poses or any(p not in POSES for p in poses):

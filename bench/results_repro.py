@@ -34,8 +34,10 @@ import numpy as np
 
 from bench.results_common import write_report
 from bench.results_vo import _agg, _cached, metric_subset
-from deepslam.core import atomic
+from deepslam.core import atomic, se3
 from deepslam.core.integrity import sha256_file
+from deepslam.core.readers import open_sequence
+from deepslam.core.trajio import read_trajectory
 
 SYNTHETIC_MODES = ("synthetic", "synthetic_mirror", "synthetic_speedscale_mirror", "synthetic_dis",
                    "synthetic_dis_speedscale", "synthetic_dis_mirror", "synthetic_dis_speedscale_mirror",
@@ -231,9 +233,6 @@ def _predicted_and_true(seq_dir: Path, motions_csv: Path) -> tuple[np.ndarray, n
     the sequence has a ground-truth pose per frame, a pair's are its frames'; else (TUM: the ground truth at its
     own times) they are interpolated at the pair's times, and the pairs outside the ground truth's time span are
     left out (N is then less than the CSV's rows)."""
-    from deepslam.core import se3
-    from deepslam.core.readers import open_sequence
-
     seq = open_sequence(seq_dir)
     rows = np.loadtxt(motions_csv, delimiter=",", skiprows=1, ndmin=2)
     gt = seq.gt
@@ -288,10 +287,6 @@ def trajectory_fit(seq_dir: Path, trajectory_txt: Path) -> dict:
     """:func:`gains` (its dict) of consecutive frames' motions ``cam_{k+1}_from_cam_k`` read off a camera
     trajectory file (KITTI or TUM ``world_from_cam``, one pose per frame of the sequence, matched by index) against
     the sequence's ground truth."""
-    from deepslam.core import se3
-    from deepslam.core.readers import open_sequence
-    from deepslam.core.trajio import read_trajectory
-
     est = read_trajectory(trajectory_txt)
     gt = open_sequence(seq_dir).gt
     if len(est) != len(gt):

@@ -25,6 +25,9 @@ from pathlib import Path
 import numpy as np
 
 from bench.results_common import write_report
+from deepslam.core import se3
+from deepslam.core.plots import new_figure, save_figure
+from deepslam.core.readers import open_sequence
 
 
 @dataclasses.dataclass(frozen=True)
@@ -51,8 +54,6 @@ QUICK = ResultsRoadConfig(heldout_frames=16, pair_step=6)
 def moving_pairs(seq, cfg: ResultsRoadConfig):
     """``(i, cam1_from_cam0, metres)`` of every ``pair_step``-th consecutive pair (i, i + 1) with ground
     truth at both frames that moves at least ``min_motion_m``."""
-    from deepslam.core import se3
-
     for i in range(0, len(seq) - 1, cfg.pair_step):
         p0, p1 = seq.gt_pose(i), seq.gt_pose(i + 1)
         if p0 is None or p1 is None:
@@ -72,7 +73,6 @@ def measure(seq, flows: dict, cfg: ResultsRoadConfig, heights: bool = True, road
 
     Returns ``(heights per flow, roadside)``: {name: {pairs, median_m, q25_m, q75_m, heights_m}} (empty
     without ``heights``) and {pairs, left_px_per_m, right_px_per_m} (None without ``roadside_from``)."""
-    from deepslam.core import se3
     from deepslam.vo.geometry.road_height import implied_road_height
 
     cam = seq.camera
@@ -111,7 +111,6 @@ def roadside_flow(seq, flow_of, cfg: ResultsRoadConfig) -> dict:
 
 
 def run(cfg: ResultsRoadConfig, out: Path, data_dir: Path) -> dict:
-    from deepslam.core.readers import open_sequence
     from deepslam.flow import registry as flow_registry
     from deepslam.studies.demo import render_once
 
@@ -151,8 +150,6 @@ def run(cfg: ResultsRoadConfig, out: Path, data_dir: Path) -> dict:
 
 
 def _plot(report: dict, path: Path) -> None:
-    from deepslam.core.plots import new_figure, save_figure
-
     data, labels = [], []
     for label, per in report["sets"].items():
         for name, r in per.items():

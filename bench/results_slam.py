@@ -38,6 +38,10 @@ import numpy as np
 
 from bench.results_common import write_report
 from bench.stamp import reusable_at, stamp
+from deepslam.core import atomic, metrics, plots
+from deepslam.core.integrity import file_digests
+from deepslam.core.readers import open_sequence
+from deepslam.core.trajectory import Trajectory
 
 FLOWS = ("gt", "dis")
 
@@ -87,8 +91,6 @@ def _metrics(seq, world_from_cam: np.ndarray, covered: np.ndarray | None = None)
     ``covered`` ((n,) bool), also the same ATE over those frames and the others, ``ate_in_loops_m`` and
     ``ate_elsewhere_m`` (:func:`core.metrics.ate_parts` of this alignment; None for an empty part)."""
     from bench.results_vo import metric_subset
-    from deepslam.core import metrics
-    from deepslam.core.trajectory import Trajectory
 
     traj = Trajectory(world_from_cam, seq.timestamps_s)
     ev = metrics.evaluate(seq.gt, traj)
@@ -105,8 +107,6 @@ def _models_used(seq, flow: str) -> dict[str, str]:
     """{file name: sha256} of the shipped NN_cons / NN_loops :func:`_odometry` loads for ``seq`` and
     ``flow``: a cached case is reused only while these are the same files (a retrained default must
     not be scored by a stale record)."""
-    from deepslam.core.integrity import file_digests
-
     paths = _shipped_paths(seq, flow)
     return file_digests(paths, paths[0].parent)
 
@@ -189,7 +189,6 @@ def as_slam_reads(seq, flow: str):
 def evaluate_case(val_seqs: list, test_seq, flow: str, plot: Path) -> dict:
     """Tune on ``val_seqs``, then VO / SLAM (default and tuned) on ``test_seq`` with one flow estimator, each
     read as ``deepslam slam`` reads it (:func:`as_slam_reads`)."""
-    from deepslam.core import plots
     from deepslam.slam.pipeline import PipelineConfig, SlamParams, prepare, solve
     from deepslam.slam.posegraph import chain
     from deepslam.slam.tune import problem_from_prepared, tune
@@ -371,8 +370,6 @@ def _street_defaults(seeds, frames: int, tag: str, render_flags: tuple[str, ...]
                      log: list[str], commit: str) -> dict:
     """{seed: :func:`evaluate_unseen` record} of the streets ``seeds`` rendered with ``render_flags`` into
     ``out/street_{tag}_s{seed}`` (``laps``: also by direction, ``both_ways``); records cached under ``out/cases``."""
-    from deepslam.core import atomic
-    from deepslam.core.readers import open_sequence
     from deepslam.studies.demo import render_once
 
     got = {}
@@ -394,9 +391,6 @@ def _street_defaults(seeds, frames: int, tag: str, render_flags: tuple[str, ...]
 
 
 def run(cfg: ResultsSlamConfig, out: Path) -> dict:
-    from deepslam.core import atomic
-    from deepslam.core.readers import open_sequence
-
     out.mkdir(parents=True, exist_ok=True)
     atomic.write_json(out / "config.json", dataclasses.asdict(cfg))
     log: list[str] = []

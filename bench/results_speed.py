@@ -15,8 +15,13 @@ options are used). Writes results.json, results.md and speed_sweep.png into ``ou
 from __future__ import annotations
 
 import dataclasses
+import os
 import sys
 from pathlib import Path
+
+from deepslam.core.paths import out_dir, shared_data_dir
+from deepslam.core.plots import new_figure, save_figure
+from deepslam.core.readers import open_sequence
 
 
 
@@ -90,7 +95,6 @@ def run(cfg: ResultsSpeedConfig, out: Path, data_dir: Path,
     """Sweep each candidate (row name, model file or shipped spec, flow in :data:`FLOWS`) on the held-out
     street and on KITTI 06's frames; results.json, results.md and speed_sweep.png into ``out``."""
     from bench.results_common import write_report
-    from deepslam.core.readers import open_sequence
     from deepslam.studies.demo import render_once
 
     out.mkdir(parents=True, exist_ok=True)
@@ -116,8 +120,6 @@ def run(cfg: ResultsSpeedConfig, out: Path, data_dir: Path,
 
 
 def _plot(report: dict, path: Path) -> None:
-    from deepslam.core.plots import new_figure, save_figure
-
     fig = new_figure((7, 4))
     ax = fig.subplots()
     for name, sweeps in report["sets"].items():
@@ -158,12 +160,9 @@ def markdown(report: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    import os
-
     os.environ.setdefault("MUJOCO_GL", "egl")
     os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
     from bench.results_common import candidate_parser, parse_model_specs, run_locked
-    from deepslam.core.paths import out_dir, shared_data_dir
 
     ap = candidate_parser("results_speed", __doc__, FLOWS)
     ap.add_argument("--quick", action="store_true", help="small sizes (a smoke run)")

@@ -22,6 +22,10 @@ from pathlib import Path
 import numpy as np
 
 from bench.results_common import write_report
+from deepslam.core import metrics, plots
+from deepslam.core.readers import open_sequence
+from deepslam.core.se3 import chain_euler6
+from deepslam.core.trajectory import Trajectory
 
 TEDDY = "tum/rgbd_dataset_freiburg3_teddy"
 
@@ -42,8 +46,6 @@ ROBUST_ITERATIONS = 6
 
 
 def _scored(seq, world_from_cam: np.ndarray, frames: np.ndarray) -> dict:
-    from deepslam.core import metrics
-
     gt, est = metrics.on_covered_frames(seq, world_from_cam, frames)
     se3_res = metrics.evaluate(gt, est, align="se3")
     sim3_res = metrics.evaluate(gt, est, align="sim3")
@@ -53,12 +55,9 @@ def _scored(seq, world_from_cam: np.ndarray, frames: np.ndarray) -> dict:
 
 
 def run(cfg: ResultsTumConfig, out: Path, data: Path) -> dict:
-    from deepslam.core import plots
-    from deepslam.core.readers import open_sequence
     from deepslam.slam.pipeline import PipelineConfig, SlamParams, run_slam
     from deepslam.slam.plugins import load_odometry
     from deepslam.vo.geometry.posesolve import unit_weight_net
-    from deepslam.core.se3 import chain_euler6
     from deepslam.vo.infer import VOPredictor
     from deepslam.vo.modelfiles import models
     from deepslam.vo.odometry import model_odometry
@@ -116,8 +115,6 @@ def _head(seq, n: int):
     keep = seq.gt_frames[seq.gt_frames < n] if seq.gt_frames is not None else None
     gt = None
     if seq.gt is not None:
-        from deepslam.core.trajectory import Trajectory
-
         k = len(keep) if keep is not None else n
         gt = Trajectory(seq.gt.world_from_cam[:k], seq.gt.timestamps_s[:k])
     return dc.replace(seq, timestamps_s=seq.timestamps_s[:n], image_paths=seq.image_paths[:n],

@@ -16,8 +16,13 @@ KITTI 07 is used. Writes results.json and results.md into ``out/results/turn``
 from __future__ import annotations
 
 import dataclasses
+import os
 import sys
 from pathlib import Path
+
+from deepslam.core.errors import InputError
+from deepslam.core.paths import out_dir, shared_data_dir
+from deepslam.core.readers import open_sequence
 
 SAMPLES = 48
 """Frames per turn."""
@@ -55,8 +60,6 @@ def _reads(name: str, model: str, flow: str, frames) -> dict:
 
 def run(candidates: list[tuple[str, str, str]], out: Path, data_dir: Path) -> dict:
     from bench.results_common import write_report
-    from deepslam.core.errors import InputError
-    from deepslam.core.readers import open_sequence
     from deepslam.studies import scale_sweep
     from deepslam.studies.demo import render_once
     from deepslam.vo.data.frames import load_image_frames
@@ -97,12 +100,9 @@ def markdown(report: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    import os
-
     os.environ.setdefault("MUJOCO_GL", "egl")
     os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
     from bench.results_common import candidate_parser, parse_model_specs, run_locked
-    from deepslam.core.paths import out_dir, shared_data_dir
 
     args = candidate_parser("results_turn", __doc__, ("dis", "learned")).parse_args(argv)
     shipped = [] if args.no_shipped else [("shipped kitti_cons_dis", "kitti", "dis"),

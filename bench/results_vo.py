@@ -23,6 +23,7 @@ the motion model's bytes) is refused (``settings.json``), never reused. ``--quic
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import sys
 import time
@@ -31,6 +32,11 @@ from pathlib import Path
 import numpy as np
 
 from bench.results_common import write_report
+from deepslam.core import atomic, metrics, se3
+from deepslam.core.metrics import relative_pose_errors
+from deepslam.core.readers import open_sequence
+from deepslam.core.se3 import chain_euler6
+from deepslam.core.trajectory import Trajectory
 
 MODES = ("synthetic", "supervised")
 
@@ -99,7 +105,6 @@ def _train(run_command, log, out: Path, mode: str, which: str, seed: int, cfg: R
 
 def _supervised_pairs(train_dirs: list[str], which: str) -> int:
     """How many pairs ``deepslam train --mode supervised`` makes of the training renders (its defaults)."""
-    from deepslam.core.readers import open_sequence
     from deepslam.vo.data.supervised import PairSpec, frame_pairs
 
     spec = PairSpec(kind="consecutive" if which == "cons" else "loops")
@@ -117,9 +122,6 @@ def _loop_pairs(seq, cfg: ResultsVOConfig) -> np.ndarray:
 def pair_errors(seq, pairs: np.ndarray, mean6: np.ndarray) -> dict:
     """RMS translation error (m) and rotation error (deg) of predicted ``cam_j_from_cam_i`` against
     the ground truth, over the pairs."""
-    from deepslam.core import se3
-    from deepslam.core.metrics import relative_pose_errors
-
     gt = seq.gt.world_from_cam
     true = se3.relative(gt[pairs[:, 1]], gt[pairs[:, 0]])  # cam_j_from_cam_i
     err = relative_pose_errors(true, se3.from_euler6(mean6))
@@ -135,7 +137,6 @@ def metric_subset(ev: dict) -> dict:
 
 def evaluate_street(seq, cons: Path, loops: Path, flow: str, cfg: ResultsVOConfig) -> dict:
     """VO, loop-pair and SLAM figures of one (NN_cons, NN_loops) on the held-out street."""
-    from deepslam.core import metrics
     from deepslam.slam.pipeline import run_slam
     from deepslam.vo.infer import VOPredictor
     from deepslam.vo.modelfiles import models
@@ -157,10 +158,7 @@ def evaluate_vo(seq, cons: Path, flow: str, pose: str = "net") -> dict:
     """VO (dead reckoning of NN_cons) on a sequence without loop closure; ``pose``: ``net`` (the network's
     6DoF) or ``epipolar`` (rotation and direction from the essential matrix of the flow, the network's
     distance: ``deepslam vo --pose epipolar``)."""
-    from deepslam.core import metrics
-    from deepslam.core.trajectory import Trajectory
     from deepslam.slam.pipeline import consecutive_pairs
-    from deepslam.core.se3 import chain_euler6
     from deepslam.vo.infer import VOPredictor
     from deepslam.vo.modelfiles import models
 
@@ -172,8 +170,6 @@ def evaluate_vo(seq, cons: Path, flow: str, pose: str = "net") -> dict:
 
 
 def _cached(path: Path, fn) -> dict:
-    from deepslam.core import atomic
-
     if path.is_file():
         return json.loads(path.read_text())
     rec = fn()
@@ -217,11 +213,7 @@ def _pm(a: dict, f: str = ".3g") -> str:
 
 
 def run(cfg: ResultsVOConfig, out: Path, data: Path) -> dict:
-    from deepslam.core import atomic
-    from deepslam.core.readers import open_sequence
     from deepslam.studies.demo import render_once, run_command
-
-    import hashlib
 
     from bench.results_common import reuse_only_with_same_settings
     from deepslam.vo.modelfiles.models import models_dir

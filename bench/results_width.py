@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 from bench.results_common import results_main, write_report
+from deepslam.core.readers import open_sequence
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,7 +81,6 @@ def _pnp_row(seq, label: str, width: int) -> dict:
 
 
 def run(cfg: ResultsWidthConfig, out: Path, data: Path) -> dict:
-    from deepslam.core.readers import open_sequence
     from deepslam.studies.demo import render_once
 
     out.mkdir(parents=True, exist_ok=True)

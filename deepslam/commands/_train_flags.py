@@ -5,8 +5,10 @@ subcommand (no ``NAME``): the CLI's discovery skips it.
 from __future__ import annotations
 
 import argparse
+import math
 
 from deepslam.commands import _dis_flags, _odometry_flags
+from deepslam.core.errors import InputError
 
 # Library imports sit in the functions: building the parser of every command (deepslam --help) must
 # not import numpy, torch or the simulator.
@@ -186,9 +188,6 @@ def net_config(args):
 
 def check_ranges(args) -> None:
     """Numeric flags that cannot be: one line naming the flag (exit 2)."""
-    import math
-
-    from deepslam.core.errors import InputError
     from deepslam.vo.pipeline import check_read_width
 
     positive = {"--batch": args.batch, "--samples-per-epoch": args.samples_per_epoch, "--frame-step": args.frame_step,
@@ -217,7 +216,6 @@ def check_ranges(args) -> None:
 def train_config(args: argparse.Namespace, net, device):
     """The :class:`vo.trainconfig.TrainConfig` of the flags, for network ``net`` on torch ``device`` (bf16 ``auto``:
     on CUDA, and on CPUs that compute bf16 natively). InputError for a hold-out fraction outside (0, 1)."""
-    from deepslam.core.errors import InputError
     from deepslam.runtime.device import resolve_bf16
     from deepslam.vo.trainconfig import TrainConfig
 
@@ -238,7 +236,6 @@ def data_sources(args: argparse.Namespace, net, progress: bool, device) -> tuple
     :func:`vo.data.recipe.synthetic_sources`): (training source, held-out source, meta), the meta what config.json
     and the model file record of the data; exact synthetic flow is made on torch ``device`` (the training
     device) unless ``--synth-device cpu``."""
-    from deepslam.core.errors import InputError
     from deepslam.vo.data import motion, sources
     from deepslam.vo.data.recipe import SyntheticData, synthetic_sources
     from deepslam.vo.data.supervised import PairSpec

@@ -2,6 +2,9 @@
 from __future__ import annotations
 
 import argparse
+import json
+
+from deepslam.core.errors import InputError
 
 # Library imports sit in the functions: building the parser of every command (deepslam --help) must
 # not import numpy, torch or the simulator.
@@ -36,9 +39,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-
-    from deepslam.core.errors import InputError
     from deepslam.vo.adapt import AdaptConfig, adapt
 
     if not (0 < args.max_minutes <= 24 * 60) or not (128 <= args.samples <= 10_000_000) or not (1 <= args.epochs <= 1000):

@@ -9,8 +9,11 @@ motions by it. Score it on another sequence of the same data; VAL's own share is
 from __future__ import annotations
 
 import argparse
+import json
+from pathlib import Path
 
 from deepslam.commands import _dis_flags, _odometry_flags
+from deepslam.core.errors import InputError
 
 # Library imports sit in the functions: building the parser of every command (deepslam --help) must
 # not import numpy, torch or the simulator.
@@ -36,10 +39,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-    from pathlib import Path
-
-    from deepslam.core.errors import InputError
     from deepslam.core.outputs import check_output_not_input
     from deepslam.core.readers import open_sequence_for_flow
     from deepslam.vo import calibration

@@ -17,6 +17,7 @@ import math
 import sys
 from pathlib import Path
 
+from deepslam.core import metrics_report
 from deepslam.core.errors import InputError
 
 # Library imports sit in the functions: building the parser of every command (deepslam --help) must
@@ -51,7 +52,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from deepslam.core import metrics, metrics_report, plots
+    from deepslam.core import metrics, plots
     from deepslam.core.outputs import check_output_not_input
     from deepslam.core.trajio import read_trajectory_and_format
 

@@ -2,6 +2,10 @@
 from __future__ import annotations
 
 import argparse
+import json
+import time
+
+from deepslam.core.errors import InputError
 
 # Library imports sit in the functions: building the parser of every command (deepslam --help) must
 # not import numpy, torch or the simulator.
@@ -108,8 +112,6 @@ def NEEDS(args: argparse.Namespace) -> tuple[str, ...]:
 
 
 def _distortion(text: str | None):
-    from deepslam.core.errors import InputError
-
     if text is None:
         return None
     try:
@@ -122,8 +124,6 @@ def _distortion(text: str | None):
 
 
 def _kitti_sequence(args: argparse.Namespace) -> str:
-    from deepslam.core.errors import InputError
-
     if args.kitti_sequence is None:
         return "00"
     if args.format != "kitti":
@@ -136,9 +136,6 @@ def _kitti_sequence(args: argparse.Namespace) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-    import time
-
     from deepslam.core.preview import check_sheet_path, write_contact_sheet
     from deepslam.scenes import SceneConfig
     from deepslam.sim.config import RenderConfig, SimConfig, TrajectoryConfig

@@ -12,6 +12,9 @@ interrupted run from checkpoint.safetensors; ``--tensorboard DIR`` adds TensorBo
 from __future__ import annotations
 
 import argparse
+import json
+import sys
+import time
 
 from deepslam.commands import _train_flags
 
@@ -27,9 +30,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import sys
-    import time
-
     from deepslam.vo.train import TrainingDiverged, speed_summary, train
 
     t0 = time.perf_counter()
@@ -60,8 +60,6 @@ def run(args: argparse.Namespace) -> int:
     if rank != 0:
         return 0
     if args.json:
-        import json
-
         print(json.dumps({"model": str(res.model_path), "stop_reason": res.stop_reason,
                           "epochs": sum(1 for h in res.history if h["stage"] == 1), "best_val_loss": res.best_val_loss,
                           "holdout_nll": res.holdout_nll, "out": str(args.out),

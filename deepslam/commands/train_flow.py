@@ -3,6 +3,13 @@ optionally fine-tune it on real unlabelled pairs beside them (``--real``, :mod:`
 from __future__ import annotations
 
 import argparse
+import hashlib
+import json
+import sys
+import time
+from pathlib import Path
+
+from deepslam.core.errors import InputError
 
 # Library imports sit in the functions: building the parser of every command (deepslam --help) must
 # not import numpy, torch or the simulator.
@@ -55,8 +62,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _sequence_dirs(paths: list[str]) -> list[str]:
-    from pathlib import Path
-
     out = []
     for p in paths:
         root = Path(p)
@@ -68,12 +73,6 @@ def _sequence_dirs(paths: list[str]) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-    import sys
-    import time
-    from pathlib import Path
-
-    from deepslam.core.errors import InputError
     from deepslam.core.readers import open_sequence
     from deepslam.runtime.device import resolve_bf16, resolve_device
     from deepslam.flow.train import FlowPairs, FlowTrainConfig, train_flow
@@ -107,8 +106,6 @@ def run(args: argparse.Namespace) -> int:
                           smooth_weight=args.smooth_weight, smooth_order=args.smooth_order)
     init_meta = {}
     if args.init:  # checked before minutes of loading frames
-        import hashlib
-
         from deepslam.flow.train import initial_weights
 
         initial_weights(cfg)
