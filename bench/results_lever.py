@@ -41,10 +41,12 @@ class LeverConfig:
                                     "synthetic_speedscale_mirror_cons_s0", "lever_synthetic_axlescale_mirror_cons_s0",
                                     "synthetic_dis_speedscale_mirror_body_cons_s0",
                                     "lever_synthetic_dis_axlescale_mirror_body_cons_s0",
-                                    "supervised_cons_s0", "lever_supervised_cons_s0")
+                                    "supervised_cons_s0", "lever_supervised_cons_s0",
+                                    "supervised_dis_cons_s0", "lever_supervised_dis_cons_s0")
     """Model folders under :attr:`models`, each trained on axle towns next to its ``lever_`` twin (the speed-freed
-    models' twins scale the axle's motion: ``fit-motion --speed-scale-lever``; the ``_dis`` pair trained on DIS flow
-    of rendered views, ``SYNTH_FLOW=dis``); absent ones skipped."""
+    models' twins scale the axle's motion: ``fit-motion --speed-scale-lever``; the ``_dis`` models trained on DIS flow,
+    ``SYNTH_FLOW=dis``: the synthetic ones of views rendered from single frames, the supervised ones of the renders'
+    pairs); absent ones skipped."""
     lever_m: float = 0.84
     """Metres the held-out town's camera sits ahead of the rear axle in its lever render (KITTI's fit)."""
     heldout_seed: int = 7
