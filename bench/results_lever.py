@@ -8,7 +8,8 @@ lever (``lever_*`` models). This scores each model of :attr:`LeverConfig.model_n
 --pose net``) on the held-out town 7 without and with the lever (exact and DIS flow) and on the KITTI 06 and 07
 slices (DIS), beside ``deepslam vo``'s default: ATE, t_err (or the end-point drift on a route under 100 m), the path
 ratio, the mean yaw error (read - true, degrees) of the pairs turning each way and of the straight pairs, and the
-drift once the true rotation replaces the network's (what is left is its translation).
+drift once the true rotation replaces the network's (what is left is its translation); and each model's forward
+distance on the straight pairs of the KITTI slices read at frame strides 1-3, by the true length of a pair.
 
     python -m bench.results_lever [--models bench/paper_recipe] [--quick]
 
@@ -55,6 +56,9 @@ class LeverConfig:
     """Frames of each held-out render (10 Hz)."""
     width: int = 414
     """Rendered width, pixels (the training renders')."""
+    strides: tuple[int, ...] = (1, 2, 3)
+    """Frame strides at which each model reads the KITTI slices for the distance table (:func:`straight_forward_gain`
+    by the true length of a pair); () leaves the table out."""
     calibration_seed: int = 8101
     """Town on which each model's std is calibrated per DoF (``deepslam calibrate``, DIS flow, own pose), rendered
     as KITTI's car moves: the lever and KITTI's body pitch and roll (``--body-motion 1``); then read on the KITTI
@@ -72,6 +76,18 @@ def turn_yaw_errors(mean6: np.ndarray, true6: np.ndarray) -> dict:
     return {name: {"n": int(pick.sum()), "mean_deg": float(err[pick].mean()) if pick.any() else None,
                    "rms_deg": float(np.sqrt(np.mean(err[pick] ** 2))) if pick.any() else None}
             for name, pick in parts.items()}
+
+
+def straight_forward_gain(mean6: np.ndarray, true6: np.ndarray, stride: int = 1) -> dict:
+    """The forward distance read on the straight pairs: least-squares gain of read against true forward translation
+    (t z of (N, 6) float64 paper vectors of ``cam_j_from_cam_i``, metres) over the pairs whose true yaw is at most
+    ``stride`` x :data:`TURN_RAD` (a pair spans ``stride`` frames), with their count and mean true length (m). A
+    network that reads every distance 10 % long gives 1.1; None where no pair is straight."""
+    pick = np.abs(true6[:, 1]) <= stride * TURN_RAD
+    if not pick.any():
+        return {"n": 0, "gain": None, "true_m": None}
+    t, r = true6[pick, 5], mean6[pick, 5]
+    return {"n": int(pick.sum()), "gain": float((r * t).sum() / (t * t).sum()), "true_m": float(np.abs(t).mean())}
 
 
 def drift_with_true_rotation(mean6: np.ndarray, true6: np.ndarray) -> dict:
@@ -126,9 +142,33 @@ def run(cfg: LeverConfig, out: Path, data: Path) -> dict:
                       lambda: vo_scores(seq, out / "runs" / f"default_{case}.txt", "--flow", flow))
         default[case] = {**rec, **_pair_figures(seq, out / "runs" / f"default_{case}.motions.csv")}
     report = {"config": dataclasses.asdict(cfg), "cases": [c for c, _, _ in cases], "models": rows,
-              "default": default, "renders": log, "minutes": (time.perf_counter() - t0) / 60}
+              "default": default, "stride_gains": _stride_gains(cfg, out, rows, kitti), "renders": log,
+              "minutes": (time.perf_counter() - t0) / 60}
     write_report(out, report, markdown)
     return report
+
+
+def _stride_gains(cfg: LeverConfig, out: Path, rows: dict, kitti: Path) -> list[dict]:
+    """Each scored model (and the default) on each KITTI slice at each of :attr:`LeverConfig.strides` (DIS flow,
+    own pose; stride 1 is the slice's case above): :func:`straight_forward_gain` with the drift, by the pair's true
+    length. Where a network's distance depends on the length of the motion (DIS's flow falls short of it the more
+    the frames differ) and where on the sequence."""
+    table = []
+    for n in ("06", "07"):
+        seq = kitti / n
+        if not seq.is_dir():
+            continue
+        for stride in cfg.strides:
+            for name in [*rows, "default"]:
+                tag = f"{name}_kitti{n}_dis" + (f"_k{stride}" if stride != 1 else "")
+                options = ("--flow", "dis", "--stride", str(stride))
+                if name != "default":
+                    options += ("--model", rows[name]["file"], "--pose", "net")
+                rec = _cached(out / "eval" / f"{tag}.json", lambda: vo_scores(seq, out / "runs" / f"{tag}.txt", *options))
+                mean6, _, true6 = _predicted_and_true(seq, out / "runs" / f"{tag}.motions.csv")
+                table.append({"sequence": n, "stride": stride, "model": name, "drift_pct": rec["endpoint_drift_pct"],
+                              **straight_forward_gain(mean6, true6, stride)})
+    return table
 
 
 CASE_TITLES = {"street_exact": "town 7 (camera on the rear axle), exact flow",
@@ -171,6 +211,23 @@ def markdown(report: dict) -> str:
         md += [f"- {n}, {CASE_TITLES[c]}: " + ", ".join(f"{x:.2f}" for x in report["models"][n][f"{c}_cal"]["within_1_sigma"])
                for n, c in cal]
         md.append("")
+    gains = report.get("stride_gains") or []
+    if gains:
+        cols = sorted({(g["sequence"], g["stride"]) for g in gains},
+                      key=lambda c: next(g["true_m"] or 0 for g in gains if (g["sequence"], g["stride"]) == c))
+        md += ["**The distance against the length of the motion.** Each model on the KITTI slices at frame strides "
+               f"{', '.join(map(str, cfg['strides']))} (DIS flow, own pose): the forward gain of the straight pairs "
+               "(read against true forward translation, least squares; 1.00 reads the distance) and the drift [%], "
+               "the columns by the mean true length of a straight pair:", "",
+               "| | " + " | ".join(f"KITTI {q}, stride {k}" for q, k in cols) + " |", "|---" * (len(cols) + 1) + "|",
+               "| true length of a pair [m] | " + " | ".join(
+                   _f(next(g["true_m"] for g in gains if (g["sequence"], g["stride"]) == c), ".2f") for c in cols) + " |"]
+        for name in dict.fromkeys(g["model"] for g in gains):
+            by = {(g["sequence"], g["stride"]): g for g in gains if g["model"] == name}
+            label = "`deepslam vo`'s default" if name == "default" else name
+            md.append(f"| {label} | " + " | ".join(
+                f"x{_f(by[c]['gain'])} ({_f(by[c]['drift_pct'], '.1f')})" if c in by else "" for c in cols) + " |")
+        md.append("")
     md += ["Renders: " + "; ".join(f"`{c}`" for c in report["renders"]), "",
            f"Run time: {report['minutes']:.1f} min."]
     return "\n".join(md) + "\n"
@@ -178,7 +235,7 @@ def markdown(report: dict) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     return main_with_models("results_lever", __doc__, LeverConfig(), lambda cfg: dataclasses.replace(
-        cfg, frames=40, width=207), "lever", run, markdown, argv)
+        cfg, frames=40, width=207, strides=(1, 2)), "lever", run, markdown, argv)
 
 
 if __name__ == "__main__":

@@ -935,3 +935,22 @@ def test_results_lever_turn_yaw_errors_and_true_rotation_drift():
     long6 = read6.copy()
     long6[:, 5] *= 1.1
     assert results_lever.drift_with_true_rotation(long6, true6)["path_length_ratio"] == pytest.approx(1.1)
+
+
+def test_results_lever_straight_forward_gain_by_stride():
+    """bench.results_lever: a reading 10 % long on the straight pairs gives x1.1 whatever the turns read; a pair turning
+    less than stride x TURN_RAD counts as straight at that stride; no straight pair gives None."""
+    from bench import results_lever
+
+    true6 = np.zeros((4, 6))
+    true6[:, 5] = [0.5, 1.0, 1.5, 1.0]
+    true6[3, 1] = 0.015  # a turn at stride 1, straight at stride 2 (under 2 x 0.01 rad)
+    read6 = true6.copy()
+    read6[:3, 5] *= 1.1
+    read6[3, 5] *= 3.0
+    one = results_lever.straight_forward_gain(read6, true6, stride=1)
+    assert one["n"] == 3 and one["gain"] == pytest.approx(1.1) and one["true_m"] == pytest.approx(1.0)
+    two = results_lever.straight_forward_gain(read6, true6, stride=2)
+    assert two["n"] == 4 and two["gain"] > 1.3
+    true6[:, 1] = 0.5
+    assert results_lever.straight_forward_gain(read6, true6)["gain"] is None
