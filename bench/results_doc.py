@@ -60,7 +60,8 @@ SECTIONS = (
      "KITTI's camera is 0.84 m ahead of the rear axle and slides sideways into every turn; the recipe's models "
      "trained on towns whose camera rides on the axle against the same recipe on towns rendered with the lever, "
      "scored with their own pose on town 7 without and with the lever and on the KITTI slices: the turns' mean yaw "
-     "error and the drift left under the true rotation."),
+     "error, the drift left under the true rotation, and each model's distance on the KITTI slices at strides "
+     "1-3 by the length of the motion."),
     ("extra", "Rendered frames as extra training data", "python -m bench.results_extra",
      "One network and budget trained the paper's way on real single frames (KITTI 06), real plus rendered, and "
      "rendered alone; scored on KITTI 07, which none of them saw."),
