@@ -27,7 +27,7 @@ import numpy as np
 
 from bench.results_common import write_report
 from bench.results_repro import (TURN_RAD, _err, _model_file, _predicted_and_true, _repo_path, calibrated_once,
-                                 forget_if_retrained, main_with_models, own_pose_scores, vo_scores)
+                                 forget_if_retrained, main_with_models, origin_gain, own_pose_scores, vo_scores)
 from bench.results_vo import _cached
 from deepslam.core import metrics, se3
 
@@ -82,12 +82,12 @@ def straight_forward_gain(mean6: np.ndarray, true6: np.ndarray, stride: int = 1)
     """The forward distance read on the straight pairs: least-squares gain of read against true forward translation
     (t z of (N, 6) float64 paper vectors of ``cam_j_from_cam_i``, metres) over the pairs whose true yaw is at most
     ``stride`` x :data:`TURN_RAD` (a pair spans ``stride`` frames), with their count and mean true length (m). A
-    network that reads every distance 10 % long gives 1.1; None where no pair is straight."""
+    network that reads every distance 10 % long gives 1.1 (:func:`bench.results_repro.origin_gain`); None where no
+    pair is straight."""
     pick = np.abs(true6[:, 1]) <= stride * TURN_RAD
-    if not pick.any():
-        return {"n": 0, "gain": None, "true_m": None}
-    t, r = true6[pick, 5], mean6[pick, 5]
-    return {"n": int(pick.sum()), "gain": float((r * t).sum() / (t * t).sum()), "true_m": float(np.abs(t).mean())}
+    true = true6[pick, 5]
+    return {"n": int(pick.sum()), "gain": origin_gain(mean6[pick, 5], true),
+            "true_m": float(np.abs(true).mean()) if pick.any() else None}
 
 
 def drift_with_true_rotation(mean6: np.ndarray, true6: np.ndarray) -> dict:
@@ -213,15 +213,15 @@ def markdown(report: dict) -> str:
         md.append("")
     gains = report.get("stride_gains") or []
     if gains:
-        cols = sorted({(g["sequence"], g["stride"]) for g in gains},
-                      key=lambda c: next(g["true_m"] or 0 for g in gains if (g["sequence"], g["stride"]) == c))
+        # a column's straight pairs, and so their true length, are the same for every model
+        length = {(g["sequence"], g["stride"]): g["true_m"] for g in gains}
+        cols = sorted(length, key=lambda c: length[c] or 0.0)
         md += ["**The distance against the length of the motion.** Each model on the KITTI slices at frame strides "
                f"{', '.join(map(str, cfg['strides']))} (DIS flow, own pose): the forward gain of the straight pairs "
                "(read against true forward translation, least squares; 1.00 reads the distance) and the drift [%], "
                "the columns by the mean true length of a straight pair:", "",
                "| | " + " | ".join(f"KITTI {q}, stride {k}" for q, k in cols) + " |", "|---" * (len(cols) + 1) + "|",
-               "| true length of a pair [m] | " + " | ".join(
-                   _f(next(g["true_m"] for g in gains if (g["sequence"], g["stride"]) == c), ".2f") for c in cols) + " |"]
+               "| true length of a pair [m] | " + " | ".join(_f(length[c], ".2f") for c in cols) + " |"]
         for name in dict.fromkeys(g["model"] for g in gains):
             by = {(g["sequence"], g["stride"]): g for g in gains if g["model"] == name}
             label = "`deepslam vo`'s default" if name == "default" else name

@@ -256,6 +256,12 @@ TURN_RAD = 0.01
 """A pair turns if the ground truth's yaw (euler y of ``cam_j_from_cam_i``) exceeds this, radians (0.57 deg)."""
 
 
+def origin_gain(read: np.ndarray, true: np.ndarray) -> float | None:
+    """Least-squares ``read = gain * true`` through the origin of two (N,) float64 arrays (one DoF of N pairs, in
+    the same unit): the share of ``true`` that ``read`` reads (1: all of it); None for no pair or an all-zero truth."""
+    return float(read @ true / (true @ true)) if len(true) and true @ true > 0 else None
+
+
 def gains(mean6: np.ndarray, true6: np.ndarray) -> dict:
     """Per pair, the read yaw (euler y, about the camera's vertical axis) and forward translation (t z) against the
     ground truth's, from (N, 6) float64 paper vectors of ``cam_j_from_cam_i`` (euler x, y, z in rad; t x, y, z in
@@ -264,16 +270,13 @@ def gains(mean6: np.ndarray, true6: np.ndarray) -> dict:
     (degrees for the yaw, metres for t z); ``left`` and ``right`` the yaw and forward gains on the turning pairs of
     each sign (euler y > TURN_RAD: a left turn, the way the training towns turn; < -TURN_RAD: a right turn) and their
     count ``n`` (gains None where no pair turns that way). Gain 1 and RMS 0 are a perfect reading."""
-    def gain(read: np.ndarray, true: np.ndarray) -> float | None:
-        return float(read @ true / (true @ true)) if len(true) and true @ true > 0 else None
-
     out: dict = {}
     for name, k, unit in (("yaw", 1, np.degrees(1.0)), ("forward", 5, 1.0)):
         read, true = mean6[:, k], true6[:, k]
-        out[name] = {"gain": gain(read, true), "rms": float(np.sqrt(np.mean((read - true) ** 2)) * unit)}
+        out[name] = {"gain": origin_gain(read, true), "rms": float(np.sqrt(np.mean((read - true) ** 2)) * unit)}
     for side, pick in (("left", true6[:, 1] > TURN_RAD), ("right", true6[:, 1] < -TURN_RAD)):
-        out[side] = {"n": int(pick.sum()), "yaw_gain": gain(mean6[pick, 1], true6[pick, 1]),
-                     "forward_gain": gain(mean6[pick, 5], true6[pick, 5])}
+        out[side] = {"n": int(pick.sum()), "yaw_gain": origin_gain(mean6[pick, 1], true6[pick, 1]),
+                     "forward_gain": origin_gain(mean6[pick, 5], true6[pick, 5])}
     return out
 
 
