@@ -18,6 +18,7 @@
 #   SPEED_SCALE=0.4,1.5 SYNTH_FLOW=dis bash scripts/train_paper_recipe.sh ...  # ... with the turn radius freed
 #   MIRROR=0 bash scripts/train_paper_recipe.sh ...                  # the towns' own motions, turning one way
 #   BODY=1 SYNTH_FLOW=dis bash scripts/train_paper_recipe.sh ...     # ... with KITTI's body pitch and roll added
+#   SAMEPATIENCE=0 bash scripts/train_paper_recipe.sh OUT 2000000 "1 2"  # more seeds: no supervised_samepatience
 #   SCENE=room DEPTH=1 bash scripts/train_paper_recipe.sh ...        # RGB-D: the frame's depth as an input channel
 #   SCENE=room DEPTH=1 SPEED_SCALE=0.15,1.0 bash scripts/train_paper_recipe.sh ...  # ... the rooms' speed freed
 #   SCENE=room TRAJECTORY=handheld DEPTH=1 bash scripts/train_paper_recipe.sh ...  # ... rooms walked hand-held
@@ -163,6 +164,7 @@ for seed in $SEEDS; do
       $MOTION --samples-per-epoch 20000
   train "$OUT/${PFX}supervised${DEPTH_SFX}_cons_s$seed" --mode supervised --seed $seed --sequence $TRAIN --flow gt --strides 1,2
   [ "$SCENE" = room ] && continue
+  [ "${SAMEPATIENCE:-1}" = 1 ] || continue  # SAMEPATIENCE=0: more seeds without the hours-long third model
   # the recipe's patience is 10 epochs; a supervised epoch is ~1,100 pairs, a synthetic one 20,000 samples, so
   # the supervised run stops after ~120,000 samples: once more with the patience matched in samples (186 epochs)
   train "$OUT/${PFX}supervised_samepatience${DEPTH_SFX}_cons_s$seed" --mode supervised --seed $seed --sequence $TRAIN --flow gt \
