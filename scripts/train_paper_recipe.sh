@@ -18,6 +18,7 @@
 #   SPEED_SCALE=0.4,1.5 SYNTH_FLOW=dis bash scripts/train_paper_recipe.sh ...  # ... with the turn radius freed
 #   MIRROR=0 bash scripts/train_paper_recipe.sh ...                  # the towns' own motions, turning one way
 #   BODY=1 SYNTH_FLOW=dis bash scripts/train_paper_recipe.sh ...     # ... with KITTI's body pitch and roll added
+#   MIRROR_FRAMES=1 SYNTH_FLOW=dis bash scripts/train_paper_recipe.sh ...  # single frames also flipped left-right
 #   SAMEPATIENCE=0 bash scripts/train_paper_recipe.sh OUT 2000000 "1 2"  # more seeds: no supervised_samepatience
 #   SCENE=room DEPTH=1 bash scripts/train_paper_recipe.sh ...        # RGB-D: the frame's depth as an input channel
 #   SCENE=room DEPTH=1 SPEED_SCALE=0.15,1.0 bash scripts/train_paper_recipe.sh ...  # ... the rooms' speed freed
@@ -120,6 +121,12 @@ if [ "${BODY:-0}" = 1 ]; then
   PRIOR="${PRIOR}_body"
   PRIOR_FIT="$PRIOR_FIT --body-from $(for n in 00 01 02 03 04 05 08 09 10; do printf '%s ' "$KITTI_POSES/$n.txt"; done)"
 fi
+SYNTH_ONLY=""; FRAMES_SFX=""  # flags and name suffix of the synthetic models only
+if [ "${MIRROR_FRAMES:-0}" = 1 ]; then
+  # every training frame also flipped left-right (`train --mirror-frames`): the towns' car keeps right, so without
+  # it the network learns where the open road lies in the image (docs/experiments/2026-12-07_lever_arm_training.md, 9)
+  FRAMES_SFX=_mirrorframes; SYNTH_ONLY="--mirror-frames"
+fi
 DEPTH_SFX=""  # the models' name suffix of DEPTH=1
 if [ "${DEPTH:-0}" = 1 ]; then DEPTH_SFX=_depth; INPUT="$INPUT --depth-channel"; fi
 SCENE_SFX=""; [ "$SCENE" = room ] && SCENE_SFX=_room
@@ -150,8 +157,8 @@ for seed in $SEEDS; do
     # read at 640 px as `deepslam vo` reads a 414 px frame (1.5459 = 640 / 414), DIS medium on the pair; DIS makes
     # ~50 samples/s on 2 cores, so a pool of POOL samples is made once and trained on in passes (an epoch), with
     # the recipe's patience matched in samples (10 x 20,000 = 2 passes of 100,000)
-    [ "${SKIP_SYNTHETIC:-0}" = 1 ] || train "$OUT/${PFX}synthetic_${SYNTH_FLOW}${PRIOR}${DEPTH_SFX}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
-        $MOTION --synthetic-flow "$SYNTH_FLOW" \
+    [ "${SKIP_SYNTHETIC:-0}" = 1 ] || train "$OUT/${PFX}synthetic_${SYNTH_FLOW}${PRIOR}${FRAMES_SFX}${DEPTH_SFX}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
+        $MOTION --synthetic-flow "$SYNTH_FLOW" $SYNTH_ONLY \
         --dis-preset medium --frame-scales 1.5459 --sample-pool "${POOL:-100000}" --patience "${POOL_PATIENCE:-2}" \
         --data-threads 2
     # and supervised on the same renders' pairs with the same DIS flow (frames read at 640 px as `vo` reads them:
@@ -160,8 +167,8 @@ for seed in $SEEDS; do
         --sequence $TRAIN --flow "$SYNTH_FLOW" --dis-preset medium --strides 1,2
     continue
   fi
-  train "$OUT/${PFX}synthetic${PRIOR}${DEPTH_SFX}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
-      $MOTION --samples-per-epoch 20000
+  train "$OUT/${PFX}synthetic${PRIOR}${FRAMES_SFX}${DEPTH_SFX}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
+      $MOTION --samples-per-epoch 20000 $SYNTH_ONLY
   train "$OUT/${PFX}supervised${DEPTH_SFX}_cons_s$seed" --mode supervised --seed $seed --sequence $TRAIN --flow gt --strides 1,2
   [ "$SCENE" = room ] && continue
   [ "${SAMEPATIENCE:-1}" = 1 ] || continue  # SAMEPATIENCE=0: more seeds without the hours-long third model
