@@ -62,6 +62,12 @@ SECTIONS = (
      "scored with their own pose on town 7 without and with the lever and on the KITTI slices: the turns' mean yaw "
      "error, the drift left under the true rotation, and each model's distance on the KITTI slices at strides "
      "1-3 by the length of the motion."),
+    ("layout", "Where the network reads the distance from: the towns' layout",
+     "python -m bench.results_layout",
+     "The recipe's towns keep their car to the right; on the straight pairs of the held-out town and the KITTI "
+     "slices (DIS flow), each model's forward gain on the flow as seen and mirrored left-right, and where in the "
+     "image its forward reading comes from (integrated gradients): a network that learned where the towns' open "
+     "road lies over-reads a street laid out otherwise."),
     ("extra", "Rendered frames as extra training data", "python -m bench.results_extra",
      "One network and budget trained the paper's way on real single frames (KITTI 06), real plus rendered, and "
      "rendered alone; scored on KITTI 07, which none of them saw."),

@@ -954,3 +954,24 @@ def test_results_lever_straight_forward_gain_by_stride():
     assert two["n"] == 4 and two["gain"] > 1.3
     true6[:, 1] = 0.5
     assert results_lever.straight_forward_gain(read6, true6)["gain"] is None
+
+
+def test_results_layout_straight_pairs_and_where_the_reading_comes_from():
+    """bench.results_layout: only the pairs turning under TURN_RAD are straight; an attribution that sits in the
+    bottom-left sixth of the image and adds up to the true forward motion reads 1.0 there and 0 elsewhere."""
+    from bench import results_layout
+
+    yaw = [0.0, 0.0, 0.02, 0.0]  # rad of each step; the third step turns
+    world_from_cam = [np.eye(4)]
+    for step_yaw in yaw:
+        step = se3.from_euler6(np.array([0.0, step_yaw, 0.0, 0.0, 0.0, -1.0]))  # cam_j_from_cam_i, 1 m forward
+        world_from_cam.append(world_from_cam[-1] @ se3.inverse(step))
+    pairs, true6 = results_layout.straight_pairs(np.stack(world_from_cam))
+    np.testing.assert_array_equal(pairs, [[0, 1], [1, 2], [3, 4]])
+    np.testing.assert_allclose(-true6[:, 5], 1.0, atol=1e-9)
+
+    forward = np.array([0.5, 2.0])
+    attr = np.zeros((2, 6, 9))
+    attr[:, 3:, :3] = forward[:, None, None] / 9.0  # the bottom-left sixth, adding up to the forward motion
+    split = results_layout.attribution_split(attr, forward)
+    assert split == pytest.approx({"top": 0.0, "bottom_left": 1.0, "bottom_centre": 0.0, "bottom_right": 0.0})
