@@ -93,7 +93,7 @@ case "${TRAJECTORY:-}" in
   *) echo "TRAJECTORY must be handheld or unset (the scene's own), not '$TRAJECTORY'" >&2; exit 2 ;;
 esac
 [ "$SCENE" = street ] && LEVER=${LEVER-0.84}  # KITTI's camera mount, unless set (LEVER=0: on the axle)
-if [ -n "${LEVER:-}" ] && [ "$LEVER" != 0 ]; then
+if [ -n "${LEVER:-}" ] && ! [[ "$LEVER" =~ ^0+(\.0*)?$ ]]; then  # 0, 0.0, ...: the axle camera
   [ "$SCENE" = street ] || { echo "LEVER is for SCENE=street (the car's camera)" >&2; exit 2; }
   [[ "$LEVER" =~ ^[0-9]+(\.[0-9]+)?$ ]] || { echo "LEVER must be metres ahead of the rear axle, e.g. 0.84, not '$LEVER'" >&2; exit 2; }
   RENDER="$RENDER --camera-ahead $LEVER"; PFX=lever_; TRAJ_SFX=_lever

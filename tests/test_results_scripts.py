@@ -876,6 +876,7 @@ def test_recipe_script_refuses_a_mix_it_cannot_train_before_writing(tmp_path, en
 
 
 @pytest.mark.parametrize("env", [{}, {"LEVER": "0.84"}, {"LEVER": "0"}, {"SPEED_SCALE": "0.4,1.5"},
+                                 {"MIRROR_FRAMES": "1", "SAMEPATIENCE": "0"},
                                  {"SYNTH_FLOW": "dis", "SPEED_SCALE": "0.4,1.5", "BODY": "1"},
                                  {"SCENE": "room", "DEPTH": "1"}, {"SCENE": "room", "TRAJECTORY": "handheld"}])
 def test_recipe_script_runs_every_mix_it_trains_to_its_end(tmp_path, env):
@@ -887,6 +888,28 @@ def test_recipe_script_runs_every_mix_it_trains_to_its_end(tmp_path, env):
     p = subprocess.run(["bash", str(script), str(out), "1000", "0"], capture_output=True, text=True,
                        env={**os.environ, **env, "DS": "true"})
     assert p.returncode == 0 and f"done: {out}" in p.stdout, p.stderr
+
+
+@pytest.mark.parametrize("env, lever", [({"LEVER": "0.0"}, False), ({"LEVER": "00"}, False), ({"LEVER": "0.84"}, True),
+                                        ({"LEVER": "0.84", "MIRROR_FRAMES": "1", "SYNTH_FLOW": "dis"}, True)])
+def test_recipe_script_names_what_it_trains(tmp_path, env, lever):
+    """scripts/train_paper_recipe.sh with ``echo`` standing in for deepslam: any zero lever is the axle camera (no
+    ``--camera-ahead``, no ``lever_`` names); MIRROR_FRAMES=1 gives the synthetic model, and only it,
+    ``--mirror-frames`` and the ``_mirrorframes`` name."""
+    out = tmp_path / "recipe"
+    script = Path(__file__).resolve().parents[1] / "scripts" / "train_paper_recipe.sh"
+    p = subprocess.run(["bash", str(script), str(out), "1000", "0"], capture_output=True, text=True,
+                       env={**os.environ, **env, "DS": "echo"})
+    assert p.returncode == 0, p.stderr
+    lines = p.stdout.splitlines()
+    assert any("--camera-ahead" in line for line in lines) == lever
+    trains = [line for line in lines if line.startswith("train ")]
+    assert trains and all(("/lever_" in line) == lever for line in trains)
+    mirrored = [line for line in trains if "--mirror-frames" in line]
+    if env.get("MIRROR_FRAMES") == "1":
+        assert len(mirrored) == 1 and "--mode synthetic" in mirrored[0] and "_mirrorframes_cons_s0" in mirrored[0]
+    else:
+        assert not mirrored and not any("mirrorframes" in line for line in trains)
 
 
 def test_depth_probe_reads_a_network_that_ignores_its_depth_as_one():
