@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.results_common import write_report
-from bench.results_repro import TURN_RAD, _model_file, _repo_path, forget_if_retrained, main_with_models, origin_gain
+from bench.results_repro import TURN_RAD, main_with_models, origin_gain, trained_models
 from bench.results_vo import _cached
 from deepslam.core import atomic, se3
 from deepslam.core.readers import open_sequence
@@ -159,11 +159,7 @@ def run(cfg: LayoutConfig, out: Path, data: Path) -> dict:
     cases = [("town", town)] + [(f"kitti{n}", kitti / n) for n in ("07", "06") if (kitti / n).is_dir()]
     rows: dict = {}
     maps: dict = {}
-    for name in cfg.model_names:
-        model = _model_file(_repo_path(cfg.models) / name)
-        if model is None:
-            continue
-        forget_if_retrained(out, name, model)
+    for name, model in trained_models(out, cfg.models, cfg.model_names):
         rows[name] = {"file": str(model)}
         for case, seq_dir in cases:
             print(f"probe {name}: {case}", flush=True)

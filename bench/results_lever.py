@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from bench.results_common import write_report
-from bench.results_repro import (TURN_RAD, _err, _model_file, _predicted_and_true, _repo_path, calibrated_once,
-                                 forget_if_retrained, main_with_models, origin_gain, own_pose_scores, vo_scores)
+from bench.results_repro import (TURN_RAD, _err, _predicted_and_true, calibrated_once, main_with_models, origin_gain,
+                                 own_pose_scores, trained_models, vo_scores)
 from bench.results_vo import _cached
 from deepslam.core import metrics, se3
 
@@ -121,11 +121,7 @@ def run(cfg: LeverConfig, out: Path, data: Path) -> dict:
         "street", "car", cfg.frames, cfg.width, cfg.calibration_seed, out / f"street_s{cfg.calibration_seed}_kitti_car",
         log, ("--camera-ahead", f"{cfg.lever_m:g}", "--body-motion", "1", "--quiet"))
     rows: dict = {}
-    for name in cfg.model_names:
-        model = _model_file(_repo_path(cfg.models) / name)
-        if model is None:
-            continue
-        forget_if_retrained(out, name, model)
+    for name, model in trained_models(out, cfg.models, cfg.model_names):
         rows[name] = {"file": str(model)}
         for case, seq, flow in cases:
             print(f"score {name}: {case}", flush=True)

@@ -153,6 +153,19 @@ def _repo_path(path: str) -> Path:
     return Path(path) if Path(path).is_absolute() else REPO / path
 
 
+def trained_models(out: Path, folder: str, names) -> list[tuple[str, Path]]:
+    """``(name, model file)`` of each of ``names`` that has one under ``folder`` (relative to the repository unless
+    absolute; :func:`_model_file`), in order, absent ones left out; the cached evaluations of one whose file
+    changed are cleared under ``out`` (:func:`forget_if_retrained`)."""
+    found = []
+    for name in names:
+        model = _model_file(_repo_path(folder) / name)
+        if model is not None:
+            forget_if_retrained(out, name, model)
+            found.append((name, model))
+    return found
+
+
 def _run_json(command: str, seq_dir: Path, out_txt: Path, options: tuple[str, ...]) -> dict:
     """``deepslam COMMAND --sequence SEQ_DIR --out OUT_TXT OPTIONS --json`` as a user runs it (a child process):
     the record it prints. RuntimeError with the end of its stderr when it fails."""
