@@ -30,6 +30,7 @@ from bench.results_repro import (TURN_RAD, _err, _predicted_and_true, calibrated
                                  own_pose_scores, trained_models, vo_scores)
 from bench.results_vo import _cached
 from deepslam.core import metrics, se3
+from deepslam.vo.calibration import std_scale, within_one_sigma
 
 
 @dataclasses.dataclass(frozen=True)
@@ -42,12 +43,13 @@ class LeverConfig:
                                     "synthetic_speedscale_mirror_cons_s0", "lever_synthetic_axlescale_mirror_cons_s0",
                                     "synthetic_dis_speedscale_mirror_body_cons_s0",
                                     "lever_synthetic_dis_axlescale_mirror_body_cons_s0",
+                                    "lever_synthetic_dis_axlescale_mirror_body_mirrorframes_cons_s0",
                                     "supervised_cons_s0", "lever_supervised_cons_s0",
                                     "supervised_dis_cons_s0", "lever_supervised_dis_cons_s0")
     """Model folders under :attr:`models`, each trained on axle towns next to its ``lever_`` twin (the speed-freed
     models' twins scale the axle's motion: ``fit-motion --speed-scale-lever``; the ``_dis`` models trained on DIS flow,
     ``SYNTH_FLOW=dis``: the synthetic ones of views rendered from single frames, the supervised ones of the renders'
-    pairs); absent ones skipped."""
+    pairs; ``_mirrorframes``: every single frame also flipped left-right, ``MIRROR_FRAMES=1``); absent ones skipped."""
     lever_m: float = 0.84
     """Metres the held-out town's camera sits ahead of the rear axle in its lever render (KITTI's fit)."""
     heldout_seed: int = 7
@@ -98,6 +100,30 @@ def drift_with_true_rotation(mean6: np.ndarray, true6: np.ndarray) -> dict:
     return metrics.drift(se3.chain_euler6(true6), se3.chain_euler6(mixed))
 
 
+def cross_calibrated(fit: tuple[np.ndarray, np.ndarray, np.ndarray], read: tuple[np.ndarray, np.ndarray, np.ndarray]
+                     ) -> list[float]:
+    """The per-DoF std factor fitted on one sequence's pairs (:func:`vo.calibration.std_scale`) applied to another's:
+    the share of the other's pairs within the scaled 1-sigma, per DoF (euler x, y, z, t x, y, z; 0.68 calibrated).
+    ``fit`` and ``read``: ``(mean6, std6, true6)``, (N, 6) float64 paper vectors each (rad, m;
+    :func:`bench.results_repro._predicted_and_true`). What a user gets who calibrates on one recorded sequence of the
+    camera and drives another."""
+    scale = std_scale(fit[0] - fit[2], fit[1])
+    return [float(x) for x in within_one_sigma(read[0] - read[2], read[1] * scale)]
+
+
+def _cross_calibration(out: Path, kitti: Path, names: list[str]) -> dict:
+    """Each model's (and the default's) std calibrated on one KITTI slice and read on the other, from the own-pose
+    runs above: ``{name: {"06_on_07": [6 floats], "07_on_06": [...]}}``; none without both slices."""
+    if not all((kitti / n).is_dir() for n in ("06", "07")):
+        return {}
+    table = {}
+    for name in [*names, "default"]:
+        runs = {n: _predicted_and_true(kitti / n, out / "runs" / f"{name}_kitti{n}_dis.motions.csv") for n in ("06", "07")}
+        table[name] = {"06_on_07": cross_calibrated(runs["06"], runs["07"]),
+                       "07_on_06": cross_calibrated(runs["07"], runs["06"])}
+    return table
+
+
 def _pair_figures(seq: Path, motions_csv: Path) -> dict:
     mean6, _, true6 = _predicted_and_true(seq, motions_csv)
     return {"turns": turn_yaw_errors(mean6, true6), "true_rotation": drift_with_true_rotation(mean6, true6)}
@@ -138,7 +164,8 @@ def run(cfg: LeverConfig, out: Path, data: Path) -> dict:
                       lambda: vo_scores(seq, out / "runs" / f"default_{case}.txt", "--flow", flow))
         default[case] = {**rec, **_pair_figures(seq, out / "runs" / f"default_{case}.motions.csv")}
     report = {"config": dataclasses.asdict(cfg), "cases": [c for c, _, _ in cases], "models": rows,
-              "default": default, "stride_gains": _stride_gains(cfg, out, rows, kitti), "renders": log,
+              "default": default, "stride_gains": _stride_gains(cfg, out, rows, kitti),
+              "cross_calibration": _cross_calibration(out, kitti, list(rows)), "renders": log,
               "minutes": (time.perf_counter() - t0) / 60}
     write_report(out, report, markdown)
     return report
@@ -206,6 +233,16 @@ def markdown(report: dict) -> str:
                "flow), then the share of pairs within 1-sigma per DoF (euler x, y, z, t x, y, z; 0.68 calibrated):", ""]
         md += [f"- {n}, {CASE_TITLES[c]}: " + ", ".join(f"{x:.2f}" for x in report["models"][n][f"{c}_cal"]["within_1_sigma"])
                for n, c in cal]
+        md.append("")
+    cross = report.get("cross_calibration") or {}
+    if cross:
+        md += ["Each std calibrated per DoF on one real slice (`deepslam calibrate`'s factor, fitted on its pairs) and "
+               "read on the other: the share of pairs within 1-sigma (euler x, y, z, t x, y, z; 0.68 calibrated):", "",
+               "| | calibrated on KITTI 06, read on 07 | calibrated on KITTI 07, read on 06 |", "|---|---|---|"]
+        for name, rec in cross.items():
+            label = "`deepslam vo`'s default" if name == "default" else name
+            md.append(f"| {label} | " + " | ".join(", ".join(f"{x:.2f}" for x in rec[k]) for k in ("06_on_07", "07_on_06"))
+                      + " |")
         md.append("")
     gains = report.get("stride_gains") or []
     if gains:

@@ -998,3 +998,19 @@ def test_results_layout_straight_pairs_and_where_the_reading_comes_from():
     attr[:, 3:, :3] = forward[:, None, None] / 9.0  # the bottom-left sixth, adding up to the forward motion
     split = results_layout.attribution_split(attr, forward)
     assert split == pytest.approx({"top": 0.0, "bottom_left": 1.0, "bottom_centre": 0.0, "bottom_right": 0.0})
+
+
+def test_results_lever_cross_calibration_carries_a_factor_from_one_sequence_to_another():
+    """bench.results_lever.cross_calibrated: stds half the errors' spread on both sequences are scaled right by the
+    first (about 0.68 within 1-sigma on the second); on a second sequence with errors three times larger, far fewer."""
+    from bench import results_lever
+
+    rng = np.random.default_rng(3)
+    n = 4000
+    true6 = rng.normal(size=(n, 6))
+    std6 = np.full((n, 6), 0.1)
+    fit = (true6 + rng.normal(scale=0.2, size=(n, 6)), std6, true6)
+    alike = (true6 + rng.normal(scale=0.2, size=(n, 6)), std6, true6)
+    wider = (true6 + rng.normal(scale=0.6, size=(n, 6)), std6, true6)
+    assert results_lever.cross_calibrated(fit, alike) == pytest.approx([0.68] * 6, abs=0.03)
+    assert max(results_lever.cross_calibrated(fit, wider)) < 0.35
