@@ -41,7 +41,7 @@ SECTIONS = (
      "The shipped kitti_cons against the paper recipe's synthetic models on unseen streets at three widths and "
      "strides 1-3, exact flow, each model's own pose; the rule that decides which `deepslam vo --flow gt` runs."),
     ("repro", "The paper's recipe at scale: single frames against supervised, the network's own pose",
-     "LEVER=0 bash scripts/train_paper_recipe.sh bench/paper_recipe  # hours on 2 cores, minutes on a GPU; then "
+     "LEVER=0 MIRROR_FRAMES=0 bash scripts/train_paper_recipe.sh bench/paper_recipe  # hours on 2 cores, minutes on a GPU; then "
      "python -m bench.results_repro",
      "NN_cons trained by the paper's recipe for up to 2 M samples (three seeds of the cpu preset, one of the paper's "
      "96 x 320 network; the synthetic model also on DIS flow of views rendered from the single frames, and that with "
@@ -56,7 +56,8 @@ SECTIONS = (
      "DIS flow) and on TUM fr3/teddy, beside the RGB-D default and pnp; whether each rendered room ranks the rows as "
      "teddy does."),
     ("lever", "The camera's lever arm: the recipe trained on towns whose camera sits where KITTI's does",
-     "bash scripts/train_paper_recipe.sh bench/paper_recipe  # LEVER=0.84, the default; then python -m bench.results_lever",
+     "bash scripts/train_paper_recipe.sh bench/paper_recipe  # LEVER=0.84, the default; the models named without "
+     "_mirrorframes with MIRROR_FRAMES=0; then python -m bench.results_lever",
      "KITTI's camera is 0.84 m ahead of the rear axle and slides sideways into every turn; the recipe's models "
      "trained on towns whose camera rides on the axle against the same recipe on towns rendered with the lever, "
      "scored with their own pose on town 7 without and with the lever and on the KITTI slices: the turns' mean yaw "

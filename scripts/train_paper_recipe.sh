@@ -18,7 +18,7 @@
 #   SPEED_SCALE=0.4,1.5 SYNTH_FLOW=dis bash scripts/train_paper_recipe.sh ...  # ... with the turn radius freed
 #   MIRROR=0 bash scripts/train_paper_recipe.sh ...                  # the towns' own motions, turning one way
 #   BODY=1 SYNTH_FLOW=dis bash scripts/train_paper_recipe.sh ...     # ... with KITTI's body pitch and roll added
-#   MIRROR_FRAMES=1 SYNTH_FLOW=dis bash scripts/train_paper_recipe.sh ...  # single frames also flipped left-right
+#   MIRROR_FRAMES=0 SYNTH_FLOW=dis bash scripts/train_paper_recipe.sh ...  # street frames not flipped left-right
 #   SAMEPATIENCE=0 bash scripts/train_paper_recipe.sh OUT 2000000 "1 2"  # more seeds: no supervised_samepatience
 #   SCENE=room DEPTH=1 bash scripts/train_paper_recipe.sh ...        # RGB-D: the frame's depth as an input channel
 #   SCENE=room DEPTH=1 SPEED_SCALE=0.15,1.0 bash scripts/train_paper_recipe.sh ...  # ... the rooms' speed freed
@@ -63,7 +63,11 @@
 # (docs/experiments/2026-12-07_lever_arm_training.md: with the turn radius freed it halves KITTI 07's drift). With
 # SPEED_SCALE the factor then scales the axle's motion and keeps the slide (`fit-motion --speed-scale-lever`; fits
 # and models named _axlescale instead of _speedscale). LEVER=0 trains on the axle-camera towns (the models without
-# the lever_ prefix, as every street model trained before the lever was the default).
+# the lever_ prefix, as every street model trained before the lever was the default). MIRROR_FRAMES=1 (SCENE=street's
+# default; 0 for the rooms) trains the synthetic models on every single frame and its left-right mirror image
+# (`train --mirror-frames`; models named _mirrorframes before _cons): the towns' car keeps right, and a network
+# trained on their frames alone reads its distance from where their open road lies (bench.results_layout). The
+# street models named without _mirrorframes were trained with MIRROR_FRAMES=0.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/paper_recipe}
@@ -122,9 +126,11 @@ if [ "${BODY:-0}" = 1 ]; then
   PRIOR_FIT="$PRIOR_FIT --body-from $(for n in 00 01 02 03 04 05 08 09 10; do printf '%s ' "$KITTI_POSES/$n.txt"; done)"
 fi
 SYNTH_ONLY=""; FRAMES_SFX=""  # flags and name suffix of the synthetic models only
+[ "$SCENE" = street ] && MIRROR_FRAMES=${MIRROR_FRAMES-1}  # on for the towns, unless set (MIRROR_FRAMES=0: off)
 if [ "${MIRROR_FRAMES:-0}" = 1 ]; then
   # every training frame also flipped left-right (`train --mirror-frames`): the towns' car keeps right, so without
-  # it the network learns where the open road lies in the image (docs/experiments/2026-12-07_lever_arm_training.md, 9)
+  # it the network learns where the open road lies in the image and reads a street laid out otherwise long
+  # (KITTI 07's drift 18.2 -> 4.9 %: docs/experiments/2026-12-07_lever_arm_training.md, sections 9 and 11)
   FRAMES_SFX=_mirrorframes; SYNTH_ONLY="--mirror-frames"
 fi
 DEPTH_SFX=""  # the models' name suffix of DEPTH=1

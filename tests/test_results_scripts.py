@@ -890,12 +890,14 @@ def test_recipe_script_runs_every_mix_it_trains_to_its_end(tmp_path, env):
     assert p.returncode == 0 and f"done: {out}" in p.stdout, p.stderr
 
 
-@pytest.mark.parametrize("env, lever", [({"LEVER": "0.0"}, False), ({"LEVER": "00"}, False), ({"LEVER": "0.84"}, True),
-                                        ({"LEVER": "0.84", "MIRROR_FRAMES": "1", "SYNTH_FLOW": "dis"}, True)])
-def test_recipe_script_names_what_it_trains(tmp_path, env, lever):
+@pytest.mark.parametrize("env, lever, mirrored", [
+    ({"LEVER": "0.0"}, False, True), ({"LEVER": "00", "MIRROR_FRAMES": "0"}, False, False), ({"LEVER": "0.84"}, True, True),
+    ({"SYNTH_FLOW": "dis"}, True, True), ({"SYNTH_FLOW": "dis", "MIRROR_FRAMES": "0"}, True, False),
+    ({"SCENE": "room"}, False, False), ({"SCENE": "room", "MIRROR_FRAMES": "1"}, False, True)])
+def test_recipe_script_names_what_it_trains(tmp_path, env, lever, mirrored):
     """scripts/train_paper_recipe.sh with ``echo`` standing in for deepslam: any zero lever is the axle camera (no
-    ``--camera-ahead``, no ``lever_`` names); MIRROR_FRAMES=1 gives the synthetic model, and only it,
-    ``--mirror-frames`` and the ``_mirrorframes`` name."""
+    ``--camera-ahead``, no ``lever_`` names); the street recipe gives the synthetic model, and only it,
+    ``--mirror-frames`` and the ``_mirrorframes`` name unless MIRROR_FRAMES=0; the rooms' only with MIRROR_FRAMES=1."""
     out = tmp_path / "recipe"
     script = Path(__file__).resolve().parents[1] / "scripts" / "train_paper_recipe.sh"
     p = subprocess.run(["bash", str(script), str(out), "1000", "0"], capture_output=True, text=True,
@@ -905,11 +907,11 @@ def test_recipe_script_names_what_it_trains(tmp_path, env, lever):
     assert any("--camera-ahead" in line for line in lines) == lever
     trains = [line for line in lines if line.startswith("train ")]
     assert trains and all(("/lever_" in line) == lever for line in trains)
-    mirrored = [line for line in trains if "--mirror-frames" in line]
-    if env.get("MIRROR_FRAMES") == "1":
-        assert len(mirrored) == 1 and "--mode synthetic" in mirrored[0] and "_mirrorframes_cons_s0" in mirrored[0]
+    flipped = [line for line in trains if "--mirror-frames" in line]
+    if mirrored:
+        assert len(flipped) == 1 and "--mode synthetic" in flipped[0] and "_mirrorframes_cons_s0" in flipped[0]
     else:
-        assert not mirrored and not any("mirrorframes" in line for line in trains)
+        assert not flipped and not any("mirrorframes" in line for line in trains)
 
 
 def test_depth_probe_reads_a_network_that_ignores_its_depth_as_one():
