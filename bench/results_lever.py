@@ -45,13 +45,11 @@ class LeverConfig:
                                     "lever_synthetic_dis_axlescale_mirror_body_cons_s0",
                                     "lever_synthetic_dis_axlescale_mirror_body_mirrorframes_cons_s0",
                                     "supervised_cons_s0", "lever_supervised_cons_s0",
-                                    "supervised_dis_cons_s0", "lever_supervised_dis_cons_s0",
-                                    "lever_synthetic_axlescale_mirror_cons_s1", "lever_supervised_cons_s1")
+                                    "supervised_dis_cons_s0", "lever_supervised_dis_cons_s0")
     """Model folders under :attr:`models`, each trained on axle towns next to its ``lever_`` twin (the speed-freed
     models' twins scale the axle's motion: ``fit-motion --speed-scale-lever``; the ``_dis`` models trained on DIS flow,
     ``SYNTH_FLOW=dis``: the synthetic ones of views rendered from single frames, the supervised ones of the renders'
-    pairs; ``_mirrorframes``: every single frame also flipped left-right, ``MIRROR_FRAMES=1``; ``_s1``: the same
-    recipe's training seed 1); absent ones skipped."""
+    pairs; ``_mirrorframes``: every single frame also flipped left-right, ``MIRROR_FRAMES=1``); absent ones skipped."""
     lever_m: float = 0.84
     """Metres the held-out town's camera sits ahead of the rear axle in its lever render (KITTI's fit)."""
     heldout_seed: int = 7
