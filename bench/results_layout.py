@@ -26,6 +26,7 @@ docs/experiments/2026-12-07_lever_arm_training.md (section 9) reads them.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import sys
@@ -78,17 +79,23 @@ def straight_pairs(world_from_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return pairs[keep], true6[keep]
 
 
-def attribution_split(attribution: np.ndarray, forward_m: np.ndarray) -> dict:
-    """Where a forward reading comes from, per metre of true forward motion: ``attribution`` (P, h, w) float64 (m,
-    each pixel's share of the forward reading, forward positive) divided by ``forward_m`` (P,) float64 (m, > 0),
-    averaged over the pairs; summed over the top half and over the bottom half's left, centre and right thirds
-    (floats, unitless: 1.0 in all reads the distance exactly, the reading at zero flow aside)."""
-    per_m = (np.asarray(attribution, dtype=np.float64) / np.asarray(forward_m, dtype=np.float64)[:, None, None]).mean(0)
-    h, w = per_m.shape
-    top, bottom = per_m[: h // 2], per_m[h // 2:]
-    c = np.linspace(0, w, 4).astype(int)
-    return {"top": float(top.sum()), "bottom_left": float(bottom[:, c[0]:c[1]].sum()),
-            "bottom_centre": float(bottom[:, c[1]:c[2]].sum()), "bottom_right": float(bottom[:, c[2]:c[3]].sum())}
+def per_metre(attribution: np.ndarray, forward_m: np.ndarray) -> np.ndarray:
+    """The (h, w) float64 map of forward reading per metre of true forward motion: ``attribution`` (P, h, w) float64
+    (m, each pixel's share of a pair's forward reading, forward positive) divided by ``forward_m`` (P,) float64 (m,
+    > 0), averaged over the pairs (unitless: a map summing to 1.0 reads the distance exactly, the reading at zero
+    flow aside)."""
+    return (np.asarray(attribution, dtype=np.float64) / np.asarray(forward_m, dtype=np.float64)[:, None, None]).mean(0)
+
+
+def attribution_split(per_m: np.ndarray) -> dict:
+    """Where a forward reading comes from: the (h, w) map of :func:`per_metre` summed over the image's top half and
+    over the bottom half's left, centre and right thirds (:func:`vo.attribution.region_sums`)."""
+    from deepslam.vo.attribution import region_sums  # deferred: torch loads only when a model is probed
+
+    h = per_m.shape[0]
+    left, centre, right = region_sums(per_m[None, h // 2:], 1, 3)[0, 0]
+    return {"top": float(per_m[: h // 2].sum()), "bottom_left": float(left), "bottom_centre": float(centre),
+            "bottom_right": float(right)}
 
 
 def _case_flows(out: Path, case: str, seq_dir: Path, model: Path) -> dict:
@@ -119,17 +126,21 @@ def _case_flows(out: Path, case: str, seq_dir: Path, model: Path) -> dict:
     return {"flow": flow, "intrinsics": intr, "true6": true6}
 
 
+@functools.lru_cache(maxsize=1)  # the model being probed, loaded once for all its cases
+def _network(model_file: Path):
+    from deepslam.vo.modelfiles.modelio import load_model  # deferred: torch loads only when a model is probed
+
+    return load_model(model_file)[0].eval()
+
+
 def probe(model_file: Path, flows: dict, steps: int, grid: tuple[int, int]) -> tuple[dict, np.ndarray]:
     """One model on one case's straight pairs: forward gains as seen and mirrored, the attribution split
     (:func:`attribution_split`) and its grid; and the (h, w) float64 map of forward reading per metre."""
     import torch  # deferred: torch loads only when a model is probed
 
     from deepslam.vo.attribution import integrated_gradients, mirror_input, region_sums
-    from deepslam.vo.modelfiles.modelio import load_model
 
-    torch.manual_seed(0)
-    net, _ = load_model(model_file)
-    net.eval()
+    net = _network(model_file)
     flow, intr, true6 = flows["flow"], flows["intrinsics"], flows["true6"]
     forward = -true6[:, 5]  # cam_j_from_cam_i moves the scene back (t_z < 0) as the camera drives forward
 
@@ -139,10 +150,10 @@ def probe(model_file: Path, flows: dict, steps: int, grid: tuple[int, int]) -> t
 
     attr, at_zero = integrated_gradients(net, flow, intr, output=5, steps=steps)
     attr, at_zero = -attr, -at_zero  # forward positive
-    per_m = (attr / forward[:, None, None]).mean(0)
+    per_m = per_metre(attr, forward)
     rec = {"pairs": int(len(forward)), "true_forward_m": float(forward.mean()),
            "gain": origin_gain(read(flow, intr), forward), "gain_mirrored": origin_gain(read(*mirror_input(flow, intr)), forward),
-           "at_zero_per_m": float((at_zero / forward).mean()), **attribution_split(attr, forward),
+           "at_zero_per_m": float((at_zero / forward).mean()), **attribution_split(per_m),
            "grid_per_m": region_sums(per_m[None], *grid)[0].round(4).tolist()}
     return rec, per_m
 

@@ -998,7 +998,7 @@ def test_results_layout_straight_pairs_and_where_the_reading_comes_from():
     forward = np.array([0.5, 2.0])
     attr = np.zeros((2, 6, 9))
     attr[:, 3:, :3] = forward[:, None, None] / 9.0  # the bottom-left sixth, adding up to the forward motion
-    split = results_layout.attribution_split(attr, forward)
+    split = results_layout.attribution_split(results_layout.per_metre(attr, forward))
     assert split == pytest.approx({"top": 0.0, "bottom_left": 1.0, "bottom_centre": 0.0, "bottom_right": 0.0})
 
 
