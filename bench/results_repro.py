@@ -196,11 +196,12 @@ def calibrated_once(out: Path, stem: str, cal_seq: Path, model: Path) -> Path:
     return calibrated
 
 
-def own_pose_scores(out: Path, tag: str, seq_dir: Path, model: Path, flow: str) -> dict:
-    """:func:`vo_scores` of ``model``'s own pose (``vo --pose net``) on ``seq_dir`` with ``flow``, cached in
-    ``out/eval/{tag}.json`` (a killed run resumes); the run's files are ``out/runs/{tag}.*``."""
+def own_pose_scores(out: Path, tag: str, seq_dir: Path, model: Path, flow: str, *options: str) -> dict:
+    """:func:`vo_scores` of ``model``'s own pose (``vo --pose net``) on ``seq_dir`` with ``flow`` and any further
+    ``vo`` ``options``, cached in ``out/eval/{tag}.json`` (a killed run resumes); the run's files are
+    ``out/runs/{tag}.*``."""
     return _cached(out / "eval" / f"{tag}.json", lambda: vo_scores(
-        seq_dir, out / "runs" / f"{tag}.txt", "--model", str(model), "--flow", flow, "--pose", "net"))
+        seq_dir, out / "runs" / f"{tag}.txt", "--model", str(model), "--flow", flow, "--pose", "net", *options))
 
 
 def forget_if_retrained(out: Path, stem: str, model: Path) -> None:

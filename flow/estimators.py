@@ -30,6 +30,7 @@ compute several pairs at once (DIS does: each replica single-threaded, one per c
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 from typing import Protocol
 
@@ -37,6 +38,7 @@ import cv2
 import numpy as np
 
 from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
 from deepslam.core.ours import read_instance_poses
 from deepslam.flow.images import GreyCache, texture_strength, to_grey
@@ -338,8 +340,37 @@ def resize_flow(flow: np.ndarray, width: int, height: int, unknown: str = "zero"
     return out
 
 
+def centre_principal_point(flow: np.ndarray, camera: PinholeCamera) -> tuple[np.ndarray, PinholeCamera]:
+    """A flow as the same camera would see it with its principal point at the image's centre.
+
+    The pixel grid is shifted by ``(cx - (W - 1) / 2, cy - (H - 1) / 2)``: the flow at output pixel (u, v) is the
+    input's at (u + dx, v + dy), bilinear (the focal length is kept, so every value is unchanged, only moved). A
+    column or row the shift brings in from outside the image repeats the edge; NaN (unknown) stays unknown and
+    spreads at most one pixel. A network that never sees the intrinsics (the paper's) learns the focus of expansion's
+    place in the image from its training cameras, which the simulator renders centred; KITTI 04-10's principal
+    point lies 10.6 px left of its centre (0.86 deg), which such a network reads as heading and yaw.
+
+    Args:
+        flow: (H, W, 2) float32 px at the camera's resolution, NaN where unknown.
+        camera: :class:`core.camera.PinholeCamera` of the images (H x W).
+
+    Returns:
+        ``(flow, camera)``: float32 (H, W, 2) px, and the camera with ``cx = (W - 1) / 2``, ``cy = (H - 1) / 2``
+        (the input itself, not a copy, when the principal point is already within 1e-3 px of the centre).
+    """
+    cx0, cy0 = (camera.width - 1) / 2.0, (camera.height - 1) / 2.0
+    dx, dy = camera.cx - cx0, camera.cy - cy0
+    centred = dataclasses.replace(camera, cx=cx0, cy=cy0)
+    if abs(dx) < 1e-3 and abs(dy) < 1e-3:
+        return flow, centred
+    shift = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy]])
+    out = cv2.warpAffine(np.asarray(flow, dtype=np.float32), shift, (camera.width, camera.height),
+                         flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
+    return out, centred
+
+
 def to_network_input(flow: np.ndarray, camera, width: int, height: int,
-                     unknown: str = "zero") -> tuple[np.ndarray, np.ndarray]:
+                     unknown: str = "zero", centre: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Full-resolution flow -> the network's input.
 
     Args:
@@ -348,13 +379,16 @@ def to_network_input(flow: np.ndarray, camera, width: int, height: int,
         width, height: the network's input size.
         unknown: how unknown flow is resized (:func:`resize_flow`; ``nan`` for a network with a
             validity channel, which then holds NaN where nothing is known).
+        centre: first move the principal point to the image's centre (:func:`centre_principal_point`).
 
     Returns:
         ``(flow_chw, intrinsics)``: float32 (2, height, width) px at network resolution, and float32
-        (4,) ``(fx, fy, cx, cy)`` of the camera scaled to that resolution.
+        (4,) ``(fx, fy, cx, cy)`` of the camera (centred with ``centre``) scaled to that resolution.
     """
     if flow.shape[:2] != (camera.height, camera.width):
         raise ValueError(f"flow is {flow.shape[:2]} but the camera is {camera.height}x{camera.width}")
+    if centre:
+        flow, camera = centre_principal_point(flow, camera)
     small = resize_flow(flow, width, height, unknown)
     cam = camera.scaled(width, height)
     return (np.ascontiguousarray(small.transpose(2, 0, 1)),

@@ -36,10 +36,13 @@ class VOPredictor:
         bf16: run under bfloat16 autocast (None = on CUDA, or when the CPU has native bf16).
         device: torch device to run on (a ``torch.device`` or its name; default the CPU).
         channels_last: NHWC convolutions (faster on this CPU).
+        centre_principal_point: move every flow so that the camera's principal point lies at the image's centre
+            before the network reads it (:func:`flow.estimators.centre_principal_point`).
     """
 
     def __init__(self, model: torch.nn.Module, name: str = "vo", meta: dict | None = None, batch_size: int = 64,
-                 bf16: bool | None = None, channels_last: bool = True, device: str | torch.device = "cpu"):
+                 bf16: bool | None = None, channels_last: bool = True, device: str | torch.device = "cpu",
+                 centre_principal_point: bool = False):
         self.model = model.eval()
         if channels_last:
             self.model.set_channels_last(True)
@@ -51,6 +54,9 @@ class VOPredictor:
         if bf16 is None:
             bf16 = resolve_bf16("auto", self.device)
         self.bf16 = bool(bf16)
+        self.centre_principal_point = bool(centre_principal_point)
+        """Every flow is moved so that the camera's principal point lies at the image's centre before the network
+        reads it (:func:`flow.estimators.centre_principal_point`)."""
         self.std_scale = recorded_std_scale(self.meta)
         """(6,) per-DoF factor on every predicted std (``deepslam calibrate``; ones when the file records none)."""
 
@@ -105,7 +111,7 @@ class VOPredictor:
     def prepare(self, flow_full: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
         """Full-resolution flow (H, W, 2) -> network input ((2, h, w) px, (4,) intrinsics)."""
         h, w = self.input_size
-        return to_network_input(flow_full, camera, w, h, self.model.cfg.unknown_flow)
+        return to_network_input(flow_full, camera, w, h, self.model.cfg.unknown_flow, self.centre_principal_point)
 
     def predict_pairs(self, seq, pairs: Seq[tuple[int, int]], flow_estimator, progress: bool = True,
                       chunk: int = 64, inputs=None, epipolar=None,
@@ -135,12 +141,13 @@ class VOPredictor:
         fit = None
         if epipolar is not None:
             fit = EpipolarFitter(epipolar)
-        if inputs is not None and ((inputs.height, inputs.width, inputs.unknown) != (h, w, unknown)
+        centre = self.centre_principal_point
+        if inputs is not None and ((inputs.height, inputs.width, inputs.unknown, inputs.centre) != (h, w, unknown, centre)
                                    or not np.array_equal(inputs.pairs, pairs) or inputs.full_flow_fn != fit):
             inputs.close()
             inputs = None
         if inputs is None:
-            inputs = PairInputs(seq, pairs, flow_estimator, w, h, unknown=unknown, full_flow_fn=fit)
+            inputs = PairInputs(seq, pairs, flow_estimator, w, h, unknown=unknown, full_flow_fn=fit, centre=centre)
         means, stds = [], []
         with inputs, tqdm(total=len(pairs), desc=f"vo {self.name}", unit="pair", disable=not progress,
                           leave=False) as bar:

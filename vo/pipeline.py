@@ -62,6 +62,9 @@ class VOConfig:
     """Frames narrower than this are read upsampled to it (bicubic, the camera scaled likewise; a monocular
     network on estimated flow only); 0: read as recorded. At 320 px DIS and the road scale over-read the
     distance (docs/experiments/2026-12-06_read_width.md)."""
+    centre_principal_point: bool = False
+    """Move every flow so that the camera's principal point lies at the image's centre before the network reads it
+    (:func:`flow.estimators.centre_principal_point`: the simulator's cameras are centred, KITTI's is not)."""
 
     def frames(self, n_frames: int) -> np.ndarray:
         """(N,) int64 indices of the frames a run over an ``n_frames``-frame sequence reads. InputError for an
@@ -166,14 +169,15 @@ def _network(seq, pairs: np.ndarray, cfg: VOConfig) -> tuple[np.ndarray, np.ndar
 
         fitter = EpipolarFitter(epi)
     inputs = None if spec is None else PairInputs(seq, pairs, estimator, spec[1], spec[0], unknown=spec[2],
-                                                  full_flow_fn=fitter)
+                                                  full_flow_fn=fitter, centre=cfg.centre_principal_point)
     try:
         # deferred: torch (1.5 s to import) loads while the flow workers above already compute the first flows
         from deepslam.runtime.device import resolve_device
         from deepslam.vo.odometry import load_predictor
 
         predictor = load_predictor(model_path, shipped, batch_size=cfg.batch, bf16=cfg.bf16,
-                                   device=resolve_device(cfg.device))
+                                   device=resolve_device(cfg.device),
+                                   centre_principal_point=cfg.centre_principal_point)
     except BaseException:
         if inputs is not None:
             inputs.close()
@@ -185,7 +189,8 @@ def _network(seq, pairs: np.ndarray, cfg: VOConfig) -> tuple[np.ndarray, np.ndar
     record = {"model": str(model_path.resolve()) if cfg.model else f"shipped:{models.kind_for_sequence(seq)}_cons",
               "model_name": predictor.name, "model_net": predictor.model.cfg.to_dict(),
               "flow": getattr(estimator, "name", cfg.flow), "bf16": predictor.bf16, "batch": cfg.batch,
-              "device": str(predictor.device), "pose": pose}
+              "device": str(predictor.device), "pose": pose,
+              "centre_principal_point": predictor.centre_principal_point}
     if seq is not recorded_seq:
         record["read_at_px"] = [seq.camera.width, seq.camera.height]
     if epi is not None:

@@ -61,6 +61,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "simulated street)")
     p.add_argument("--read-width", type=int, default=_odometry_flags.READ_WIDTH_PX, metavar="PX",
                    help=_odometry_flags.READ_WIDTH_HELP)
+    p.add_argument("--centre-principal-point", action="store_true",
+                   help="move each flow so that the camera's principal point lies at the image's centre before the "
+                        "network reads it (the simulator's cameras are centred; KITTI 04-10's lies 10.6 px left)")
     p.add_argument("--stride", type=int, default=1, help="frame gap k: predict cam_{t+k}_from_cam_t for t = 0, k, 2k, ...")
     p.add_argument("--start", type=int, default=0, help="first frame")
     p.add_argument("--end", type=int, default=None, help="one past the last frame (default: all)")
@@ -134,7 +137,7 @@ def _run(args: argparse.Namespace) -> int:
                    pose=args.pose, scale=args.scale, camera_height_m=args.camera_height, stride=args.stride,
                    start=args.start, end=args.end, batch=args.batch, device=args.device,
                    bf16=None if args.bf16 == "auto" else args.bf16 == "on", progress=not (args.quiet or args.json),
-                   read_width_px=args.read_width)
+                   read_width_px=args.read_width, centre_principal_point=args.centre_principal_point)
     cfg.frames(len(seq))  # the range checked before a plug-in loads
     fmt = args.format or trajio.default_format(seq.kind, seq.timestamps_s is not None)
     plugin = plugins.from_options(args.odometry, args.odometry_command, args.command_timeout)

@@ -431,3 +431,48 @@ def test_the_dis_flags_read_into_typed_options(given, expected):
     assert _dis_flags.given_options("learned", SimpleNamespace()) == ()
     with pytest.raises(InputError, match="--dis-patch-stride applies to DIS flow only"):
         _dis_flags.given_options("learned", SimpleNamespace(dis_patch_stride=4))
+
+
+def _plane_flow(cam, cam1_from_cam0: np.ndarray) -> np.ndarray:
+    """(H, W, 2) exact flow of ``cam`` over the plane 8 / z = 1 - 0.3 x/z + 0.1 y/z (camera 0's frame, metres)
+    under the 4x4 motion ``cam1_from_cam0``: the same 3-D surface whatever the principal point."""
+    g = cam.pixel_grid()
+    x, y = (g[..., 0] - cam.cx) / cam.fx, (g[..., 1] - cam.cy) / cam.fy
+    p0 = cam.unproject(g, 8.0 / (1.0 - 0.3 * x + 0.1 * y))
+    p1 = p0 @ cam1_from_cam0[:3, :3].T + cam1_from_cam0[:3, 3]
+    return (cam.project(p1)[0] - g).astype(np.float32)
+
+
+def test_centred_flow_is_what_the_centred_camera_sees():
+    from deepslam.core import se3
+    from deepslam.core.camera import PinholeCamera
+
+    # KITTI 04-10's camera at 1/8 scale: the principal point 1.3 px left of and 0.2 px above the centre
+    off = PinholeCamera(153, 46, 88.4, 88.4, 75.2, 22.3)
+    centred = PinholeCamera(153, 46, 88.4, 88.4, 76.0, 22.5)
+    cam1_from_cam0 = se3.from_euler6(np.array([0.002, 0.01, -0.003, 0.05, -0.01, -0.9]))
+    got, cam = fe.centre_principal_point(_plane_flow(off, cam1_from_cam0), off)
+    assert cam == centred
+    want = _plane_flow(centred, cam1_from_cam0)
+    inner = (slice(2, -2), slice(2, -2))
+    assert np.abs(want[inner]).max() > 2.0  # a flow worth moving
+    np.testing.assert_allclose(got[inner], want[inner], atol=0.02)
+    # uncentred, the same flow differs by the shift: the test can fail
+    assert np.abs(_plane_flow(off, cam1_from_cam0)[inner] - want[inner]).max() > 0.05
+
+
+def test_centring_a_centred_camera_returns_its_flow_and_keeps_unknown_local():
+    from deepslam.core.camera import PinholeCamera
+
+    flow = np.random.default_rng(0).normal(size=(20, 30, 2)).astype(np.float32)
+    cam = PinholeCamera(30, 20, 40.0, 40.0, 14.5, 9.5)
+    got, same = fe.centre_principal_point(flow, cam)
+    assert got is flow and same == cam
+    flow[10, 15] = np.nan
+    off = PinholeCamera(30, 20, 40.0, 40.0, 14.0, 9.5)  # half a pixel left of the centre
+    got, _ = fe.centre_principal_point(flow, off)
+    assert np.isnan(got[10, 15:17]).all()  # the output pixels that read the unknown one
+    got[9:12, 14:18] = 0.0  # OpenCV's bilinear reads the neighbours at weight 0 too: one pixel around, no further
+    assert np.isfinite(got).all()
+    chw, k = fe.to_network_input(flow, off, 15, 10, "nan", centre=True)
+    np.testing.assert_allclose(k, [20.0, 20.0, 7.0, 4.5])

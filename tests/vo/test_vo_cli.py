@@ -234,3 +234,17 @@ def test_slam_reads_small_frames_as_the_network_does_and_plugins_as_recorded(pla
     assert cli.main(["slam", "--sequence", str(plane_sequence), "--out", str(out), "--no-loops", "--quiet",
                      "--read-width", str(wide)]) == 0
     assert json.loads((tmp_path / "slam.json").read_text())["read_at_px"] == [wide, 2 * seq.camera.height]
+
+
+def test_centring_the_principal_point_is_recorded_and_moves_an_off_centre_cameras_reading(plane_sequence):
+    """`vo --centre-principal-point` records that it centred; on this fixture, whose principal point lies 12 px above
+    the image's centre, the network reads other flows (a centred camera's are read unchanged:
+    tests/flow/test_estimators.py)."""
+    from deepslam.vo.pipeline import VOConfig, run_vo
+
+    seq = open_sequence(plane_sequence)
+    assert seq.camera.cy != (seq.camera.height - 1) / 2
+    plain = run_vo(seq, VOConfig(flow="gt", pose="net", progress=False, end=6))
+    centred = run_vo(seq, VOConfig(flow="gt", pose="net", progress=False, end=6, centre_principal_point=True))
+    assert centred.record["centre_principal_point"] and not plain.record["centre_principal_point"]
+    assert np.isfinite(centred.mean6).all() and not np.array_equal(centred.mean6, plain.mean6)

@@ -109,12 +109,13 @@ class PairInputs:
     """
 
     def __init__(self, seq, pairs, estimator, width: int, height: int, ahead: int = 512, unknown: str = "zero",
-                 full_flow_fn=None, workers: int | None = None):
+                 full_flow_fn=None, workers: int | None = None, centre: bool = False):
         self.seq, self.estimator = seq, estimator
         self.full_flow_fn = full_flow_fn
         self.pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
         self.width, self.height = int(width), int(height)
         self.unknown = unknown
+        self.centre = bool(centre)
         can_replicate = callable(getattr(estimator, "replica", None))
         if workers is None:
             workers = default_workers() if can_replicate else 1
@@ -165,7 +166,8 @@ class PairInputs:
                     future = self._side_pool.submit(self.full_flow_fn, flow, self.seq.camera)
                     future.add_done_callback(lambda _: self._side_slots.release())
                     self._side_futures[k] = future
-                if not self._put(q, to_network_input(flow, self.seq.camera, self.width, self.height, self.unknown)):
+                if not self._put(q, to_network_input(flow, self.seq.camera, self.width, self.height, self.unknown,
+                                                       self.centre)):
                     return
         except BaseException as e:  # noqa: BLE001 - handed to the reading thread, raised there
             self._put(q, _Failed(e))

@@ -319,3 +319,30 @@ def test_a_failing_full_flow_fn_reaches_the_caller_and_an_early_close_drops_the_
     next(iter(inputs))
     inputs.close()  # returns without running the whole backlog: at most the running fit and the bounded ones
     assert len(calls) < len(pairs)
+
+
+class _OffCentre:
+    """``seq`` with its principal point 1.3 px left of where it is (the frames and flows its own)."""
+
+    def __init__(self, seq):
+        import dataclasses
+
+        self._seq = seq
+        self.camera = dataclasses.replace(seq.camera, cx=seq.camera.cx - 1.3)
+
+    def __getattr__(self, name):
+        return getattr(self._seq, name)
+
+
+def test_prefetched_inputs_centre_the_principal_point_when_asked(plane_sequence):
+    seq = _OffCentre(open_sequence(plane_sequence))
+    pairs = [(0, 1), (3, 5)]
+    got = list(PairInputs(seq, pairs, flow_registry.make("dis", preset="fast"), 80, 24, centre=True))
+    serial = flow_registry.make("dis", preset="fast")
+    for (flow, intr), (i, j) in zip(got, pairs, strict=True):
+        full = serial.pair_flow(seq, i, j)
+        want_flow, want_intr = to_network_input(full, seq.camera, 80, 24, centre=True)
+        np.testing.assert_array_equal(flow, want_flow)
+        np.testing.assert_array_equal(intr, want_intr)
+        assert not np.array_equal(flow, to_network_input(full, seq.camera, 80, 24)[0])
+        assert intr[2] == pytest.approx((80 - 1) / 2)
