@@ -26,11 +26,12 @@ from pathlib import Path
 import numpy as np
 
 from bench.results_common import write_report
-from bench.results_repro import (TURN_RAD, _err, _predicted_and_true, calibrated_once, main_with_models, origin_gain,
-                                 own_pose_scores, trained_models, vo_scores)
+from bench.results_repro import (TURN_RAD, _err, _predicted_and_true, _repo_path, calibrated_once, forget_if_retrained,
+                                 main_with_models, origin_gain, own_pose_scores, trained_models, vo_scores)
 from bench.results_vo import _cached
 from deepslam.core import metrics, se3
 from deepslam.vo.calibration import std_scale, within_one_sigma
+from deepslam.vo.modelfiles.modelio import write_ensemble
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,6 +51,13 @@ class LeverConfig:
     models' twins scale the axle's motion: ``fit-motion --speed-scale-lever``; the ``_dis`` models trained on DIS flow,
     ``SYNTH_FLOW=dis``: the synthetic ones of views rendered from single frames, the supervised ones of the renders'
     pairs; ``_mirrorframes``: every single frame also flipped left-right, ``MIRROR_FRAMES=1``); absent ones skipped."""
+    ensembles: tuple[tuple[str, tuple[str, ...]], ...] = (
+        ("lever_synthetic_dis_axlescale_mirror_body_mirrorframes_cons_s0+s1",
+         ("lever_synthetic_dis_axlescale_mirror_body_mirrorframes_cons_s0",
+          "lever_synthetic_dis_axlescale_mirror_body_mirrorframes_cons_s1")),)
+    """(name, member folders under :attr:`models`) of each seed ensemble scored as one more model (``deepslam
+    ensemble-model``: the members' mean, the std their own plus their spread; written under ``out/eval``); one whose
+    members have no finished ``model.safetensors`` each is skipped."""
     lever_m: float = 0.84
     """Metres the held-out town's camera sits ahead of the rear axle in its lever render (KITTI's fit)."""
     heldout_seed: int = 7
@@ -147,7 +155,7 @@ def run(cfg: LeverConfig, out: Path, data: Path) -> dict:
         "street", "car", cfg.frames, cfg.width, cfg.calibration_seed, out / f"street_s{cfg.calibration_seed}_kitti_car",
         log, ("--camera-ahead", f"{cfg.lever_m:g}", "--body-motion", "1", "--quiet"))
     rows: dict = {}
-    for name, model in trained_models(out, cfg.models, cfg.model_names):
+    for name, model in trained_models(out, cfg.models, cfg.model_names) + _ensembles(cfg, out):
         rows[name] = {"file": str(model)}
         for case, seq, flow in cases:
             print(f"score {name}: {case}", flush=True)
@@ -157,7 +165,7 @@ def run(cfg: LeverConfig, out: Path, data: Path) -> dict:
                 tag = f"{name}_{case}_centred"
                 rec = own_pose_scores(out, tag, seq, model, flow, "--centre-principal-point")
                 rows[name][f"{case}_centred"] = {**rec, **_pair_figures(seq, out / "runs" / f"{tag}.motions.csv")}
-        if calibration is not None and model.name == "model.safetensors":
+        if calibration is not None and model.name != "checkpoint.safetensors":  # a finished model or an ensemble
             calibrated = calibrated_once(out, f"{name}_cal", calibration, model)
             for case, seq, flow in cases:
                 if case.startswith("kitti"):
@@ -178,6 +186,28 @@ def run(cfg: LeverConfig, out: Path, data: Path) -> dict:
               "minutes": (time.perf_counter() - t0) / 60}
     write_report(out, report, markdown)
     return report
+
+
+def _ensembles(cfg: LeverConfig, out: Path) -> list[tuple[str, Path]]:
+    """``(name, ensemble file)`` of each of :attr:`LeverConfig.ensembles` whose members all have a finished
+    ``model.safetensors``, written to ``out/eval/{name}.safetensors`` (again each run: a member trained further makes
+    another file, and :func:`bench.results_repro.forget_if_retrained` then clears the ensemble's evaluations)."""
+    found = []
+    for name, members in cfg.ensembles:
+        files = [_repo_path(cfg.models) / m / "model.safetensors" for m in members]
+        if all(f.is_file() for f in files):
+            path = out / "eval" / f"{name}.safetensors"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            write_ensemble(files, path)
+            forget_if_retrained(out, name, path)
+            found.append((name, path))
+    return found
+
+
+def _names(report: dict) -> list[str]:
+    """The scored models of ``report`` in the config's order: the single models, then the ensembles."""
+    cfg = report["config"]
+    return [n for n in [*cfg["model_names"], *(e[0] for e in cfg.get("ensembles", ()))] if n in report["models"]]
 
 
 def _stride_gains(cfg: LeverConfig, out: Path, rows: dict, kitti: Path) -> list[dict]:
@@ -232,7 +262,7 @@ def _centred_markdown(report: dict) -> list[str]:
           "a pair [deg], as read -> centred:", "",
           "| | " + " | ".join(f"{CASE_TITLES[c].split(',')[0]}: drift | ATE | straight yaw" for c in cases) + " |",
           "|---" * (1 + 3 * len(cases)) + "|"]
-    named = [(n, report["models"][n]) for n in cfg["model_names"] if n in report["models"]]
+    named = [(n, report["models"][n]) for n in _names(report)]
     for name, rec in [*named, ("`deepslam vo`'s default", report["default"])]:
         cells = []
         for c in cases:
@@ -262,7 +292,7 @@ def markdown(report: dict) -> str:
         md += [f"**{CASE_TITLES[case].format(**cfg)}**", "",
                "| | ATE [m] | t_err or drift [%] | path ratio | yaw error: left / right / straight [deg] | "
                "drift with the true rotation [%] | within 1-sigma: euler x, y, z, t x, y, z |", "|---|---|---|---|---|---|---|"]
-        named = [(n, report["models"][n]) for n in cfg["model_names"] if n in report["models"]]
+        named = [(n, report["models"][n]) for n in _names(report)]
         for name, rec in [*named, ("`deepslam vo`'s default", report["default"])]:
             r = rec[case]
             turns = " / ".join(f"{_f(r['turns'][p]['mean_deg'], '+.3f')} ({r['turns'][p]['n']})"
@@ -272,7 +302,7 @@ def markdown(report: dict) -> str:
                       f"{', '.join(_f(x, '.2f') for x in r.get('within_1_sigma') or [])} |")
         md.append("")
     md += _centred_markdown(report)
-    cal = [(n, c) for n in cfg["model_names"] if n in report["models"] for c in report["cases"]
+    cal = [(n, c) for n in _names(report) for c in report["cases"]
            if f"{c}_cal" in report["models"][n]]
     if cal:
         md += [f"Each model's std calibrated per DoF on town {cfg['calibration_seed']} rendered as KITTI's car moves "

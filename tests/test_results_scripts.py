@@ -1016,3 +1016,43 @@ def test_results_lever_cross_calibration_carries_a_factor_from_one_sequence_to_a
     wider = (true6 + rng.normal(scale=0.6, size=(n, 6)), std6, true6)
     assert results_lever.cross_calibrated(fit, alike) == pytest.approx([0.68] * 6, abs=0.03)
     assert max(results_lever.cross_calibrated(fit, wider)) < 0.35
+
+
+def test_results_lever_scores_an_ensemble_once_its_members_are_finished(tmp_path):
+    """bench.results_lever: an ensemble of seeds is written only when every member has a finished model file (a
+    checkpoint does not count), and written again (its evaluations cleared) once a member changes."""
+    from bench import results_lever
+    from deepslam.vo.modelfiles.modelio import load_model, save_model
+    from deepslam.vo.net import FlowPoseNet
+
+    small = NetConfig(input_height=24, input_width=80, filters=8, hidden_units=16, flow_scale=10.0)
+
+    def save(folder: Path, seed: int, name: str = "model.safetensors") -> None:
+        torch.manual_seed(seed)
+        folder.mkdir(parents=True, exist_ok=True)
+        save_model(folder / name, FlowPoseNet(small).eval(), {"train": {"seed": seed}, "data": {"frames": ["a"]}})
+
+    models, out = tmp_path / "models", tmp_path / "out"
+    cfg = results_lever.LeverConfig(models=str(models), ensembles=(("e", ("a", "b")),))
+    save(models / "a", 0)
+    save(models / "b", 1, "checkpoint.safetensors")
+    assert results_lever._ensembles(cfg, out) == []
+    save(models / "b", 1)
+    [(name, path)] = results_lever._ensembles(cfg, out)
+    assert name == "e" and len(load_model(path)[0].members) == 2
+    stale = out / "eval" / "e_kitti07_dis.json"
+    stale.write_text("{}")
+    results_lever._ensembles(cfg, out)  # the same members: the evaluation stays
+    assert stale.is_file()
+    save(models / "b", 2)  # a member trained again
+    results_lever._ensembles(cfg, out)
+    assert not stale.exists()
+
+
+def test_results_lever_centred_ratios_read_each_model_both_ways():
+    from bench import results_lever
+
+    report = {"models": {"a": {"k": {"endpoint_drift_pct": 4.0}, "k_centred": {"endpoint_drift_pct": 2.0}},
+                         "b": {"k": {"endpoint_drift_pct": 2.0}, "k_centred": {"endpoint_drift_pct": 2.2}},
+                         "c": {"k": {"endpoint_drift_pct": 3.0}}}}
+    assert results_lever.centred_ratios(report, "k") == pytest.approx({"a": 0.5, "b": 1.1})
