@@ -338,6 +338,9 @@ class OdometryOptions:
     read_width_px: int = 640
     """With the network odometry: frames narrower than this are read upsampled to it (:func:`network_view`,
     as ``deepslam vo --read-width``); 0: as recorded."""
+    centre_principal_point: bool = False
+    """With the network odometry: each flow moved so that the camera's principal point lies at the image's centre
+    before the networks read it (:func:`flow.estimators.centre_principal_point`, ``vo --centre-principal-point``)."""
 
 
 class UpsampledReading:
@@ -415,7 +418,7 @@ def odometries(opts: OdometryOptions, seq):
             estimators[key] = models.flow_for_model(opts.flow, path, recorded, **given)
         flow = estimators[key]
         return model_odometry(path, opts.flow, shipped, opts.progress, pose, scale=scale, estimator=flow,
-                              device=device)
+                              device=device, centre_principal_point=opts.centre_principal_point)
 
     cons = odometry(opts.model_cons, "cons", pose)
     # loop pairs: the rotation and direction of the loop pair's flow where its fit serves, NN_loops' distance (a

@@ -15,6 +15,10 @@ READ_WIDTH_HELP = ("the network reads frames narrower than PX upsampled to PX wi
                    "alike; a network on estimated flow that does not read depth; relocalization sees the same frames): "
                    "at 320 px DIS and the road scale over-read the distance. 0: as recorded (default %(default)s; wider frames, "
                    "KITTI's, EuRoC's and TUM's, are read as recorded)")
+CENTRE_HELP = ("move each flow so that the camera's principal point lies at the image's centre before the network "
+               "reads it (the simulator renders every camera centred; KITTI 04-10's principal point lies 10.6 px left "
+               "of the centre; off by default: docs/experiments/2026-12-07_principal_point.md)")
+"""Help of ``--centre-principal-point`` (``vo``, ``slam``, ``tune-slam``, ``calibrate``)."""
 KEYFRAME_STRIDE_HELP = ("relocalize every K-th frame (default %(default)s: the same revisits found as on every frame, at a "
                         "third of the cost; docs/experiments/2026-12-06_keyframe_stride.md)")
 """Help of ``--keyframe-stride`` (``slam``, ``tune-slam``; its default is :attr:`slam.pipeline.PipelineConfig.keyframe_stride`'s)."""
@@ -39,6 +43,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "{out}; used for consecutive and loop pairs")
     p.add_argument("--command-timeout", type=float, default=3600.0, metavar="S", help=COMMAND_TIMEOUT_HELP)
     p.add_argument("--read-width", type=int, default=READ_WIDTH_PX, metavar="PX", help=READ_WIDTH_HELP)
+    p.add_argument("--centre-principal-point", action="store_true", help=CENTRE_HELP)
     p.add_argument("--gt-noise", default="0.002,0.02", help=argparse.SUPPRESS)
     p.add_argument("--gt-drift", type=float, default=0.002, help=argparse.SUPPRESS)
     p.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
@@ -54,4 +59,5 @@ def options(args: argparse.Namespace):
         command_timeout_s=args.command_timeout, model_cons=args.model_cons, model_loops=args.model_loops,
         flow=args.flow, flow_options=_dis_flags.given_options(args.flow, args),
         no_loops=bool(getattr(args, "no_loops", False)), pose=args.pose, device=args.device, gt_noise=args.gt_noise,
-        gt_drift=args.gt_drift, seed=args.seed, progress=not (args.quiet or args.json), read_width_px=args.read_width)
+        gt_drift=args.gt_drift, seed=args.seed, progress=not (args.quiet or args.json), read_width_px=args.read_width,
+        centre_principal_point=args.centre_principal_point)

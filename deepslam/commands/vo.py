@@ -61,9 +61,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "simulated street)")
     p.add_argument("--read-width", type=int, default=_odometry_flags.READ_WIDTH_PX, metavar="PX",
                    help=_odometry_flags.READ_WIDTH_HELP)
-    p.add_argument("--centre-principal-point", action="store_true",
-                   help="move each flow so that the camera's principal point lies at the image's centre before the "
-                        "network reads it (the simulator's cameras are centred; KITTI 04-10's lies 10.6 px left)")
+    p.add_argument("--centre-principal-point", action="store_true", help=_odometry_flags.CENTRE_HELP)
     p.add_argument("--stride", type=int, default=1, help="frame gap k: predict cam_{t+k}_from_cam_t for t = 0, k, 2k, ...")
     p.add_argument("--start", type=int, default=0, help="first frame")
     p.add_argument("--end", type=int, default=None, help="one past the last frame (default: all)")

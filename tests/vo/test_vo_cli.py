@@ -1,6 +1,7 @@
 """``deepslam vo`` end to end on a tiny rendered sequence, with a tiny model trained here on toy flows."""
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import subprocess
@@ -248,3 +249,24 @@ def test_centring_the_principal_point_is_recorded_and_moves_an_off_centre_camera
     centred = run_vo(seq, VOConfig(flow="gt", pose="net", progress=False, end=6, centre_principal_point=True))
     assert centred.record["centre_principal_point"] and not plain.record["centre_principal_point"]
     assert np.isfinite(centred.mean6).all() and not np.array_equal(centred.mean6, plain.mean6)
+
+
+def test_slam_and_calibrate_take_the_centring_flag_to_both_networks(plane_sequence, tmp_path):
+    from deepslam.commands import _odometry_flags
+    from deepslam.slam.plugins import OdometryOptions, odometries
+
+    seq = open_sequence(plane_sequence)
+    cons, loops = odometries(OdometryOptions(centre_principal_point=True), seq)
+    assert cons.predictor.centre_principal_point and loops.predictor.centre_principal_point
+    cons, _ = odometries(OdometryOptions(no_loops=True), seq)
+    assert not cons.predictor.centre_principal_point
+    p = argparse.ArgumentParser()
+    _odometry_flags.add_arguments(p)
+    for flag in ("--model-cons", "--model-loops", "--flow", "--pose"):
+        p.add_argument(flag, default=None)
+    args = p.parse_args(["--centre-principal-point", "--flow", "dis"])
+    args.quiet = args.json = False
+    assert _odometry_flags.options(args).centre_principal_point
+    out = tmp_path / "cal.safetensors"
+    assert cli.main(["calibrate", "kitti", "--sequence", str(plane_sequence), "--out", str(out), "--flow", "gt",
+                     "--pose", "net", "--centre-principal-point", "--quiet"]) == 0 and out.is_file()
