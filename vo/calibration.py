@@ -47,3 +47,20 @@ def std_scale(err6: np.ndarray, std6: np.ndarray, coverage: float = ONE_SIGMA) -
         raise ValueError("the predicted std must be positive and finite")
     # nudged up by 1e-9: the pair at the quantile stays inside after the std is rounded back
     return np.clip(np.quantile(np.abs(err6) / std6, coverage, axis=0, method="higher") * (1 + 1e-9), 1e-3, 1e3)
+
+
+def widened_std(std6: np.ndarray, disagreement6: np.ndarray) -> np.ndarray:
+    """Each std widened by a second reading's disagreement, per DoF: ``sqrt(std^2 + d^2)``.
+
+    Args:
+        std6: (N, 6) float64 predicted std (rad, m) of the network's readings.
+        disagreement6: (N, 6) float64 the network's reading minus another of the same pair (the geometry's, zero
+            where it read nothing), same units.
+
+    Returns:
+        (N, 6) float64: never below ``std6``; equal to it where the readings agree.
+    """
+    std6, d = np.asarray(std6, dtype=np.float64), np.asarray(disagreement6, dtype=np.float64)
+    if std6.shape != d.shape:
+        raise ValueError(f"std6 {std6.shape} and disagreement6 {d.shape} differ")
+    return np.sqrt(std6 ** 2 + d ** 2)

@@ -115,7 +115,8 @@ class VOPredictor:
 
     def predict_pairs(self, seq, pairs: Seq[tuple[int, int]], flow_estimator, progress: bool = True,
                       chunk: int = 64, inputs=None, epipolar=None,
-                      fits_out: list | None = None, road_out: list | None = None) -> tuple[np.ndarray, np.ndarray]:
+                      fits_out: list | None = None, road_out: list | None = None,
+                      raw_out: list | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Flow for every pair (i, j) of ``seq`` by ``flow_estimator`` (and, for a depth-channel
         network, frame i's depth: :func:`vo.data.frames.frame_inverse_depth`), then 6DoF of cam_j_from_cam_i.
 
@@ -131,7 +132,8 @@ class VOPredictor:
         (``used``: :func:`vo.geometry.epipolar.fuse` took the fit), and the sequence's
         :class:`vo.geometry.epipolar.RoadDistances` to ``road_out`` (with a road height in ``epipolar``: the images of
         pairs whose flow shows no usable road are read again for :func:`vo.geometry.road_image.image_road_q`). The
-        std stays the network's.
+        std stays the network's. ``raw_out``, when given, gets the network's own (P, 6) readings appended, before the
+        fit replaces any.
 
         Returns (mean6, std6): float64 (P, 6) in the order of ``pairs``.
         """
@@ -168,6 +170,8 @@ class VOPredictor:
         if not means:
             return np.zeros((0, 6)), np.zeros((0, 6))
         mean6, std6 = np.concatenate(means), np.concatenate(stds)
+        if raw_out is not None:
+            raw_out.append(mean6.copy())  # the network's own readings, before the fit replaces any
         if fit is not None:
             side = inputs.side
             # consecutive pairs share a frame: each is decoded and prepared once (two threads read the two

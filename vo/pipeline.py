@@ -19,6 +19,7 @@ from deepslam.core.sequence import (  # noqa: F401 - UpsampledView and check_rea
     UpsampledView, check_read_width, read_for_estimated_flow)
 from deepslam.core.se3 import chain_euler6
 from deepslam.core.trajectory import check_finite_poses
+from deepslam.vo import calibration
 from deepslam.vo.modelfiles import models, modeltree
 
 POSES = ("net", "epipolar")
@@ -62,6 +63,11 @@ class VOConfig:
     """Frames narrower than this are read upsampled to it (bicubic, the camera scaled likewise; a monocular
     network on estimated flow only); 0: read as recorded. At 320 px DIS and the road scale over-read the
     distance (docs/experiments/2026-12-06_read_width.md)."""
+    std_from_geometry: bool = False
+    """Widen each pair's std per DoF by the network's disagreement with the geometry that reads the same flow (the
+    epipolar fit's rotation and direction of travel, the road's distance: the ``epipolar`` pose with the ``road``
+    scale), ``sqrt(std^2 + d^2)`` (:func:`vo.calibration.widened_std`); pairs the geometry cannot read keep the
+    network's std. With ``pose`` net the motions stay the network's; with ``pose`` epipolar the scale must be road."""
     centre_principal_point: bool = False
     """Move every flow so that the camera's principal point lies at the image's centre before the network reads it
     (:func:`flow.estimators.centre_principal_point`: the simulator's cameras are centred, KITTI's is not)."""
@@ -163,11 +169,18 @@ def _network(seq, pairs: np.ndarray, cfg: VOConfig) -> tuple[np.ndarray, np.ndar
     if cfg.scale in ("road", "road-flow") and epi is None:
         raise InputError(None, f"--scale {cfg.scale} needs --pose epipolar (the road fit uses its rotation and "
                                "direction)")
+    geometry = None  # the reading the std is widened by (VOConfig.std_from_geometry)
+    if cfg.std_from_geometry:
+        geometry = models.epipolar_config(model_path, "epipolar", "road", cfg.camera_height_m)
+        if epi is not None and epi != geometry:
+            raise InputError(None, "--std-from-geometry compares the network with the fit and the road's distance: "
+                                   "with --pose epipolar it needs --scale road")
+    fit_cfg = epi if geometry is None else geometry
     fitter = None
-    if epi is not None:
+    if fit_cfg is not None:
         from deepslam.vo.geometry.epipolar import EpipolarFitter  # deferred with the flow workers above
 
-        fitter = EpipolarFitter(epi)
+        fitter = EpipolarFitter(fit_cfg)
     inputs = None if spec is None else PairInputs(seq, pairs, estimator, spec[1], spec[0], unknown=spec[2],
                                                   full_flow_fn=fitter, centre=cfg.centre_principal_point)
     try:
@@ -184,18 +197,23 @@ def _network(seq, pairs: np.ndarray, cfg: VOConfig) -> tuple[np.ndarray, np.ndar
         raise
     fits: list = []
     road: list = []
-    mean6, std6 = predictor.predict_pairs(seq, pairs, estimator, progress=cfg.progress, inputs=inputs, epipolar=epi,
-                                          fits_out=fits, road_out=road)
+    raw: list = []
+    mean6, std6 = predictor.predict_pairs(seq, pairs, estimator, progress=cfg.progress, inputs=inputs, epipolar=fit_cfg,
+                                          fits_out=fits, road_out=road, raw_out=raw)
+    if geometry is not None:
+        std6 = calibration.widened_std(std6, raw[0] - mean6)
+        if epi is None:  # the net pose: the motions stay the network's, the geometry only widened the std
+            mean6 = raw[0]
     record = {"model": str(model_path.resolve()) if cfg.model else f"shipped:{models.kind_for_sequence(seq)}_cons",
               "model_name": predictor.name, "model_net": predictor.model.cfg.to_dict(),
               "flow": getattr(estimator, "name", cfg.flow), "bf16": predictor.bf16, "batch": cfg.batch,
               "device": str(predictor.device), "pose": pose,
-              "centre_principal_point": predictor.centre_principal_point}
+              "centre_principal_point": predictor.centre_principal_point, "std_from_geometry": geometry is not None}
     if seq is not recorded_seq:
         record["read_at_px"] = [seq.camera.width, seq.camera.height]
-    if epi is not None:
-        record.update(epipolar=dataclasses.asdict(epi), epipolar_pairs_used=sum(u for _, u in fits))
-        if epi.road_height_m is not None and road:
+    if fit_cfg is not None:
+        record.update(epipolar=dataclasses.asdict(fit_cfg), epipolar_pairs_used=sum(u for _, u in fits))
+        if fit_cfg.road_height_m is not None and road:
             record.update(road_scale_pairs_used=int(sum(math.isfinite(d) for d in road[0].distances_m)),
                           road_scale_sources=road[0].counts(), road_pitch_deg=road[0].pitch_deg)
     return mean6, std6, predictor.name, record

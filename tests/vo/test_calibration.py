@@ -52,3 +52,34 @@ def test_a_malformed_factor_is_refused_naming_the_file(street_model, tmp_path):
         models.recorded_std_scale(modeltree.meta(modeltree.read_header_tree(bad)), bad)
     assert cli.main(["vo", "--sequence", str(tmp_path), "--model", str(bad), "--out", str(tmp_path / "x.txt")]) == 2
     assert json.loads(json.dumps(models.recorded_std_scale({}).tolist())) == [1.0] * 6
+
+
+def test_widened_std_adds_the_disagreement_in_quadrature():
+    std = np.full((3, 6), 0.3)
+    d = np.zeros((3, 6))
+    d[1, 2], d[2, 5] = 0.4, -0.4
+    got = calibration.widened_std(std, d)
+    np.testing.assert_array_equal(got[0], std[0])  # the readings agree: the network's std
+    assert got[1, 2] == pytest.approx(0.5) and got[2, 5] == pytest.approx(0.5)
+    with pytest.raises(ValueError, match="differ"):
+        calibration.widened_std(std, d[:2])
+
+
+def test_std_from_geometry_keeps_the_motions_and_widens_the_std_where_the_geometry_reads_otherwise(
+        plane_sequence, street_model):
+    seq = open_sequence(plane_sequence)
+    plain = run_vo(seq, VOConfig(model=str(street_model), pose="net", progress=False))
+    wide = run_vo(seq, VOConfig(model=str(street_model), pose="net", progress=False, std_from_geometry=True))
+    fit = run_vo(seq, VOConfig(model=str(street_model), pose="epipolar", scale="road", progress=False))
+    np.testing.assert_array_equal(wide.mean6, plain.mean6)  # the network's own motions
+    np.testing.assert_allclose(wide.std6, calibration.widened_std(plain.std6, plain.mean6 - fit.mean6), rtol=1e-9)
+    assert (wide.std6 >= plain.std6).all() and (wide.std6 > plain.std6 * 1.01).any()
+    assert wide.record["std_from_geometry"] and not plain.record["std_from_geometry"]
+    # with the epipolar pose: the fit's motions, the std widened by the same disagreement
+    both = run_vo(seq, VOConfig(model=str(street_model), pose="epipolar", scale="road", progress=False,
+                                std_from_geometry=True))
+    np.testing.assert_array_equal(both.mean6, fit.mean6)
+    np.testing.assert_allclose(both.std6, wide.std6, rtol=1e-9)
+    with pytest.raises(InputError, match="--scale road"):
+        run_vo(seq, VOConfig(model=str(street_model), pose="epipolar", scale="network", std_from_geometry=True,
+                             progress=False))
