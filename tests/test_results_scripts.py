@@ -1056,3 +1056,11 @@ def test_results_lever_centred_ratios_read_each_model_both_ways():
                          "b": {"k": {"endpoint_drift_pct": 2.0}, "k_centred": {"endpoint_drift_pct": 2.2}},
                          "c": {"k": {"endpoint_drift_pct": 3.0}}}}
     assert results_lever.centred_ratios(report, "k") == pytest.approx({"a": 0.5, "b": 1.1})
+
+
+def test_results_lever_band_distance_and_count():
+    from bench import results_lever
+
+    assert results_lever.band_distance([0.68] * 6) == 0.0
+    assert results_lever.band_distance([0.58, 0.78, 0.68, 0.68, 0.68, 0.68]) == pytest.approx(0.2 / 6)
+    assert results_lever.in_band([0.6, 0.75, 0.59, 0.76, 0.68, 1.0]) == 3
