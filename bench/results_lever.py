@@ -256,6 +256,11 @@ def centred_ratios(report: dict, case: str) -> dict:
             if f"{case}_centred" in r and _err(r[case])}
 
 
+def _short_title(case: str, report: dict) -> str:
+    """The case's title up to its first comma (the flow left out), its lever filled in."""
+    return CASE_TITLES[case].format(**report["config"]).split(",")[0]
+
+
 def band_distance(shares) -> float:
     """Mean over the DoFs of |share within 1-sigma - 0.68| (0: a calibrated Gaussian on every DoF)."""
     return float(np.mean(np.abs(np.asarray(shares, dtype=np.float64) - 0.68)))
@@ -275,7 +280,7 @@ def _widened_markdown(report: dict) -> list[str]:
           "reading minus the epipolar fit's with the road's distance on the same flow; "
           "docs/experiments/2026-12-07_principal_point.md, section 5). Share of pairs within 1-sigma (euler x, y, z, "
           "t x, y, z; 0.68 calibrated), as trained -> widened, and the DoFs within 0.6-0.75:", "",
-          "| | " + " | ".join(CASE_TITLES[c].split(",")[0] for c in cases) + " |", "|---" * (1 + len(cases)) + "|"]
+          "| | " + " | ".join(_short_title(c, report) for c in cases) + " |", "|---" * (1 + len(cases)) + "|"]
     for name in _names(report):
         rec = report["models"][name]
         if not any(f"{c}_widened" in rec for c in cases):
@@ -290,7 +295,7 @@ def _widened_markdown(report: dict) -> list[str]:
     for c in cases:
         pairs = [(r[c]["within_1_sigma"], r[f"{c}_widened"]["within_1_sigma"]) for r in report["models"].values()
                  if f"{c}_widened" in r]
-        md.append(f"- {CASE_TITLES[c].split(',')[0]}: median over {len(pairs)} models of the mean |share - 0.68| "
+        md.append(f"- {_short_title(c, report)}: median over {len(pairs)} models of the mean |share - 0.68| "
                   f"{np.median([band_distance(a) for a, _ in pairs]):.3f} -> {np.median([band_distance(b) for _, b in pairs]):.3f}; "
                   f"median DoFs within 0.6-0.75 {np.median([in_band(a) for a, _ in pairs]):g} -> "
                   f"{np.median([in_band(b) for _, b in pairs]):g}.")
@@ -308,7 +313,7 @@ def _centred_markdown(report: dict) -> list[str]:
           "every camera centred, KITTI 04-10's principal point lies 10.6 px left of the centre; "
           "docs/experiments/2026-12-07_principal_point.md). Drift [%], ATE [m] and the straight pairs' mean yaw error "
           "a pair [deg], as read -> centred:", "",
-          "| | " + " | ".join(f"{CASE_TITLES[c].split(',')[0]}: drift | ATE | straight yaw" for c in cases) + " |",
+          "| | " + " | ".join(f"{_short_title(c, report)}: drift | ATE | straight yaw" for c in cases) + " |",
           "|---" * (1 + 3 * len(cases)) + "|"]
     named = [(n, report["models"][n]) for n in _names(report)]
     for name, rec in [*named, ("`deepslam vo`'s default", report["default"])]:
@@ -322,7 +327,7 @@ def _centred_markdown(report: dict) -> list[str]:
     for c in cases:
         ratios = centred_ratios(report, c)
         if ratios:
-            md.append(f"- {CASE_TITLES[c].split(',')[0]}: drift centred / as read, median over the models "
+            md.append(f"- {_short_title(c, report)}: drift centred / as read, median over the models "
                       f"x{float(np.median(list(ratios.values()))):.2f} (range x{min(ratios.values()):.2f}-"
                       f"x{max(ratios.values()):.2f}); the default x{_err(report['default'][c + '_centred']) / _err(report['default'][c]):.2f}.")
     md.append("")
