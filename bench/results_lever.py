@@ -19,6 +19,7 @@ resumes); docs/experiments/2026-12-07_lever_arm_training.md reads them.
 from __future__ import annotations
 
 import dataclasses
+import re
 import sys
 import time
 from pathlib import Path
@@ -45,8 +46,9 @@ class LeverConfig:
                                     "synthetic_dis_speedscale_mirror_body_cons_s0",
                                     "lever_synthetic_dis_axlescale_mirror_body_cons_s0",
                                     "lever_synthetic_dis_axlescale_mirror_body_mirrorframes_cons_s0",
+                                    "lever_synthetic_dis_axlescale_mirror_body_mirrorframes_cons_s1",
                                     "supervised_cons_s0", "lever_supervised_cons_s0",
-                                    "supervised_dis_cons_s0", "lever_supervised_dis_cons_s0")
+                                    "supervised_dis_cons_s0", "lever_supervised_dis_cons_s0", "lever_supervised_dis_cons_s1")
     """Model folders under :attr:`models`, each trained on axle towns next to its ``lever_`` twin (the speed-freed
     models' twins scale the axle's motion: ``fit-motion --speed-scale-lever``; the ``_dis`` models trained on DIS flow,
     ``SYNTH_FLOW=dis``: the synthetic ones of views rendered from single frames, the supervised ones of the renders'
@@ -256,6 +258,41 @@ def centred_ratios(report: dict, case: str) -> dict:
             if f"{case}_centred" in r and _err(r[case])}
 
 
+def seed_groups(names) -> dict[str, list[str]]:
+    """The names that differ only in their seed suffix ``_sN``, grouped under the name without it (in order);
+    groups of one left out."""
+    groups: dict[str, list[str]] = {}
+    for name in names:
+        match = re.fullmatch(r"(.+)_s(\d+)", name)
+        if match:
+            groups.setdefault(match.group(1), []).append(name)
+    return {stem: members for stem, members in groups.items() if len(members) > 1}
+
+
+def _seeds_markdown(report: dict) -> list[str]:
+    """Each recipe with several seeds scored: the mean +- std over its seeds of the drift and ATE of every case."""
+    groups = seed_groups(_names(report))
+    if not groups:
+        return []
+    cases = [*report["cases"], *(f"{c}_centred" for c in report["cases"] if f"{c}_centred" in report["default"])]
+    md = ["**Seeds of one recipe** (mean +- std over the seeds scored; t_err or drift [%], ATE [m]):", "",
+          "| | seeds | " + " | ".join(CASE_TITLES[c.removesuffix("_centred")].format(**report["config"])
+                                     + (", centred" if c.endswith("_centred") else "") for c in cases) + " |",
+          "|---" * (2 + len(cases)) + "|"]
+    for stem, members in groups.items():
+        cells = []
+        for c in cases:
+            recs = [report["models"][m][c] for m in members if c in report["models"][m]]
+            err = [_err(r) for r in recs if _err(r) is not None]
+            ate = [r["ate_m"] for r in recs if r.get("ate_m") is not None]
+            cells.append(f"{np.mean(err):.2f} ± {np.std(err):.2f}, {np.mean(ate):.2f} ± {np.std(ate):.2f}"
+                         if len(err) == len(members) and len(ate) == len(members) else "")
+        seeds = ", ".join(m.rsplit("_s", 1)[1] for m in members)
+        md.append(f"| {stem} | {seeds} | " + " | ".join(cells) + " |")
+    md.append("")
+    return md
+
+
 def _short_title(case: str, report: dict) -> str:
     """The case's title up to its first comma (the flow left out), its lever filled in."""
     return CASE_TITLES[case].format(**report["config"]).split(",")[0]
@@ -354,6 +391,7 @@ def markdown(report: dict) -> str:
                       f"{_f(r['true_rotation']['endpoint_drift_pct'], '.2f')} | "
                       f"{', '.join(_f(x, '.2f') for x in r.get('within_1_sigma') or [])} |")
         md.append("")
+    md += _seeds_markdown(report)
     md += _centred_markdown(report)
     md += _widened_markdown(report)
     cal = [(n, c) for n in _names(report) for c in report["cases"]

@@ -1064,3 +1064,10 @@ def test_results_lever_band_distance_and_count():
     assert results_lever.band_distance([0.68] * 6) == 0.0
     assert results_lever.band_distance([0.58, 0.78, 0.68, 0.68, 0.68, 0.68]) == pytest.approx(0.2 / 6)
     assert results_lever.in_band([0.6, 0.75, 0.59, 0.76, 0.68, 1.0]) == 3
+
+
+def test_results_lever_groups_the_seeds_of_one_recipe():
+    from bench import results_lever
+
+    groups = results_lever.seed_groups(["a_cons_s0", "b_cons_s0", "a_cons_s1", "a_cons_s0+s1", "c"])
+    assert groups == {"a_cons": ["a_cons_s0", "a_cons_s1"]}
