@@ -338,6 +338,9 @@ class OdometryOptions:
     read_width_px: int = 640
     """With the network odometry: frames narrower than this are read upsampled to it (:func:`network_view`,
     as ``deepslam vo --read-width``); 0: as recorded."""
+    std_from_geometry: bool = False
+    """With the network odometry: each consecutive pair's std widened by the geometry's disagreement
+    (:meth:`vo.infer.VOPredictor.predict_pairs` ``geometry``, ``vo --std-from-geometry``)."""
     centre_principal_point: bool = False
     """With the network odometry: each flow moved so that the camera's principal point lies at the image's centre
     before the networks read it (:func:`flow.estimators.centre_principal_point`, ``vo --centre-principal-point``)."""
@@ -408,7 +411,7 @@ def odometries(opts: OdometryOptions, seq):
     given = dict(opts.flow_options)
     estimators: dict[tuple, object] = {}  # one estimator per set-up: cons and loops share it where they agree
 
-    def odometry(spec, which, pose=None, scale=None):
+    def odometry(spec, which, pose=None, scale=None, std_from_geometry=False):
         # each model gets the flow as it was trained on it (DIS's preset and texture threshold may differ),
         # with the options given on the command line for both
         path, shipped = models.locate(spec, seq, which, opts.flow)
@@ -418,9 +421,10 @@ def odometries(opts: OdometryOptions, seq):
             estimators[key] = models.flow_for_model(opts.flow, path, recorded, **given)
         flow = estimators[key]
         return model_odometry(path, opts.flow, shipped, opts.progress, pose, scale=scale, estimator=flow,
-                              device=device, centre_principal_point=opts.centre_principal_point)
+                              std_from_geometry=std_from_geometry, device=device,
+                              centre_principal_point=opts.centre_principal_point)
 
-    cons = odometry(opts.model_cons, "cons", pose)
+    cons = odometry(opts.model_cons, "cons", pose, std_from_geometry=opts.std_from_geometry)
     # loop pairs: the rotation and direction of the loop pair's flow where its fit serves, NN_loops' distance (a
     # loop pair is no step along a road), and the fit tells where the flow broke (PipelineConfig.loop_check)
     loops = None if opts.no_loops else odometry(opts.model_loops, "loops", "epipolar", "network")

@@ -16,6 +16,7 @@ from tqdm import tqdm
 from deepslam.flow.estimators import to_network_input
 from deepslam.flow.images import to_grey
 from deepslam.runtime.device import resolve_bf16
+from deepslam.vo.calibration import widened_std
 from deepslam.vo.data.frames import frame_inverse_depth
 from deepslam.vo.data.prefetch import PairInputs
 from deepslam.vo.geometry.epipolar import EpipolarFitter, fuse_all
@@ -114,9 +115,8 @@ class VOPredictor:
         return to_network_input(flow_full, camera, w, h, self.model.cfg.unknown_flow, self.centre_principal_point)
 
     def predict_pairs(self, seq, pairs: Seq[tuple[int, int]], flow_estimator, progress: bool = True,
-                      chunk: int = 64, inputs=None, epipolar=None,
-                      fits_out: list | None = None, road_out: list | None = None,
-                      raw_out: list | None = None) -> tuple[np.ndarray, np.ndarray]:
+                      chunk: int = 64, inputs=None, epipolar=None, geometry=None,
+                      fits_out: list | None = None, road_out: list | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Flow for every pair (i, j) of ``seq`` by ``flow_estimator`` (and, for a depth-channel
         network, frame i's depth: :func:`vo.data.frames.frame_inverse_depth`), then 6DoF of cam_j_from_cam_i.
 
@@ -132,17 +132,24 @@ class VOPredictor:
         (``used``: :func:`vo.geometry.epipolar.fuse` took the fit), and the sequence's
         :class:`vo.geometry.epipolar.RoadDistances` to ``road_out`` (with a road height in ``epipolar``: the images of
         pairs whose flow shows no usable road are read again for :func:`vo.geometry.road_image.image_road_q`). The
-        std stays the network's. ``raw_out``, when given, gets the network's own (P, 6) readings appended, before the
-        fit replaces any.
+        std stays the network's.
+
+        ``geometry``: an :class:`vo.geometry.epipolar.EpipolarConfig` (the road's distance, as ``vo``'s default reads
+        it) whose reading of each pair widens the std per DoF by its difference from the network's
+        (:func:`vo.calibration.widened_std`, ``vo --std-from-geometry``); the motions stay the network's without
+        ``epipolar``, the fit's with it (which must then be ``geometry`` itself: ValueError otherwise).
 
         Returns (mean6, std6): float64 (P, 6) in the order of ``pairs``.
         """
         pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
         h, w = self.input_size
         unknown = self.model.cfg.unknown_flow
+        if geometry is not None and epipolar is not None and epipolar != geometry:
+            raise ValueError("the std is widened by the geometry the epipolar pose reads: pass one configuration")
+        fit_cfg = epipolar if geometry is None else geometry
         fit = None
-        if epipolar is not None:
-            fit = EpipolarFitter(epipolar)
+        if fit_cfg is not None:
+            fit = EpipolarFitter(fit_cfg)
         centre = self.centre_principal_point
         if inputs is not None and ((inputs.height, inputs.width, inputs.unknown, inputs.centre) != (h, w, unknown, centre)
                                    or not np.array_equal(inputs.pairs, pairs) or inputs.full_flow_fn != fit):
@@ -170,47 +177,52 @@ class VOPredictor:
         if not means:
             return np.zeros((0, 6)), np.zeros((0, 6))
         mean6, std6 = np.concatenate(means), np.concatenate(stds)
-        if raw_out is not None:
-            raw_out.append(mean6.copy())  # the network's own readings, before the fit replaces any
+        network6 = mean6.copy()  # the network's own readings, before the fit replaces any
         if fit is not None:
             side = inputs.side
             # consecutive pairs share a frame: each is decoded and prepared once (two threads read the two
             # halves of the pairs, each holding its last two frames)
             frame = functools.lru_cache(maxsize=4)(lambda i: road_image(to_grey(seq.image(i)), seq.camera))
-            mean6, used = fuse_all(mean6, side, epipolar, seq.camera,
+            mean6, used = fuse_all(mean6, side, fit_cfg, seq.camera,
                                    lambda p: (frame(int(pairs[p, 0])), frame(int(pairs[p, 1]))),
                                    road_out, chained=bool(np.array_equal(pairs[1:, 0], pairs[:-1, 1])))
             if fits_out is not None:
                 fits_out.extend(zip(side, used.tolist()))
+        if geometry is not None:
+            std6 = widened_std(std6, network6 - mean6)
+            if epipolar is None:  # the net pose: the geometry only widened the std
+                mean6 = network6
         return mean6, std6
 
-    def as_odometry(self, flow_estimator, progress: bool = True, epipolar=None) -> "PredictorOdometry":
+    def as_odometry(self, flow_estimator, progress: bool = True, epipolar=None, geometry=None) -> "PredictorOdometry":
         """This predictor with a flow estimator, as the SLAM pipeline's odometry (name, predict(seq, pairs));
-        ``epipolar``: see :meth:`predict_pairs`."""
-        return PredictorOdometry(self, flow_estimator, progress, epipolar)
+        ``epipolar``, ``geometry``: see :meth:`predict_pairs`."""
+        return PredictorOdometry(self, flow_estimator, progress, epipolar, geometry)
 
 
 class PredictorOdometry:
     """Adapter: ``predict(seq, pairs) -> (mean6, std6)`` with a fixed flow estimator."""
 
-    def __init__(self, predictor: VOPredictor, flow_estimator, progress: bool = True, epipolar=None):
+    def __init__(self, predictor: VOPredictor, flow_estimator, progress: bool = True, epipolar=None, geometry=None):
         self.predictor = predictor
         self.flow_estimator = flow_estimator
         self.progress = progress
         self.epipolar = epipolar
-        self.name = f"{predictor.name}+{getattr(flow_estimator, 'name', 'flow')}" + ("+epipolar" if epipolar else "")
+        self.geometry = geometry
+        self.name = (f"{predictor.name}+{getattr(flow_estimator, 'name', 'flow')}" + ("+epipolar" if epipolar else "")
+                     + ("+std-from-geometry" if geometry else ""))
 
     def predict(self, seq, pairs):
         return self.predictor.predict_pairs(seq, pairs, self.flow_estimator, progress=self.progress,
-                                            epipolar=self.epipolar)
+                                            epipolar=self.epipolar, geometry=self.geometry)
 
     def predict_verified(self, seq, pairs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`predict` and, per pair, whether its flow fits one rigid motion (:attr:`vo.geometry.epipolar.EpipolarFit.rigid`):
         ((P, 6), (P, 6) float64, (P,) bool). Without an epipolar fit nothing is checked (all True)."""
-        if self.epipolar is None:
+        if self.epipolar is None and self.geometry is None:
             mean6, std6 = self.predict(seq, pairs)
             return mean6, std6, np.ones(len(mean6), bool)
         fits: list = []
         mean6, std6 = self.predictor.predict_pairs(seq, pairs, self.flow_estimator, progress=self.progress,
-                                                   epipolar=self.epipolar, fits_out=fits)
+                                                   epipolar=self.epipolar, geometry=self.geometry, fits_out=fits)
         return mean6, std6, np.array([fit.rigid for fit, _ in fits], bool)

@@ -19,7 +19,6 @@ from deepslam.core.sequence import (  # noqa: F401 - UpsampledView and check_rea
     UpsampledView, check_read_width, read_for_estimated_flow)
 from deepslam.core.se3 import chain_euler6
 from deepslam.core.trajectory import check_finite_poses
-from deepslam.vo import calibration
 from deepslam.vo.modelfiles import models, modeltree
 
 POSES = ("net", "epipolar")
@@ -169,12 +168,8 @@ def _network(seq, pairs: np.ndarray, cfg: VOConfig) -> tuple[np.ndarray, np.ndar
     if cfg.scale in ("road", "road-flow") and epi is None:
         raise InputError(None, f"--scale {cfg.scale} needs --pose epipolar (the road fit uses its rotation and "
                                "direction)")
-    geometry = None  # the reading the std is widened by (VOConfig.std_from_geometry)
-    if cfg.std_from_geometry:
-        geometry = models.epipolar_config(model_path, "epipolar", "road", cfg.camera_height_m)
-        if epi is not None and epi != geometry:
-            raise InputError(None, "--std-from-geometry compares the network with the fit and the road's distance: "
-                                   "with --pose epipolar it needs --scale road")
+    # the reading the std is widened by (VOConfig.std_from_geometry)
+    geometry = models.geometry_config(model_path, epi, cfg.camera_height_m) if cfg.std_from_geometry else None
     fit_cfg = epi if geometry is None else geometry
     fitter = None
     if fit_cfg is not None:
@@ -197,13 +192,8 @@ def _network(seq, pairs: np.ndarray, cfg: VOConfig) -> tuple[np.ndarray, np.ndar
         raise
     fits: list = []
     road: list = []
-    raw: list = []
-    mean6, std6 = predictor.predict_pairs(seq, pairs, estimator, progress=cfg.progress, inputs=inputs, epipolar=fit_cfg,
-                                          fits_out=fits, road_out=road, raw_out=raw)
-    if geometry is not None:
-        std6 = calibration.widened_std(std6, raw[0] - mean6)
-        if epi is None:  # the net pose: the motions stay the network's, the geometry only widened the std
-            mean6 = raw[0]
+    mean6, std6 = predictor.predict_pairs(seq, pairs, estimator, progress=cfg.progress, inputs=inputs, epipolar=epi,
+                                          geometry=geometry, fits_out=fits, road_out=road)
     record = {"model": str(model_path.resolve()) if cfg.model else f"shipped:{models.kind_for_sequence(seq)}_cons",
               "model_name": predictor.name, "model_net": predictor.model.cfg.to_dict(),
               "flow": getattr(estimator, "name", cfg.flow), "bf16": predictor.bf16, "batch": cfg.batch,

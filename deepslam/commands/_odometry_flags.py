@@ -19,6 +19,10 @@ CENTRE_HELP = ("move each flow so that the camera's principal point lies at the 
                "reads it (the simulator renders every camera centred; KITTI 04-10's principal point lies 10.6 px left "
                "of the centre; off by default: docs/experiments/2026-12-07_principal_point.md)")
 """Help of ``--centre-principal-point`` (``vo``, ``slam``, ``tune-slam``, ``calibrate``)."""
+GEOMETRY_STD_HELP = ("widen each consecutive pair's predicted std per DoF by the network's disagreement with the geometry "
+                     "that reads the same flow (the epipolar fit's rotation and direction, the road's distance): "
+                     "sqrt(std^2 + d^2); the motions stay the pose mode's (with --pose epipolar, --scale road)")
+"""Help of ``--std-from-geometry`` (``vo``, ``slam``, ``tune-slam``)."""
 KEYFRAME_STRIDE_HELP = ("relocalize every K-th frame (default %(default)s: the same revisits found as on every frame, at a "
                         "third of the cost; docs/experiments/2026-12-06_keyframe_stride.md)")
 """Help of ``--keyframe-stride`` (``slam``, ``tune-slam``; its default is :attr:`slam.pipeline.PipelineConfig.keyframe_stride`'s)."""
@@ -44,6 +48,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--command-timeout", type=float, default=3600.0, metavar="S", help=COMMAND_TIMEOUT_HELP)
     p.add_argument("--read-width", type=int, default=READ_WIDTH_PX, metavar="PX", help=READ_WIDTH_HELP)
     p.add_argument("--centre-principal-point", action="store_true", help=CENTRE_HELP)
+    p.add_argument("--std-from-geometry", action="store_true", help=GEOMETRY_STD_HELP)
     p.add_argument("--gt-noise", default="0.002,0.02", help=argparse.SUPPRESS)
     p.add_argument("--gt-drift", type=float, default=0.002, help=argparse.SUPPRESS)
     p.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
@@ -60,4 +65,4 @@ def options(args: argparse.Namespace):
         flow=args.flow, flow_options=_dis_flags.given_options(args.flow, args),
         no_loops=bool(getattr(args, "no_loops", False)), pose=args.pose, device=args.device, gt_noise=args.gt_noise,
         gt_drift=args.gt_drift, seed=args.seed, progress=not (args.quiet or args.json), read_width_px=args.read_width,
-        centre_principal_point=args.centre_principal_point)
+        centre_principal_point=args.centre_principal_point, std_from_geometry=args.std_from_geometry)

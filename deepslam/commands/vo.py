@@ -62,10 +62,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--read-width", type=int, default=_odometry_flags.READ_WIDTH_PX, metavar="PX",
                    help=_odometry_flags.READ_WIDTH_HELP)
     p.add_argument("--centre-principal-point", action="store_true", help=_odometry_flags.CENTRE_HELP)
-    p.add_argument("--std-from-geometry", action="store_true",
-                   help="widen each pair's predicted std per DoF by the network's disagreement with the geometry that "
-                        "reads the same flow (the epipolar fit's rotation and direction, the road's distance): "
-                        "sqrt(std^2 + d^2); the motions stay the pose mode's (with --pose epipolar, --scale road)")
+    p.add_argument("--std-from-geometry", action="store_true", help=_odometry_flags.GEOMETRY_STD_HELP)
     p.add_argument("--stride", type=int, default=1, help="frame gap k: predict cam_{t+k}_from_cam_t for t = 0, k, 2k, ...")
     p.add_argument("--start", type=int, default=0, help="first frame")
     p.add_argument("--end", type=int, default=None, help="one past the last frame (default: all)")

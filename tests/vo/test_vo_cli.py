@@ -270,3 +270,17 @@ def test_slam_and_calibrate_take_the_centring_flag_to_both_networks(plane_sequen
     out = tmp_path / "cal.safetensors"
     assert cli.main(["calibrate", "kitti", "--sequence", str(plane_sequence), "--out", str(out), "--flow", "gt",
                      "--pose", "net", "--centre-principal-point", "--quiet"]) == 0 and out.is_file()
+
+
+def test_slam_widens_the_consecutive_pairs_std_by_the_geometry_as_vo_does(plane_sequence):
+    from deepslam.slam.plugins import OdometryOptions, odometries
+    from deepslam.vo.pipeline import VOConfig, run_vo
+
+    seq = open_sequence(plane_sequence)
+    cons, loops = odometries(OdometryOptions(std_from_geometry=True, pose="net"), seq)
+    assert cons.geometry is not None and loops.geometry is None
+    pairs = np.array([(i, i + 1) for i in range(5)])
+    mean6, std6 = cons.predict(seq, pairs)
+    want = run_vo(seq, VOConfig(pose="net", std_from_geometry=True, progress=False, end=6, read_width_px=0))
+    np.testing.assert_allclose(mean6, want.mean6, rtol=1e-9)
+    np.testing.assert_allclose(std6, want.std6, rtol=1e-9)

@@ -153,6 +153,18 @@ def epipolar_config(path: str | Path, pose: str | None = None, scale: str | None
     return EpipolarConfig(road_height_m=float(road_height_m) if road else None, road_fill=source == "road")
 
 
+def geometry_config(path: str | Path, epipolar=None, road_height_m: float = ROAD_HEIGHT_M):
+    """The :class:`vo.geometry.epipolar.EpipolarConfig` whose reading widens the VO model file ``path``'s std
+    (``vo --std-from-geometry``): the epipolar fit with the road's distance, the camera ``road_height_m`` above the
+    road. ``epipolar``: the run's own epipolar configuration (None in the ``net`` pose), which must be that same one.
+    InputError otherwise."""
+    geometry = epipolar_config(path, "epipolar", "road", road_height_m)
+    if epipolar is not None and epipolar != geometry:
+        raise InputError(None, "--std-from-geometry compares the network with the fit and the road's distance: with "
+                               "--pose epipolar it needs --scale road")
+    return geometry
+
+
 def write_with_pose(path: str | Path, out: str | Path, pose: str, scale: str | None = None) -> dict:
     """Write the VO model file ``path`` (single network or ensemble) to ``out`` (atomically) with ``pose``
     (:data:`POSES`) recorded as its pose mode and, when given, ``scale`` (:data:`SCALES`) as its distance
