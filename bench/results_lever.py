@@ -188,6 +188,10 @@ def run(cfg: LeverConfig, out: Path, data: Path) -> dict:
             rec = _cached(out / "eval" / f"{tag}.json", lambda: vo_scores(
                 seq, out / "runs" / f"{tag}.txt", "--flow", flow, "--centre-principal-point"))
             default[f"{case}_centred"] = {**rec, **_pair_figures(seq, out / "runs" / f"{tag}.motions.csv")}
+        if case in cfg.widened_cases:  # the default's own std (its network's) widened by its own geometry
+            tag = f"default_{case}_widened"
+            default[f"{case}_widened"] = _cached(out / "eval" / f"{tag}.json", lambda: vo_scores(
+                seq, out / "runs" / f"{tag}.txt", "--flow", flow, "--std-from-geometry"))
     report = {"config": dataclasses.asdict(cfg), "cases": [c for c, _, _ in cases], "models": rows,
               "default": default, "stride_gains": _stride_gains(cfg, out, rows, kitti),
               "cross_calibration": _cross_calibration(out, kitti, list(rows)), "renders": log,
@@ -318,8 +322,8 @@ def _widened_markdown(report: dict) -> list[str]:
           "docs/experiments/2026-12-07_principal_point.md, section 5). Share of pairs within 1-sigma (euler x, y, z, "
           "t x, y, z; 0.68 calibrated), as trained -> widened, and the DoFs within 0.6-0.75:", "",
           "| | " + " | ".join(_short_title(c, report) for c in cases) + " |", "|---" * (1 + len(cases)) + "|"]
-    for name in _names(report):
-        rec = report["models"][name]
+    for name, rec in [*((n, report["models"][n]) for n in _names(report)),
+                      ("`deepslam vo`'s default", report["default"])]:
         if not any(f"{c}_widened" in rec for c in cases):
             continue
         cells = []
