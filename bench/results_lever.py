@@ -8,8 +8,11 @@ lever (``lever_*`` models). This scores each model of :attr:`LeverConfig.model_n
 --pose net``) on the held-out town 7 without and with the lever (exact and DIS flow) and on the KITTI 06 and 07
 slices (DIS), beside ``deepslam vo``'s default: ATE, t_err (or the end-point drift on a route under 100 m), the path
 ratio, the mean yaw error (read - true, degrees) of the pairs turning each way and of the straight pairs, and the
-drift once the true rotation replaces the network's (what is left is its translation); and each model's forward
-distance on the straight pairs of the KITTI slices read at frame strides 1-3, by the true length of a pair.
+drift once the true rotation replaces the network's (what is left is its translation); each model's forward
+distance on the straight pairs of the KITTI slices read at frame strides 1-3, by the true length of a pair; each
+model on the KITTI slices with the principal point moved to the image's centre (``vo --centre-principal-point``);
+the shares within 1-sigma of the DIS-flow models with the std widened by the geometry (``vo --std-from-geometry``);
+seed ensembles (:attr:`LeverConfig.ensembles`) scored as models, and the mean +- std over the seeds of each recipe.
 
     python -m bench.results_lever [--models bench/paper_recipe] [--quick]
 
