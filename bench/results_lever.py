@@ -46,11 +46,12 @@ class LeverConfig:
     """Folder of the trained models (``scripts/train_paper_recipe.sh OUT``; relative to the repository)."""
     model_names: tuple[str, ...] = ("synthetic_mirror_cons_s0", "lever_synthetic_mirror_cons_s0",
                                     "synthetic_speedscale_mirror_cons_s0", "lever_synthetic_axlescale_mirror_cons_s0",
+                                    "lever_synthetic_axlescale_mirror_cons_s1",
                                     "synthetic_dis_speedscale_mirror_body_cons_s0",
                                     "lever_synthetic_dis_axlescale_mirror_body_cons_s0",
                                     "lever_synthetic_dis_axlescale_mirror_body_mirrorframes_cons_s0",
                                     "lever_synthetic_dis_axlescale_mirror_body_mirrorframes_cons_s1",
-                                    "supervised_cons_s0", "lever_supervised_cons_s0",
+                                    "supervised_cons_s0", "lever_supervised_cons_s0", "lever_supervised_cons_s1",
                                     "supervised_dis_cons_s0", "lever_supervised_dis_cons_s0", "lever_supervised_dis_cons_s1")
     """Model folders under :attr:`models`, each trained on axle towns next to its ``lever_`` twin (the speed-freed
     models' twins scale the axle's motion: ``fit-motion --speed-scale-lever``; the ``_dis`` models trained on DIS flow,
