@@ -22,7 +22,7 @@ from deepslam.vo.data.prefetch import PairInputs
 from deepslam.vo.geometry.epipolar import EpipolarFitter, fuse_all
 from deepslam.vo.geometry.road_image import road_image
 from deepslam.vo.modelfiles.modelio import load_model
-from deepslam.vo.modelfiles.models import recorded_std_scale
+from deepslam.vo.modelfiles.models import fit_config, recorded_std_scale
 
 
 class VOPredictor:
@@ -144,9 +144,7 @@ class VOPredictor:
         pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
         h, w = self.input_size
         unknown = self.model.cfg.unknown_flow
-        if geometry is not None and epipolar is not None and epipolar != geometry:
-            raise ValueError("the std is widened by the geometry the epipolar pose reads: pass one configuration")
-        fit_cfg = epipolar if geometry is None else geometry
+        fit_cfg = fit_config(epipolar, geometry)
         fit = None
         if fit_cfg is not None:
             fit = EpipolarFitter(fit_cfg)

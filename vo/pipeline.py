@@ -170,7 +170,7 @@ def _network(seq, pairs: np.ndarray, cfg: VOConfig) -> tuple[np.ndarray, np.ndar
                                "direction)")
     # the reading the std is widened by (VOConfig.std_from_geometry)
     geometry = models.geometry_config(model_path, epi, cfg.camera_height_m) if cfg.std_from_geometry else None
-    fit_cfg = epi if geometry is None else geometry
+    fit_cfg = models.fit_config(epi, geometry)
     fitter = None
     if fit_cfg is not None:
         from deepslam.vo.geometry.epipolar import EpipolarFitter  # deferred with the flow workers above

@@ -153,6 +153,15 @@ def epipolar_config(path: str | Path, pose: str | None = None, scale: str | None
     return EpipolarConfig(road_height_m=float(road_height_m) if road else None, road_fill=source == "road")
 
 
+def fit_config(epipolar=None, geometry=None):
+    """The :class:`vo.geometry.epipolar.EpipolarConfig` each pair's flow is fitted with: the epipolar pose's
+    (``epipolar``), or the one the std is widened by (``geometry``, :func:`geometry_config`), or None when neither is
+    asked for. Both given must be the same configuration (ValueError otherwise)."""
+    if geometry is not None and epipolar is not None and epipolar != geometry:
+        raise ValueError("the std is widened by the geometry the epipolar pose reads: pass one configuration")
+    return epipolar if geometry is None else geometry
+
+
 def geometry_config(path: str | Path, epipolar=None, road_height_m: float = ROAD_HEIGHT_M):
     """The :class:`vo.geometry.epipolar.EpipolarConfig` whose reading widens the VO model file ``path``'s std
     (``vo --std-from-geometry``): the epipolar fit with the road's distance, the camera ``road_height_m`` above the

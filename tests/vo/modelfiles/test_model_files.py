@@ -159,3 +159,15 @@ def test_the_payload_is_live(tmp_path):
     _torch_save_payload(tmp_path / "m.pt", marker)
     torch.load(tmp_path / "m.pt", weights_only=False)
     assert marker.exists()
+
+
+def test_the_fit_is_the_epipolar_poses_or_the_widening_geometrys_and_never_two():
+    from deepslam.vo.geometry.epipolar import EpipolarConfig
+    from deepslam.vo.modelfiles import models
+
+    road, net_distance = EpipolarConfig(road_height_m=1.65, road_fill=True), EpipolarConfig()
+    assert models.fit_config() is None
+    assert models.fit_config(net_distance) is net_distance
+    assert models.fit_config(None, road) is road and models.fit_config(road, road) is road
+    with pytest.raises(ValueError, match="one configuration"):
+        models.fit_config(net_distance, road)
