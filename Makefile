@@ -48,6 +48,7 @@ results: $(STAMP)
 	$(PY) -m bench.results_repro_rgbd
 	$(PY) -m bench.results_lever
 	$(PY) -m bench.results_layout
+	$(PY) -m bench.results_claim
 	$(PY) -m bench.results_exact_model
 	$(PY) -m bench.results_extra
 	$(PY) -m bench.results_speed

@@ -24,6 +24,11 @@ REPO = Path(__file__).resolve().parents[1]
 
 SECTIONS = (
     # (folder under out/results, heading, command that remakes it, what it shows)
+    ("claim", "The paper's claim in its tables' layout: single frames against supervised, and the defaults",
+     "python -m bench.results_claim  # after bench.results_lever and bench.results_repro_rgbd",
+     "NN_cons trained by the paper's recipe from single frames and supervised on the same renders, read with its "
+     "own pose on an unseen town, KITTI 06 and 07, unseen rooms and TUM teddy, mean ± std over seeds, beside "
+     "`deepslam vo`'s default and pnp; the ratios the recipe is judged on."),
     ("agreement", "Does the simulator predict reality? Sim against real, variant by variant", "python -m bench.results_agreement",
      "Path-length ratio and drift of the odometry variants on unseen simulated streets and on real KITTI at frame "
      "strides 1-3, and the rank agreement of the two."),

@@ -283,7 +283,7 @@ def _seeds_markdown(report: dict) -> list[str]:
     if not groups:
         return []
     cases = [*report["cases"], *(f"{c}_centred" for c in report["cases"] if f"{c}_centred" in report["default"])]
-    md = ["**Seeds of one recipe** (mean +- std over the seeds scored; t_err or drift [%], ATE [m]):", "",
+    md = ["**Seeds of one recipe** (mean ± sample std over the seeds scored; t_err or drift [%], ATE [m]):", "",
           "| | seeds | " + " | ".join(CASE_TITLES[c.removesuffix("_centred")].format(**report["config"])
                                      + (", centred" if c.endswith("_centred") else "") for c in cases) + " |",
           "|---" * (2 + len(cases)) + "|"]
@@ -293,7 +293,7 @@ def _seeds_markdown(report: dict) -> list[str]:
             recs = [report["models"][m][c] for m in members if c in report["models"][m]]
             err = [_err(r) for r in recs if _err(r) is not None]
             ate = [r["ate_m"] for r in recs if r.get("ate_m") is not None]
-            cells.append(f"{np.mean(err):.2f} ± {np.std(err):.2f}, {np.mean(ate):.2f} ± {np.std(ate):.2f}"
+            cells.append(f"{np.mean(err):.2f} ± {np.std(err, ddof=1):.2f}, {np.mean(ate):.2f} ± {np.std(ate, ddof=1):.2f}"
                          if len(err) == len(members) and len(ate) == len(members) else "")
         seeds = ", ".join(m.rsplit("_s", 1)[1] for m in members)
         md.append(f"| {stem} | {seeds} | " + " | ".join(cells) + " |")

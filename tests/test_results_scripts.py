@@ -1071,3 +1071,39 @@ def test_results_lever_groups_the_seeds_of_one_recipe():
 
     groups = results_lever.seed_groups(["a_cons_s0", "b_cons_s0", "a_cons_s1", "a_cons_s0+s1", "c"])
     assert groups == {"a_cons": ["a_cons_s0", "a_cons_s1"]}
+
+
+def test_claim_table_means_the_seeds_and_states_the_ratios_against_the_default(tmp_path, capsys):
+    """bench.results_claim: a row's cell is the mean over its street model's seeds (an ensemble ``_s0+s1`` is not a
+    seed), the room rows read the room study's modes, the ratios divide the drift figures; a missing study is one
+    line and exit 2."""
+    from bench import results_claim as rc
+
+    def rec(err, ate, shares=(0.7,) * 6):
+        return {"kitti_t_err_pct": None, "endpoint_drift_pct": err, "ate_m": ate, "rpe_t_m": err / 1000,
+                "within_1_sigma": list(shares)}
+
+    cfg = rc.ClaimConfig(street_cases=(("k7", "KITTI 07"),), room_cases=(("teddy", "teddy"),),
+                         rows=(("single", "single frames", "syn", "room_syn"), ("sup", "supervised", "sup", None)),
+                         ratios=(("single", "sup"),))
+    street = {"config": {"models": "bench/paper_recipe"},
+              "models": {"syn_s0": {"k7": rec(2.0, 0.5)}, "syn_s1": {"k7": rec(4.0, 0.7, (0.1,) * 6)},
+                         "syn_s0+s1": {"k7": rec(100.0, 9.0)}, "sup_s0": {"k7": rec(6.0, 1.0)}},
+              "default": {"k7": rec(1.0, 0.3, (1.0,) * 6)}}
+    room = {"config": {}, "rows": {"room_syn": [{"teddy": rec(30.0, 0.2)}]},
+            "beside": {"pnp": {"teddy": rec(3.0, 0.02)}}}
+    report = rc.gather(cfg, street, room)
+    assert report["models"] == {"syn": ["syn_s0", "syn_s1"], "sup": ["sup_s0"]}
+    single = report["cells"]["single"]["k7"]["err"]
+    assert (single["mean"], single["n"]) == (pytest.approx(3.0), 2)
+    assert single["dofs_in_band"] == pytest.approx(3.0)  # median of 6 and 0 DoFs in 0.6-0.75
+    assert report["cells"]["single"]["teddy"]["err"]["mean"] == pytest.approx(30.0)  # RPE in mm a frame
+    assert "teddy" not in report["cells"]["sup"]  # no room model in that row: an empty cell, not a zero
+    md = rc.markdown(report)
+    assert "| single frames / supervised | x0.50 |  |" in md
+    assert "| single frames / the default | x3.00 |  |" in md
+    assert "| `pnp` (SIFT + PnP-RANSAC on the frame's depth) |  | 3.00 |" in md
+
+    assert rc.main(["--out", str(tmp_path / "claim")]) == 2
+    assert "lever/results.json: not found" in capsys.readouterr().err
+    assert not (tmp_path / "claim" / "results.json").exists()
