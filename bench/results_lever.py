@@ -51,8 +51,10 @@ class LeverConfig:
                                     "lever_synthetic_dis_axlescale_mirror_body_cons_s0",
                                     "lever_synthetic_dis_axlescale_mirror_body_mirrorframes_cons_s0",
                                     "lever_synthetic_dis_axlescale_mirror_body_mirrorframes_cons_s1",
+                                    "lever_synthetic_dis_axlescale_mirror_body_mirrorframes_cons_s2",
                                     "supervised_cons_s0", "lever_supervised_cons_s0", "lever_supervised_cons_s1",
-                                    "supervised_dis_cons_s0", "lever_supervised_dis_cons_s0", "lever_supervised_dis_cons_s1")
+                                    "supervised_dis_cons_s0", "lever_supervised_dis_cons_s0", "lever_supervised_dis_cons_s1",
+                                    "lever_supervised_dis_cons_s2")
     """Model folders under :attr:`models`, each trained on axle towns next to its ``lever_`` twin (the speed-freed
     models' twins scale the axle's motion: ``fit-motion --speed-scale-lever``; the ``_dis`` models trained on DIS flow,
     ``SYNTH_FLOW=dis``: the synthetic ones of views rendered from single frames, the supervised ones of the renders'
@@ -67,6 +69,10 @@ class LeverConfig:
     widened_cases: tuple[str, ...] = ("lever_dis", "kitti06_dis", "kitti07_dis")
     """Cases on which each model trained on DIS flow (``_dis_`` in its name) is read once more with its std widened by
     the geometry (``vo --std-from-geometry``) for the calibration block; () leaves it out."""
+    mirror_average: bool = True
+    """Each single model trained on mirrored frames (``_mirrorframes`` in its name) is read once more on every case with
+    each flow also read mirrored and the two motions averaged (``vo --mirror-average on``), for the block that
+    docs/experiments/2026-12-07_mirror_average.md's rule reads; False leaves it out."""
     lever_m: float = 0.84
     """Metres the held-out town's camera sits ahead of the rear axle in its lever render (KITTI's fit)."""
     heldout_seed: int = 7
@@ -173,6 +179,10 @@ def run(cfg: LeverConfig, out: Path, data: Path) -> dict:
             if case in cfg.widened_cases and "_dis_" in name:
                 rows[name][f"{case}_widened"] = own_pose_scores(out, f"{name}_{case}_widened", seq, model, flow,
                                                                 "--std-from-geometry")
+            if cfg.mirror_average and "_mirrorframes" in name and "+" not in name:  # a single mirror-trained model
+                tag = f"{name}_{case}_mirrored"
+                rec = own_pose_scores(out, tag, seq, model, flow, "--mirror-average", "on")
+                rows[name][f"{case}_mirrored"] = {**rec, **_pair_figures(seq, out / "runs" / f"{tag}.motions.csv")}
             if case.startswith("kitti"):  # KITTI's principal point lies off the centre: read once more centred
                 tag = f"{name}_{case}_centred"
                 rec = own_pose_scores(out, tag, seq, model, flow, "--centre-principal-point")
@@ -282,11 +292,18 @@ def _seeds_markdown(report: dict) -> list[str]:
     groups = seed_groups(_names(report))
     if not groups:
         return []
-    cases = [*report["cases"], *(f"{c}_centred" for c in report["cases"] if f"{c}_centred" in report["default"])]
+    readings = (("_centred", ", centred"), ("_mirrored", ", read also mirrored"))
+    cases = [*report["cases"], *(c + suffix for suffix, _ in readings for c in report["cases"]
+                                 if any(c + suffix in r for r in (report["default"], *report["models"].values())))]
+
+    def title(case: str) -> str:
+        for suffix, words in readings:
+            if case.endswith(suffix):
+                return CASE_TITLES[case.removesuffix(suffix)].format(**report["config"]) + words
+        return CASE_TITLES[case].format(**report["config"])
+
     md = ["**Seeds of one recipe** (mean ± sample std over the seeds scored; t_err or drift [%], ATE [m]):", "",
-          "| | seeds | " + " | ".join(CASE_TITLES[c.removesuffix("_centred")].format(**report["config"])
-                                     + (", centred" if c.endswith("_centred") else "") for c in cases) + " |",
-          "|---" * (2 + len(cases)) + "|"]
+          "| | seeds | " + " | ".join(title(c) for c in cases) + " |", "|---" * (2 + len(cases)) + "|"]
     for stem, members in groups.items():
         cells = []
         for c in cases:
@@ -379,6 +396,60 @@ def _centred_markdown(report: dict) -> list[str]:
     return md
 
 
+MIRROR_RULE = {"kitti": 0.90, "town": 1.05}
+"""docs/experiments/2026-12-07_mirror_average.md, section 2: the mirror average becomes ``auto``'s default where the
+median over the mirror-trained seeds of drift averaged / as read is at most this on each real slice (``kitti``) and
+on each of the town's cases (``town``)."""
+
+
+def mirrored_ratios(report: dict) -> dict[str, dict[str, float]]:
+    """``{case: {model: drift read also mirrored / as read}}`` of every model read both ways (t_err or drift)."""
+    return {c: {n: _err(r[f"{c}_mirrored"]) / _err(r[c]) for n, r in report["models"].items()
+                if f"{c}_mirrored" in r and _err(r[c]) and _err(r[f"{c}_mirrored"]) is not None}
+            for c in report["cases"]}
+
+
+def mirror_rule(report: dict) -> dict:
+    """The rule of :data:`MIRROR_RULE` on ``report``: ``{"medians": {case: median ratio}, "passes": bool}`` (False
+    where a case has no model read both ways)."""
+    medians = {c: float(np.median(list(r.values()))) if r else None for c, r in mirrored_ratios(report).items()}
+    passes = all(m is not None and m <= MIRROR_RULE["kitti" if c.startswith("kitti") else "town"]
+                 for c, m in medians.items())
+    return {"medians": medians, "passes": bool(medians) and passes}
+
+
+def _mirrored_markdown(report: dict) -> list[str]:
+    """The block of each mirror-trained model read as it is and with each flow also read mirrored."""
+    named = [n for n in _names(report) if any(f"{c}_mirrored" in report["models"][n] for c in report["cases"])]
+    if not named:
+        return []
+    cases = report["cases"]
+    md = ["**Each flow read also mirrored** (`vo --mirror-average on`: the motion read from the flow mirrored left-right, "
+          "mirrored back and averaged with the reading of the flow as it is; for models trained on mirrored frames; "
+          "docs/experiments/2026-12-07_mirror_average.md). t_err or drift [%] as read -> averaged (ratio), and the "
+          "shares within 1-sigma averaged:", "",
+          "| | " + " | ".join(CASE_TITLES[c].format(**report["config"]) for c in cases) + " |",
+          "|---" * (1 + len(cases)) + "|"]
+    for name in named:
+        rec = report["models"][name]
+        cells = []
+        for c in cases:
+            a, b = rec.get(c), rec.get(f"{c}_mirrored")
+            if not (a and b and _err(a) and _err(b) is not None):
+                cells.append("")
+                continue
+            shares = ", ".join(f"{x:.2f}" for x in b.get("within_1_sigma") or [])
+            cells.append(f"{_err(a):.2f} -> {_err(b):.2f} (x{_err(b) / _err(a):.2f}); {shares}")
+        md.append(f"| {name} | " + " | ".join(cells) + " |")
+    rule = mirror_rule(report)
+    md += ["", "Median over the models of averaged / as read: " + ", ".join(
+        f"{_short_title(c, report)}{', exact' if c.endswith('exact') else ', DIS' if c.endswith('dis') else ''} "
+        + ("n/a" if m is None else f"x{m:.2f}") for c, m in rule["medians"].items())
+        + f". The rule (at most x{MIRROR_RULE['kitti']:.2f} on each KITTI slice, x{MIRROR_RULE['town']:.2f} on each "
+          f"town case): {'met' if rule['passes'] else 'not met'}.", ""]
+    return md
+
+
 def markdown(report: dict) -> str:
     cfg = report["config"]
     md = ["Each model's own pose (`vo --pose net`); t_err [%], or the end-point drift [% of path] on a route under "
@@ -401,6 +472,7 @@ def markdown(report: dict) -> str:
         md.append("")
     md += _seeds_markdown(report)
     md += _centred_markdown(report)
+    md += _mirrored_markdown(report)
     md += _widened_markdown(report)
     cal = [(n, c) for n in _names(report) for c in report["cases"]
            if f"{c}_cal" in report["models"][n]]

@@ -344,6 +344,9 @@ class OdometryOptions:
     centre_principal_point: bool = False
     """With the network odometry: each flow moved so that the camera's principal point lies at the image's centre
     before the networks read it (:func:`flow.estimators.centre_principal_point`, ``vo --centre-principal-point``)."""
+    mirror_average: str = models.MIRROR_AVERAGE_DEFAULT
+    """With the network odometry: read every flow also mirrored left-right and average the two motions (``on``,
+    ``off``, ``auto``: :func:`vo.modelfiles.models.mirror_average`, ``vo --mirror-average``)."""
 
 
 class UpsampledReading:
@@ -422,7 +425,7 @@ def odometries(opts: OdometryOptions, seq):
         flow = estimators[key]
         return model_odometry(path, opts.flow, shipped, opts.progress, pose, scale=scale, estimator=flow,
                               std_from_geometry=std_from_geometry, device=device,
-                              centre_principal_point=opts.centre_principal_point)
+                              centre_principal_point=opts.centre_principal_point, mirror_average=opts.mirror_average)
 
     cons = odometry(opts.model_cons, "cons", pose, std_from_geometry=opts.std_from_geometry)
     # loop pairs: the rotation and direction of the loop pair's flow where its fit serves, NN_loops' distance (a

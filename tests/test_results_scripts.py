@@ -1107,3 +1107,28 @@ def test_claim_table_means_the_seeds_and_states_the_ratios_against_the_default(t
     assert rc.main(["--out", str(tmp_path / "claim")]) == 2
     assert "lever/results.json: not found" in capsys.readouterr().err
     assert not (tmp_path / "claim" / "results.json").exists()
+
+
+def test_results_lever_mirror_rule_reads_the_median_ratio_of_each_case():
+    """bench.results_lever.mirror_rule: the median over the models read both ways, x0.90 at most on a KITTI case and
+    x1.05 on a town case; a case nobody was read on both ways fails it."""
+    from bench import results_lever as rl
+
+    def rec(err):
+        return {"kitti_t_err_pct": None, "endpoint_drift_pct": err}
+
+    report = {"cases": ["lever_dis", "kitti07_dis"], "models": {
+        "a_mirrorframes_s0": {"lever_dis": rec(1.0), "lever_dis_mirrored": rec(1.02),
+                              "kitti07_dis": rec(4.0), "kitti07_dis_mirrored": rec(2.0)},
+        "a_mirrorframes_s1": {"lever_dis": rec(1.0), "lever_dis_mirrored": rec(1.2),
+                              "kitti07_dis": rec(2.0), "kitti07_dis_mirrored": rec(1.9)},
+        "a_mirrorframes_s2": {"lever_dis": rec(1.0), "lever_dis_mirrored": rec(0.9),
+                              "kitti07_dis": rec(3.0), "kitti07_dis_mirrored": rec(2.4)},
+        "plain_s0": {"lever_dis": rec(5.0), "kitti07_dis": rec(5.0)}}}
+    rule = rl.mirror_rule(report)
+    assert rule["medians"] == {"lever_dis": pytest.approx(1.02), "kitti07_dis": pytest.approx(0.8)}
+    assert rule["passes"]
+    report["models"]["a_mirrorframes_s2"]["lever_dis_mirrored"] = rec(1.1)  # the town's median now x1.10
+    assert not rl.mirror_rule(report)["passes"]
+    report["cases"].append("kitti06_dis")
+    assert rl.mirror_rule(report)["medians"]["kitti06_dis"] is None and not rl.mirror_rule(report)["passes"]

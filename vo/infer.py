@@ -15,7 +15,9 @@ from tqdm import tqdm
 
 from deepslam.flow.estimators import to_network_input
 from deepslam.flow.images import to_grey
+from deepslam.gen.motion import MIRROR_SIGNS
 from deepslam.runtime.device import resolve_bf16
+from deepslam.vo.attribution import mirror_input
 from deepslam.vo.calibration import widened_std
 from deepslam.vo.data.frames import frame_inverse_depth
 from deepslam.vo.data.prefetch import PairInputs
@@ -39,11 +41,13 @@ class VOPredictor:
         channels_last: NHWC convolutions (faster on this CPU).
         centre_principal_point: move every flow so that the camera's principal point lies at the image's centre
             before the network reads it (:func:`flow.estimators.centre_principal_point`).
+        mirror_average: read every flow also mirrored left-right and average the two motions (:meth:`predict`;
+            for a network trained on mirrored frames, ``train --mirror-frames``).
     """
 
     def __init__(self, model: torch.nn.Module, name: str = "vo", meta: dict | None = None, batch_size: int = 64,
                  bf16: bool | None = None, channels_last: bool = True, device: str | torch.device = "cpu",
-                 centre_principal_point: bool = False):
+                 centre_principal_point: bool = False, mirror_average: bool = False):
         self.model = model.eval()
         if channels_last:
             self.model.set_channels_last(True)
@@ -58,6 +62,8 @@ class VOPredictor:
         self.centre_principal_point = bool(centre_principal_point)
         """Every flow is moved so that the camera's principal point lies at the image's centre before the network
         reads it (:func:`flow.estimators.centre_principal_point`)."""
+        self.mirror_average = bool(mirror_average)
+        """Every flow is read as it is and mirrored left-right, the two motions averaged (:meth:`predict`)."""
         self.std_scale = recorded_std_scale(self.meta)
         """(6,) per-DoF factor on every predicted std (``deepslam calibrate``; ones when the file records none)."""
 
@@ -83,6 +89,12 @@ class VOPredictor:
     def predict(self, flow, intrinsics, inv_depth=None) -> tuple[np.ndarray, np.ndarray]:
         """6DoF mean and std for flows at network resolution.
 
+        With :attr:`mirror_average`, each flow is read a second time mirrored left-right (columns reversed, u
+        negated, the principal point's column mirrored; :func:`vo.attribution.mirror_input`), that motion mirrored
+        back (:data:`gen.motion.MIRROR_SIGNS`), and the two means averaged: what the network reads differently in a
+        scene and its mirror image (an off-centre principal point's heading, a street's layout) cancels to first
+        order. The std is the root of the two variances' mean (both readings share the flow's errors).
+
         Args:
             flow: (B, 2, h, w) float32 px (numpy or torch), h x w = :attr:`input_size`.
             intrinsics: (B, 4) fx, fy, cx, cy at network resolution (used by coord-channel models).
@@ -97,6 +109,17 @@ class VOPredictor:
             raise ValueError(f"flow (B, 2, h, w) and intrinsics (B, 4) expected, got {tuple(flow.shape)}, {tuple(intr.shape)}")
         inv = None if inv_depth is None else (inv_depth.float() if torch.is_tensor(inv_depth)
                                               else torch.as_tensor(np.asarray(inv_depth, dtype=np.float32)))
+        mean6, log_std6 = self._read(flow, intr, inv)
+        if not (self.mirror_average and len(flow)):
+            return mean6, np.exp(log_std6) * self.std_scale
+        m_flow, m_intr = mirror_input(flow.cpu().numpy(), intr.cpu().numpy())
+        m_inv = None if inv is None else torch.flip(inv, dims=[-1])
+        m_mean6, m_log_std6 = self._read(torch.from_numpy(m_flow), torch.from_numpy(m_intr), m_inv)
+        var6 = 0.5 * (np.exp(2 * log_std6) + np.exp(2 * m_log_std6))
+        return 0.5 * (mean6 + m_mean6 * MIRROR_SIGNS), np.sqrt(var6) * self.std_scale
+
+    def _read(self, flow: torch.Tensor, intr: torch.Tensor, inv: torch.Tensor | None) -> tuple[np.ndarray, np.ndarray]:
+        """The network's (mean6, log_std6), float64 (B, 6), of flows (B, 2, h, w), in batches of :attr:`batch_size`."""
         means, log_stds = [], []
         for s in range(0, len(flow), self.batch_size):
             sl = slice(s, s + self.batch_size)
@@ -107,7 +130,7 @@ class VOPredictor:
             log_stds.append(ls.double().cpu())
         if not means:
             return np.zeros((0, 6)), np.zeros((0, 6))
-        return torch.cat(means).numpy(), torch.cat(log_stds).exp().numpy() * self.std_scale
+        return torch.cat(means).numpy(), torch.cat(log_stds).numpy()
 
     def prepare(self, flow_full: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
         """Full-resolution flow (H, W, 2) -> network input ((2, h, w) px, (4,) intrinsics)."""

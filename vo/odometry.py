@@ -33,7 +33,8 @@ def load_predictor(path: Path, shipped: bool = False, **kwargs):
 
 def model_odometry(path: str | Path, flow: str = "dis", shipped: bool = False, progress: bool = False,
                    pose: str | None = None, flow_options: dict | None = None, scale: str | None = None,
-                   estimator=None, std_from_geometry: bool = False, **kwargs):
+                   estimator=None, std_from_geometry: bool = False, mirror_average: str = models.MIRROR_AVERAGE_DEFAULT,
+                   **kwargs):
     """The VO model file at ``path`` as a SLAM odometry (:meth:`vo.infer.VOPredictor.as_odometry`) on flow
     estimator ``flow`` set up as the file records (:func:`vo.modelfiles.models.flow_for_model`), each of
     ``flow_options`` (e.g. ``{"patch_stride": 4}``) taking precedence, or on ``estimator`` when given (one
@@ -41,13 +42,15 @@ def model_odometry(path: str | Path, flow: str = "dis", shipped: bool = False, p
     mode the file records) with distance source ``scale`` (:data:`vo.modelfiles.models.SCALES`; None: the
     file's); ``std_from_geometry``: each std widened by the geometry's disagreement (``vo --std-from-geometry``:
     the epipolar fit with the road's distance; InputError with an epipolar pose of another distance source);
+    ``mirror_average``: :data:`vo.modelfiles.models.MIRROR_AVERAGE`'s choice (``vo --mirror-average``);
     ``kwargs`` go to :func:`load_predictor`."""
     epipolar = models.epipolar_config(path, pose, scale)
     geometry = models.geometry_config(path, epipolar) if std_from_geometry else None
     if estimator is None:
         estimator = models.flow_for_model(flow, path, **(flow_options or {}))
-    return load_predictor(Path(path), shipped, **kwargs).as_odometry(
-        estimator, progress=progress, epipolar=epipolar, geometry=geometry)
+    predictor = load_predictor(Path(path), shipped, **kwargs)
+    predictor.mirror_average = models.mirror_average(mirror_average, predictor.meta, epipolar is None)
+    return predictor.as_odometry(estimator, progress=progress, epipolar=epipolar, geometry=geometry)
 
 
 def resolve_predictor(spec: str | None, seq=None, which: str = "cons", flow=None, **kwargs):

@@ -70,6 +70,9 @@ class VOConfig:
     centre_principal_point: bool = False
     """Move every flow so that the camera's principal point lies at the image's centre before the network reads it
     (:func:`flow.estimators.centre_principal_point`: the simulator's cameras are centred, KITTI's is not)."""
+    mirror_average: str = models.MIRROR_AVERAGE_DEFAULT
+    """Read every flow also mirrored left-right and average the two motions: ``on``, ``off``, or ``auto`` (a model
+    trained on mirrored frames with the ``net`` pose; :func:`vo.modelfiles.models.mirror_average`)."""
 
     def frames(self, n_frames: int) -> np.ndarray:
         """(N,) int64 indices of the frames a run over an ``n_frames``-frame sequence reads. InputError for an
@@ -186,6 +189,7 @@ def _network(seq, pairs: np.ndarray, cfg: VOConfig) -> tuple[np.ndarray, np.ndar
         predictor = load_predictor(model_path, shipped, batch_size=cfg.batch, bf16=cfg.bf16,
                                    device=resolve_device(cfg.device),
                                    centre_principal_point=cfg.centre_principal_point)
+        predictor.mirror_average = models.mirror_average(cfg.mirror_average, predictor.meta, epi is None)
     except BaseException:
         if inputs is not None:
             inputs.close()
@@ -198,7 +202,8 @@ def _network(seq, pairs: np.ndarray, cfg: VOConfig) -> tuple[np.ndarray, np.ndar
               "model_name": predictor.name, "model_net": predictor.model.cfg.to_dict(),
               "flow": getattr(estimator, "name", cfg.flow), "bf16": predictor.bf16, "batch": cfg.batch,
               "device": str(predictor.device), "pose": pose,
-              "centre_principal_point": predictor.centre_principal_point, "std_from_geometry": geometry is not None}
+              "centre_principal_point": predictor.centre_principal_point, "mirror_average": predictor.mirror_average,
+              "std_from_geometry": geometry is not None}
     if seq is not recorded_seq:
         record["read_at_px"] = [seq.camera.width, seq.camera.height]
     if fit_cfg is not None:

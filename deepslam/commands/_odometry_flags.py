@@ -19,6 +19,17 @@ CENTRE_HELP = ("move each flow so that the camera's principal point lies at the 
                "reads it (the simulator renders every camera centred; KITTI 04-10's principal point lies 10.6 px left "
                "of the centre; off by default: docs/experiments/2026-12-07_principal_point.md)")
 """Help of ``--centre-principal-point`` (``vo``, ``slam``, ``tune-slam``, ``calibrate``)."""
+MIRROR_AVERAGE_CHOICES = ("auto", "on", "off")
+"""``--mirror-average``'s choices (:data:`vo.modelfiles.models.MIRROR_AVERAGE`; not imported: the parsers build
+without numpy)."""
+MIRROR_AVERAGE_DEFAULT = "off"
+"""``--mirror-average``'s default (:data:`vo.modelfiles.models.MIRROR_AVERAGE_DEFAULT`, a test keeps the two equal)."""
+MIRROR_AVERAGE_HELP = ("read each flow also mirrored left-right and average the two motions (the mirrored one mirrored "
+                       "back): what a network trained on mirrored frames reads differently in a scene and its mirror "
+                       "image, an off-centre principal point's heading, cancels; auto: for a model trained with "
+                       "--mirror-frames, with its own pose (default %(default)s; "
+                       "docs/experiments/2026-12-07_mirror_average.md)")
+"""Help of ``--mirror-average`` (``vo``, ``slam``, ``tune-slam``, ``calibrate``)."""
 GEOMETRY_STD_HELP = ("widen each consecutive pair's predicted std per DoF by the network's disagreement with the geometry "
                      "that reads the same flow (the epipolar fit's rotation and direction, the road's distance): "
                      "sqrt(std^2 + d^2); the motions stay the pose mode's (with --pose epipolar, --scale road)")
@@ -48,10 +59,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--command-timeout", type=float, default=3600.0, metavar="S", help=COMMAND_TIMEOUT_HELP)
     p.add_argument("--read-width", type=int, default=READ_WIDTH_PX, metavar="PX", help=READ_WIDTH_HELP)
     p.add_argument("--centre-principal-point", action="store_true", help=CENTRE_HELP)
+    add_mirror_average(p)
     p.add_argument("--std-from-geometry", action="store_true", help=GEOMETRY_STD_HELP)
     p.add_argument("--gt-noise", default="0.002,0.02", help=argparse.SUPPRESS)
     p.add_argument("--gt-drift", type=float, default=0.002, help=argparse.SUPPRESS)
     p.add_argument("--seed", type=int, default=0, help=argparse.SUPPRESS)
+
+
+def add_mirror_average(p: argparse.ArgumentParser) -> None:
+    """``--mirror-average {auto,on,off}``."""
+    p.add_argument("--mirror-average", choices=MIRROR_AVERAGE_CHOICES, default=MIRROR_AVERAGE_DEFAULT,
+                   help=MIRROR_AVERAGE_HELP)
 
 
 def options(args: argparse.Namespace):
@@ -65,4 +83,5 @@ def options(args: argparse.Namespace):
         flow=args.flow, flow_options=_dis_flags.given_options(args.flow, args),
         no_loops=bool(getattr(args, "no_loops", False)), pose=args.pose, device=args.device, gt_noise=args.gt_noise,
         gt_drift=args.gt_drift, seed=args.seed, progress=not (args.quiet or args.json), read_width_px=args.read_width,
-        centre_principal_point=args.centre_principal_point, std_from_geometry=args.std_from_geometry)
+        centre_principal_point=args.centre_principal_point, mirror_average=args.mirror_average,
+        std_from_geometry=args.std_from_geometry)

@@ -34,6 +34,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--read-width", type=int, default=_odometry_flags.READ_WIDTH_PX, metavar="PX",
                    help=_odometry_flags.READ_WIDTH_HELP)
     p.add_argument("--centre-principal-point", action="store_true", help=_odometry_flags.CENTRE_HELP)
+    _odometry_flags.add_mirror_average(p)
     p.add_argument("--json", action="store_true",
                    help="print one JSON object: std_scale, within_1_sigma before (no progress bar)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -53,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     check_output_not_input(args.out, [("MODEL", model_path), ("--sequence", args.sequence)])
     res = run_vo(seq, VOConfig(model=args.model, flow=args.flow, flow_options=_dis_flags.given_options(args.flow, args),
                                pose=args.pose, read_width_px=args.read_width,
-                               centre_principal_point=args.centre_principal_point,
+                               centre_principal_point=args.centre_principal_point, mirror_average=args.mirror_average,
                                progress=not (args.json or args.quiet)))
     err6 = calibration.pair_errors(seq.gt.world_from_cam, res.pairs, res.mean6)
     try:

@@ -62,6 +62,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--read-width", type=int, default=_odometry_flags.READ_WIDTH_PX, metavar="PX",
                    help=_odometry_flags.READ_WIDTH_HELP)
     p.add_argument("--centre-principal-point", action="store_true", help=_odometry_flags.CENTRE_HELP)
+    _odometry_flags.add_mirror_average(p)
     p.add_argument("--std-from-geometry", action="store_true", help=_odometry_flags.GEOMETRY_STD_HELP)
     p.add_argument("--stride", type=int, default=1, help="frame gap k: predict cam_{t+k}_from_cam_t for t = 0, k, 2k, ...")
     p.add_argument("--start", type=int, default=0, help="first frame")
@@ -137,6 +138,7 @@ def _run(args: argparse.Namespace) -> int:
                    start=args.start, end=args.end, batch=args.batch, device=args.device,
                    bf16=None if args.bf16 == "auto" else args.bf16 == "on", progress=not (args.quiet or args.json),
                    read_width_px=args.read_width, centre_principal_point=args.centre_principal_point,
+                   mirror_average=args.mirror_average,
                    std_from_geometry=args.std_from_geometry)
     cfg.frames(len(seq))  # the range checked before a plug-in loads
     fmt = args.format or trajio.default_format(seq.kind, seq.timestamps_s is not None)

@@ -85,3 +85,47 @@ def test_region_sums_keep_the_total_and_split_unevenly():
     np.testing.assert_allclose(g[:, 0, 0], a[:, :2, :2].sum((1, 2)))  # rows 0-1 of 0, 2, 4, 7; columns 0-1
     with pytest.raises(ValueError, match="grid"):
         region_sums(a, 8, 4)
+
+
+def test_the_mirror_average_reads_a_scene_and_its_mirror_image_as_mirrored_motions():
+    """VOPredictor.mirror_average: whatever the network, the averaged reading of a flow's mirror image is the averaged
+    reading of the flow, mirrored (MIRROR_SIGNS); without it the reading is the network's own, unchanged."""
+    from deepslam.gen.motion import MIRROR_SIGNS
+    from deepslam.vo.infer import VOPredictor
+
+    torch.manual_seed(0)
+    cfg = NetConfig(input_height=24, input_width=40, filters=8, kernels=(3, 3), strides=(2, 2), hidden_units=16)
+    net = FlowPoseNet(cfg)
+    rng = np.random.default_rng(0)
+    flow = rng.normal(0.0, 2.0, (3, 2, 24, 40)).astype(np.float32)
+    intr = np.tile(np.float32([30.0, 30.0, 17.3, 11.6]), (3, 1))  # an off-centre principal point
+    once = VOPredictor(net, channels_last=False, bf16=False)
+    both = VOPredictor(net, channels_last=False, bf16=False, mirror_average=True)
+    mean, std = once.predict(flow, intr)
+    m_mean, _ = once.predict(*mirror_input(flow, intr))
+    assert not np.allclose(m_mean * MIRROR_SIGNS, mean, atol=1e-4)  # a random network reads the two differently
+    avg, avg_std = both.predict(flow, intr)
+    np.testing.assert_allclose(avg, 0.5 * (mean + m_mean * MIRROR_SIGNS), atol=1e-12)
+    mirrored_avg, mirrored_std = both.predict(*mirror_input(flow, intr))
+    np.testing.assert_allclose(mirrored_avg * MIRROR_SIGNS, avg, atol=1e-6)
+    np.testing.assert_allclose(mirrored_std, avg_std, rtol=1e-6)
+    assert (avg_std > 0).all()
+    with torch.inference_mode():
+        m, ls = net(torch.from_numpy(flow), torch.from_numpy(intr), None)
+    np.testing.assert_array_equal(mean, m.double().numpy())  # off: the network's reading, byte for byte
+    np.testing.assert_array_equal(std, ls.double().exp().numpy())
+
+
+def test_auto_mirror_average_is_for_models_trained_on_mirrored_frames_read_with_their_own_pose():
+    from deepslam.commands import _odometry_flags
+    from deepslam.vo.modelfiles import models
+
+    mirrored, plain = {"data": {"mirror_frames": True}}, {"data": {}}
+    assert models.mirror_average("auto", mirrored, net_pose=True)
+    assert not models.mirror_average("auto", mirrored, net_pose=False)
+    assert not models.mirror_average("auto", plain, net_pose=True)
+    assert models.mirror_average("on", plain, net_pose=False) and not models.mirror_average("off", mirrored, True)
+    with pytest.raises(ValueError, match="mirror_average must be one of"):
+        models.mirror_average("yes", plain, True)
+    assert _odometry_flags.MIRROR_AVERAGE_CHOICES == models.MIRROR_AVERAGE
+    assert _odometry_flags.MIRROR_AVERAGE_DEFAULT == models.MIRROR_AVERAGE_DEFAULT

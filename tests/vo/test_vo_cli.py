@@ -284,3 +284,24 @@ def test_slam_widens_the_consecutive_pairs_std_by_the_geometry_as_vo_does(plane_
     want = run_vo(seq, VOConfig(pose="net", std_from_geometry=True, progress=False, end=6, read_width_px=0))
     np.testing.assert_allclose(mean6, want.mean6, rtol=1e-9)
     np.testing.assert_allclose(std6, want.std6, rtol=1e-9)
+
+
+def test_the_mirror_average_is_recorded_and_reaches_both_networks_of_the_slam(plane_sequence):
+    from deepslam.commands import _odometry_flags
+    from deepslam.slam.plugins import OdometryOptions, odometries
+    from deepslam.vo.pipeline import VOConfig, run_vo
+
+    seq = open_sequence(plane_sequence)
+    plain = run_vo(seq, VOConfig(flow="gt", pose="net", progress=False, end=6))
+    both = run_vo(seq, VOConfig(flow="gt", pose="net", progress=False, end=6, mirror_average="on"))
+    assert both.record["mirror_average"] and not plain.record["mirror_average"]
+    assert np.isfinite(both.mean6).all() and not np.array_equal(both.mean6, plain.mean6)
+    cons, loops = odometries(OdometryOptions(mirror_average="on"), seq)
+    assert cons.predictor.mirror_average and loops.predictor.mirror_average
+    p = argparse.ArgumentParser()
+    _odometry_flags.add_arguments(p)
+    for flag in ("--model-cons", "--model-loops", "--flow", "--pose"):
+        p.add_argument(flag, default=None)
+    args = p.parse_args(["--mirror-average", "auto", "--flow", "dis"])
+    args.quiet = args.json = False
+    assert _odometry_flags.options(args).mirror_average == "auto"

@@ -162,6 +162,28 @@ def fit_config(epipolar=None, geometry=None):
     return epipolar if geometry is None else geometry
 
 
+MIRROR_AVERAGE = ("auto", "on", "off")
+"""``vo --mirror-average``: ``on`` reads every flow also mirrored left-right and averages the two motions
+(:attr:`vo.infer.VOPredictor.mirror_average`), ``off`` reads it once, ``auto`` mirrors for a model trained on mirrored
+frames (:func:`trained_on_mirrored_frames`) read with its own pose (``net``)."""
+MIRROR_AVERAGE_DEFAULT = "off"
+"""The default of ``--mirror-average`` (docs/experiments/2026-12-07_mirror_average.md)."""
+
+
+def trained_on_mirrored_frames(meta: dict) -> bool:
+    """True for a VO model whose training read every single frame and its left-right mirror image (``train
+    --mirror-frames``: its meta ``data.mirror_frames``)."""
+    return bool((meta.get("data") or {}).get("mirror_frames"))
+
+
+def mirror_average(choice: str, meta: dict, net_pose: bool) -> bool:
+    """Whether a VO model with ``meta`` reads each flow also mirrored (:data:`MIRROR_AVERAGE`'s ``choice``);
+    ``net_pose``: the run uses the network's own pose. ValueError for a choice not in :data:`MIRROR_AVERAGE`."""
+    if choice not in MIRROR_AVERAGE:
+        raise ValueError(f"mirror_average must be one of {', '.join(MIRROR_AVERAGE)}, got {choice!r}")
+    return choice == "on" or (choice == "auto" and net_pose and trained_on_mirrored_frames(meta))
+
+
 def geometry_config(path: str | Path, epipolar=None, road_height_m: float = ROAD_HEIGHT_M):
     """The :class:`vo.geometry.epipolar.EpipolarConfig` whose reading widens the VO model file ``path``'s std
     (``vo --std-from-geometry``): the epipolar fit with the road's distance, the camera ``road_height_m`` above the
