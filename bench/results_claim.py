@@ -75,6 +75,13 @@ def _street_records(report: dict, stem: str, case: str) -> list[dict]:
     return [report["models"][name][case] for name in _seeds(report, stem) if case in report["models"][name]]
 
 
+def _calibrated_band(report: dict, stem: str, case: str) -> float | None:
+    """Median over the seeds ``{stem}_sN`` of the DoFs in 0.6-0.75 with the std calibrated on an unseen town first
+    (the street study's ``{case}_cal`` reading); None where no seed was read so."""
+    bands = [in_band(r["within_1_sigma"]) for r in _street_records(report, stem, f"{case}_cal") if r.get("within_1_sigma")]
+    return float(np.median(bands)) if bands else None
+
+
 def _cell(recs: list[dict], figure) -> dict:
     """``{"mean", "std", "n"}`` of ``figure(record)`` over the seeds' records, and the median DoFs in 0.6-0.75."""
     agg = _agg([figure(r) for r in recs])
@@ -106,7 +113,8 @@ def gather(cfg: ClaimConfig, street: dict, room: dict) -> dict:
         cells[key] = {}
         for case, _ in cfg.street_cases if stem else ():
             recs = _street_records(street, stem, case)
-            cells[key][case] = {"err": _cell(recs, _err), "ate": _cell(recs, lambda r: r.get("ate_m"))}
+            cells[key][case] = {"err": _cell(recs, _err), "ate": _cell(recs, lambda r: r.get("ate_m")),
+                                "calibrated_dofs_in_band": _calibrated_band(street, stem, case)}
         for case, _ in cfg.room_cases if mode else ():
             recs = [r[case] for r in room["rows"].get(mode, []) if case in r]
             cells[key][case] = {"err": _cell(recs, _rpe_mm), "ate": _cell(recs, lambda r: r.get("ate_m"))}
@@ -189,6 +197,11 @@ def markdown(report: dict) -> str:
         md.append(f"| {label}: DoFs in 0.6-0.75 | " + " | ".join(
             "" if (_fig(report, key, c, "err") or {}).get("dofs_in_band") is None
             else f"{_fig(report, key, c, 'err')['dofs_in_band']:g}" for c, _ in cases) + " |")
+    for key, label, _, _ in cfg["rows"]:
+        cells = [(report["cells"][key].get(c) or {}).get("calibrated_dofs_in_band") for c, _ in cases]
+        if any(x is not None for x in cells):
+            md.append(f"| {label}: DoFs in 0.6-0.75, std calibrated on an unseen town first (`deepslam calibrate`) | "
+                      + " | ".join("" if x is None else f"{x:g}" for x in cells) + " |")
     md += ["", "Seeds: " + "; ".join(f"`{stem}` {', '.join(n.rsplit('_s', 1)[1] for n in names) or 'none'}"
                                      for stem, names in report["models"].items())
            + "; rooms: " + "; ".join(f"`{mode}` {n} seed(s)" for mode, n in report["rooms"].items())
