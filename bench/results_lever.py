@@ -31,7 +31,7 @@ import numpy as np
 
 from bench.results_common import write_report
 from bench.results_repro import (TURN_RAD, _err, _predicted_and_true, _repo_path, calibrated_once, forget_if_retrained,
-                                 main_with_models, origin_gain, own_pose_scores, trained_models, vo_scores)
+                                 main_with_models, origin_gain, own_pose_scores, slam_scores, trained_models, vo_scores)
 from bench.results_vo import _cached
 from deepslam.core import metrics, se3
 from deepslam.vo.calibration import std_scale, within_one_sigma
@@ -84,6 +84,14 @@ class LeverConfig:
     strides: tuple[int, ...] = (1, 2, 3)
     """Frame strides at which each model reads the KITTI slices for the distance table (:func:`straight_forward_gain`
     by the true length of a pair); () leaves the table out."""
+    slam_seed: int = 7441
+    """Town of the loop street (``render --route laps``, the camera :attr:`lever_m` ahead of the rear axle) on which
+    ``deepslam slam`` runs each of :attr:`slam_models` with its own pose and the shipped NN_loops (0: none)."""
+    slam_frames: int = 1900
+    """Frames of the loop street (10 Hz; three laps of the town's block)."""
+    slam_models: tuple[str, ...] = ("lever_synthetic_dis_axlescale_mirror_body_mirrorframes_cons",
+                                    "lever_supervised_dis_cons")
+    """Recipes (model names without the ``_sN`` seed) run through the SLAM on the loop street, every seed scored."""
     calibrated_cases: tuple[str, ...] = ("lever_dis", "kitti06_dis", "kitti07_dis")
     """Cases each model is read on with its std calibrated on the :attr:`calibration_seed` town (an unseen town
     rendered as KITTI's car moves, then the held-out town and the real slices)."""
@@ -172,6 +180,9 @@ def run(cfg: LeverConfig, out: Path, data: Path) -> dict:
     calibration = None if not cfg.calibration_seed else render_once(
         "street", "car", cfg.frames, cfg.width, cfg.calibration_seed, out / f"street_s{cfg.calibration_seed}_kitti_car",
         log, ("--camera-ahead", f"{cfg.lever_m:g}", "--body-motion", "1", "--quiet"))
+    laps = None if not cfg.slam_seed else render_once(
+        "street", "car", cfg.slam_frames, cfg.width, cfg.slam_seed, out / f"street_laps_s{cfg.slam_seed}_lever", log,
+        ("--route", "laps", "--camera-ahead", f"{cfg.lever_m:g}", "--quiet"))
     rows: dict = {}
     for name, model in trained_models(out, cfg.models, cfg.model_names) + _ensembles(cfg, out):
         rows[name] = {"file": str(model)}
@@ -190,6 +201,10 @@ def run(cfg: LeverConfig, out: Path, data: Path) -> dict:
                 tag = f"{name}_{case}_centred"
                 rec = own_pose_scores(out, tag, seq, model, flow, "--centre-principal-point")
                 rows[name][f"{case}_centred"] = {**rec, **_pair_figures(seq, out / "runs" / f"{tag}.motions.csv")}
+        if laps is not None and re.fullmatch(r"(.+)_s\d+", name) and name.rsplit("_s", 1)[0] in cfg.slam_models:
+            print(f"slam {name}: loop street {cfg.slam_seed}", flush=True)
+            rows[name]["slam_laps_dis"] = _cached(out / "eval" / f"{name}_slam_laps.json", lambda: slam_scores(
+                laps, out / "runs" / f"{name}_slam_laps.txt", "--model-cons", str(model), "--pose", "net"))
         if calibration is not None and model.name != "checkpoint.safetensors":  # a finished model or an ensemble
             calibrated = calibrated_once(out, f"{name}_cal", calibration, model)
             for case, seq, flow in cases:
@@ -209,6 +224,10 @@ def run(cfg: LeverConfig, out: Path, data: Path) -> dict:
             tag = f"default_{case}_widened"
             default[f"{case}_widened"] = _cached(out / "eval" / f"{tag}.json", lambda: vo_scores(
                 seq, out / "runs" / f"{tag}.txt", "--flow", flow, "--std-from-geometry"))
+    if laps is not None:
+        print(f"slam default: loop street {cfg.slam_seed}", flush=True)
+        default["slam_laps_dis"] = _cached(out / "eval" / "default_slam_laps.json",
+                                           lambda: slam_scores(laps, out / "runs" / "default_slam_laps.txt"))
     report = {"config": dataclasses.asdict(cfg), "cases": [c for c, _, _ in cases], "models": rows,
               "default": default, "stride_gains": _stride_gains(cfg, out, rows, kitti),
               "cross_calibration": _cross_calibration(out, kitti, list(rows)), "renders": log,
@@ -453,6 +472,24 @@ def _mirrored_markdown(report: dict) -> list[str]:
     return md
 
 
+def _slam_markdown(report: dict) -> list[str]:
+    """The loop street's block: VO and SLAM ATE of each model run through ``deepslam slam``, and the default's."""
+    rows = [(n, report["models"][n]["slam_laps_dis"]) for n in _names(report) if "slam_laps_dis" in report["models"][n]]
+    default = report["default"].get("slam_laps_dis")
+    if not rows and not default:
+        return []
+    cfg = report["config"]
+    md = [f"**Loop street** (`render --route laps`, town {cfg['slam_seed']}, {cfg['slam_frames']} frames, the camera "
+          f"{cfg['lever_m']:g} m ahead of the rear axle), DIS flow: `deepslam slam` with each NN_cons (its own pose) "
+          "and the shipped NN_loops, and `deepslam slam`'s default", "",
+          "| | VO ATE [m] | SLAM ATE [m] | SLAM / VO | VO path ratio | loop edges (kept) |", "|---|---|---|---|---|---|"]
+    for name, r in [*rows, *([("`deepslam slam`'s default", default)] if default else [])]:
+        md.append(f"| {name} | {_f(r['vo_ate_m'])} | {_f(r['slam_ate_m'])} | {_f(r['slam_over_vo'], '.2f')} | "
+                  f"{_f(r['vo_path_ratio'])} | {r['loops']} ({r['loops_kept']}) |")
+    md.append("")
+    return md
+
+
 def markdown(report: dict) -> str:
     cfg = report["config"]
     md = ["Each model's own pose (`vo --pose net`); t_err [%], or the end-point drift [% of path] on a route under "
@@ -474,6 +511,7 @@ def markdown(report: dict) -> str:
                       f"{', '.join(_f(x, '.2f') for x in r.get('within_1_sigma') or [])} |")
         md.append("")
     md += _seeds_markdown(report)
+    md += _slam_markdown(report)
     md += _centred_markdown(report)
     md += _mirrored_markdown(report)
     md += _widened_markdown(report)

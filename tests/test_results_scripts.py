@@ -1083,11 +1083,12 @@ def test_claim_table_means_the_seeds_and_states_the_ratios_against_the_default(t
         return {"kitti_t_err_pct": None, "endpoint_drift_pct": err, "ate_m": ate, "rpe_t_m": err / 1000,
                 "within_1_sigma": list(shares)}
 
-    cfg = rc.ClaimConfig(street_cases=(("k7", "KITTI 07"),), room_cases=(("teddy", "teddy"),),
+    cfg = rc.ClaimConfig(street_cases=(("k7", "KITTI 07"), ("laps", "loop street")), room_cases=(("teddy", "teddy"),),
                          rows=(("single", "single frames", "syn", "room_syn"), ("sup", "supervised", "sup", None)),
                          ratios=(("single", "sup"),))
     street = {"config": {"models": "bench/paper_recipe"},
-              "models": {"syn_s0": {"k7": rec(2.0, 0.5)}, "syn_s1": {"k7": rec(4.0, 0.7, (0.1,) * 6)},
+              "models": {"syn_s0": {"k7": rec(2.0, 0.5), "laps": {"slam_ate_m": 3.0}},
+                         "syn_s1": {"k7": rec(4.0, 0.7, (0.1,) * 6), "laps": {"slam_ate_m": 5.0}},
                          "syn_s0+s1": {"k7": rec(100.0, 9.0)}, "sup_s0": {"k7": rec(6.0, 1.0)}},
               "default": {"k7": rec(1.0, 0.3, (1.0,) * 6)}}
     room = {"config": {}, "rows": {"room_syn": [{"teddy": rec(30.0, 0.2)}]},
@@ -1103,6 +1104,8 @@ def test_claim_table_means_the_seeds_and_states_the_ratios_against_the_default(t
     assert "| single frames / supervised | x0.50 |  |" in md
     assert "| single frames / the default | x3.00 |  |" in md
     assert "| `pnp` (SIFT + PnP-RANSAC on the frame's depth) |  | 3.00 |" in md
+    assert "| | KITTI 07 | teddy |" in md  # the drift tables leave out the loop street, which has only the SLAM's ATE
+    assert "| | KITTI 07 | loop street | teddy |" in md and "| single frames | 0.600 ± 0.141 | 4.000 ± 1.414 | 0.200 |" in md
 
     assert rc.main(["--out", str(tmp_path / "claim")]) == 2
     assert "lever/results.json: not found" in capsys.readouterr().err
