@@ -36,7 +36,8 @@
 # SYNTH_FLOW=dis trains the synthetic model on DIS flow of views rendered from the single frames
 # (synthetic_dis_cons_sSEED; POOL samples made once, POOL_PATIENCE passes without improvement halve the rate) and
 # the supervised model on DIS flow of the renders' own pairs (supervised_dis_cons_sSEED); SKIP_SYNTHETIC=1 trains
-# the supervised one only (more seeds of it in minutes, where each synthetic one takes an hour on 2 cores).
+# the supervised ones only, on either flow (more seeds of them in minutes, where each synthetic one takes an hour on
+# 2 cores).
 # SCENE=room makes the RGB-D rows instead: the same recipe on two simulated rooms rendered as a Kinect would
 # see them (640x480, f = 537 px, 30 Hz; `render --scene room`, exact depth), motions fitted on the rooms' own
 # camera motion, the network's input 96 x 128 (the frames' 4:3 aspect; the cpu preset's 48 x 160 is the street
@@ -173,8 +174,8 @@ for seed in $SEEDS; do
         --sequence $TRAIN --flow "$SYNTH_FLOW" --dis-preset medium --strides 1,2
     continue
   fi
-  train "$OUT/${PFX}synthetic${PRIOR}${FRAMES_SFX}${DEPTH_SFX}_cons_s$seed" --mode synthetic --seed $seed --source $TRAIN \
-      $MOTION --samples-per-epoch 20000 $SYNTH_ONLY
+  [ "${SKIP_SYNTHETIC:-0}" = 1 ] || train "$OUT/${PFX}synthetic${PRIOR}${FRAMES_SFX}${DEPTH_SFX}_cons_s$seed" --mode synthetic \
+      --seed $seed --source $TRAIN $MOTION --samples-per-epoch 20000 $SYNTH_ONLY
   train "$OUT/${PFX}supervised${DEPTH_SFX}_cons_s$seed" --mode supervised --seed $seed --sequence $TRAIN --flow gt --strides 1,2
   [ "$SCENE" = room ] && continue
   [ "${SAMEPATIENCE:-1}" = 1 ] || continue  # SAMEPATIENCE=0: more seeds without the hours-long third model

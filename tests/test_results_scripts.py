@@ -1135,3 +1135,16 @@ def test_results_lever_mirror_rule_reads_the_median_ratio_of_each_case():
     assert not rl.mirror_rule(report)["passes"]
     report["cases"].append("kitti06_dis")
     assert rl.mirror_rule(report)["medians"]["kitti06_dis"] is None and not rl.mirror_rule(report)["passes"]
+
+
+@pytest.mark.parametrize("env", [{}, {"SYNTH_FLOW": "dis"}, {"SCENE": "room"}])
+def test_recipe_script_skip_synthetic_trains_the_supervised_models_only(tmp_path, env):
+    """scripts/train_paper_recipe.sh with SKIP_SYNTHETIC=1 (``echo`` standing in for deepslam): on either flow and
+    either scene every ``train`` it runs is a supervised one."""
+    out = tmp_path / "recipe"
+    script = Path(__file__).resolve().parents[1] / "scripts" / "train_paper_recipe.sh"
+    p = subprocess.run(["bash", str(script), str(out), "1000", "0"], capture_output=True, text=True,
+                       env={**os.environ, **env, "SKIP_SYNTHETIC": "1", "DS": "echo"})
+    assert p.returncode == 0, p.stderr
+    trains = [line for line in p.stdout.splitlines() if line.startswith("train ")]
+    assert trains and all("--mode supervised" in line for line in trains)
