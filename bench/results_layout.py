@@ -51,6 +51,8 @@ class LayoutConfig:
     model_names: tuple[str, ...] = ("synthetic_dis_speedscale_mirror_body_cons_s0",
                                     "lever_synthetic_dis_axlescale_mirror_body_cons_s0",
                                     "lever_synthetic_dis_axlescale_mirror_body_mirrorframes_cons_s0",
+                                    "lever_synthetic_dis_axlescale_mirror_body_mirrorframes_cons_s1",
+                                    "lever_synthetic_dis_axlescale_mirror_body_mirrorframes_cons_s2",
                                     "lever_supervised_dis_cons_s0", "lever_synthetic_axlescale_mirror_cons_s0",
                                     "lever_supervised_cons_s0")
     """Model folders under :attr:`models` (flow-only networks); absent ones skipped."""
