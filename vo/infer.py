@@ -92,8 +92,9 @@ class VOPredictor:
         With :attr:`mirror_average`, each flow is read a second time mirrored left-right (columns reversed, u
         negated, the principal point's column mirrored; :func:`vo.attribution.mirror_input`), that motion mirrored
         back (:data:`gen.motion.MIRROR_SIGNS`), and the two means averaged: what the network reads differently in a
-        scene and its mirror image (an off-centre principal point's heading, a street's layout) cancels to first
-        order. The std is the root of the two variances' mean (both readings share the flow's errors).
+        scene and in its mirror image (its own lack of mirror symmetry: a street's layout it learned) cancels to first
+        order; an off-centre principal point does not (it is mirrored with the camera, and its heading error with
+        it). The std is the root of the two variances' mean (both readings share the flow's errors).
 
         Args:
             flow: (B, 2, h, w) float32 px (numpy or torch), h x w = :attr:`input_size`.

@@ -25,10 +25,9 @@ without numpy)."""
 MIRROR_AVERAGE_DEFAULT = "off"
 """``--mirror-average``'s default (:data:`vo.modelfiles.models.MIRROR_AVERAGE_DEFAULT`, a test keeps the two equal)."""
 MIRROR_AVERAGE_HELP = ("read each flow also mirrored left-right and average the two motions (the mirrored one mirrored "
-                       "back): what a network trained on mirrored frames reads differently in a scene and its mirror "
-                       "image, an off-centre principal point's heading, cancels; auto: for a model trained with "
-                       "--mirror-frames, with its own pose (default %(default)s; "
-                       "docs/experiments/2026-12-07_mirror_average.md)")
+                       "back): what a network trained on mirrored frames still reads differently in a scene and its "
+                       "mirror image cancels; auto: for a model trained with --mirror-frames, with its own pose "
+                       "(default %(default)s; docs/experiments/2026-12-07_mirror_average.md)")
 """Help of ``--mirror-average`` (``vo``, ``slam``, ``tune-slam``, ``calibrate``)."""
 GEOMETRY_STD_HELP = ("widen each consecutive pair's predicted std per DoF by the network's disagreement with the geometry "
                      "that reads the same flow (the epipolar fit's rotation and direction, the road's distance): "
