@@ -53,8 +53,8 @@ class LeverConfig:
                                     "lever_synthetic_dis_axlescale_mirror_body_mirrorframes_cons_s1",
                                     "lever_synthetic_dis_axlescale_mirror_body_mirrorframes_cons_s2",
                                     "supervised_cons_s0", "lever_supervised_cons_s0", "lever_supervised_cons_s1",
-                                    "supervised_dis_cons_s0", "lever_supervised_dis_cons_s0", "lever_supervised_dis_cons_s1",
-                                    "lever_supervised_dis_cons_s2")
+                                    "lever_supervised_cons_s2", "supervised_dis_cons_s0", "lever_supervised_dis_cons_s0",
+                                    "lever_supervised_dis_cons_s1", "lever_supervised_dis_cons_s2")
     """Model folders under :attr:`models`, each trained on axle towns next to its ``lever_`` twin (the speed-freed
     models' twins scale the axle's motion: ``fit-motion --speed-scale-lever``; the ``_dis`` models trained on DIS flow,
     ``SYNTH_FLOW=dis``: the synthetic ones of views rendered from single frames, the supervised ones of the renders'
