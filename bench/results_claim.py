@@ -221,9 +221,8 @@ def markdown(report: dict) -> str:
     md += ["", "Seeds: " + "; ".join(f"`{stem}` {', '.join(n.rsplit('_s', 1)[1] for n in names) or 'none'}"
                                      for stem, names in report["models"].items())
            + "; rooms: " + "; ".join(f"`{mode}` {n} seed(s)" for mode, n in report["rooms"].items())
-           + f". Models from `{report['sources'].get(cfg['street_study'])}` and "
-             f"`{report['sources'].get(cfg['room_study'])}`; each study's section below lists every model with its "
-             f"samples and says how it was read.",
+           + ". Models from " + " and ".join(f"`{d}`" for d in dict.fromkeys(report["sources"].values()) if d)
+           + "; each study's section below lists every model with its samples and says how it was read.",
            "", "The paper's own figures (KITTI 00-10, t_err [%] / r_err [deg/100 m], NN_cons with its own pose): single "
            "frames 5.57 ± 0.33 / 2.23 ± 0.15, supervised 2.07 ± 0.03 / 0.93 ± 0.04 (x2.7); ORB-SLAM2 2.41 / 0.245. "
            "The loop street's SLAM runs each NN_cons with the shipped NN_loops (`kitti_loops_dis`): NN_loops has not "
