@@ -97,6 +97,7 @@ def _ate(rec: dict) -> float | None:
 
 
 def _rpe_mm(rec: dict) -> float | None:
+    """A room record's RPE translation [mm a frame] (the rooms' drift figure; their routes are a few metres)."""
     return None if rec.get("rpe_t_m") is None else 1000.0 * rec["rpe_t_m"]
 
 
@@ -124,7 +125,7 @@ def gather(cfg: ClaimConfig, street: dict, room: dict) -> dict:
                                 "calibrated_dofs_in_band": _calibrated_band(street, stem, case)}
         for case, _ in cfg.room_cases if mode else ():
             recs = [r[case] for r in room["rows"].get(mode, []) if case in r]
-            cells[key][case] = {"err": _cell(recs, _rpe_mm), "ate": _cell(recs, lambda r: r.get("ate_m"))}
+            cells[key][case] = {"err": _cell(recs, _rpe_mm), "ate": _cell(recs, _ate)}
     beside = {"default": {}, "pnp": {}}
     for case, _ in cfg.street_cases:
         d = street["default"].get(case)
@@ -135,7 +136,7 @@ def gather(cfg: ClaimConfig, street: dict, room: dict) -> dict:
         for case, _ in cfg.room_cases:
             d = room.get("beside", {}).get(key, {}).get(case)
             if d:
-                beside[key][case] = {"err": _rpe_mm(d), "ate": d.get("ate_m"), "dofs_in_band":
+                beside[key][case] = {"err": _rpe_mm(d), "ate": _ate(d), "dofs_in_band":
                                      in_band(d["within_1_sigma"]) if d.get("within_1_sigma") else None}
     models = {stem: _seeds(street, stem) for _, _, stem, _ in cfg.rows if stem}
     return {"config": dataclasses.asdict(cfg), "cells": cells, "beside": beside, "models": models,
@@ -145,6 +146,7 @@ def gather(cfg: ClaimConfig, street: dict, room: dict) -> dict:
 
 
 def _ratio(a: dict | None, b: dict | None) -> str:
+    """``xR``, the mean of aggregate ``a`` over ``b``'s; empty where either is missing."""
     return f"x{a['mean'] / b['mean']:.2f}" if a and b and a.get("mean") is not None and b.get("mean") else ""
 
 
