@@ -21,14 +21,19 @@ def load_shipped(kind: str, which: str = "cons", flow=None, **kwargs):
     return load_predictor(models.shipped_path(kind, which, flow), True, **kwargs)
 
 
-def load_predictor(path: Path, shipped: bool = False, **kwargs):
+def load_predictor(path: Path, shipped: bool = False, mirror_average: str = models.MIRROR_AVERAGE_DEFAULT,
+                   net_pose: bool = True, **kwargs):
     """:class:`vo.infer.VOPredictor` of ``path``; a shipped model is named after its file and, when
-    missing, reported with a pointer to models/README.md."""
+    missing, reported with a pointer to models/README.md. ``mirror_average``:
+    :data:`vo.modelfiles.models.MIRROR_AVERAGE`'s choice (``vo --mirror-average``), resolved for this file's model
+    read with its own pose (``net_pose``) or the epipolar one (:func:`vo.modelfiles.models.mirror_average`)."""
     if shipped:
         if not path.is_file():
             raise InputError(path, f"shipped model {path.stem} is missing (see models/README.md to train it)")
         kwargs.setdefault("name", path.stem)
-    return VOPredictor.from_file(path, **kwargs)
+    predictor = VOPredictor.from_file(path, **kwargs)
+    predictor.mirror_average = models.mirror_average(mirror_average, predictor.meta, net_pose)
+    return predictor
 
 
 def model_odometry(path: str | Path, flow: str = "dis", shipped: bool = False, progress: bool = False,
@@ -48,9 +53,8 @@ def model_odometry(path: str | Path, flow: str = "dis", shipped: bool = False, p
     geometry = models.geometry_config(path, epipolar) if std_from_geometry else None
     if estimator is None:
         estimator = models.flow_for_model(flow, path, **(flow_options or {}))
-    predictor = load_predictor(Path(path), shipped, **kwargs)
-    predictor.mirror_average = models.mirror_average(mirror_average, predictor.meta, epipolar is None)
-    return predictor.as_odometry(estimator, progress=progress, epipolar=epipolar, geometry=geometry)
+    return load_predictor(Path(path), shipped, mirror_average, epipolar is None, **kwargs).as_odometry(
+        estimator, progress=progress, epipolar=epipolar, geometry=geometry)
 
 
 def resolve_predictor(spec: str | None, seq=None, which: str = "cons", flow=None, **kwargs):

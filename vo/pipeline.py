@@ -188,8 +188,8 @@ def _network(seq, pairs: np.ndarray, cfg: VOConfig) -> tuple[np.ndarray, np.ndar
 
         predictor = load_predictor(model_path, shipped, batch_size=cfg.batch, bf16=cfg.bf16,
                                    device=resolve_device(cfg.device),
-                                   centre_principal_point=cfg.centre_principal_point)
-        predictor.mirror_average = models.mirror_average(cfg.mirror_average, predictor.meta, epi is None)
+                                   centre_principal_point=cfg.centre_principal_point,
+                                   mirror_average=cfg.mirror_average, net_pose=epi is None)
     except BaseException:
         if inputs is not None:
             inputs.close()
