@@ -20,14 +20,13 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import re
 import sys
 from pathlib import Path
 
 import numpy as np
 
 from bench.results_common import results_main, write_report
-from bench.results_lever import in_band
+from bench.results_lever import in_band, seed_stem
 from bench.results_repro import _err, pm
 from bench.results_vo import _agg
 from deepslam.core.errors import InputError
@@ -67,9 +66,8 @@ class ClaimConfig:
 
 
 def _seeds(report: dict, stem: str) -> list[str]:
-    """The street study's models ``{stem}_sN`` (one a training seed; an ensemble ``_s0+s1`` is not one), by seed."""
-    return sorted((n for n in report["models"] if re.fullmatch(re.escape(stem) + r"_s\d+", n)),
-                  key=lambda n: int(n.rsplit("_s", 1)[1]))
+    """The street study's models ``{stem}_sN`` (one a training seed, :func:`bench.results_lever.seed_stem`), by seed."""
+    return sorted((n for n in report["models"] if seed_stem(n) == stem), key=lambda n: int(n.rsplit("_s", 1)[1]))
 
 
 def _street_records(report: dict, stem: str, case: str) -> list[dict]:
@@ -80,15 +78,20 @@ def _street_records(report: dict, stem: str, case: str) -> list[dict]:
 def _calibrated_band(report: dict, stem: str, case: str) -> float | None:
     """Median over the seeds ``{stem}_sN`` of the DoFs in 0.6-0.75 with the std calibrated on an unseen town first
     (the street study's ``{case}_cal`` reading); None where no seed was read so."""
-    bands = [in_band(r["within_1_sigma"]) for r in _street_records(report, stem, f"{case}_cal") if r.get("within_1_sigma")]
+    return _median_band(_street_records(report, stem, f"{case}_cal"))
+
+
+def _median_band(recs: list[dict]) -> float | None:
+    """Median over the seeds' records of the DoFs whose share within 1-sigma lies in 0.6-0.75; None without shares."""
+    bands = [in_band(r["within_1_sigma"]) for r in recs if r.get("within_1_sigma")]
     return float(np.median(bands)) if bands else None
 
 
-def _cell(recs: list[dict], figure) -> dict:
-    """``{"mean", "std", "n"}`` of ``figure(record)`` over the seeds' records, and the median DoFs in 0.6-0.75."""
-    agg = _agg([figure(r) for r in recs])
-    bands = [in_band(r["within_1_sigma"]) for r in recs if r.get("within_1_sigma")]
-    return {**agg, "dofs_in_band": float(np.median(bands)) if bands else None}
+def _cell(recs: list[dict], drift) -> dict:
+    """A case's cell over the seeds' records: ``err`` and ``ate`` (:func:`bench.results_vo._agg` of ``drift(record)``
+    and of the ATE) and ``dofs_in_band`` (:func:`_median_band`)."""
+    return {"err": _agg([drift(r) for r in recs]), "ate": _agg([_ate(r) for r in recs]),
+            "dofs_in_band": _median_band(recs)}
 
 
 def _ate(rec: dict) -> float | None:
@@ -121,11 +124,10 @@ def gather(cfg: ClaimConfig, street: dict, room: dict) -> dict:
         cells[key] = {}
         for case, _ in cfg.street_cases if stem else ():
             recs = _street_records(street, stem, case)
-            cells[key][case] = {"err": _cell(recs, _err), "ate": _cell(recs, _ate),
-                                "calibrated_dofs_in_band": _calibrated_band(street, stem, case)}
+            cells[key][case] = {**_cell(recs, _err), "calibrated_dofs_in_band": _calibrated_band(street, stem, case)}
         for case, _ in cfg.room_cases if mode else ():
             recs = [r[case] for r in room["rows"].get(mode, []) if case in r]
-            cells[key][case] = {"err": _cell(recs, _rpe_mm), "ate": _cell(recs, _ate)}
+            cells[key][case] = _cell(recs, _rpe_mm)
     beside = {"default": {}, "pnp": {}}
     for case, _ in cfg.street_cases:
         d = street["default"].get(case)
@@ -213,8 +215,8 @@ def markdown(report: dict) -> str:
             for c, _ in cases) + " |")
     for key, label, _, _ in cfg["rows"]:
         md.append(f"| {label}: DoFs in 0.6-0.75 | " + " | ".join(
-            "" if (_fig(report, key, c, "err") or {}).get("dofs_in_band") is None
-            else f"{_fig(report, key, c, 'err')['dofs_in_band']:g}" for c, _ in cases) + " |")
+            "" if (report["cells"][key].get(c) or {}).get("dofs_in_band") is None
+            else f"{report['cells'][key][c]['dofs_in_band']:g}" for c, _ in cases) + " |")
     for key, label, _, _ in cfg["rows"]:
         cells = [(report["cells"][key].get(c) or {}).get("calibrated_dofs_in_band") for c, _ in cases]
         if any(x is not None for x in cells):

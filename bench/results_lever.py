@@ -31,8 +31,9 @@ import numpy as np
 
 from bench.results_common import write_report
 from bench.results_repro import (TURN_RAD, _err, _predicted_and_true, _repo_path, calibrated_once, forget_if_retrained,
-                                 main_with_models, origin_gain, own_pose_scores, slam_scores, trained_models, vo_scores)
-from bench.results_vo import _cached
+                                 main_with_models, origin_gain, own_pose_scores, pm, slam_scores, trained_models,
+                                 vo_scores)
+from bench.results_vo import _agg, _cached
 from deepslam.core import metrics, se3
 from deepslam.vo.calibration import std_scale, within_one_sigma
 from deepslam.vo.modelfiles.modelio import write_ensemble
@@ -201,7 +202,7 @@ def run(cfg: LeverConfig, out: Path, data: Path) -> dict:
                 tag = f"{name}_{case}_centred"
                 rec = own_pose_scores(out, tag, seq, model, flow, "--centre-principal-point")
                 rows[name][f"{case}_centred"] = {**rec, **_pair_figures(seq, out / "runs" / f"{tag}.motions.csv")}
-        if laps is not None and re.fullmatch(r"(.+)_s\d+", name) and name.rsplit("_s", 1)[0] in cfg.slam_models:
+        if laps is not None and seed_stem(name) in cfg.slam_models:
             print(f"slam {name}: loop street {cfg.slam_seed}", flush=True)
             rows[name]["slam_laps_dis"] = _cached(out / "eval" / f"{name}_slam_laps.json", lambda: slam_scores(
                 laps, out / "runs" / f"{name}_slam_laps.txt", "--model-cons", str(model), "--pose", "net"))
@@ -298,14 +299,20 @@ def centred_ratios(report: dict, case: str) -> dict:
             if f"{case}_centred" in r and _err(r[case])}
 
 
+def seed_stem(name: str) -> str | None:
+    """The recipe of a model folder named ``{stem}_sN`` (one training seed): ``stem``; None for any other name (an
+    ensemble ``_s0+s1``, a model without a seed)."""
+    match = re.fullmatch(r"(.+)_s\d+", name)
+    return match.group(1) if match else None
+
+
 def seed_groups(names) -> dict[str, list[str]]:
     """The names that differ only in their seed suffix ``_sN``, grouped under the name without it (in order);
     groups of one left out."""
     groups: dict[str, list[str]] = {}
     for name in names:
-        match = re.fullmatch(r"(.+)_s(\d+)", name)
-        if match:
-            groups.setdefault(match.group(1), []).append(name)
+        if stem := seed_stem(name):
+            groups.setdefault(stem, []).append(name)
     return {stem: members for stem, members in groups.items() if len(members) > 1}
 
 
@@ -330,10 +337,8 @@ def _seeds_markdown(report: dict) -> list[str]:
         cells = []
         for c in cases:
             recs = [report["models"][m][c] for m in members if c in report["models"][m]]
-            err = [_err(r) for r in recs if _err(r) is not None]
-            ate = [r["ate_m"] for r in recs if r.get("ate_m") is not None]
-            cells.append(f"{np.mean(err):.2f} ± {np.std(err, ddof=1):.2f}, {np.mean(ate):.2f} ± {np.std(ate, ddof=1):.2f}"
-                         if len(err) == len(members) and len(ate) == len(members) else "")
+            err, ate = _agg([_err(r) for r in recs]), _agg([r.get("ate_m") for r in recs])
+            cells.append(f"{pm(err, '.2f')}, {pm(ate, '.2f')}" if err["n"] == ate["n"] == len(members) else "")
         seeds = ", ".join(m.rsplit("_s", 1)[1] for m in members)
         md.append(f"| {stem} | {seeds} | " + " | ".join(cells) + " |")
     md.append("")

@@ -1097,7 +1097,7 @@ def test_claim_table_means_the_seeds_and_states_the_ratios_against_the_default(t
     assert report["models"] == {"syn": ["syn_s0", "syn_s1"], "sup": ["sup_s0"]}
     single = report["cells"]["single"]["k7"]["err"]
     assert (single["mean"], single["n"]) == (pytest.approx(3.0), 2)
-    assert single["dofs_in_band"] == pytest.approx(3.0)  # median of 6 and 0 DoFs in 0.6-0.75
+    assert report["cells"]["single"]["k7"]["dofs_in_band"] == pytest.approx(3.0)  # median of 6 and 0 DoFs in 0.6-0.75
     assert report["cells"]["single"]["teddy"]["err"]["mean"] == pytest.approx(30.0)  # RPE in mm a frame
     assert "teddy" not in report["cells"]["sup"]  # no room model in that row: an empty cell, not a zero
     md = rc.markdown(report)
