@@ -79,6 +79,13 @@ class RenderConfig:
     focal_px: float | None = None
     """Focal length fx = fy in pixels (e.g. a Kinect's 537 at 640x480); None keeps the scene camera's
     vertical field of view. The renderers take square pixels and a centred principal point."""
+    principal_point_px: tuple[float, float] | None = None
+    """(cx, cy) of the images, pixels at the output size (pixel centres at integers); None: the image's
+    centre ``((W - 1) / 2, (H - 1) / 2)``. A real camera's is rarely there (KITTI 04-12's lies 10.6 px
+    left of its centre, 0.87 % of the width): the frame is rendered centred on a canvas wider and taller
+    by twice the offset, at the same focal length, and cut to the requested window
+    (:func:`off_centre`), so every image, depth, flow and mask is the one such a camera would give. Its
+    offset from the centre must be a multiple of 0.5 px."""
     flow: bool = True
     """Compute the forward ground-truth optical flow."""
     depth_noise: str | None = None
@@ -123,6 +130,8 @@ class RenderConfig:
         if isinstance(fmts, str):
             fmts = [f.strip() for f in fmts.split(",")]
         object.__setattr__(self, "flow_formats", tuple(fmts))
+        if self.principal_point_px is not None:
+            object.__setattr__(self, "principal_point_px", tuple(self.principal_point_px))
 
     @property
     def distorted(self) -> bool:
@@ -149,6 +158,9 @@ class RenderConfig:
             raise InputError(None, f"unknown depth noise model {self.depth_noise!r} (kinect, or none)")
         if self.focal_px is not None and not (np.isfinite(self.focal_px) and 1.0 <= self.focal_px <= 100_000.0):
             raise InputError(None, f"focal length must be in [1, 100000] px, got {self.focal_px}")
+        if self.principal_point_px is not None and (len(self.principal_point_px) != 2
+                                                     or not np.isfinite(self.principal_point_px).all()):
+            raise InputError(None, f"principal point must be two finite numbers CX,CY, got {list(self.principal_point_px)}")
         if self.stereo_baseline_m is not None and not (np.isfinite(self.stereo_baseline_m) and 0 <= self.stereo_baseline_m <= 10):
             raise InputError(None, f"stereo baseline must be in [0, 10] m, got {self.stereo_baseline_m}")
         for name, v, hi in (("exposure (ms)", self.exposure_ms, 1000.0), ("sensor noise", self.sensor_noise, 100.0),
@@ -223,3 +235,30 @@ def camera_for(default: PinholeCamera, width: int | None, height: int | None,
         height = max(1, int(round(width * default.height / default.width)))
     f = float(focal_px) if focal_px is not None else default.fy * height / default.height
     return PinholeCamera(int(width), int(height), f, f, (width - 1) / 2.0, (height - 1) / 2.0)
+
+
+def off_centre(camera: PinholeCamera, principal_point_px: tuple[float, float]
+               ) -> tuple[PinholeCamera, PinholeCamera, tuple[int, int]]:
+    """``camera`` (centred, as :func:`camera_for` gives it) with its principal point moved to
+    ``principal_point_px`` = (cx, cy) px, and how to render it with a centred renderer.
+
+    Returns ``(output, canvas, (top, left))``: ``output`` the camera of the written images (same size and
+    focal length, the principal point moved); ``canvas`` the centred camera to render (each side larger by
+    twice the offset along it, same focal length, so its field of view covers the output's); ``(top,
+    left)`` the output window's first row and column in the canvas. A pixel (u, v) of the output is pixel
+    (u + left, v + top) of the canvas, so ``output.cx = canvas.cx - left``. Raises InputError when the point
+    lies outside the image or its offset from the centre is not a multiple of 0.5 px (the window must fall
+    on the canvas's pixels)."""
+    cx, cy = (float(x) for x in principal_point_px)
+    if not (0.0 <= cx <= camera.width - 1 and 0.0 <= cy <= camera.height - 1):
+        raise InputError(None, f"principal point ({cx:g}, {cy:g}) lies outside the {camera.width}x{camera.height} image")
+    twice = (2.0 * (cx - camera.cx), 2.0 * (cy - camera.cy))
+    if any(abs(t - round(t)) > 1e-9 for t in twice):
+        raise InputError(None, f"principal point ({cx:g}, {cy:g}) must lie a multiple of 0.5 px from the image centre "
+                               f"({camera.cx:g}, {camera.cy:g})")
+    dx2, dy2 = (int(round(t)) for t in twice)  # twice the offset, signed, px
+    canvas = PinholeCamera(camera.width + abs(dx2), camera.height + abs(dy2), camera.fx, camera.fy,
+                           (camera.width + abs(dx2) - 1) / 2.0, (camera.height + abs(dy2) - 1) / 2.0)
+    top, left = (abs(dy2) - dy2) // 2, (abs(dx2) - dx2) // 2
+    output = PinholeCamera(camera.width, camera.height, camera.fx, camera.fy, canvas.cx - left, canvas.cy - top)
+    return output, canvas, (top, left)

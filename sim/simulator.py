@@ -12,7 +12,7 @@ from deepslam.core.errors import InputError
 from deepslam.core.trajectory import Trajectory
 from deepslam.scenes import SceneConfig, build_scene
 from deepslam.scenes.spec import Scene
-from deepslam.sim.config import SimConfig, camera_for
+from deepslam.sim.config import SimConfig, camera_for, off_centre
 from deepslam.sim.flow import FlowComputer, occlusion_mask
 from deepslam.sim.render_mujoco import MujocoBackend
 from deepslam.sim.render_pyrender import PyrenderBackend
@@ -103,6 +103,27 @@ def make_backend(name: str, scene: Scene, camera: PinholeCamera, baseline_m: flo
     raise ValueError(f"unknown backend {name!r}")
 
 
+class WindowBackend:
+    """A backend that renders a centred canvas and returns a window of it: the images of a camera whose
+    principal point is off the centre (:func:`sim.config.off_centre`). Same ``set_state`` / ``render`` /
+    ``close`` as the backend it wraps; every array ``render`` returns is the (height, width) window whose
+    first row and column are ``top`` and ``left`` of the canvas."""
+
+    def __init__(self, inner, top: int, left: int, height: int, width: int):
+        self.inner = inner
+        self._rows, self._cols = slice(top, top + height), slice(left, left + width)
+
+    def set_state(self, state: WorldState) -> None:
+        self.inner.set_state(state)
+
+    def render(self, side: str = "left", colour: bool = True, depth: bool = True) -> dict:
+        return {k: np.ascontiguousarray(v[self._rows, self._cols])
+                for k, v in self.inner.render(side, colour=colour, depth=depth).items()}
+
+    def close(self) -> None:
+        self.inner.close()
+
+
 class Simulator:
     """Renders frames of a scene along a scripted camera motion, with exact ground truth.
 
@@ -144,6 +165,9 @@ class Simulator:
         self.scene = separate_movers(follow_camera(base, motion), motion, duration, np.random.default_rng([tseed, 2]))
         rcfg = config.render
         self.camera = camera_for(self.scene.camera, rcfg.width, rcfg.height, rcfg.focal_px)
+        canvas = window = None  # a principal point off the centre: a larger centred render, cut
+        if rcfg.principal_point_px is not None:
+            self.camera, canvas, window = off_centre(self.camera, rcfg.principal_point_px)
         check_flow_size(self.camera.width, self.camera.height)  # a render the odometry could not read
         b = self.scene.stereo_baseline_m if rcfg.stereo_baseline_m is None else rcfg.stereo_baseline_m
         self.baseline_m = float(b) if b else None
@@ -156,7 +180,9 @@ class Simulator:
             render=dataclasses.replace(rcfg, width=self.camera.width, height=self.camera.height,
                                        stereo_baseline_m=float(self.baseline_m or 0.0)))
         """The config with every default filled in (image size, baseline, rate, trajectory kind and seed)."""
-        self.backend = make_backend(rcfg.backend, self.scene, self.camera, self.baseline_m)
+        self.backend = make_backend(rcfg.backend, self.scene, canvas or self.camera, self.baseline_m)
+        if window is not None:
+            self.backend = WindowBackend(self.backend, *window, self.camera.height, self.camera.width)
         self._flow = FlowComputer(self.camera)
         self._distort_maps: tuple[np.ndarray, np.ndarray] | None = None  # made on the first distorted frame
         self._bands = rolling_shutter_bands(self.camera.height, rcfg.rolling_shutter_ms * 1e-3,
