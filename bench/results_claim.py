@@ -42,10 +42,12 @@ class ClaimConfig:
     """Folder under ``out/results`` of :mod:`bench.results_repro_rgbd`'s report (the room models)."""
     street_cases: tuple[tuple[str, str], ...] = (
         ("lever_exact", "unseen town, exact flow"), ("lever_dis", "unseen town, DIS flow"),
-        ("kitti06_dis", "KITTI 06 (real)"), ("kitti07_dis", "KITTI 07 (real)"),
+        ("lever_pp_dis", "unseen town, KITTI's principal point, DIS flow"), ("kitti06_dis", "KITTI 06 (real)"),
+        ("kitti07_dis", "KITTI 07 (real)"),
         ("slam_laps_dis", "unseen loop street, SLAM, DIS flow"))
-    """(case of the street study, column title); the towns are rendered with the camera where KITTI's sits; the loop
-    street's figure is ``deepslam slam``'s ATE (the network's own pose, the shipped NN_loops)."""
+    """(case of the street study, column title); the towns are rendered with the camera where KITTI's sits (and once
+    more with KITTI's principal point, 3.5 px left of the image's centre at 414 px); the loop street's figure is
+    ``deepslam slam``'s ATE (the network's own pose, the shipped NN_loops)."""
     room_cases: tuple[tuple[str, str], ...] = (
         ("room_dis", "unseen room, drone, DIS flow"), ("handheld_dis", "unseen room, hand-held, DIS flow"),
         ("teddy_dis", "TUM teddy (real)"))

@@ -1135,6 +1135,24 @@ def test_results_lever_mirror_rule_reads_the_median_ratio_of_each_case():
     assert not rl.mirror_rule(report)["passes"]
     report["cases"].append("kitti06_dis")
     assert rl.mirror_rule(report)["medians"]["kitti06_dis"] is None and not rl.mirror_rule(report)["passes"]
+    report["cases"] = ["lever_dis", "kitti07_dis", "lever_pp_dis"]  # a case added after the rule: not read by it
+    report["models"]["a_mirrorframes_s2"]["lever_dis_mirrored"] = rec(0.9)
+    for name in ("a_mirrorframes_s0", "a_mirrorframes_s1", "a_mirrorframes_s2"):
+        report["models"][name].update(lever_pp_dis=rec(1.0), lever_pp_dis_mirrored=rec(3.0))
+    assert "lever_pp_dis" not in rl.mirror_rule(report)["medians"] and rl.mirror_rule(report)["passes"]
+
+
+def test_results_lever_reads_centred_where_the_principal_point_is_off_the_centre(tmp_path):
+    """bench.results_lever.principal_point_off_centre: a render moved by half a pixel or more is off the centre, a
+    centred one is not (the KITTI slices, whose camera is, are checked by the report itself)."""
+    from bench import results_lever as rl
+    from deepslam.cli import main
+
+    for name, pp, off in (("centred", None, False), ("moved", "47.5,21", True)):
+        args = ["render", "--scene", "street", "--frames", "2", "--width", "96", "--no-flow", "--quiet",
+                "--out", str(tmp_path / name)] + (["--principal-point", pp] if pp else [])
+        assert main(args) == 0
+        assert rl.principal_point_off_centre(tmp_path / name) is off
 
 
 @pytest.mark.parametrize("env", [{}, {"SYNTH_FLOW": "dis"}, {"SCENE": "room"}])
