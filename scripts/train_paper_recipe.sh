@@ -69,6 +69,11 @@
 # (`train --mirror-frames`; models named _mirrorframes before _cons): the towns' car keeps right, and a network
 # trained on their frames alone reads its distance from where their open road lies (bench.results_layout). The
 # street models named without _mirrorframes were trained with MIRROR_FRAMES=0.
+# PP_CROP=1 (SCENE=street with SYNTH_FLOW=dis) renders the training towns on a wider canvas at the 414 px camera's focal
+# length (428 x 129: street_lever_wide_train_sK) and trains the synthetic model on a 640 x 193 window of each frame as
+# read (`train --crop-window 640,193`) at a random place, so the principal point of its samples spreads over +-7 px of
+# 414 as real cameras place it, with the network told where it lies (`--coord-channels`): models named _ppcrop
+# before _cons (docs/experiments/2026-12-08_principal_point_offset.md). The supervised twin is not trained again.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-out/paper_recipe}
@@ -107,8 +112,13 @@ if [ "${DEPTH:-0}" = 1 ] && [ "$SCENE" != room ]; then
   # the rows that score depth-reading models are the RGB-D ones (bench.results_repro_rgbd), on exact flow
   echo "DEPTH=1 is for SCENE=room (the RGB-D rows)" >&2; exit 2
 fi
+RENDER_SFX=""
+if [ "${PP_CROP:-0}" = 1 ]; then
+  { [ "$SCENE" = street ] && [ "$SYNTH_FLOW" != exact ]; } || { echo "PP_CROP=1 is for SCENE=street with SYNTH_FLOW=dis" >&2; exit 2; }
+  RENDER="${RENDER/--width 414/--width 428 --height 129 --focal-px 238.98138297872342}"; RENDER_SFX=_wide
+fi
 mkdir -p "$OUT"
-RENDERS="$OUT/${SCENE}${TRAJ_SFX}_train"  # the training renders, without the seed
+RENDERS="$OUT/${SCENE}${TRAJ_SFX}${RENDER_SFX}_train"  # the training renders, without the seed
 for s in 1 2; do
   [ -f "${RENDERS}_s$s/poses.txt" ] || $DS render $RENDER --seed $s --out "${RENDERS}_s$s" --quiet
 done
@@ -134,6 +144,7 @@ if [ "${MIRROR_FRAMES:-0}" = 1 ]; then
   # (KITTI 07's drift 18.2 -> 4.9 %: docs/experiments/2026-12-07_lever_arm_training.md, sections 9 and 11)
   FRAMES_SFX=_mirrorframes; SYNTH_ONLY="--mirror-frames"
 fi
+if [ "${PP_CROP:-0}" = 1 ]; then FRAMES_SFX="${FRAMES_SFX}_ppcrop"; SYNTH_ONLY="$SYNTH_ONLY --crop-window 640,193 --coord-channels"; fi
 DEPTH_SFX=""  # the models' name suffix of DEPTH=1
 if [ "${DEPTH:-0}" = 1 ]; then DEPTH_SFX=_depth; INPUT="$INPUT --depth-channel"; fi
 SCENE_SFX=""; [ "$SCENE" = room ] && SCENE_SFX=_room
@@ -168,6 +179,7 @@ for seed in $SEEDS; do
         $MOTION --synthetic-flow "$SYNTH_FLOW" $SYNTH_ONLY \
         --dis-preset medium --frame-scales 1.5459 --sample-pool "${POOL:-100000}" --patience "${POOL_PATIENCE:-2}" \
         --data-threads 2
+    [ "${PP_CROP:-0}" = 1 ] && continue  # the supervised twin reads the renders' own frames: the recipe's without the crop
     # and supervised on the same renders' pairs with the same DIS flow (frames read at 640 px as `vo` reads them:
     # `train --read-width`), the comparison at equal flow
     train "$OUT/${PFX}supervised_${SYNTH_FLOW}${DEPTH_SFX}_cons_s$seed" --mode supervised --seed $seed \

@@ -1166,3 +1166,22 @@ def test_recipe_script_skip_synthetic_trains_the_supervised_models_only(tmp_path
     assert p.returncode == 0, p.stderr
     trains = [line for line in p.stdout.splitlines() if line.startswith("train ")]
     assert trains and all("--mode supervised" in line for line in trains)
+
+
+def test_recipe_script_pp_crop_renders_wide_towns_and_trains_the_cropped_model_only(tmp_path):
+    """scripts/train_paper_recipe.sh with PP_CROP=1 (``echo`` standing in for deepslam): the towns rendered 428 x 129 at
+    the 414 px camera's focal length, one synthetic model cut to 640 x 193 windows with coordinate channels, named
+    _ppcrop, and no supervised twin; refused on exact flow."""
+    script = Path(__file__).resolve().parents[1] / "scripts" / "train_paper_recipe.sh"
+    env = {**os.environ, "PP_CROP": "1", "SYNTH_FLOW": "dis", "DS": "echo"}
+    p = subprocess.run(["bash", str(script), str(tmp_path / "r"), "1000", "0"], capture_output=True, text=True, env=env)
+    assert p.returncode == 0, p.stderr
+    renders = [line for line in p.stdout.splitlines() if line.startswith("render ")]
+    assert len(renders) == 2 and all("--width 428 --height 129 --focal-px 238.98138297872342" in r for r in renders)
+    assert all("lever_wide_train_s" in r for r in renders)
+    trains = [line for line in p.stdout.splitlines() if line.startswith("train ")]
+    assert len(trains) == 1 and "--crop-window 640,193 --coord-channels" in trains[0]
+    assert "_mirrorframes_ppcrop_cons_s0" in trains[0] and "--mode synthetic" in trains[0]
+    p = subprocess.run(["bash", str(script), str(tmp_path / "x"), "1000", "0"], capture_output=True, text=True,
+                       env={**env, "SYNTH_FLOW": "exact"})
+    assert p.returncode == 2 and "PP_CROP=1 is for SCENE=street with SYNTH_FLOW=dis" in p.stderr

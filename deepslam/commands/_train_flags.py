@@ -28,6 +28,15 @@ def _floats(text: str) -> tuple[float, ...]:
         raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
 
 
+def _window(size: tuple[int, ...] | None) -> tuple[int, int] | None:
+    """``--crop-window W,H``: (width, height), or None when not given."""
+    if size is None:
+        return None
+    if len(size) != 2:
+        raise InputError(None, f"--crop-window must be two integers W,H, got {','.join(map(str, size))}")
+    return size[0], size[1]
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", choices=("synthetic", "supervised"), required=True)
     p.add_argument("--out", required=True, help="output folder")
@@ -84,6 +93,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="with --synthetic-flow NAME: use each frame scaled by these factors (e.g. 1,0.65; above 1 "
                         "upsampled as `vo --read-width` reads a narrow frame: 1.546 = 414 -> 640 px), as the "
                         "estimator's errors depend on the resolution")
+    g.add_argument("--crop-window", type=_ints, default=None, metavar="W,H",
+                   help="with --synthetic-flow NAME: cut each sample's frame and second view to a W x H window (pixels "
+                        "of the frame as the estimator reads it, after --frame-scales) at a random place, its principal "
+                        "point moved with it: frames rendered wider than the test image spread the principal point as "
+                        "real cameras place it (with --coord-channels the network is told where)")
     g.add_argument("--mirror-frames", action="store_true",
                    help="synthetic mode: also train on every single frame flipped left-right (its camera mirrored): "
                         "the near side of the street on the other hand, so the network does not take a scene's "
@@ -265,7 +279,7 @@ def data_sources(args: argparse.Namespace, net, progress: bool, device) -> tuple
             holdout=args.holdout, holdout_samples=args.holdout_samples, batch_size=args.batch,
             synth_factor=args.synth_factor, synthetic_flow=args.synthetic_flow,
             flow_options=_dis_flags.given_options(args.synthetic_flow, args), frame_scales=tuple(args.frame_scales),
-            appearance_noise=args.appearance_noise, data_threads=args.data_threads, sample_pool=args.sample_pool,
+            crop_window=_window(args.crop_window), appearance_noise=args.appearance_noise, data_threads=args.data_threads, sample_pool=args.sample_pool,
             missing_depth=args.missing_depth, speed_range=args.speed_range, rate_hz=args.rate_hz,
             camera_tilt_deg=args.camera_tilt_deg, scene_scale=args.scene_scale, mirror_frames=args.mirror_frames,
             device="cpu" if args.synth_device == "cpu" else str(device))

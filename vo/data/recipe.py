@@ -73,6 +73,9 @@ class SyntheticData:
     """Each frame also at these scales (estimated flow only)."""
     appearance_noise: float = 0.0
     """Grey levels of noise on the rendered second view (estimated flow only)."""
+    crop_window: tuple[int, int] | None = None
+    """(width, height) px of a window each sample's views are cut to at a random place, its principal point moved
+    with it (estimated flow only; :class:`vo.data.synthetic.EstimatedFlowSource`); None: the whole frame."""
     data_threads: int = 2
     """Threads estimating the flow of the samples."""
     sample_pool: int = 0
@@ -132,7 +135,9 @@ def synthetic_sources(spec: SyntheticData, net: NetConfig, seed: int, progress: 
         def source(fr, n, s):
             return EstimatedFlowSource(fr, sampler, spec.synthetic_flow, w, h, n, s, spec.data_threads, opts,
                                        spec.appearance_noise, tilt=tilt, inv_depth=net.depth_channel,
-                                       scene_scale=scene_scale, unknown=net.unknown_flow)
+                                       scene_scale=scene_scale, unknown=net.unknown_flow, crop_window=spec.crop_window)
+    if spec.crop_window is not None and spec.synthetic_flow == "exact":
+        raise InputError(None, "--crop-window cuts the views an estimator reads: it needs --synthetic-flow NAME")
     if spec.mirror_frames:  # after the split: a frame and its mirror stay on the same side
         train_frames, hold_frames = with_mirrored(train_frames), with_mirrored(hold_frames)
     hold_src = source(hold_frames, n_hold, seed + 1).materialize(n_hold, seed + 1, progress)
@@ -155,5 +160,6 @@ def synthetic_sources(spec: SyntheticData, net: NetConfig, seed: int, progress: 
     if estimator_name is not None:
         meta["flow"] = {"estimator": spec.synthetic_flow, "options": opts}  # what vo/slam set up to match
         meta["data"].update(synth_factor=None, missing_depth=None, frame_scales=list(spec.frame_scales),
-                            appearance_noise=spec.appearance_noise, synthetic_flow=estimator_name)
+                            appearance_noise=spec.appearance_noise, synthetic_flow=estimator_name,
+                            **({"crop_window": list(spec.crop_window)} if spec.crop_window is not None else {}))
     return train_src, hold_src, meta

@@ -18,6 +18,7 @@ import torch
 from tqdm import tqdm
 
 from deepslam.core import se3
+from deepslam.core.camera import PinholeCamera
 from deepslam.core.errors import InputError
 from deepslam.flow import estimators as flow_estimators, registry as flow_registry
 from deepslam.gen.flow import pool_flow, synthesize_flow
@@ -149,6 +150,18 @@ class SyntheticSource(_OnTheFlySource):
         return batch
 
 
+def crop_views(images, camera: PinholeCamera, window: tuple[int, int], place: tuple[float, float]):
+    """``images`` (arrays (H, W, ...) of one camera, e.g. a frame, its second view and its depth) cut to a window of
+    ``window`` = (width, height) px, with the camera of that window: ``(cut images, camera)``. ``place`` = (x, y) in
+    [0, 1) picks the window's first column and row uniformly among the ``W - width + 1`` and ``H - height + 1``
+    possible; the camera keeps its focal length and its principal point moves by the window's offset."""
+    w, h = window
+    left = min(int(place[0] * (camera.width - w + 1)), camera.width - w)
+    top = min(int(place[1] * (camera.height - h + 1)), camera.height - h)
+    cut = tuple(None if a is None else np.ascontiguousarray(a[top:top + h, left:left + w]) for a in images)
+    return cut, PinholeCamera(w, h, camera.fx, camera.fy, camera.cx - left, camera.cy - top)
+
+
 class EstimatedFlowSource(_OnTheFlySource):
     """The paper's synthetic samples, but with the flow a real estimator gives: for a random frame and
     a motion from the model, the second view is rendered from that single frame
@@ -177,13 +190,28 @@ class EstimatedFlowSource(_OnTheFlySource):
         scene_scale: a :class:`SceneScale` applied to each sample's depth (None: the depth as it is).
         unknown: how the estimator's unknown flow (NaN) is resized to the network input
             (:data:`flow.estimators.UNKNOWN_FLOW`: ``nan`` for a network with a validity channel).
+        crop_window: (width, height) px: each sample's frame and second view are cut to a window of that
+            size, placed uniformly at random in the frame (after any tilt, before the estimator), with its
+            camera's principal point moved accordingly, so that the samples' principal points spread over
+            the frame's margin as real cameras' do (KITTI's lies 0.87 % of the width left of its image
+            centre). Frames rendered wider than the test camera's image at its focal length keep the test
+            field of view. A network with ``coord_channels`` is told where each sample's principal point
+            lies; one without can only average over them. None: the whole frame.
     """
 
     def __init__(self, frames: ImageFrames, sample_motion, estimator: str, width: int, height: int,
                  samples_per_epoch: int, seed: int = 0, threads: int = 2, estimator_options: dict | None = None,
                  appearance_noise: float = 0.0, tilt: CameraTilt | None = None, inv_depth: bool = False,
-                 scene_scale: SceneScale | None = None, unknown: str = "zero"):
+                 scene_scale: SceneScale | None = None, unknown: str = "zero",
+                 crop_window: tuple[int, int] | None = None):
         self.unknown = flow_estimators.check_unknown(unknown)
+        self.crop_window = None if crop_window is None else (int(crop_window[0]), int(crop_window[1]))
+        if self.crop_window is not None:
+            small = [c for c in frames.cameras if c.width < self.crop_window[0] or c.height < self.crop_window[1]]
+            if min(self.crop_window) < 8 or small:
+                raise InputError(None, f"crop window {self.crop_window[0]}x{self.crop_window[1]} must be at least 8x8 px "
+                                       f"and fit every frame (the smallest is {small[0].width}x{small[0].height})"
+                                       if small else f"crop window must be at least 8x8 px, got {self.crop_window}")
         self.inv_depth = bool(inv_depth)
         self.scene_scale = scene_scale
         self.frames = frames
@@ -205,7 +233,7 @@ class EstimatedFlowSource(_OnTheFlySource):
         return self.samples_per_epoch
 
     def _one(self, k: int, motion: np.ndarray, noise_seed: int, rot: np.ndarray | None,
-             scale: float = 1.0) -> tuple[np.ndarray, ...]:
+             scale: float = 1.0, place: tuple[float, float] = (0.5, 0.5)) -> tuple[np.ndarray, ...]:
         est = getattr(self._local, "est", None)
         if est is None:
             est = self._local.est = flow_registry.make(self.estimator, **self.estimator_options)
@@ -220,6 +248,8 @@ class EstimatedFlowSource(_OnTheFlySource):
         if self.appearance_noise > 0:
             noise = np.random.default_rng(noise_seed).normal(0.0, self.appearance_noise, grey1.shape)
             grey1 = np.clip(np.rint(grey1 + noise), 0, 255).astype(np.uint8)
+        if self.crop_window is not None:
+            (grey0, grey1, seen0), cam = crop_views((grey0, grey1, seen0), cam, self.crop_window, place)
         flow, intr = flow_estimators.to_network_input(est.estimate(grey0, grey1), cam, self.width, self.height,
                                                      self.unknown)
         return flow, intr, (inverse_depth_input(seen0, self.width, self.height) if self.inv_depth else None)
@@ -235,7 +265,9 @@ class EstimatedFlowSource(_OnTheFlySource):
             motion = tilted(np.stack(rots), motion)
             vec6 = se3.to_euler6(motion)
         scales = self.scene_scale.sample(n, rng) if self.scene_scale is not None else np.ones(n)
-        args = ([int(k) for k in idx], list(motion), [int(z) for z in seeds], rots, [float(sc) for sc in scales])
+        places = rng.random((n, 2)) if self.crop_window is not None else np.full((n, 2), 0.5)
+        args = ([int(k) for k in idx], list(motion), [int(z) for z in seeds], rots, [float(sc) for sc in scales],
+                [tuple(pl) for pl in places])
         if self.threads == 1:
             out = list(map(self._one, *args))
         else:

@@ -767,3 +767,52 @@ def test_supervised_pairs_on_tum_read_the_frames_the_ground_truth_covers(shared_
     with pytest.raises(InputError):
         supervised_samples(seq, np.array([[0, 1]]), dis, 32, 24, progress=False)  # frame 0 has no pose
 
+
+
+def test_crop_views_cuts_a_window_and_moves_the_principal_point():
+    """vo.data.synthetic.crop_views: the window's pixel (u, v) is the frame's (u + left, v + top), seen along the same
+    ray by the window's camera; the places 0 and ~1 give the two extreme windows."""
+    from deepslam.vo.data.synthetic import crop_views
+
+    cam = PinholeCamera(20, 10, 15.0, 15.0, 9.5, 4.5)
+    img = np.arange(200, dtype=np.float32).reshape(10, 20)
+    for place, (top, left) in (((0.0, 0.0), (0, 0)), ((0.9999, 0.9999), (2, 6)), ((0.5, 0.5), (1, 3))):
+        (cut, none), wcam = crop_views((img, None), cam, (14, 8), place)
+        assert none is None and cut.shape == (8, 14) and cut.flags["C_CONTIGUOUS"]
+        np.testing.assert_array_equal(cut, img[top:top + 8, left:left + 14])
+        assert (wcam.width, wcam.height, wcam.fx, wcam.cx, wcam.cy) == (14, 8, 15.0, 9.5 - left, 4.5 - top)
+        uv = np.array([[0.0, 0.0], [13.0, 7.0]])
+        np.testing.assert_allclose(wcam.unproject(uv, np.ones(2)), cam.unproject(uv + [left, top], np.ones(2)))
+
+
+def test_estimated_flow_source_crop_window_spreads_the_principal_point(plane_sequence, motion_json, tmp_path):
+    """EstimatedFlowSource(crop_window=...): every sample's intrinsics (at the network's size) carry its window's
+    principal point, spread over the frame's margin; batches stay a function of (seed, epoch, batch); a window larger
+    than a frame, or one given to exact flow, is one clear error. The train CLI records the window."""
+    from deepslam.cli import main
+
+    seq = open_sequence(plane_sequence)
+    frames = load_image_frames([seq], frame_step=3, progress=False)  # 256 x 80 frames
+
+    def motion(n, rng):
+        return np.tile([0.0, 0.01, 0.0, 0.05, 0.0, -0.5], (n, 1)) + rng.normal(0, 0.01, (n, 6))
+
+    src = EstimatedFlowSource(frames, motion, "dis", 80, 24, 16, seed=3, threads=2, crop_window=(224, 72))
+    b1, b2 = next(iter(src.batches(0, 16))), next(iter(src.batches(0, 16)))
+    assert torch.equal(b1["flow"], b2["flow"]) and torch.equal(b1["intrinsics"], b2["intrinsics"])
+    k = b1["intrinsics"].numpy().astype(np.float64)  # fx, fy, cx, cy at 80 x 24
+    cx_px = k[:, 2] * 224 / 80 + 0.5 * (224 / 80 - 1)  # back to the window's pixels
+    offsets = seq.camera.cx - cx_px  # the window's first column in the frame
+    assert offsets.min() >= -1e-4 and offsets.max() <= 32 + 1e-4 and offsets.std() > 5
+    np.testing.assert_allclose(offsets, np.round(offsets), atol=1e-4)
+    with pytest.raises(InputError, match="fit every frame"):
+        EstimatedFlowSource(frames, motion, "dis", 80, 24, 16, crop_window=(300, 72))
+    out = tmp_path / "crop"
+    rc = main(["train", "--mode", "synthetic", "--synthetic-flow", "dis", "--dis-preset", "fast", "--crop-window", "224,72",
+               "--coord-channels", "--source", str(plane_sequence), "--motion", str(motion_json), "--net", "tiny",
+               "--batch", "16", "--samples-per-epoch", "32", "--max-epochs", "1", "--nll-epochs", "1", "--bf16", "off",
+               "--threads", "1", "--quiet", "--out", str(out)])
+    assert rc == 0 and json.loads((out / "config.json").read_text())["data"]["data"]["crop_window"] == [224, 72]
+    rc = main(["train", "--mode", "synthetic", "--crop-window", "224,72", "--source", str(plane_sequence), "--motion",
+               str(motion_json), "--net", "tiny", "--quiet", "--out", str(tmp_path / "exact")])
+    assert rc == 2 and not (tmp_path / "exact").exists()
