@@ -115,28 +115,18 @@ def NEEDS(args: argparse.Namespace) -> tuple[str, ...]:
     return ("mujoco",) + (("pyrender",) if args.backend == "pyrender" else ())
 
 
-def _distortion(text: str | None):
+def _numbers(text: str | None, flag: str, names: str) -> tuple[float, ...] | None:
+    """``flag``'s comma-separated value as one float per name of ``names`` (e.g. ``CX,CY``); None when not given."""
     if text is None:
         return None
+    count = names.count(",") + 1
     try:
-        d = tuple(float(x) for x in text.split(","))
+        values = tuple(float(x) for x in text.split(","))
     except ValueError:
-        raise InputError(None, f"--distortion must be K1,K2,P1,P2, got {text!r}") from None
-    if len(d) != 4:
-        raise InputError(None, f"--distortion must be four numbers K1,K2,P1,P2, got {text!r}")
-    return d
-
-
-def _principal_point(text: str | None):
-    if text is None:
-        return None
-    try:
-        pp = tuple(float(x) for x in text.split(","))
-    except ValueError:
-        raise InputError(None, f"--principal-point must be CX,CY in pixels, got {text!r}") from None
-    if len(pp) != 2:
-        raise InputError(None, f"--principal-point must be two numbers CX,CY, got {text!r}")
-    return pp
+        raise InputError(None, f"{flag} must be {names}, got {text!r}") from None
+    if len(values) != count:
+        raise InputError(None, f"{flag} must be {({2: 'two', 4: 'four'}).get(count, count)} numbers {names}, got {text!r}")
+    return values
 
 
 def _kitti_sequence(args: argparse.Namespace) -> str:
@@ -174,11 +164,13 @@ def run(args: argparse.Namespace) -> int:
                          body_motion=args.body_motion),
         RenderConfig(backend=args.backend, width=args.width, height=args.height,
                      stereo_baseline_m=args.stereo_baseline, focal_px=args.focal_px,
-                     principal_point_px=_principal_point(args.principal_point), flow=not args.no_flow,
+                     principal_point_px=_numbers(args.principal_point, "--principal-point", "CX,CY"),
+                     flow=not args.no_flow,
                      depth_noise=None if args.depth_noise == "none" else args.depth_noise,
                      exposure_ms=args.exposure_ms, blur_samples=args.blur_samples, sensor_noise=args.sensor_noise,
                      exposure_jitter=args.exposure_jitter, white_balance_jitter=args.white_balance_jitter,
-                     distortion=_distortion(args.distortion), rolling_shutter_ms=args.rolling_shutter_ms,
+                     distortion=_numbers(args.distortion, "--distortion", "K1,K2,P1,P2"),
+                     rolling_shutter_ms=args.rolling_shutter_ms,
                      rolling_shutter_bands=args.rolling_shutter_bands, flow_formats=args.flow_format),
     ).validate()
     kitti_sequence = _kitti_sequence(args)
