@@ -54,13 +54,15 @@ class LeverConfig:
                                     "lever_synthetic_dis_axlescale_mirror_body_mirrorframes_cons_s0",
                                     "lever_synthetic_dis_axlescale_mirror_body_mirrorframes_cons_s1",
                                     "lever_synthetic_dis_axlescale_mirror_body_mirrorframes_cons_s2",
+                                    "lever_synthetic_dis_axlescale_mirror_body_mirrorframes_ppcrop_cons_s0",
                                     "supervised_cons_s0", "lever_supervised_cons_s0", "lever_supervised_cons_s1",
                                     "lever_supervised_cons_s2", "supervised_dis_cons_s0", "lever_supervised_dis_cons_s0",
                                     "lever_supervised_dis_cons_s1", "lever_supervised_dis_cons_s2")
     """Model folders under :attr:`models`, each trained on axle towns next to its ``lever_`` twin (the speed-freed
     models' twins scale the axle's motion: ``fit-motion --speed-scale-lever``; the ``_dis`` models trained on DIS flow,
     ``SYNTH_FLOW=dis``: the synthetic ones of views rendered from single frames, the supervised ones of the renders'
-    pairs; ``_mirrorframes``: every single frame also flipped left-right, ``MIRROR_FRAMES=1``); absent ones skipped."""
+    pairs; ``_mirrorframes``: every single frame also flipped left-right, ``MIRROR_FRAMES=1``; ``_ppcrop``: trained on
+    windows that move the principal point, with coordinate channels, ``PP_CROP=1``); absent ones skipped."""
     ensembles: tuple[tuple[str, tuple[str, ...]], ...] = (
         ("lever_synthetic_dis_axlescale_mirror_body_mirrorframes_cons_s0+s1",
          ("lever_synthetic_dis_axlescale_mirror_body_mirrorframes_cons_s0",
