@@ -34,7 +34,9 @@ What is exact:
   motions, the flags' barycentric deformation), so unprojecting a pixel with its depth, moving it
   with its surface and projecting lands where the flow says (to float32 rounding);
 - pixel convention: pixel centres at integers, principal point ((W-1)/2, (H-1)/2), fx = fy,
-  checked per backend against projected geometry (tests/sim/test_render_geometry.py).
+  checked per backend against projected geometry (tests/sim/test_sim_render_geometry.py); a principal
+  point elsewhere (``RenderConfig.principal_point_px``) is the window of a larger centred render
+  (tests/sim/test_sim_principal_point.py).
 
 Custom scenes and motions: ``Simulator(config, scene=my_scene, motion=my_motion)`` where
 ``my_scene`` is a :class:`scenes.spec.Scene` (see ``scenes.testing``) and ``my_motion`` anything

@@ -78,7 +78,7 @@ class RenderConfig:
     """Right camera at +baseline along the camera x axis, metres (None: the scene's default; 0: mono)."""
     focal_px: float | None = None
     """Focal length fx = fy in pixels (e.g. a Kinect's 537 at 640x480); None keeps the scene camera's
-    vertical field of view. The renderers take square pixels and a centred principal point."""
+    vertical field of view. The renderers take square pixels."""
     principal_point_px: tuple[float, float] | None = None
     """(cx, cy) of the images, pixels at the output size (pixel centres at integers); None: the image's
     centre ``((W - 1) / 2, (H - 1) / 2)``. A real camera's is rarely there (KITTI 04-12's lies 10.6 px
