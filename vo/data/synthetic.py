@@ -207,11 +207,10 @@ class EstimatedFlowSource(_OnTheFlySource):
         self.unknown = flow_estimators.check_unknown(unknown)
         self.crop_window = None if crop_window is None else (int(crop_window[0]), int(crop_window[1]))
         if self.crop_window is not None:
-            small = [c for c in frames.cameras if c.width < self.crop_window[0] or c.height < self.crop_window[1]]
-            if min(self.crop_window) < 8 or small:
-                raise InputError(None, f"crop window {self.crop_window[0]}x{self.crop_window[1]} must be at least 8x8 px "
-                                       f"and fit every frame (the smallest is {small[0].width}x{small[0].height})"
-                                       if small else f"crop window must be at least 8x8 px, got {self.crop_window}")
+            w, h = self.crop_window
+            if min(w, h) < 8 or any(c.width < w or c.height < h for c in frames.cameras):
+                sizes = ", ".join(sorted({f"{c.width}x{c.height}" for c in frames.cameras}))
+                raise InputError(None, f"crop window {w}x{h} must be at least 8x8 px and fit every frame ({sizes})")
         self.inv_depth = bool(inv_depth)
         self.scene_scale = scene_scale
         self.frames = frames
