@@ -259,7 +259,8 @@ def data_sources(args: argparse.Namespace, net, progress: bool, device) -> tuple
     if args.mode != "synthetic" or args.shards or args.toy:  # no single frames to act on
         for flag, what, given in (("--scene-scale", "scales single frames", scene_scale is not None),
                                   ("--camera-tilt-deg", "rotates single frames", tilt is not None),
-                                  ("--mirror-frames", "mirrors single frames", args.mirror_frames)):
+                                  ("--mirror-frames", "mirrors single frames", args.mirror_frames),
+                                  ("--crop-window", "cuts single frames", args.crop_window is not None)):
             if given:
                 raise InputError(None, f"{flag} {what}: it needs --mode synthetic with --source "
                                        "(not --toy, --shards or supervised pairs)")
@@ -279,7 +280,8 @@ def data_sources(args: argparse.Namespace, net, progress: bool, device) -> tuple
             holdout=args.holdout, holdout_samples=args.holdout_samples, batch_size=args.batch,
             synth_factor=args.synth_factor, synthetic_flow=args.synthetic_flow,
             flow_options=_dis_flags.given_options(args.synthetic_flow, args), frame_scales=tuple(args.frame_scales),
-            crop_window=_window(args.crop_window), appearance_noise=args.appearance_noise, data_threads=args.data_threads, sample_pool=args.sample_pool,
+            crop_window=_window(args.crop_window), appearance_noise=args.appearance_noise,
+            data_threads=args.data_threads, sample_pool=args.sample_pool,
             missing_depth=args.missing_depth, speed_range=args.speed_range, rate_hz=args.rate_hz,
             camera_tilt_deg=args.camera_tilt_deg, scene_scale=args.scene_scale, mirror_frames=args.mirror_frames,
             device="cpu" if args.synth_device == "cpu" else str(device))

@@ -106,6 +106,8 @@ def synthetic_sources(spec: SyntheticData, net: NetConfig, seed: int, progress: 
         raise InputError(None, "synthetic mode needs --source DIR... (or --toy N)")
     if not spec.motion:
         raise InputError(None, "synthetic mode needs --motion FILE (a gen.motion JSON; repeat for a mixture)")
+    if spec.crop_window is not None and spec.synthetic_flow == "exact":
+        raise InputError(None, "--crop-window cuts the views an estimator reads: it needs --synthetic-flow NAME")
     h, w = net.input_height, net.input_width
     tilt = CameraTilt.parse(spec.camera_tilt_deg) if spec.camera_tilt_deg else None
     scene_scale = SceneScale.parse(spec.scene_scale) if spec.scene_scale else None
@@ -136,8 +138,6 @@ def synthetic_sources(spec: SyntheticData, net: NetConfig, seed: int, progress: 
             return EstimatedFlowSource(fr, sampler, spec.synthetic_flow, w, h, n, s, spec.data_threads, opts,
                                        spec.appearance_noise, tilt=tilt, inv_depth=net.depth_channel,
                                        scene_scale=scene_scale, unknown=net.unknown_flow, crop_window=spec.crop_window)
-    if spec.crop_window is not None and spec.synthetic_flow == "exact":
-        raise InputError(None, "--crop-window cuts the views an estimator reads: it needs --synthetic-flow NAME")
     if spec.mirror_frames:  # after the split: a frame and its mirror stay on the same side
         train_frames, hold_frames = with_mirrored(train_frames), with_mirrored(hold_frames)
     hold_src = source(hold_frames, n_hold, seed + 1).materialize(n_hold, seed + 1, progress)

@@ -816,3 +816,5 @@ def test_estimated_flow_source_crop_window_spreads_the_principal_point(plane_seq
     rc = main(["train", "--mode", "synthetic", "--crop-window", "224,72", "--source", str(plane_sequence), "--motion",
                str(motion_json), "--net", "tiny", "--quiet", "--out", str(tmp_path / "exact")])
     assert rc == 2 and not (tmp_path / "exact").exists()
+    rc = main(["train", "--mode", "synthetic", "--toy", "50", "--crop-window", "224,72", "--out", str(tmp_path / "toy")])
+    assert rc == 2 and not (tmp_path / "toy").exists()
