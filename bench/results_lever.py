@@ -255,8 +255,7 @@ def run(cfg: LeverConfig, out: Path, data: Path) -> dict:
 def principal_point_off_centre(seq: Path) -> bool:
     """Whether the camera of sequence folder ``seq`` has its principal point more than a quarter pixel from the
     image's centre (KITTI's; a render with ``--principal-point``), so that ``vo --centre-principal-point`` moves it."""
-    cam = open_sequence(seq).camera
-    return max(abs(cam.cx - (cam.width - 1) / 2), abs(cam.cy - (cam.height - 1) / 2)) > 0.25
+    return max(abs(d) for d in open_sequence(seq).camera.principal_point_offset) > 0.25
 
 
 def _ensembles(cfg: LeverConfig, out: Path) -> list[tuple[str, Path]]:

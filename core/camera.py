@@ -139,6 +139,12 @@ class PinholeCamera:
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
 
     @property
+    def principal_point_offset(self) -> tuple[float, float]:
+        """(dx, dy) px of the principal point from the image's centre ``((W - 1) / 2, (H - 1) / 2)``: (0, 0) for a
+        centred camera (the simulator's default), about (-10.6, -1.4) for KITTI 04-12's."""
+        return self.cx - (self.width - 1) / 2.0, self.cy - (self.height - 1) / 2.0
+
+    @property
     def fov_y_deg(self) -> float:
         return float(np.rad2deg(2.0 * np.arctan(0.5 * self.height / self.fy)))
 

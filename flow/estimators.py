@@ -358,9 +358,8 @@ def centre_principal_point(flow: np.ndarray, camera: PinholeCamera) -> tuple[np.
         ``(flow, camera)``: float32 (H, W, 2) px, and the camera with ``cx = (W - 1) / 2``, ``cy = (H - 1) / 2``
         (the input itself, not a copy, when the principal point is already within 1e-3 px of the centre).
     """
-    cx0, cy0 = (camera.width - 1) / 2.0, (camera.height - 1) / 2.0
-    dx, dy = camera.cx - cx0, camera.cy - cy0
-    centred = dataclasses.replace(camera, cx=cx0, cy=cy0)
+    dx, dy = camera.principal_point_offset
+    centred = dataclasses.replace(camera, cx=(camera.width - 1) / 2.0, cy=(camera.height - 1) / 2.0)
     if abs(dx) < 1e-3 and abs(dy) < 1e-3:
         return flow, centred
     shift = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy]])

@@ -233,5 +233,5 @@ def _linearise_reversed_z(raw: np.ndarray, near: float, far: float) -> np.ndarra
 def _check_camera(camera: PinholeCamera) -> None:
     if abs(camera.fx - camera.fy) > 1e-9 * camera.fy:
         raise ValueError(f"renderers need square pixels (fx == fy), got fx={camera.fx}, fy={camera.fy}")
-    if abs(camera.cx - (camera.width - 1) / 2) > 1e-9 or abs(camera.cy - (camera.height - 1) / 2) > 1e-9:
+    if max(abs(d) for d in camera.principal_point_offset) > 1e-9:
         raise ValueError(f"renderers need the principal point at the image centre, got ({camera.cx}, {camera.cy})")

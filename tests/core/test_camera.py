@@ -83,3 +83,10 @@ def test_ray_depth_conversion():
     p = CAM.unproject(CAM.pixel_grid(), z)
     np.testing.assert_allclose(ray, np.linalg.norm(p, axis=-1), rtol=1e-12)
     np.testing.assert_allclose(CAM.z_from_ray_depth(ray), z, rtol=1e-12)
+
+
+def test_principal_point_offset_from_the_image_centre():
+    """(cx - (W - 1) / 2, cy - (H - 1) / 2): zero for a centred camera, KITTI 04-12's left of and above its centre."""
+    assert PinholeCamera.from_fov_y(414, 125, 50.0).principal_point_offset == (0.0, 0.0)
+    dx, dy = PinholeCamera(1226, 370, 707.0912, 707.0912, 601.8873, 183.1104).principal_point_offset
+    assert abs(dx + 10.6127) < 1e-9 and abs(dy + 1.3896) < 1e-9
